@@ -1,0 +1,197 @@
+"""Command-line interface: each command loads its inputs and calls one library function.
+
+Exit codes: 0 success, 1 the run ended unstable/failed/interrupted, 2 user error
+(bad case file, bad option, unwritable output).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any, Optional
+
+import typer
+
+app = typer.Typer(
+    help="Boundary-integral simulation of elastic capsules in simple shear flow.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_show_locals=False,
+)
+
+
+def _user_error(message: str) -> typer.Exit:
+    typer.echo(f"error: {message}", err=True)
+    return typer.Exit(code=2)
+
+
+def _load(case_path: Path, **overrides: Any):
+    # Imported here so that `capsim --help` does not pay for pydantic.
+    from capsim.config import ConfigError, apply_overrides, load_case
+
+    try:
+        case = load_case(case_path)
+        dotted = {key: value for key, value in overrides.items() if value is not None}
+        return apply_overrides(case, **dotted) if dotted else case
+    except ConfigError as exc:
+        raise _user_error(str(exc)) from None
+
+
+def _check_writable(path: Path) -> None:
+    """Refuse an output path we cannot write before spending time on a run."""
+    if path.is_dir():
+        raise _user_error(f"output path {path} is a directory")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise _user_error(f"cannot create output directory {path.parent}: {exc.strerror}") from None
+    if not os.access(path.parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise _user_error(f"output path {path} is not writable")
+
+
+class _Progress:
+    """One-line progress display on stderr, redrawn at most ~10 times a second."""
+
+    def __init__(self, stream=None, interval_s: float = 0.1) -> None:
+        # Looked up now, not at import, so that a swapped sys.stderr is honoured.
+        self.stream = stream if stream is not None else sys.stderr
+        self.interval_s = interval_s
+        self._last = -math.inf
+        self._drawn = False
+
+    def __call__(self, state: dict[str, Any]) -> None:
+        now = time.monotonic()
+        if now - self._last < self.interval_s:
+            return
+        self._last = now
+        t, t_end = state.get("t", math.nan), state.get("t_end", math.nan)
+        line = (
+            f"t = {t:9.4f} / {t_end:g}  dt = {state.get('dt', math.nan):.2e}"
+            f"  D_xy = {state.get('D_xy', math.nan):.5f}  step {state.get('step', 0)}"
+        )
+        self.stream.write("\r" + line + "\033[K")
+        self.stream.flush()
+        self._drawn = True
+
+    def finish(self) -> None:
+        if self._drawn:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def _fmt(value: Any, spec: str) -> str:
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return format(value, spec)
+    return "n/a" if value is None else str(value)
+
+
+def _summary_table(summary: dict[str, Any]) -> str:
+    theta = summary.get("theta")
+    rows = [
+        ("status", summary.get("status")),
+        ("reason", summary.get("status_reason") or None),
+        ("t", _fmt(summary.get("t"), "g")),
+        ("D_xy", _fmt(summary.get("D_xy"), ".6f")),
+        ("theta/pi", _fmt(theta / math.pi if isinstance(theta, (int, float)) else None, ".6f")),
+        ("steps", _fmt(summary.get("steps"), "d")),
+        ("wall time (s)", _fmt(summary.get("wall_time_s"), ".1f")),
+        ("volume drift", _fmt(summary.get("volume_drift"), ".3e")),
+        ("output", summary.get("path")),
+    ]
+    rows = [(key, value) for key, value in rows if value is not None]
+    width = max(len(key) for key, _ in rows)
+    return "\n".join(f"{key:<{width}}  {value}" for key, value in rows)
+
+
+@app.command()
+def run(
+    case_path: Path = typer.Argument(..., metavar="CASE.yaml", help="case file"),
+    output: Optional[Path] = typer.Option(None, "-o", "--output", help="output HDF5 path"),
+    t_end: Optional[float] = typer.Option(None, "--t-end", help="override time.t_end"),
+    level: Optional[int] = typer.Option(None, "--level", help="override mesh.level"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress line"),
+) -> None:
+    """Run one case and write its trajectory."""
+    case = _load(
+        case_path,
+        **{
+            "output.path": str(output) if output is not None else None,
+            "time.t_end": t_end,
+            "mesh.level": level,
+        },
+    )
+    _check_writable(Path(case.output.path))
+
+    from capsim.runner import run_case
+
+    progress = None if quiet else _Progress()
+    try:
+        summary = run_case(case, progress=progress)
+    except OSError as exc:
+        raise _user_error(f"cannot write {case.output.path}: {exc.strerror or exc}") from None
+    except KeyboardInterrupt:
+        typer.echo("\ninterrupted", err=True)
+        raise typer.Exit(code=1) from None
+    finally:
+        if progress is not None:
+            progress.finish()
+    typer.echo(_summary_table(summary))
+    raise typer.Exit(code=0 if summary.get("status") == "completed" else 1)
+
+
+@app.command()
+def bench(
+    level: int = typer.Option(..., "--level", help="mesh subdivision level"),
+    viscosity_ratio: float = typer.Option(1.0, "--viscosity-ratio", help="lambda"),
+    repeat: int = typer.Option(3, "--repeat", min=1, help="timed repetitions"),
+    as_json: bool = typer.Option(False, "--json", help="print JSON"),
+) -> None:
+    """Time one velocity evaluation on a sphere mesh."""
+    from capsim.benchmark import bench_velocity
+
+    result = bench_velocity(level=level, viscosity_ratio=viscosity_ratio, repeat=repeat)
+    if as_json:
+        typer.echo(json.dumps(result, indent=2, default=str))
+        return
+    width = max((len(key) for key in result), default=0)
+    for key, value in result.items():
+        if isinstance(value, float):
+            shown = f"{value:.6g}"
+        elif isinstance(value, (str, int)):
+            shown = str(value)
+        else:
+            shown = json.dumps(value, default=str)
+        typer.echo(f"{key:<{width}}  {shown}")
+
+
+@app.command()
+def validate(
+    case_path: Path = typer.Argument(..., metavar="CASE.yaml", help="case file"),
+) -> None:
+    """Check a case file and print it resolved (all defaults filled)."""
+    typer.echo(_load(case_path).to_yaml(), nl=False)
+
+
+def _version(value: bool) -> None:
+    if value:
+        from capsim import __version__
+
+        typer.echo(f"capsim {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main(
+    version: bool = typer.Option(
+        False, "--version", callback=_version, is_eager=True, help="print the version"
+    ),
+) -> None:
+    """Boundary-integral simulation of elastic capsules in simple shear flow."""
+
+
+if __name__ == "__main__":
+    app()

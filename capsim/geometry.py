@@ -1,0 +1,100 @@
+"""Geometry of 6-node quadratic triangles (seed 3.3): shape functions, quadrature
+points, normals, Jacobians, and the integral properties V, S, centroid, inertia.
+
+Everything here is vectorised numpy over elements; the hot loops over pairs of
+nodes and elements live in ``kernels.py``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from capsim.quadrature import triangle_rule
+
+
+def shape_functions(xi: np.ndarray, eta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Quadratic Lagrange basis φ_k and its derivatives at (ξ, η); each (m, 6).
+
+    Nodes: 0 (0,0), 1 (1,0), 2 (0,1), 3 (½,0), 4 (½,½), 5 (0,½).
+    """
+    xi = np.atleast_1d(np.asarray(xi, float))
+    eta = np.atleast_1d(np.asarray(eta, float))
+    z = 1.0 - xi - eta
+    phi = np.stack(
+        [z * (2 * z - 1), xi * (2 * xi - 1), eta * (2 * eta - 1), 4 * xi * z, 4 * xi * eta, 4 * eta * z],
+        axis=1,
+    )
+    dxi = np.stack(
+        [-(4 * z - 1), 4 * xi - 1, 0 * xi, 4 * (z - xi), 4 * eta, -4 * eta],
+        axis=1,
+    )
+    deta = np.stack(
+        [-(4 * z - 1), 0 * xi, 4 * eta - 1, -4 * xi, 4 * xi, 4 * (z - eta)],
+        axis=1,
+    )
+    return phi, dxi, deta
+
+
+@dataclass(frozen=True)
+class ElementGeometry:
+    """Quadrature-point data of every element.
+
+    points (N_e, m, 3), normals (N_e, m, 3) outward unit normals, weights (N_e, m)
+    = Gauss weight × surface Jacobian, so Σ weights = area.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    weights: np.ndarray
+
+    @property
+    def element_areas(self) -> np.ndarray:
+        return self.weights.sum(axis=1)
+
+
+def element_geometry(x: np.ndarray, elements: np.ndarray, n_points: int = 6) -> ElementGeometry:
+    """Positions, unit normals and area weights at the regular Gauss points."""
+    from capsim.kernels import element_quadrature
+
+    phi, dxi, deta, w = _rule_tables(n_points)
+    return ElementGeometry(*element_quadrature(np.ascontiguousarray(x), elements, phi, dxi, deta, w))
+
+
+@lru_cache(maxsize=None)
+def _rule_tables(n_points: int):
+    xi, eta, w = triangle_rule(n_points)
+    phi, dxi, deta = shape_functions(xi, eta)
+    return phi, dxi, deta, w
+
+
+def volume_area(geo: ElementGeometry) -> tuple[float, float]:
+    """V = ⅓ ∫ x·n dS and S = ∫ dS."""
+    volume = np.einsum("eqd,eqd,eq->", geo.points, geo.normals, geo.weights) / 3.0
+    return float(volume), float(geo.weights.sum())
+
+
+def centroid(geo: ElementGeometry, volume: float) -> np.ndarray:
+    """Volume centroid, ∫_V x dV = ½ ∫_S |x|² n dS."""
+    r2 = np.einsum("eqd,eqd->eq", geo.points, geo.points)
+    return 0.5 * np.einsum("eq,eqd,eq->d", r2, geo.normals, geo.weights) / volume
+
+
+def second_moment(geo: ElementGeometry, center: np.ndarray) -> np.ndarray:
+    """M = ∫_V y y dV about ``center``, from ⅕ ∫_S y y (y·n) dS (seed 3.9)."""
+    y = geo.points - center
+    yn = np.einsum("eqd,eqd->eq", y, geo.normals)
+    return np.einsum("eqi,eqj,eq->ij", y, y, yn * geo.weights) / 5.0
+
+
+def vertex_triangle_quality(x: np.ndarray, elements: np.ndarray) -> np.ndarray:
+    """Shape quality of each element's vertex triangle: 4√3·area / Σ edge²
+
+    (1 for an equilateral triangle, → 0 as it degenerates).
+    """
+    a, b, c = x[elements[:, 0]], x[elements[:, 1]], x[elements[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    s = ((b - a) ** 2).sum(1) + ((c - b) ** 2).sum(1) + ((a - c) ** 2).sum(1)
+    return 4.0 * np.sqrt(3.0) * area / s

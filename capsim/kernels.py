@@ -1,0 +1,614 @@
+"""Numba kernels: the hot loops, and nothing else.
+
+Every kernel takes arrays and scalars and returns (or fills) arrays: no config
+objects, no IO. ``parallel=True`` only on the outer loop over targets, each
+iteration owning its output row. Compiled once and cached on disk (cache=True).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+_JIT = dict(cache=True, fastmath=True, error_model="numpy", boundscheck=False)
+
+
+# ---------------------------------------------------------------- Stokeslet sums
+
+@njit(parallel=True, **_JIT)
+def stokeslet_sum(targets, sources, strengths):
+    """u(x0) = Σ_m G(x_m, x0)·g_m with G = I/r + r r/r³, r = x_m − x0 (seed 2.12a).
+
+    targets (Nt, 3), sources (M, 3), strengths (M, 3) → (Nt, 3). Coincident points
+    are skipped (the caller replaces those contributions by singular rules).
+    """
+    nt = targets.shape[0]
+    m = sources.shape[0]
+    sx = np.ascontiguousarray(sources[:, 0])
+    sy = np.ascontiguousarray(sources[:, 1])
+    sz = np.ascontiguousarray(sources[:, 2])
+    gx = np.ascontiguousarray(strengths[:, 0])
+    gy = np.ascontiguousarray(strengths[:, 1])
+    gz = np.ascontiguousarray(strengths[:, 2])
+    out = np.zeros((nt, 3))
+    for i in prange(nt):
+        x0, y0, z0 = targets[i, 0], targets[i, 1], targets[i, 2]
+        ux = 0.0
+        uy = 0.0
+        uz = 0.0
+        for j in range(m):
+            dx = sx[j] - x0
+            dy = sy[j] - y0
+            dz = sz[j] - z0
+            r2 = dx * dx + dy * dy + dz * dz
+            rinv = 1.0 / np.sqrt(r2) if r2 > 0.0 else 0.0
+            rinv3 = rinv * rinv * rinv
+            rg = (dx * gx[j] + dy * gy[j] + dz * gz[j]) * rinv3
+            ux += gx[j] * rinv + dx * rg
+            uy += gy[j] * rinv + dy * rg
+            uz += gz[j] * rinv + dz * rg
+        out[i, 0] = ux
+        out[i, 1] = uy
+        out[i, 2] = uz
+    return out
+
+
+@njit(inline="always")
+def _interp6(phi_row, vals, e, d):
+    s = 0.0
+    for k in range(6):
+        s += phi_row[k] * vals[e, k, d]
+    return s
+
+
+@njit(parallel=True, **_JIT)
+def single_layer_singular_correction(
+    x, elements, inc_offsets, inc_elem, inc_local,
+    density, reg_points, reg_weights, reg_phi,
+    sing_phi, sing_dxi, sing_deta, sing_w,
+):
+    """Replace the regular-rule contribution of the elements holding each node by
+    a Duffy-rule integral singular at that node (seed §3, "polar" treatment).
+
+    density (N_e, 6, 3): per-element nodal values of the density (equal values for
+    the element-constant traction of seed 3.7). reg_points (N_e, q, 3), reg_weights
+    (N_e, q): the regular rule; reg_phi (q, 6) its basis values. sing_* (6, m, 6)
+    and sing_w (6, m): the Duffy rule for a singularity at local node k.
+    Returns the correction (N_p, 3) to add to ``stokeslet_sum``.
+    """
+    n_nodes = x.shape[0]
+    nq = reg_points.shape[1]
+    ms = sing_w.shape[1]
+    ne = elements.shape[0]
+    xe = np.empty((ne, 6, 3))
+    for e in range(ne):
+        for a in range(6):
+            for d in range(3):
+                xe[e, a, d] = x[elements[e, a], d]
+    out = np.zeros((n_nodes, 3))
+    for p in prange(n_nodes):
+        x0 = x[p, 0]
+        y0 = x[p, 1]
+        z0 = x[p, 2]
+        ux = 0.0
+        uy = 0.0
+        uz = 0.0
+        for c in range(inc_offsets[p], inc_offsets[p + 1]):
+            e = inc_elem[c]
+            k = inc_local[c]
+            # remove the regular-rule contribution
+            for q in range(nq):
+                dx = reg_points[e, q, 0] - x0
+                dy = reg_points[e, q, 1] - y0
+                dz = reg_points[e, q, 2] - z0
+                r2 = dx * dx + dy * dy + dz * dz
+                rinv = 1.0 / np.sqrt(r2)
+                w = reg_weights[e, q]
+                fx = _interp6(reg_phi[q], density, e, 0) * w
+                fy = _interp6(reg_phi[q], density, e, 1) * w
+                fz = _interp6(reg_phi[q], density, e, 2) * w
+                rg = (dx * fx + dy * fy + dz * fz) * rinv * rinv * rinv
+                ux -= fx * rinv + dx * rg
+                uy -= fy * rinv + dy * rg
+                uz -= fz * rinv + dz * rg
+            # add the singular (Duffy) integral
+            for j in range(ms):
+                px = 0.0
+                py = 0.0
+                pz = 0.0
+                ax = 0.0
+                ay = 0.0
+                az = 0.0
+                bx = 0.0
+                by = 0.0
+                bz = 0.0
+                fx = 0.0
+                fy = 0.0
+                fz = 0.0
+                for a in range(6):
+                    ph = sing_phi[k, j, a]
+                    d1 = sing_dxi[k, j, a]
+                    d2 = sing_deta[k, j, a]
+                    xa = xe[e, a, 0]
+                    ya = xe[e, a, 1]
+                    za = xe[e, a, 2]
+                    px += ph * xa
+                    py += ph * ya
+                    pz += ph * za
+                    ax += d1 * xa
+                    ay += d1 * ya
+                    az += d1 * za
+                    bx += d2 * xa
+                    by += d2 * ya
+                    bz += d2 * za
+                    fx += ph * density[e, a, 0]
+                    fy += ph * density[e, a, 1]
+                    fz += ph * density[e, a, 2]
+                nx = ay * bz - az * by
+                ny = az * bx - ax * bz
+                nz = ax * by - ay * bx
+                w = sing_w[k, j] * np.sqrt(nx * nx + ny * ny + nz * nz)
+                dx = px - x0
+                dy = py - y0
+                dz = pz - z0
+                rinv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
+                fx *= w
+                fy *= w
+                fz *= w
+                rg = (dx * fx + dy * fy + dz * fz) * rinv * rinv * rinv
+                ux += fx * rinv + dx * rg
+                uy += fy * rinv + dy * rg
+                uz += fz * rinv + dz * rg
+        out[p, 0] = ux
+        out[p, 1] = uy
+        out[p, 2] = uz
+    return out
+
+
+# ---------------------------------------------------------------- membrane
+
+@njit(inline="always")
+def _cross(a0, a1, a2, b0, b1, b2):
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+@njit(**_JIT)
+def element_quadrature(x, elements, phi, dxi, deta, w):
+    """Points, outward unit normals and weight × Jacobian at each element's rule.
+
+    phi, dxi, deta (q, 6): basis values/derivatives at the q rule points; w (q,).
+    Returns points (N_e, q, 3), normals (N_e, q, 3), weights (N_e, q).
+    """
+    ne = elements.shape[0]
+    nq = w.shape[0]
+    pts = np.empty((ne, nq, 3))
+    nrm = np.empty((ne, nq, 3))
+    wts = np.empty((ne, nq))
+    for e in range(ne):
+        for q in range(nq):
+            px = 0.0
+            py = 0.0
+            pz = 0.0
+            ax = 0.0
+            ay = 0.0
+            az = 0.0
+            bx = 0.0
+            by = 0.0
+            bz = 0.0
+            for a in range(6):
+                node = elements[e, a]
+                xa = x[node, 0]
+                ya = x[node, 1]
+                za = x[node, 2]
+                px += phi[q, a] * xa
+                py += phi[q, a] * ya
+                pz += phi[q, a] * za
+                ax += dxi[q, a] * xa
+                ay += dxi[q, a] * ya
+                az += dxi[q, a] * za
+                bx += deta[q, a] * xa
+                by += deta[q, a] * ya
+                bz += deta[q, a] * za
+            nx, ny, nz = _cross(ax, ay, az, bx, by, bz)
+            jac = np.sqrt(nx * nx + ny * ny + nz * nz)
+            pts[e, q, 0] = px
+            pts[e, q, 1] = py
+            pts[e, q, 2] = pz
+            nrm[e, q, 0] = nx / jac
+            nrm[e, q, 1] = ny / jac
+            nrm[e, q, 2] = nz / jac
+            wts[e, q] = w[q] * jac
+    return pts, nrm, wts
+
+
+@njit(**_JIT)
+def vertex_deformation_gradient(x, X, elements, n_vertices, vdxi, vdeta):
+    """Surface deformation gradient A at the vertex nodes (seed 3.4).
+
+    Per element and vertex, A maps the reference tangents ∂X/∂ξ, ∂X/∂η to the
+    current ones and the reference normal to 0. The element values are averaged
+    at each vertex weighted by the element's angle there (seed §3). Tangents are
+    first projected on the nodal tangent planes (angle-weighted normals), so a
+    rest or rigidly rotated mesh gives A = rotation × projection exactly.
+
+    vdxi, vdeta (3, 6): basis derivatives at the three vertices.
+    Returns A (N_v, 3, 3), current normals n (N_v, 3), reference normals N (N_v, 3).
+    """
+    ne = elements.shape[0]
+    n_cur = np.zeros((n_vertices, 3))
+    n_ref = np.zeros((n_vertices, 3))
+    wsum = np.zeros(n_vertices)
+    tang = np.empty((ne, 3, 4, 3))  # current t1, t2, reference T1, T2
+    angle = np.empty((ne, 3))
+    for e in range(ne):
+        for k in range(3):
+            for c in range(4):
+                for d in range(3):
+                    tang[e, k, c, d] = 0.0
+            for a in range(6):
+                node = elements[e, a]
+                for d in range(3):
+                    tang[e, k, 0, d] += vdxi[k, a] * x[node, d]
+                    tang[e, k, 1, d] += vdeta[k, a] * x[node, d]
+                    tang[e, k, 2, d] += vdxi[k, a] * X[node, d]
+                    tang[e, k, 3, d] += vdeta[k, a] * X[node, d]
+            t10, t11, t12 = tang[e, k, 0, 0], tang[e, k, 0, 1], tang[e, k, 0, 2]
+            t20, t21, t22 = tang[e, k, 1, 0], tang[e, k, 1, 1], tang[e, k, 1, 2]
+            # edge directions leaving vertex k (for the angle weight)
+            if k == 0:
+                e10, e11, e12 = t10, t11, t12
+                e20, e21, e22 = t20, t21, t22
+            elif k == 1:
+                e10, e11, e12 = -t10, -t11, -t12
+                e20, e21, e22 = t20 - t10, t21 - t11, t22 - t12
+            else:
+                e10, e11, e12 = -t20, -t21, -t22
+                e20, e21, e22 = t10 - t20, t11 - t21, t12 - t22
+            c0, c1, c2 = _cross(e10, e11, e12, e20, e21, e22)
+            ang = np.arctan2(np.sqrt(c0 * c0 + c1 * c1 + c2 * c2), e10 * e20 + e11 * e21 + e12 * e22)
+            angle[e, k] = ang
+            nc0, nc1, nc2 = _cross(t10, t11, t12, t20, t21, t22)
+            nn = np.sqrt(nc0 * nc0 + nc1 * nc1 + nc2 * nc2)
+            nr0, nr1, nr2 = _cross(
+                tang[e, k, 2, 0], tang[e, k, 2, 1], tang[e, k, 2, 2],
+                tang[e, k, 3, 0], tang[e, k, 3, 1], tang[e, k, 3, 2],
+            )
+            nN = np.sqrt(nr0 * nr0 + nr1 * nr1 + nr2 * nr2)
+            v = elements[e, k]
+            n_cur[v, 0] += ang * nc0 / nn
+            n_cur[v, 1] += ang * nc1 / nn
+            n_cur[v, 2] += ang * nc2 / nn
+            n_ref[v, 0] += ang * nr0 / nN
+            n_ref[v, 1] += ang * nr1 / nN
+            n_ref[v, 2] += ang * nr2 / nN
+            wsum[v] += ang
+    for v in range(n_vertices):
+        a = np.sqrt(n_cur[v, 0] ** 2 + n_cur[v, 1] ** 2 + n_cur[v, 2] ** 2)
+        b = np.sqrt(n_ref[v, 0] ** 2 + n_ref[v, 1] ** 2 + n_ref[v, 2] ** 2)
+        for d in range(3):
+            n_cur[v, d] /= a
+            n_ref[v, d] /= b
+    A = np.zeros((n_vertices, 3, 3))
+    C = np.empty((3, 2))
+    R = np.empty((3, 3))
+    Rinv = np.empty((3, 3))
+    for e in range(ne):
+        for k in range(3):
+            v = elements[e, k]
+            # tangents projected on the nodal tangent planes
+            for col in range(2):
+                s = 0.0
+                S = 0.0
+                for d in range(3):
+                    s += tang[e, k, col, d] * n_cur[v, d]
+                    S += tang[e, k, 2 + col, d] * n_ref[v, d]
+                for d in range(3):
+                    C[d, col] = tang[e, k, col, d] - s * n_cur[v, d]
+                    R[d, col] = tang[e, k, 2 + col, d] - S * n_ref[v, d]
+            for d in range(3):
+                R[d, 2] = n_ref[v, d]
+            # explicit inverse of R = [T1 T2 N]: rows are (T2×N, N×T1, T1×T2)/det
+            r0 = _cross(R[0, 1], R[1, 1], R[2, 1], R[0, 2], R[1, 2], R[2, 2])
+            r1 = _cross(R[0, 2], R[1, 2], R[2, 2], R[0, 0], R[1, 0], R[2, 0])
+            det = R[0, 0] * r0[0] + R[1, 0] * r0[1] + R[2, 0] * r0[2]
+            for d in range(3):
+                Rinv[0, d] = r0[d] / det
+                Rinv[1, d] = r1[d] / det
+            # A_e = [t1 t2 0] R⁻¹ (third column of C is zero)
+            w = angle[e, k] / wsum[v]
+            for i in range(3):
+                for j in range(3):
+                    A[v, i, j] += w * (C[i, 0] * Rinv[0, j] + C[i, 1] * Rinv[1, j])
+    return A, n_cur, n_ref
+
+
+@njit(parallel=True, **_JIT)
+def element_tractions(x, elements, vertex_tension, s_gl, w_gl, areas):
+    """Element-averaged traction jump <Δf>_e = −(1/S_e) ∮ T·b dl (seed 3.6).
+
+    T is interpolated linearly along each curved edge from its two vertex values
+    (the seed found quadratic interpolation unstable); b = t × n is the outward
+    conormal, n the element normal at the edge point. Returns (N_e, 3).
+    """
+    ne = elements.shape[0]
+    out = np.zeros((ne, 3))
+    # edges as (vertex a, mid node, vertex b); parametric points ξ(s), η(s)
+    ea = (0, 1, 2)
+    em = (3, 4, 5)
+    eb = (1, 2, 0)
+    for e in prange(ne):
+        fx = 0.0
+        fy = 0.0
+        fz = 0.0
+        for edge in range(3):
+            la = ea[edge]
+            lm = em[edge]
+            lb = eb[edge]
+            va = elements[e, la]
+            vm = elements[e, lm]
+            vb = elements[e, lb]
+            for g in range(s_gl.shape[0]):
+                s = s_gl[g]
+                if edge == 0:
+                    xi = s
+                    eta = 0.0
+                elif edge == 1:
+                    xi = 1.0 - s
+                    eta = s
+                else:
+                    xi = 0.0
+                    eta = 1.0 - s
+                # edge tangent dx/ds (1-D quadratic Lagrange along the edge)
+                ca = 4.0 * s - 3.0
+                cm = 4.0 - 8.0 * s
+                cb = 4.0 * s - 1.0
+                tx = ca * x[va, 0] + cm * x[vm, 0] + cb * x[vb, 0]
+                ty = ca * x[va, 1] + cm * x[vm, 1] + cb * x[vb, 1]
+                tz = ca * x[va, 2] + cm * x[vm, 2] + cb * x[vb, 2]
+                # element normal at (ξ, η)
+                z = 1.0 - xi - eta
+                d1 = (-(4 * z - 1), 4 * xi - 1, 0.0, 4 * (z - xi), 4 * eta, -4 * eta)
+                d2 = (-(4 * z - 1), 0.0, 4 * eta - 1, -4 * xi, 4 * xi, 4 * (z - eta))
+                ax = 0.0
+                ay = 0.0
+                az = 0.0
+                bx = 0.0
+                by = 0.0
+                bz = 0.0
+                for a in range(6):
+                    node = elements[e, a]
+                    ax += d1[a] * x[node, 0]
+                    ay += d1[a] * x[node, 1]
+                    az += d1[a] * x[node, 2]
+                    bx += d2[a] * x[node, 0]
+                    by += d2[a] * x[node, 1]
+                    bz += d2[a] * x[node, 2]
+                nx, ny, nz = _cross(ax, ay, az, bx, by, bz)
+                nn = np.sqrt(nx * nx + ny * ny + nz * nz)
+                nx /= nn
+                ny /= nn
+                nz /= nn
+                # b dl = (dx/ds × n) ds
+                b0, b1, b2 = _cross(tx, ty, tz, nx, ny, nz)
+                w = w_gl[g]
+                for i in range(3):
+                    Ti0 = (1.0 - s) * vertex_tension[va, i, 0] + s * vertex_tension[vb, i, 0]
+                    Ti1 = (1.0 - s) * vertex_tension[va, i, 1] + s * vertex_tension[vb, i, 1]
+                    Ti2 = (1.0 - s) * vertex_tension[va, i, 2] + s * vertex_tension[vb, i, 2]
+                    val = w * (Ti0 * b0 + Ti1 * b1 + Ti2 * b2)
+                    if i == 0:
+                        fx += val
+                    elif i == 1:
+                        fy += val
+                    else:
+                        fz += val
+        out[e, 0] = -fx / areas[e]
+        out[e, 1] = -fy / areas[e]
+        out[e, 2] = -fz / areas[e]
+    return out
+
+
+# ---------------------------------------------------------------- Galerkin membrane forces
+
+@njit(parallel=True, **_JIT)
+def gauss_point_strain(x, X, elements, dxi, deta):
+    """Strain invariants and dual tangent vectors at the Gauss points.
+
+    With covariant tangents t_a = ∂x/∂ξ_a (current) and T_a (reference), metrics
+    g_ab = t_a·t_b and G_ab = T_a·T_b:  λ1²λ2² = det g / det G,
+    λ1² + λ2² = G^{ab} g_ab. Returns Λ1, Λ2 (N_e, q), the current dual basis
+    t^a = g^{ab} t_b and the "reference-dual" vectors G^{ab} t_b (N_e, q, 2, 3),
+    and the reference area element J0 (N_e, q).
+    """
+    ne = elements.shape[0]
+    nq = dxi.shape[0]
+    inv1 = np.empty((ne, nq))
+    inv2 = np.empty((ne, nq))
+    dual_cur = np.empty((ne, nq, 2, 3))
+    dual_ref = np.empty((ne, nq, 2, 3))
+    jac0 = np.empty((ne, nq))
+    for e in prange(ne):
+        for q in range(nq):
+            a0 = 0.0
+            a1 = 0.0
+            a2 = 0.0
+            b0 = 0.0
+            b1 = 0.0
+            b2 = 0.0
+            A0 = 0.0
+            A1 = 0.0
+            A2 = 0.0
+            B0 = 0.0
+            B1 = 0.0
+            B2 = 0.0
+            for k in range(6):
+                node = elements[e, k]
+                d1 = dxi[q, k]
+                d2 = deta[q, k]
+                a0 += d1 * x[node, 0]
+                a1 += d1 * x[node, 1]
+                a2 += d1 * x[node, 2]
+                b0 += d2 * x[node, 0]
+                b1 += d2 * x[node, 1]
+                b2 += d2 * x[node, 2]
+                A0 += d1 * X[node, 0]
+                A1 += d1 * X[node, 1]
+                A2 += d1 * X[node, 2]
+                B0 += d2 * X[node, 0]
+                B1 += d2 * X[node, 1]
+                B2 += d2 * X[node, 2]
+            g11 = a0 * a0 + a1 * a1 + a2 * a2
+            g12 = a0 * b0 + a1 * b1 + a2 * b2
+            g22 = b0 * b0 + b1 * b1 + b2 * b2
+            G11 = A0 * A0 + A1 * A1 + A2 * A2
+            G12 = A0 * B0 + A1 * B1 + A2 * B2
+            G22 = B0 * B0 + B1 * B1 + B2 * B2
+            detg = g11 * g22 - g12 * g12
+            detG = G11 * G22 - G12 * G12
+            # inverse metrics
+            gi11 = g22 / detg
+            gi12 = -g12 / detg
+            gi22 = g11 / detg
+            Gi11 = G22 / detG
+            Gi12 = -G12 / detG
+            Gi22 = G11 / detG
+            inv1[e, q] = 0.5 * np.log(detg / detG)
+            inv2[e, q] = 0.5 * (Gi11 * g11 + 2.0 * Gi12 * g12 + Gi22 * g22) - 1.0
+            dual_cur[e, q, 0, 0] = gi11 * a0 + gi12 * b0
+            dual_cur[e, q, 0, 1] = gi11 * a1 + gi12 * b1
+            dual_cur[e, q, 0, 2] = gi11 * a2 + gi12 * b2
+            dual_cur[e, q, 1, 0] = gi12 * a0 + gi22 * b0
+            dual_cur[e, q, 1, 1] = gi12 * a1 + gi22 * b1
+            dual_cur[e, q, 1, 2] = gi12 * a2 + gi22 * b2
+            dual_ref[e, q, 0, 0] = Gi11 * a0 + Gi12 * b0
+            dual_ref[e, q, 0, 1] = Gi11 * a1 + Gi12 * b1
+            dual_ref[e, q, 0, 2] = Gi11 * a2 + Gi12 * b2
+            dual_ref[e, q, 1, 0] = Gi12 * a0 + Gi22 * b0
+            dual_ref[e, q, 1, 1] = Gi12 * a1 + Gi22 * b1
+            dual_ref[e, q, 1, 2] = Gi12 * a2 + Gi22 * b2
+            jac0[e, q] = np.sqrt(detG)
+    return inv1, inv2, dual_cur, dual_ref, jac0
+
+
+@njit(**_JIT)
+def galerkin_energy_gradient(elements, n_nodes, dxi, deta, w, jac0, w1, w2, dual_cur, dual_ref):
+    """b_i = ∂E/∂x_i = ∫ φ_i Δf dA for E = Σ_e ∫ W(Λ1, Λ2) dA_0.
+
+    ∂Λ1/∂t_a = g^{ab} t_b and ∂Λ2/∂t_a = G^{ab} t_b, with t_a = Σ_i ∂φ_i/∂ξ_a x_i.
+    Returns (N_p, 3).
+    """
+    ne = elements.shape[0]
+    nq = w.shape[0]
+    out = np.zeros((n_nodes, 3))
+    for e in range(ne):
+        for q in range(nq):
+            s = w[q] * jac0[e, q]
+            c1 = s * w1[e, q]
+            c2 = s * w2[e, q]
+            v00 = c1 * dual_cur[e, q, 0, 0] + c2 * dual_ref[e, q, 0, 0]
+            v01 = c1 * dual_cur[e, q, 0, 1] + c2 * dual_ref[e, q, 0, 1]
+            v02 = c1 * dual_cur[e, q, 0, 2] + c2 * dual_ref[e, q, 0, 2]
+            v10 = c1 * dual_cur[e, q, 1, 0] + c2 * dual_ref[e, q, 1, 0]
+            v11 = c1 * dual_cur[e, q, 1, 1] + c2 * dual_ref[e, q, 1, 1]
+            v12 = c1 * dual_cur[e, q, 1, 2] + c2 * dual_ref[e, q, 1, 2]
+            for k in range(6):
+                node = elements[e, k]
+                d1 = dxi[q, k]
+                d2 = deta[q, k]
+                out[node, 0] += d1 * v00 + d2 * v10
+                out[node, 1] += d1 * v01 + d2 * v11
+                out[node, 2] += d1 * v02 + d2 * v12
+    return out
+
+
+@njit(**_JIT)
+def assemble_mass_matrix(elements, csr_slot, phi, weights, nnz):
+    """Values of the consistent mass matrix M_ij = ∫ φ_i φ_j dA in a fixed CSR
+    pattern; csr_slot (N_e, 6, 6) maps element pairs to CSR positions."""
+    data = np.zeros(nnz)
+    ne = elements.shape[0]
+    nq = phi.shape[0]
+    for e in range(ne):
+        for k in range(6):
+            for l in range(6):
+                s = 0.0
+                for q in range(nq):
+                    s += phi[q, k] * phi[q, l] * weights[e, q]
+                data[csr_slot[e, k, l]] += s
+    return data
+
+
+@njit(**_JIT)
+def _csr_matmul(indptr, indices, data, v, out):
+    n = out.shape[0]
+    m = out.shape[1]
+    for i in range(n):
+        for c in range(m):
+            out[i, c] = 0.0
+        for p in range(indptr[i], indptr[i + 1]):
+            a = data[p]
+            j = indices[p]
+            for c in range(m):
+                out[i, c] += a * v[j, c]
+
+
+@njit(**_JIT)
+def block_cg(indptr, indices, data, rhs, x0, tol, max_iter):
+    """Jacobi-preconditioned conjugate gradients for an SPD CSR matrix and
+    several right-hand sides (columns of rhs) at once; stops when every column's
+    residual is below tol·max‖rhs‖. Returns (x, iterations)."""
+    n = rhs.shape[0]
+    m = rhs.shape[1]
+    dinv = np.empty(n)
+    for i in range(n):
+        for p in range(indptr[i], indptr[i + 1]):
+            if indices[p] == i:
+                dinv[i] = 1.0 / data[p]
+    x = x0.copy()
+    Ap = np.empty((n, m))
+    _csr_matmul(indptr, indices, data, x, Ap)
+    r = rhs - Ap
+    z = np.empty((n, m))
+    for i in range(n):
+        for c in range(m):
+            z[i, c] = r[i, c] * dinv[i]
+    pvec = z.copy()
+    rz = np.zeros(m)
+    bmax = 0.0
+    for i in range(n):
+        for c in range(m):
+            rz[c] += r[i, c] * z[i, c]
+            bmax = max(bmax, abs(rhs[i, c]))
+    thresh = tol * (bmax + 1e-300)
+    it = 0
+    pAp = np.zeros(m)
+    alpha = np.zeros(m)
+    rz_new = np.zeros(m)
+    while it < max_iter:
+        rmax = 0.0
+        for i in range(n):
+            for c in range(m):
+                rmax = max(rmax, abs(r[i, c]))
+        if rmax <= thresh:
+            break
+        _csr_matmul(indptr, indices, data, pvec, Ap)
+        pAp[:] = 0.0
+        for i in range(n):
+            for c in range(m):
+                pAp[c] += pvec[i, c] * Ap[i, c]
+        for c in range(m):
+            alpha[c] = rz[c] / pAp[c] if pAp[c] != 0.0 else 0.0
+        rz_new[:] = 0.0
+        for i in range(n):
+            for c in range(m):
+                x[i, c] += alpha[c] * pvec[i, c]
+                r[i, c] -= alpha[c] * Ap[i, c]
+                z[i, c] = r[i, c] * dinv[i]
+                rz_new[c] += r[i, c] * z[i, c]
+        for c in range(m):
+            beta = rz_new[c] / rz[c] if rz[c] != 0.0 else 0.0
+            rz[c] = rz_new[c]
+            for i in range(n):
+                pvec[i, c] = z[i, c] + beta * pvec[i, c]
+        it += 1
+    return x, it

@@ -1,0 +1,146 @@
+"""Membrane constitutive laws and elastic tensions (seed §2, 2.5–2.10, 3.4–3.6).
+
+Tensions are in units of E_s. With principal stretches λ1, λ2 the invariants are
+Λ1 = ln(λ1 λ2) and Λ2 = (λ1² + λ2²)/2 − 1, and the Cauchy tension is (seed 2.7)
+
+    T = e^{−Λ1} [W_1 (I − n n) + W_2 B],   W_i = ∂W/∂Λ_i,   B = A·Aᵀ.
+
+Each law is a registry entry giving (W, W_1, W_2) as vectorised functions of
+(Λ1, Λ2) and its small-strain shear and area-dilation moduli G_s, K_s in units
+of E_s. Derived from the invariant forms:
+
+* thin shell (Barthès-Biesel & Rallison 1981, seed 2.8):
+  W = (1/3)(−Λ1 + Λ2 + Λ1²);  G_s = 1/3, K_s = 1.
+* neo-Hookean, W = (1/6)(λ1² + λ2² + 1/(λ1²λ2²) − 3) = (1/6)(2Λ2 + e^{−2Λ1} − 1)
+  (the seed's printed 2.9 has e^{−2Λ2} where e^{−2Λ1} is needed); G_s = 1/3, K_s = 1.
+* Mooney–Rivlin with ψ' (Li et al. 1988): (1−ψ') × neo-Hookean +
+  (ψ'/6)(2Λ2 e^{−2Λ1} + 2 e^{−2Λ1} + e^{2Λ1} − 3) [= (ψ'/6)(λ1²λ2² + 1/λ1² + 1/λ2² − 3)];
+  G_s = 1/3, K_s = 1 for every ψ'.
+* Skalak (seed 2.10 with B = 1/3 so that the shear modulus is E_s/3):
+  W = (1/12)[2Λ2(Λ2+1)·… ] see ``_skalak``; G_s = 1/3, K_s = (1 + 2C)/3.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+Array = np.ndarray
+
+
+@dataclass(frozen=True)
+class MembraneLaw:
+    name: str
+    energy: Callable[..., Array]
+    derivatives: Callable[..., tuple[Array, Array]]
+    shear_modulus: Callable[..., float]
+    area_modulus: Callable[..., float]
+    parameters: tuple[str, ...] = field(default_factory=tuple)
+
+
+def _thin_shell_w(l1, l2):
+    return (-l1 + l2 + l1 * l1) / 3.0
+
+
+def _thin_shell_dw(l1, l2):
+    return (2.0 * l1 - 1.0) / 3.0, np.full_like(l1, 1.0 / 3.0)
+
+
+def _mooney_rivlin_w(l1, l2, psi=0.0):
+    e = np.exp(-2.0 * l1)
+    nh = (2.0 * l2 + e - 1.0) / 6.0
+    extra = (2.0 * l2 * e + 2.0 * e + np.exp(2.0 * l1) - 3.0) / 6.0
+    return (1.0 - psi) * nh + psi * extra
+
+
+def _mooney_rivlin_dw(l1, l2, psi=0.0):
+    e = np.exp(-2.0 * l1)
+    w1 = (1.0 - psi) * (-e / 3.0) + psi * (-4.0 * l2 * e - 4.0 * e + 2.0 * np.exp(2.0 * l1)) / 6.0
+    w2 = (1.0 - psi) / 3.0 + psi * e / 3.0
+    return w1, w2
+
+
+def _skalak_w(l1, l2, skalak_c=10.0):
+    # seed (2.10) with B = 1/3 (small-strain shear modulus E_s/3, as for the
+    # other laws): W = (B/4)[2Λ2(Λ2+1) + 1 − e^{2Λ1}] + (C B/8)·… is written
+    # here in the common form of Skalak et al. (1973) with I1 = 2Λ2 + … :
+    # W = (B/4)(I1² + 2 I1 − 2 I2) + (C B/4) I2², I1 = λ1²+λ2²−2, I2 = λ1²λ2²−1.
+    b = 1.0 / 3.0
+    i1 = 2.0 * l2
+    i2 = np.exp(2.0 * l1) - 1.0
+    return 0.25 * b * (i1 * i1 + 2.0 * i1 - 2.0 * i2) + 0.25 * b * skalak_c * i2 * i2
+
+
+def _skalak_dw(l1, l2, skalak_c=10.0):
+    b = 1.0 / 3.0
+    i1 = 2.0 * l2
+    e2 = np.exp(2.0 * l1)
+    i2 = e2 - 1.0
+    # ∂I1/∂Λ2 = 2, ∂I2/∂Λ1 = 2 e^{2Λ1}
+    w2 = 0.25 * b * (2.0 * i1 + 2.0) * 2.0
+    w1 = (0.25 * b * (-2.0) + 0.5 * b * skalak_c * i2) * 2.0 * e2
+    return w1, w2
+
+
+LAWS: dict[str, MembraneLaw] = {
+    "thin_shell": MembraneLaw("thin_shell", _thin_shell_w, _thin_shell_dw, lambda: 1 / 3, lambda: 1.0),
+    "neo_hookean": MembraneLaw(
+        "neo_hookean",
+        lambda l1, l2: _mooney_rivlin_w(l1, l2, 0.0),
+        lambda l1, l2: _mooney_rivlin_dw(l1, l2, 0.0),
+        lambda: 1 / 3,
+        lambda: 1.0,
+    ),
+    "mooney_rivlin": MembraneLaw(
+        "mooney_rivlin", _mooney_rivlin_w, _mooney_rivlin_dw, lambda psi=0.0: 1 / 3, lambda psi=0.0: 1.0, ("psi",)
+    ),
+    "skalak": MembraneLaw(
+        "skalak", _skalak_w, _skalak_dw, lambda skalak_c=10.0: 1 / 3,
+        lambda skalak_c=10.0: (1.0 + 2.0 * skalak_c) / 3.0, ("skalak_c",),
+    ),
+}
+
+
+def get_law(name: str) -> MembraneLaw:
+    if name not in LAWS:
+        raise ValueError(f"unknown membrane law {name!r} (allowed: {sorted(LAWS)})")
+    return LAWS[name]
+
+
+@dataclass(frozen=True)
+class VertexStrain:
+    """Strain state at the vertex nodes."""
+
+    A: Array          # (N_v, 3, 3) surface deformation gradient
+    B: Array          # (N_v, 3, 3) left Cauchy–Green tensor A·Aᵀ
+    normals: Array    # (N_v, 3) current unit normals
+    inv1: Array       # Λ1 = ln(λ1 λ2)
+    inv2: Array       # Λ2 = (λ1² + λ2²)/2 − 1
+
+    @property
+    def principal_stretches(self) -> tuple[Array, Array]:
+        tr = 2.0 * (self.inv2 + 1.0)
+        det = np.exp(2.0 * self.inv1)
+        disc = np.sqrt(np.maximum(tr * tr - 4.0 * det, 0.0))
+        return np.sqrt(0.5 * (tr + disc)), np.sqrt(np.maximum(0.5 * (tr - disc), 0.0))
+
+
+def strain_from_gradient(A: Array, normals: Array) -> VertexStrain:
+    B = np.einsum("vik,vjk->vij", A, A)
+    tr = np.einsum("vii->v", B)
+    tr2 = np.einsum("vij,vji->v", B, B)
+    det2 = 0.5 * (tr * tr - tr2)  # λ1²λ2²: B has rank 2 by construction
+    inv1 = 0.5 * np.log(det2)
+    inv2 = 0.5 * tr - 1.0
+    return VertexStrain(A, B, normals, inv1, inv2)
+
+
+def tension_tensor(strain: VertexStrain, law: MembraneLaw, params: dict) -> Array:
+    """T = e^{−Λ1}[W_1 (I − nn) + W_2 B] at the vertex nodes (seed 2.7)."""
+    w1, w2 = law.derivatives(strain.inv1, strain.inv2, **params)
+    n = strain.normals
+    proj = np.eye(3)[None] - n[:, :, None] * n[:, None, :]
+    scale = np.exp(-strain.inv1)
+    return scale[:, None, None] * (w1[:, None, None] * proj + w2[:, None, None] * strain.B)

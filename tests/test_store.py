@@ -1,0 +1,148 @@
+import signal
+import subprocess
+import sys
+import textwrap
+
+import h5py
+import numpy as np
+import pytest
+
+from capsim.store import TrajectoryError, TrajectoryWriter, read_trajectory
+
+ELEMENTS = np.arange(8 * 6).reshape(8, 6) % 18
+REST = np.random.default_rng(0).normal(size=(18, 3))
+
+
+def _writer(path, **kwargs):
+    return TrajectoryWriter(
+        path, config_yaml="name: x\n", elements=ELEMENTS, rest_positions=REST, version="9.9", **kwargs
+    )
+
+
+def test_round_trip(tmp_path):
+    path = tmp_path / "sub" / "run.h5"
+    rng = np.random.default_rng(1)
+    rows = [{"t": 0.1 * i, "dt": 0.1, "D_xy": rng.random(), "custom": float(i)} for i in range(53)]
+    snaps = [(0.5 * i, rng.normal(size=REST.shape)) for i in range(3)]
+    summary = {"D_xy": 0.61, "steps": 53, "note": "steady", "history": np.arange(4.0), "ok": True}
+    with _writer(path, attrs={"case_name": "x"}) as w:
+        for i, row in enumerate(rows):
+            w.append_step(row)
+            if i % 20 == 0:
+                w.append_snapshot(*snaps[i // 20])
+        w.write_group("summary", summary)
+        w.set_attrs(wall_time_s=1.5)
+        w.close("completed")
+
+    d = read_trajectory(path)
+    assert d["attrs"]["status"] == "completed"
+    assert d["attrs"]["status_reason"] == ""
+    assert d["attrs"]["config_yaml"] == "name: x\n"
+    assert d["attrs"]["capsim_version"] == "9.9"
+    assert d["attrs"]["case_name"] == "x"
+    assert d["attrs"]["wall_time_s"] == 1.5
+    assert "created" in d["attrs"] and "finished" in d["attrs"]
+    np.testing.assert_array_equal(d["elements"], ELEMENTS)
+    np.testing.assert_array_equal(d["rest_positions"], REST)
+    assert set(d["timeseries"]) == {"t", "dt", "D_xy", "custom"}
+    for key in rows[0]:
+        np.testing.assert_array_equal(d["timeseries"][key], [row[key] for row in rows])
+    np.testing.assert_array_equal(d["snapshot_t"], [t for t, _ in snaps])
+    np.testing.assert_array_equal(d["positions"], np.stack([p for _, p in snaps]))
+    assert d["summary"]["note"] == "steady"
+    assert d["summary"]["steps"] == 53 and d["summary"]["ok"] is True
+    np.testing.assert_array_equal(d["summary"]["history"], np.arange(4.0))
+
+    with h5py.File(path, "r") as f:
+        assert f["timeseries/t"].attrs["units"] == "k^-1"
+        assert f["timeseries/D_xy"].attrs["units"] == "1"
+        assert "units" not in f["timeseries/custom"].attrs
+        assert f["mesh/positions"].chunks == (1, 18, 3)
+
+
+def test_step_keys_must_stay_consistent(tmp_path):
+    with _writer(tmp_path / "r.h5") as w:
+        w.append_step({"t": 0.0, "D_xy": 0.0})
+        with pytest.raises(ValueError, match="new"):
+            w.append_step({"t": 0.1, "D_xy": 0.0, "theta": 0.7})
+        with pytest.raises(ValueError, match="missing"):
+            w.append_step({"t": 0.1})
+        with pytest.raises(ValueError, match="shape"):
+            w.append_snapshot(0.0, np.zeros((5, 3)))
+
+
+@pytest.mark.parametrize(("exc", "status"), [(RuntimeError("boom"), "failed"), (KeyboardInterrupt(), "interrupted")])
+def test_exception_marks_status(tmp_path, exc, status):
+    path = tmp_path / "r.h5"
+    with pytest.raises(type(exc)):
+        with _writer(path) as w:
+            w.append_step({"t": 0.0})
+            raise exc
+    d = read_trajectory(path)
+    assert d["attrs"]["status"] == status
+    if status == "failed":
+        assert d["attrs"]["status_reason"] == "RuntimeError: boom"
+    assert len(d["timeseries"]["t"]) == 1
+
+
+def test_close_rejects_unknown_status(tmp_path):
+    w = _writer(tmp_path / "r.h5")
+    with pytest.raises(ValueError, match="status"):
+        w.close("done")
+    w.close("unstable", "area grew by 20%")
+    w.close("completed")  # already closed: no effect
+    d = read_trajectory(tmp_path / "r.h5")
+    assert (d["attrs"]["status"], d["attrs"]["status_reason"]) == ("unstable", "area grew by 20%")
+
+
+def test_read_errors_are_one_line(tmp_path):
+    missing = tmp_path / "missing.h5"
+    text = tmp_path / "text.h5"
+    text.write_text("not hdf5")
+    other = tmp_path / "other.h5"
+    with h5py.File(other, "w") as f:
+        f["x"] = 1
+    good = tmp_path / "good.h5"
+    with _writer(good) as w:
+        w.append_step({"t": 0.0})
+    truncated = tmp_path / "truncated.h5"
+    truncated.write_bytes(good.read_bytes()[:1000])
+    for path, words in [(missing, "no such file"), (text, "not an HDF5"), (other, "not a capsim"), (truncated, "")]:
+        with pytest.raises(TrajectoryError) as info:
+            read_trajectory(path)
+        message = str(info.value)
+        assert message.startswith(str(path)) and words in message and "\n" not in message
+
+
+_KILLED_WRITER = textwrap.dedent(
+    """
+    import sys, time
+    import numpy as np
+    from capsim.store import TrajectoryWriter
+    w = TrajectoryWriter(sys.argv[1], config_yaml="name: x\\n", elements=np.zeros((8, 6), int),
+                         rest_positions=np.zeros((18, 3)), version="0")
+    w.append_snapshot(0.0, np.ones((18, 3)))
+    for i in range(47):  # flushed after rows 20 and 40
+        w.append_step({"t": 0.1 * i, "D_xy": 0.01 * i})
+    print("ready", flush=True)
+    time.sleep(60)
+    """
+)
+
+
+def test_sigkilled_writer_leaves_readable_file(tmp_path):
+    path = tmp_path / "killed.h5"
+    proc = subprocess.Popen([sys.executable, "-c", _KILLED_WRITER, str(path)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+        proc.stdout.close()
+    assert proc.returncode == -signal.SIGKILL
+    d = read_trajectory(path)
+    assert d["attrs"]["status"] == "running"
+    n = len(d["timeseries"]["t"])
+    assert 40 <= n <= 47
+    np.testing.assert_allclose(d["timeseries"]["D_xy"], 0.01 * np.arange(n))
+    np.testing.assert_array_equal(d["positions"], np.ones((1, 18, 3)))
