@@ -107,8 +107,9 @@ class Quadrature(_Model):
         6, description="points of the symmetric Gauss rule on each element (degree 1, 2, 3, 4, 5, 6)"
     )
     singular_order: int = Field(
-        4, ge=2, le=20, strict=True,
-        description="Gauss-Legendre points per direction of the Duffy rule",
+        3, ge=1, le=20, strict=True,
+        description="Duffy rule on the elements holding the target node: n radial x 2n angular "
+        "Gauss-Legendre points on each of two sub-triangles",
     )
 
 

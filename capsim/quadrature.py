@@ -95,10 +95,13 @@ def _duffy_on_subtriangle(p0, p1, p2, n: int) -> tuple[np.ndarray, np.ndarray, n
     """Duffy rule on the parametric sub-triangle (p0, p1, p2), singular at p0.
 
     (u, v) ∈ [0,1]² ↦ p0 + u[(1−v)(p1−p0) + v(p2−p0)], Jacobian u·|det|.
+    After the map a 1/r integrand is smooth and nearly constant along u (the
+    radial direction) but varies along v (the angle): n points in u, 2n in v.
     """
     s, ws = gauss_legendre_01(n)
-    u, v = np.meshgrid(s, s, indexing="ij")
-    wu, wv = np.meshgrid(ws, ws, indexing="ij")
+    t, wt = gauss_legendre_01(2 * n)
+    u, v = np.meshgrid(s, t, indexing="ij")
+    wu, wv = np.meshgrid(ws, wt, indexing="ij")
     p0, p1, p2 = (np.asarray(p, dtype=float) for p in (p0, p1, p2))
     e1, e2 = p1 - p0, p2 - p0
     det = abs(e1[0] * e2[1] - e1[1] * e2[0])
@@ -111,12 +114,11 @@ def _duffy_on_subtriangle(p0, p1, p2, n: int) -> tuple[np.ndarray, np.ndarray, n
 def singular_rules(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Duffy rules for a singularity at each of the six element nodes.
 
-    Returns arrays of shape (6, m): xi, eta, weights, where m = 2 n² (vertex
-    nodes use one sub-triangle with weights doubled-up as zeros-padded pairs so
-    that every node has the same number of points).
+    Every node's triangle is split into two sub-triangles that have the node as
+    a vertex; returns arrays of shape (6, m), m = 4 n²: xi, eta, weights.
     """
     corners = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)]
-    m = 2 * n * n
+    m = 4 * n * n
     xi = np.zeros((6, m))
     eta = np.zeros((6, m))
     w = np.zeros((6, m))

@@ -37,7 +37,7 @@ class Discretization:
     elements: np.ndarray
     n_vertices: int
     regular_order: int = 6
-    singular_order: int = 4
+    singular_order: int = 3
     contour_order: int = 4
     membrane_order: int = 6
 
