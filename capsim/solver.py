@@ -134,6 +134,8 @@ class CapsuleModel:
     mass_tol: float = 1e-10
     stage_times: dict = field(default_factory=lambda: {"geometry": 0.0, "membrane": 0.0, "single_layer": 0.0, "solve": 0.0})
     _last_traction: np.ndarray | None = field(default=None, repr=False)
+    # iterations and relative residual of the last velocity solve (0 at λ = 1)
+    last_solve_info: dict = field(default_factory=lambda: {"iterations": 0, "residual": 0.0})
 
     def membrane(self, x: np.ndarray) -> MembraneState:
         """Tensions and the traction jump Δf at configuration x.
