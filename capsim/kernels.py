@@ -612,3 +612,151 @@ def block_cg(indptr, indices, data, rhs, x0, tol, max_iter):
                 pvec[i, c] = z[i, c] + beta * pvec[i, c]
         it += 1
     return x, it
+
+
+# ---------------------------------------------------------------- double layer
+
+@njit(parallel=True, **_JIT)
+def double_layer_sum(targets, u_targets, sources, normals_w, u_sources):
+    """D(x0) = Σ_m (u_m − u0)·T(x_m, x0)·n_m w_m with T_ijk = −6 r_i r_j r_k / r⁵,
+    r = x_m − x0 (seed 2.12b), desingularised by subtracting u0 = u(x0).
+
+    normals_w (M, 3): normal × weight at each source point; u_sources (M, 3).
+    Coincident points are skipped (their elements are handled by the caller).
+    """
+    nt = targets.shape[0]
+    m = sources.shape[0]
+    sx = np.ascontiguousarray(sources[:, 0])
+    sy = np.ascontiguousarray(sources[:, 1])
+    sz = np.ascontiguousarray(sources[:, 2])
+    nx = np.ascontiguousarray(normals_w[:, 0])
+    ny = np.ascontiguousarray(normals_w[:, 1])
+    nz = np.ascontiguousarray(normals_w[:, 2])
+    vx = np.ascontiguousarray(u_sources[:, 0])
+    vy = np.ascontiguousarray(u_sources[:, 1])
+    vz = np.ascontiguousarray(u_sources[:, 2])
+    out = np.zeros((nt, 3))
+    for i in prange(nt):
+        x0 = targets[i, 0]
+        y0 = targets[i, 1]
+        z0 = targets[i, 2]
+        u0 = u_targets[i, 0]
+        v0 = u_targets[i, 1]
+        w0 = u_targets[i, 2]
+        ax = 0.0
+        ay = 0.0
+        az = 0.0
+        for j in range(m):
+            dx = sx[j] - x0
+            dy = sy[j] - y0
+            dz = sz[j] - z0
+            r2 = dx * dx + dy * dy + dz * dz
+            rinv = 1.0 / np.sqrt(r2) if r2 > 0.0 else 0.0
+            rinv2 = rinv * rinv
+            c = -6.0 * (dx * nx[j] + dy * ny[j] + dz * nz[j]) * rinv2 * rinv2 * rinv
+            c *= dx * (vx[j] - u0) + dy * (vy[j] - v0) + dz * (vz[j] - w0)
+            ax += c * dx
+            ay += c * dy
+            az += c * dz
+        out[i, 0] = ax
+        out[i, 1] = ay
+        out[i, 2] = az
+    return out
+
+
+@njit(parallel=True, **_JIT)
+def double_layer_singular_correction(
+    x, u, u_target, elements, inc_offsets, inc_elem, inc_local,
+    reg_points, reg_normals_w, reg_u,
+    sing_phi, sing_dxi, sing_deta, sing_w,
+):
+    """Replace the regular-rule double-layer contribution of the elements
+    holding each node by the Duffy rule singular at that node. The desingularised
+    integrand (u − u0)·T·n is bounded but not smooth there. u: nodal values of
+    the density; u_target: the value u0 subtracted at each target (normally u).
+    Returns (N_p, 3)."""
+    n_nodes = x.shape[0]
+    nq = reg_points.shape[1]
+    ms = sing_w.shape[1]
+    ne = elements.shape[0]
+    xe = np.empty((ne, 6, 3))
+    ue = np.empty((ne, 6, 3))
+    for e in range(ne):
+        for a in range(6):
+            for d in range(3):
+                xe[e, a, d] = x[elements[e, a], d]
+                ue[e, a, d] = u[elements[e, a], d]
+    out = np.zeros((n_nodes, 3))
+    for p in prange(n_nodes):
+        x0 = x[p, 0]
+        y0 = x[p, 1]
+        z0 = x[p, 2]
+        u0 = u_target[p, 0]
+        v0 = u_target[p, 1]
+        w0 = u_target[p, 2]
+        ax = 0.0
+        ay = 0.0
+        az = 0.0
+        for c_ in range(inc_offsets[p], inc_offsets[p + 1]):
+            e = inc_elem[c_]
+            k = inc_local[c_]
+            for q in range(nq):
+                dx = reg_points[e, q, 0] - x0
+                dy = reg_points[e, q, 1] - y0
+                dz = reg_points[e, q, 2] - z0
+                r2 = dx * dx + dy * dy + dz * dz
+                rinv2 = 1.0 / r2
+                rinv = np.sqrt(rinv2)
+                c = -6.0 * (dx * reg_normals_w[e, q, 0] + dy * reg_normals_w[e, q, 1] + dz * reg_normals_w[e, q, 2])
+                c *= rinv2 * rinv2 * rinv
+                c *= dx * (reg_u[e, q, 0] - u0) + dy * (reg_u[e, q, 1] - v0) + dz * (reg_u[e, q, 2] - w0)
+                ax -= c * dx
+                ay -= c * dy
+                az -= c * dz
+            for j in range(ms):
+                px = 0.0
+                py = 0.0
+                pz = 0.0
+                tx = 0.0
+                ty = 0.0
+                tz = 0.0
+                bx = 0.0
+                by = 0.0
+                bz = 0.0
+                ux = 0.0
+                uy = 0.0
+                uz = 0.0
+                for a in range(6):
+                    ph = sing_phi[k, j, a]
+                    d1 = sing_dxi[k, j, a]
+                    d2 = sing_deta[k, j, a]
+                    px += ph * xe[e, a, 0]
+                    py += ph * xe[e, a, 1]
+                    pz += ph * xe[e, a, 2]
+                    tx += d1 * xe[e, a, 0]
+                    ty += d1 * xe[e, a, 1]
+                    tz += d1 * xe[e, a, 2]
+                    bx += d2 * xe[e, a, 0]
+                    by += d2 * xe[e, a, 1]
+                    bz += d2 * xe[e, a, 2]
+                    ux += ph * ue[e, a, 0]
+                    uy += ph * ue[e, a, 1]
+                    uz += ph * ue[e, a, 2]
+                # unnormalised normal × Duffy weight = n dS
+                mx = (ty * bz - tz * by) * sing_w[k, j]
+                my = (tz * bx - tx * bz) * sing_w[k, j]
+                mz = (tx * by - ty * bx) * sing_w[k, j]
+                dx = px - x0
+                dy = py - y0
+                dz = pz - z0
+                rinv2 = 1.0 / (dx * dx + dy * dy + dz * dz)
+                rinv = np.sqrt(rinv2)
+                c = -6.0 * (dx * mx + dy * my + dz * mz) * rinv2 * rinv2 * rinv
+                c *= dx * (ux - u0) + dy * (uy - v0) + dz * (uz - w0)
+                ax += c * dx
+                ay += c * dy
+                az += c * dz
+        out[p, 0] = ax
+        out[p, 1] = ay
+        out[p, 2] = az
+    return out
