@@ -16,12 +16,23 @@ of E_s. Derived from the invariant forms:
 * Mooney–Rivlin with ψ' (Li et al. 1988): (1−ψ') × neo-Hookean +
   (ψ'/6)(2Λ2 e^{−2Λ1} + 2 e^{−2Λ1} + e^{2Λ1} − 3) [= (ψ'/6)(λ1²λ2² + 1/λ1² + 1/λ2² − 3)];
   G_s = 1/3, K_s = 1 for every ψ'.
-* Skalak (seed 2.10 with B = 1/3 so that the shear modulus is E_s/3):
-  W = (1/12)[2Λ2(Λ2+1)·… ] see ``_skalak``; G_s = 1/3, K_s = (1 + 2C)/3.
+* Skalak et al. (1973) in the form of Barthès-Biesel, Diaz & Dhenin (2002),
+  W = (G_s/4)[I1² + 2 I1 − 2 I2 + C I2²], I1 = λ1² + λ2² − 2 = 2Λ2,
+  I2 = λ1²λ2² − 1 = e^{2Λ1} − 1, with G_s = 1/3 (so that G = μka/E_s means the
+  same shear stiffness for every law) and C the dimensionless area parameter:
+  G_s = 1/3, K_s = G_s(1 + 2C) = (1 + 2C)/3. The seed's (2.10) is the same
+  energy with its B = 2 G_s = 2/3 and its C = 2 C G_s = 2C/3 (in units of E_s),
+  once its misprinted e^{2Λ2} is read as e^{2Λ1}; its shear modulus is B/2 and
+  its area modulus B/2 + C.
+
+In every case the Poisson ratio is ν_s = (K_s − G_s)/(K_s + G_s) and the
+capillary number of papers that scale by G_s is Ca = μka/G_s = G/G_s = 3G.
+docs/laws.md gives the derivations.
 """
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -62,25 +73,21 @@ def _mooney_rivlin_dw(l1, l2, psi=0.0):
     return w1, w2
 
 
+_SKALAK_GS = 1.0 / 3.0  # shear modulus in units of E_s, as for the other laws
+
+
 def _skalak_w(l1, l2, skalak_c=10.0):
-    # seed (2.10) with B = 1/3 (small-strain shear modulus E_s/3, as for the
-    # other laws): W = (B/4)[2Λ2(Λ2+1) + 1 − e^{2Λ1}] + (C B/8)·… is written
-    # here in the common form of Skalak et al. (1973) with I1 = 2Λ2 + … :
-    # W = (B/4)(I1² + 2 I1 − 2 I2) + (C B/4) I2², I1 = λ1²+λ2²−2, I2 = λ1²λ2²−1.
-    b = 1.0 / 3.0
     i1 = 2.0 * l2
     i2 = np.exp(2.0 * l1) - 1.0
-    return 0.25 * b * (i1 * i1 + 2.0 * i1 - 2.0 * i2) + 0.25 * b * skalak_c * i2 * i2
+    return 0.25 * _SKALAK_GS * (i1 * i1 + 2.0 * i1 - 2.0 * i2 + skalak_c * i2 * i2)
 
 
 def _skalak_dw(l1, l2, skalak_c=10.0):
-    b = 1.0 / 3.0
-    i1 = 2.0 * l2
+    # chain rule with ∂I1/∂Λ2 = 2 and ∂I2/∂Λ1 = 2 e^{2Λ1}
     e2 = np.exp(2.0 * l1)
     i2 = e2 - 1.0
-    # ∂I1/∂Λ2 = 2, ∂I2/∂Λ1 = 2 e^{2Λ1}
-    w2 = 0.25 * b * (2.0 * i1 + 2.0) * 2.0
-    w1 = (0.25 * b * (-2.0) + 0.5 * b * skalak_c * i2) * 2.0 * e2
+    w1 = _SKALAK_GS * (skalak_c * i2 - 1.0) * e2
+    w2 = _SKALAK_GS * (2.0 * l2 + 1.0)
     return w1, w2
 
 
@@ -97,8 +104,8 @@ LAWS: dict[str, MembraneLaw] = {
         "mooney_rivlin", _mooney_rivlin_w, _mooney_rivlin_dw, lambda psi=0.0: 1 / 3, lambda psi=0.0: 1.0, ("psi",)
     ),
     "skalak": MembraneLaw(
-        "skalak", _skalak_w, _skalak_dw, lambda skalak_c=10.0: 1 / 3,
-        lambda skalak_c=10.0: (1.0 + 2.0 * skalak_c) / 3.0, ("skalak_c",),
+        "skalak", _skalak_w, _skalak_dw, lambda skalak_c=10.0: _SKALAK_GS,
+        lambda skalak_c=10.0: _SKALAK_GS * (1.0 + 2.0 * skalak_c), ("skalak_c",),
     ),
 }
 
@@ -107,6 +114,30 @@ def get_law(name: str) -> MembraneLaw:
     if name not in LAWS:
         raise ValueError(f"unknown membrane law {name!r} (allowed: {sorted(LAWS)})")
     return LAWS[name]
+
+
+def law_attributes(name: str, params: dict | None = None) -> dict:
+    """The law, its parameters and its small-strain moduli, for storing with a run.
+
+    Moduli are in units of E_s; parameters the law does not take are ignored and
+    missing ones take the law's defaults. ``ca_over_G`` = E_s/G_s converts G =
+    μka/E_s to the capillary number Ca = μka/G_s of papers that scale by G_s.
+    """
+    law = get_law(name)
+    params = dict(params or {})
+    defaults = inspect.signature(law.derivatives).parameters
+    used = {p: float(params.get(p, defaults[p].default)) for p in law.parameters}
+    g_s = float(law.shear_modulus(**used))
+    k_s = float(law.area_modulus(**used))
+    return {
+        "name": law.name,
+        "parameters": used,
+        "G_s": g_s,
+        "K_s": k_s,
+        "poisson_ratio": (k_s - g_s) / (k_s + g_s),
+        "ca_over_G": 1.0 / g_s,
+        "units": "E_s",
+    }
 
 
 @dataclass(frozen=True)

@@ -158,7 +158,10 @@ def _biconcave(p: np.ndarray, c0: float = 0.207, c2: float = 2.003, c4: float = 
     r2 = p[:, 0] ** 2 + p[:, 2] ** 2
     q = p.copy()
     # on the unit sphere y = ±(1 − r²)^½, so this is (3.2) with the sign kept;
-    # the polynomial is the full thickness, hence the factor ½
+    # the polynomial is the full thickness, hence the factor ½. Evans & Fung's
+    # shape is z = ±½[1 − (r/R0)²]^½ [C0 + C2 (r/R0)² + C4 (r/R0)⁴] (the seed's
+    # printed 3.1 drops the square on r/R0 and the ½); with the default
+    # coefficients the discretised disk has sphericity 0.746 (seed §5: 0.75).
     q[:, 1] = 0.5 * p[:, 1] * (c0 + c2 * r2 + c4 * r2**2)
     return q
 
@@ -200,3 +203,21 @@ def rest_shape_mesh(
     x *= (4.0 * np.pi / 3.0 / volume) ** (1.0 / 3.0)
     x = x @ rotation_about_z(np.deg2rad(tilt_deg)).T
     return SurfaceMesh(x, sphere.elements, sphere.n_vertices)
+
+
+def rest_shape_attributes(mesh: SurfaceMesh) -> dict:
+    """Volume V, area S, equal-volume radius and sphericity of a discretised shape.
+
+    The sphericity is the area of the equal-volume sphere over the area of the
+    shape, s = (36πV²)^{1/3}/S ≤ 1: the seed (§5) defines it in words this way
+    and quotes s < 1, though its printed formula is the reciprocal.
+    """
+    from capsim.geometry import element_geometry, volume_area
+
+    volume, area = volume_area(element_geometry(mesh.positions, mesh.elements, 6))
+    return {
+        "volume": volume,
+        "area": area,
+        "equal_volume_radius": (3.0 * volume / (4.0 * np.pi)) ** (1.0 / 3.0),
+        "sphericity": (36.0 * np.pi * volume**2) ** (1.0 / 3.0) / area,
+    }
