@@ -193,5 +193,79 @@ def main(
     """Boundary-integral simulation of elastic capsules in simple shear flow."""
 
 
+class _SweepProgress(_Progress):
+    """Live campaign line: runs done/failed/running and each running run's kt."""
+
+    def __call__(self, state: dict[str, Any]) -> None:
+        now = time.monotonic()
+        if now - self._last < self.interval_s:
+            return
+        self._last = now
+        kt = " ".join(f"{t:.2f}" for t in list(state["kt"].values())[:8])
+        line = (
+            f"runs {state['done'] + state['skipped']}/{state['total']} done"
+            f" ({state['skipped']} skipped), {state['failed']} failed, {state['running']} running"
+            + (f"  kt: {kt}" if kt else "")
+        )
+        self.stream.write("\r" + line + "\033[K")
+        self.stream.flush()
+        self._drawn = True
+
+
+@app.command()
+def sweep(
+    campaign_path: Path = typer.Argument(..., metavar="CAMPAIGN.yaml", help="campaign file"),
+    workers: Optional[int] = typer.Option(None, "--workers", min=1, help="local worker processes (default: cores)"),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Dask scheduler address, tcp://host:port"),
+    no_resume: bool = typer.Option(False, "--no-resume", help="redo runs that already completed"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress line"),
+) -> None:
+    """Run every case of a campaign (skipping completed runs) into its output directory."""
+    from capsim.campaign import load_campaign, run_campaign
+    from capsim.config import ConfigError
+
+    try:
+        campaign = load_campaign(campaign_path)
+    except ConfigError as exc:
+        raise _user_error(str(exc)) from None
+    progress = None if quiet else _SweepProgress()
+    try:
+        result = run_campaign(campaign, workers=workers, scheduler=scheduler, resume=not no_resume, progress=progress)
+    except ConfigError as exc:
+        raise _user_error(str(exc)) from None
+    finally:
+        if progress is not None:
+            progress.finish()
+    for record in result["records"]:
+        if record["status"] != "completed":
+            typer.echo(f"{record['run_id']}: {record['status']}: {record['status_reason']}", err=True)
+    typer.echo(
+        f"{campaign.name}: {result['total']} runs, {result['skipped']} skipped, {result['completed']} completed, "
+        f"{result['failed']} not completed{' (interrupted)' if result['interrupted'] else ''}"
+        f" -> {campaign.output.dir}"
+    )
+    raise typer.Exit(code=0 if result["failed"] == 0 and not result["interrupted"] else 1)
+
+
+@app.command()
+def summarize(
+    directory: Path = typer.Argument(..., metavar="DIR", help="campaign output directory"),
+    output: Optional[Path] = typer.Option(None, "-o", "--output", help="netCDF path (default DIR/summary.nc)"),
+) -> None:
+    """Collect a campaign's runs into one xarray Dataset written as netCDF."""
+    from capsim.config import ConfigError
+    from capsim.summary import summarize_campaign, write_summary
+
+    try:
+        ds = summarize_campaign(directory)
+    except (FileNotFoundError, ConfigError) as exc:
+        raise _user_error(str(exc)) from None
+    path = output if output is not None else directory / "summary.nc"
+    _check_writable(path)
+    write_summary(ds, path)
+    counts = {s: int((ds["status"] == s).sum()) for s in sorted(set(ds["status"].values.ravel()))}
+    typer.echo(f"{path}: dims {dict(ds.sizes)}, status {counts}")
+
+
 if __name__ == "__main__":
     app()
