@@ -89,14 +89,31 @@ def _fmt(value: Any, spec: str) -> str:
     return "n/a" if value is None else str(value)
 
 
+def _mean_std(summary: dict[str, Any], name: str, scale: float = 1.0) -> str | None:
+    """'mean ± std' over the averaging window, or None when the run has no summary."""
+    mean, std = summary.get(name), summary.get(f"{name}_std")
+    if not isinstance(mean, (int, float)):
+        return None
+    shown = f"{mean / scale:.6f}"
+    return shown + (f" ± {std / scale:.2e}" if isinstance(std, (int, float)) else "")
+
+
 def _summary_table(summary: dict[str, Any]) -> str:
-    theta = summary.get("theta")
+    period = summary.get("period")
+    window = (summary.get("averaging_t_from"), summary.get("averaging_t_to"))
     rows = [
         ("status", summary.get("status")),
         ("reason", summary.get("status_reason") or None),
         ("t", _fmt(summary.get("t"), "g")),
-        ("D_xy", _fmt(summary.get("D_xy"), ".6f")),
-        ("theta/pi", _fmt(theta / math.pi if isinstance(theta, (int, float)) else None, ".6f")),
+        ("motion", summary.get("motion")),
+        ("averaged over kt", f"[{window[0]:.4g}, {window[1]:.4g}]" if None not in window else None),
+        ("period kT", _fmt(period, ".4g") if isinstance(period, float) and math.isfinite(period) else None),
+        ("D_xy", _mean_std(summary, "D_xy")),
+        ("theta/pi", _mean_std(summary, "theta", math.pi)),
+        ("TTF/f_s", _mean_std(summary, "ttf_ratio")),
+        ("S*_xy", _mean_std(summary, "Sxy_star")),
+        ("N1*", _mean_std(summary, "N1_star")),
+        ("N2*", _mean_std(summary, "N2_star")),
         ("steps", _fmt(summary.get("steps"), "d")),
         ("wall time (s)", _fmt(summary.get("wall_time_s"), ".1f")),
         ("volume drift", _fmt(summary.get("volume_drift"), ".3e")),

@@ -62,3 +62,339 @@ def step_observables(x: np.ndarray, elements: np.ndarray, geo: ElementGeometry, 
         "min_element_quality": float(vertex_triangle_quality(x, elements).min()),
         "max_principal_stretch": float(max_stretch),
     }
+
+
+# ---------------------------------------------------------------- stresslet
+
+
+def particle_stresslet(
+    geo: ElementGeometry,
+    density: np.ndarray,
+    velocity: np.ndarray,
+    elements: np.ndarray,
+    phi: np.ndarray,
+    center: np.ndarray,
+    volume: float,
+    shear_rate_G: float,
+    viscosity_ratio: float,
+) -> np.ndarray:
+    """Particle stresslet (seed 2.15) over its rigid-sphere value, a (3, 3) array.
+
+    S = ∫ [Δf x − μ(1−λ)(u n + n u)] dS about the centroid; in units of μka³,
+    S = (1/G) ∫ Δf x dS − (1−λ) ∫ (u n + n u) dS (Δf in E_s/a, u in ka), and
+    S* = S / ((5/2) V) so that a rigid sphere gives S*_xy = 1. The Δf x term is
+    symmetrised (its antisymmetric part is the torque, zero up to discretisation).
+
+    density: Δf as the single layer takes it, (N_e, 6, 3) element-nodal values
+    interpolated with ``phi`` (q, 6), or (N_e, 3) element-constant. velocity:
+    nodal u (N_p, 3), interpolated quadratically to the Gauss points.
+    """
+    if density.ndim == 3:
+        df = np.einsum("qk,ekd->eqd", phi, density)
+    else:
+        df = np.broadcast_to(density[:, None, :], geo.points.shape)
+    x = geo.points - center
+    elastic = np.einsum("eqi,eqj,eq->ij", df, x, geo.weights)
+    S = 0.5 * (elastic + elastic.T) / shear_rate_G
+    if viscosity_ratio != 1.0:
+        u = np.einsum("qk,ekd->eqd", phi, velocity[elements])
+        un = np.einsum("eqi,eqj,eq->ij", u, geo.normals, geo.weights)
+        S -= (1.0 - viscosity_ratio) * (un + un.T)
+    return S / (2.5 * volume)
+
+
+def stresslet_observables(S_star: np.ndarray) -> dict:
+    """S*_xy and the normal stress differences N1* = S*_xx − S*_yy, N2* = S*_yy − S*_zz."""
+    return {
+        "Sxy_star": float(S_star[0, 1]),
+        "N1_star": float(S_star[0, 0] - S_star[1, 1]),
+        "N2_star": float(S_star[1, 1] - S_star[2, 2]),
+    }
+
+
+# ---------------------------------------------------------------- tank-treading
+
+RIGID_SPHERE_ROTATION_RATE = 0.5  # |ω| of a rigid sphere in shear: k/2, i.e. f_s = k/(4π)
+
+
+class TankTreadingTracker:
+    """Material nodes that start in the plane z = 0, followed about the centroid.
+
+    Each step gives the mean phase-unwrapped angle of these nodes in the
+    xy-plane (``tt_angle``, decreasing for the clockwise rotation of shear flow)
+    and the instantaneous rate ω = ⟨(r × u)_z / |r|²⟩ over them, reported as
+    ``ttf_ratio`` = |ω| / (k/2), the tank-treading frequency over f_s = k/(4π).
+    """
+
+    def __init__(self, rest_positions: np.ndarray, plane_tol: float = 1e-9) -> None:
+        self.nodes = np.flatnonzero(np.abs(rest_positions[:, 2]) < plane_tol)
+        if self.nodes.size == 0:
+            raise ValueError("no rest-shape nodes lie in the plane z = 0 to track tank-treading")
+        self._raw: np.ndarray | None = None
+        self._unwrapped: np.ndarray | None = None
+
+    def update(self, x: np.ndarray, u: np.ndarray, center: np.ndarray) -> dict:
+        r = x[self.nodes, :2] - center[:2]
+        v = u[self.nodes, :2]
+        r2 = np.einsum("ij,ij->i", r, r)
+        omega = float(np.mean((r[:, 0] * v[:, 1] - r[:, 1] * v[:, 0]) / r2))
+        raw = np.arctan2(r[:, 1], r[:, 0])
+        if self._raw is None:
+            self._unwrapped = raw.copy()
+        else:
+            # steps are short: no node turns by π between two accepted steps
+            self._unwrapped = self._unwrapped + (raw - self._raw + np.pi) % (2 * np.pi) - np.pi
+        self._raw = raw
+        return {
+            "ttf_ratio": abs(omega) / RIGID_SPHERE_ROTATION_RATE,
+            "tt_angle": float(np.mean(self._unwrapped)),
+        }
+
+
+def revolution_rate(t: np.ndarray, angle: np.ndarray, t_from: float) -> float | None:
+    """Mean rate |dφ/dt| over the whole revolutions of ``angle`` completed since
+    ``t_from`` (counted back from the last sample); None if less than one."""
+    t = np.asarray(t, float)
+    angle = np.asarray(angle, float)
+    sel = t >= t_from
+    if np.count_nonzero(sel) < 2:
+        return None
+    ts, a = t[sel], angle[sel]
+    turned = np.abs(a - a[-1])
+    n = int(np.floor(turned.max() / (2 * np.pi)))
+    if n < 1:
+        return None
+    target = 2 * np.pi * n
+    # last time (going back from the end) at which the angle had turned by n revolutions less
+    i = int(np.flatnonzero(turned >= target)[-1])
+    if i + 1 < ts.size and turned[i] != turned[i + 1]:
+        w = (turned[i] - target) / (turned[i] - turned[i + 1])
+        t_start = ts[i] + w * (ts[i + 1] - ts[i])
+    else:
+        t_start = ts[i]
+    return target / (ts[-1] - t_start)
+
+
+# ---------------------------------------------------------------- motion classifier
+
+MOTIONS = ("steady", "oscillating", "tumbling", "transient", "unstable")
+SUMMARY_QUANTITIES = ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star")
+
+
+def _window(t_end: float, fraction: float, min_window: float) -> float:
+    return max(fraction * t_end, min_window)
+
+
+def window_stats(t: np.ndarray, s: np.ndarray, t0: float, t1: float | None = None) -> tuple[float, float]:
+    """Time-weighted mean and standard deviation of s over [t0, t1] (samples are
+    unevenly spaced: adaptive steps)."""
+    t = np.asarray(t, float)
+    s = np.asarray(s, float)
+    t1 = t[-1] if t1 is None else t1
+    sel = (t >= t0 - 1e-12) & (t <= t1 + 1e-12)
+    ts, ss = t[sel], s[sel]
+    if ts.size == 0:
+        return float(s[-1]), 0.0
+    if ts.size < 2 or ts[-1] <= ts[0]:
+        return float(ss.mean()), float(ss.std())
+    span = ts[-1] - ts[0]
+    mean = np.trapezoid(ss, ts) / span
+    var = np.trapezoid((ss - mean) ** 2, ts) / span
+    return float(mean), float(np.sqrt(max(var, 0.0)))
+
+
+def is_steady(
+    t: np.ndarray,
+    D_xy: np.ndarray,
+    theta: np.ndarray,
+    rtol: float = 1e-2,
+    theta_tol: float = 1e-2,
+    window_fraction: float = 0.25,
+    min_window: float = 3.0,
+) -> bool:
+    """D_xy and θ settled: over the last ``max(window_fraction·t, min_window)`` of
+    kt (and at least as much time before it), D_xy varies by less than
+    ``rtol``·D_xy and θ by less than ``theta_tol`` rad. θ is ignored while the
+    shape is a sphere to 1e-3 (its long axis is then undefined)."""
+    t = np.asarray(t, float)
+    if t.size < 3:
+        return False
+    w = _window(t[-1], window_fraction, min_window)
+    if t[-1] - t[0] < 2 * w:
+        return False
+    sel = t >= t[-1] - w
+    d = np.asarray(D_xy, float)[sel]
+    th = np.unwrap(np.asarray(theta, float)[sel], period=np.pi)
+    if not (np.all(np.isfinite(d)) and np.all(np.isfinite(th))):
+        return False
+    scale = max(float(np.abs(d).mean()), 1e-3)
+    if float(np.ptp(d)) > rtol * scale:
+        return False
+    return scale <= 1e-3 or float(np.ptp(th)) <= theta_tol
+
+
+def _oscillation(t: np.ndarray, s: np.ndarray, floor: float, min_ratio: float = 0.5) -> dict | None:
+    """Sustained periodic oscillation of s(t): at least two whole cycles between
+    up-crossings of its linear trend (with hysteresis, so that noise near the
+    trend does not count), regular periods and no strong decay."""
+    if t.size < 10:
+        return None
+    ups = _up_crossings(t, s - np.polyval(np.polyfit(t, s, 1), t), floor)
+    if len(ups) < 3:
+        return None
+    # again about the mean over whole cycles: a linear trend fitted to a
+    # sinusoid is not flat and would bias the period
+    ups = _up_crossings(t, s - window_stats(t, s, ups[0], ups[-1])[0], floor)
+    if len(ups) < 3:
+        return None
+    periods = np.diff(ups)
+    if periods.max() > 1.3 * periods.min():
+        return None
+    cycles = [np.ptp(s[(t >= a) & (t <= b)]) for a, b in zip(ups[:-1], ups[1:])]
+    if cycles[-1] < min_ratio * cycles[0]:
+        return None
+    return {"period": float(periods[-2:].mean()), "t_from": ups[0], "t_to": ups[-1], "last_cycle": (ups[-2], ups[-1])}
+
+
+def _up_crossings(t: np.ndarray, r: np.ndarray, floor: float) -> list[float]:
+    """Times at which r rises through 0, counted only when it goes from below −h
+    to above +h (h = 30% of its half-range): noise near 0 does not count."""
+    half_range = 0.5 * float(np.ptp(r))
+    if half_range <= floor:
+        return []
+    h = 0.3 * half_range
+    ups: list[float] = []
+    armed = False
+    last_neg = 0
+    for i in range(t.size):
+        if r[i] < -h:
+            armed = True
+        if r[i] <= 0.0:
+            last_neg = i
+        if armed and r[i] > h:
+            j = last_neg  # r[j] ≤ 0 < r[j+1]: the zero crossing of this rise
+            w = -r[j] / (r[j + 1] - r[j])
+            ups.append(float(t[j] + w * (t[j + 1] - t[j])))
+            armed = False
+    return ups
+
+
+def _cycle_stats(t: np.ndarray, s: np.ndarray, t_from: float, last_cycle: tuple[float, float]) -> tuple[float, float]:
+    mean, _ = window_stats(t, s, t_from, last_cycle[1])
+    sel = (t >= last_cycle[0]) & (t <= last_cycle[1])
+    return mean, 0.5 * float(np.ptp(s[sel])) if np.any(sel) else 0.0
+
+
+def classify_motion(
+    t: np.ndarray,
+    D_xy: np.ndarray,
+    theta: np.ndarray,
+    rtol: float = 1e-2,
+    theta_tol: float = 1e-2,
+    window_fraction: float = 0.25,
+    min_window: float = 3.0,
+) -> dict:
+    """What kind of motion the time series (t, D_xy, θ) settled into.
+
+    Returns ``{"motion", "t_from", "t_to", "period", "D_xy_mean",
+    "D_xy_amplitude", "theta_mean", "theta_amplitude"}``; [t_from, t_to] is the
+    averaging window (whole cycles for oscillating and tumbling, else the last
+    ``window_fraction`` of the run), NaN where a field does not apply.
+
+    - unstable: a non-finite value;
+    - tumbling: θ ∈ (−π/2, π/2], unwrapped, goes below −π/2 (continuous
+      clockwise rotation); period = time for θ to turn by 2π (Jeffery's orbit
+      period, seed §5), from successive passages through −π/2 (mod π);
+    - steady: :func:`is_steady`;
+    - oscillating: sustained regular cycles of θ or D_xy over the second half
+      of the run (period from θ when it oscillates), with mean and amplitude
+      (half the peak-to-peak of the last cycle) of both;
+    - transient: none of these (still evolving, or too short to tell).
+    """
+    t = np.asarray(t, float)
+    D_xy = np.asarray(D_xy, float)
+    theta = np.asarray(theta, float)
+    nan = float("nan")
+    out = {"motion": "transient", "t_from": nan, "t_to": nan, "period": nan,
+           "D_xy_mean": nan, "D_xy_amplitude": nan, "theta_mean": nan, "theta_amplitude": nan}
+    if t.size == 0:
+        return out
+    t_end = float(t[-1])
+    out["t_to"] = t_end
+    out["t_from"] = max(float(t[0]), (1.0 - window_fraction) * t_end)
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(D_xy)) and np.all(np.isfinite(theta))):
+        out["motion"] = "unstable"
+        return out
+
+    defined = D_xy > 1e-3  # θ of a sphere is undefined
+    if np.count_nonzero(defined) >= 2:
+        td = t[defined]
+        th_u = np.unwrap(theta[defined], period=np.pi)
+        if th_u.min() < -np.pi / 2 - 0.05:
+            out["motion"] = "tumbling"
+            # passages through −π/2 − mπ, m = 0, 1, ...
+            level = np.floor((th_u + np.pi / 2) / np.pi)
+            idx = np.flatnonzero(np.diff(level) < 0)
+            passes = []
+            for i in idx:
+                target = (level[i]) * np.pi - np.pi / 2
+                w = (th_u[i] - target) / (th_u[i] - th_u[i + 1])
+                passes.append(td[i] + w * (td[i + 1] - td[i]))
+            if len(passes) >= 2:
+                out["period"] = 2.0 * float(passes[-1] - passes[-2])
+                out["t_from"], out["t_to"] = float(passes[-2]), float(passes[-1])
+            elif len(passes) == 1 and td[-1] > passes[0]:
+                turned = abs(th_u[-1] - (-np.pi / 2))
+                if turned > 0.1:
+                    out["period"] = 2 * np.pi * float(td[-1] - passes[0]) / turned
+            return out
+
+    if is_steady(t, D_xy, theta, rtol, theta_tol, window_fraction, min_window):
+        out["motion"] = "steady"
+        for name, s in (("D_xy", D_xy), ("theta", theta)):
+            out[f"{name}_mean"] = window_stats(t, s, out["t_from"])[0]
+        return out
+
+    half = t >= 0.5 * t_end
+    th_half = np.unwrap(theta[half], period=np.pi)
+    scale = max(float(np.abs(D_xy[half]).mean()), 1e-3)
+    osc_theta = _oscillation(t[half], th_half, theta_tol)
+    osc_D = _oscillation(t[half], D_xy[half], rtol * scale)
+    osc = osc_theta or osc_D
+    if osc is not None:
+        out["motion"] = "oscillating"
+        out["period"] = osc["period"]
+        out["t_from"], out["t_to"] = osc["t_from"], osc["t_to"]
+        for name, s in (("D_xy", D_xy[half]), ("theta", th_half)):
+            mean, amp = _cycle_stats(t[half], s, osc["t_from"], osc["last_cycle"])
+            out[f"{name}_mean"], out[f"{name}_amplitude"] = mean, amp
+    return out
+
+
+def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
+    """Summary of a run from its time series (t, D_xy, θ, ttf_ratio, tt_angle,
+    Sxy_star, N1_star, N2_star): the motion, and the time-mean and standard
+    deviation over the averaging window of every quantity in
+    :data:`SUMMARY_QUANTITIES`. ttf_ratio comes from the whole revolutions of
+    the tracked nodes' angle since the window start (or the second half of the
+    run, if earlier) when there is at least one, else from the mean rate."""
+    t = np.asarray(series["t"], float)
+    motion = classify_motion(t, series["D_xy"], series["theta"], **classifier_options)
+    t0, t1 = motion["t_from"], motion["t_to"]
+    out: dict = {"motion": motion["motion"]}
+    for name in SUMMARY_QUANTITIES:
+        s = np.asarray(series[name], float)
+        if name == "theta":
+            s = np.unwrap(s, period=np.pi)
+        mean, std = window_stats(t, s, t0, t1)
+        if name == "theta":
+            mean = np.pi / 2 - (np.pi / 2 - mean) % np.pi  # back into (−π/2, π/2]
+        out[name], out[f"{name}_std"] = mean, std
+    if "tt_angle" in series and t.size >= 2:
+        rate = revolution_rate(t, series["tt_angle"], min(t0, 0.5 * t[-1]))
+        if rate is not None:
+            out["ttf_ratio"] = rate / RIGID_SPHERE_ROTATION_RATE
+    out["averaging_t_from"], out["averaging_t_to"] = t0, t1
+    for key in ("period", "D_xy_mean", "D_xy_amplitude", "theta_mean", "theta_amplitude"):
+        out[key] = motion[key]
+    return out

@@ -19,7 +19,10 @@ from capsim.config import Case
 from capsim.integrate import SCHEMES, StepController, attempt_step
 from capsim.membrane import get_law
 from capsim.mesh import rest_shape_mesh
-from capsim.observables import step_observables
+from capsim.observables import (
+    SUMMARY_QUANTITIES, TankTreadingTracker, is_steady, particle_stresslet, run_summary,
+    step_observables, stresslet_observables,
+)
 from capsim.solver import CapsuleModel, Discretization
 from capsim.store import TrajectoryWriter
 
@@ -42,6 +45,10 @@ def build_model(case: Case) -> tuple[CapsuleModel, np.ndarray]:
     model = CapsuleModel(
         disc, mesh.positions, case.flow.shear_rate_G, case.flow.viscosity_ratio, law, params,
         traction_method=case.membrane.traction,
+        volume_correction=case.solver.volume_correction,
+        solver_method=case.solver.method,
+        solver_tol=case.solver.tol,
+        solver_max_iter=case.solver.max_iter,
     )
     return model, mesh.positions
 
@@ -90,22 +97,36 @@ def run_case(case: Case, progress: ProgressCallback | None = None) -> dict:
     dt = tc.dt_initial
     steps = rejected = 0
     status, reason = "completed", ""
-    history_D: list[tuple[float, float, float]] = []
+    history: dict[str, list[float]] = {}
+    tracker = TankTreadingTracker(X)
     eps = 1e-12 * max(1.0, tc.t_end)
     last_snapshot_t = -1.0
 
-    def record(t_now: float, y_now: np.ndarray, state, dt_used: float, err: float) -> dict:
+    def record(t_now: float, y_now: np.ndarray, u_now: np.ndarray, state, dt_used: float, err: float) -> dict:
         smax = float(np.max(state.strain.principal_stretches[0]))
         row = {"t": t_now, "dt": dt_used, "error_estimate": err}
+        row["solver_iterations"] = float(model.last_solve_info["iterations"])
+        row["solver_residual"] = float(model.last_solve_info["residual"])
         row.update(step_observables(y_now, elements, state.geometry, smax))
+        center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
+        S_star = particle_stresslet(
+            state.geometry, state.density, u_now, elements, model.disc.reg_phi, center, row["volume"],
+            model.shear_rate_G, model.viscosity_ratio,
+        )
+        row.update(stresslet_observables(S_star))
+        row.update(tracker.update(y_now, u_now, center))
+        row["solver_iterations"] = float(model.last_solve_info.get("iterations", 0))
+        row["solver_residual"] = float(model.last_solve_info.get("residual", 0.0))
         writer.append_step(row)
+        for key in ("t", "tt_angle", *SUMMARY_QUANTITIES):
+            history.setdefault(key, []).append(row[key])
         return row
 
     with _SignalGuard():
         try:
             state = model.membrane(y)
             k1 = model.velocity(y, state)
-            row0 = record(t, y, state, 0.0, 0.0)
+            row0 = record(t, y, k1, state, 0.0, 0.0)
             V0 = row0["volume"]
             writer.append_snapshot(t, y)
             last_snapshot_t = t
@@ -128,7 +149,7 @@ def run_case(case: Case, progress: ProgressCallback | None = None) -> dict:
                     steps += 1
                     state = model.membrane(y)
                     k1 = model.velocity(y, state)
-                    last = record(t, y, state, h, res.error)
+                    last = record(t, y, k1, state, h, res.error)
                     if t >= next_snapshot - eps:
                         writer.append_snapshot(t, y)
                         last_snapshot_t = t
@@ -137,8 +158,7 @@ def run_case(case: Case, progress: ProgressCallback | None = None) -> dict:
                         dt_next = max(dt_next, dt)
                     if progress is not None:
                         progress({"t": t, "dt": h, "D_xy": last["D_xy"], "step": steps, "t_end": tc.t_end})
-                    history_D.append((t, last["D_xy"], last["theta"]))
-                    if tc.stop_when_steady and _is_steady(history_D):
+                    if tc.stop_when_steady and is_steady(history["t"], history["D_xy"], history["theta"]):
                         reason = f"steady state reached at kt = {t:.6g}"
                         break
                 else:
@@ -173,16 +193,15 @@ def run_case(case: Case, progress: ProgressCallback | None = None) -> dict:
             "max_principal_stretch": last["max_principal_stretch"],
         }
         writer.write_group("run", {k: v for k, v in summary.items() if k not in ("status", "status_reason", "path")})
+        # The summary (motion and window means) replaces the final D_xy and θ, kept as final_*.
+        summary["final_D_xy"], summary["final_theta"] = summary["D_xy"], summary["theta"]
+        if history:
+            motion = run_summary({k: np.asarray(v) for k, v in history.items()})
+            if status == "unstable":
+                motion["motion"] = "unstable"
+            writer.write_group("summary", motion)
+            writer.set_attrs(motion=motion["motion"])
+            summary.update(motion)
         writer.close(status, reason)
     return summary
 
-
-def _is_steady(history: list[tuple[float, float, float]], window: float = 2.0, tol: float = 1e-4) -> bool:
-    """D_xy and θ changed by less than tol over the last ``window`` of kt."""
-    if not history or history[-1][0] < 2 * window:
-        return False
-    t_last = history[-1][0]
-    recent = [h for h in history if h[0] >= t_last - window]
-    d = np.array([h[1] for h in recent])
-    th = np.array([h[2] for h in recent])
-    return float(np.ptp(d)) < tol * max(d.max(), 1e-3) + tol * 1e-2 and float(np.ptp(th)) < tol
