@@ -306,8 +306,8 @@ def classify_motion(
       clockwise rotation); period = time for θ to turn by 2π (Jeffery's orbit
       period, seed §5), from successive passages through −π/2 (mod π);
     - steady: :func:`is_steady`;
-    - oscillating: sustained regular cycles of θ or D_xy over the second half
-      of the run (period from θ when it oscillates), with mean and amplitude
+    - oscillating: at least two sustained regular cycles of θ or D_xy over the last
+      two thirds of the run (period from θ when it oscillates), with mean and amplitude
       (half the peak-to-peak of the last cycle) of both;
     - transient: none of these (still evolving, or too short to tell).
     """
@@ -355,7 +355,9 @@ def classify_motion(
             out[f"{name}_mean"] = window_stats(t, s, out["t_from"])[0]
         return out
 
-    half = t >= 0.5 * t_end
+    # the last two thirds: the start-up transient of a capsule is a few kt,
+    # and two whole cycles of kT ≈ 10 must fit in a run of a few tens of kt
+    half = t >= t_end / 3.0
     th_half = np.unwrap(theta[half], period=np.pi)
     scale = max(float(np.abs(D_xy[half]).mean()), 1e-3)
     osc_theta = _oscillation(t[half], th_half, theta_tol)
@@ -393,7 +395,7 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
     if "tt_angle" in series and t.size >= 2:
         rate = revolution_rate(t, series["tt_angle"], min(t0, 0.5 * t[-1]))
         if rate is not None:
-            out["ttf_ratio"] = rate / RIGID_SPHERE_ROTATION_RATE
+            out["ttf_ratio"] = float(rate / RIGID_SPHERE_ROTATION_RATE)
     out["averaging_t_from"], out["averaging_t_to"] = t0, t1
     for key in ("period", "D_xy_mean", "D_xy_amplitude", "theta_mean", "theta_amplitude"):
         out[key] = motion[key]
