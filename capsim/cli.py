@@ -284,5 +284,73 @@ def summarize(
     typer.echo(f"{path}: dims {dict(ds.sizes)}, status {counts}")
 
 
+_PLOT_KINDS = ("deformation", "inclination", "contour", "trajectory", "tensions", "rheology", "steady")
+
+
+@app.command()
+def plot(
+    path: Path = typer.Argument(..., metavar="PATH", help="run file (.h5), or campaign summary (.nc) for --kind steady"),
+    kind: str = typer.Option(..., "--kind", "-k", help="one of: " + ", ".join(_PLOT_KINDS)),
+    output: Optional[Path] = typer.Option(None, "-o", "--output", help="PNG path (default PATH_<kind>.png)"),
+    times: Optional[list[float]] = typer.Option(None, "--time", "-t", help="snapshot time kt (contour: repeatable; tensions: one)"),
+    node: Optional[int] = typer.Option(None, "--node", help="trajectory: node index (default: the rest node at +x in z = 0)"),
+    no_theory: bool = typer.Option(False, "--no-theory", help="leave out the first-order theory"),
+) -> None:
+    """Write a PNG figure of a run (or of a campaign summary for --kind steady)."""
+    if kind not in _PLOT_KINDS:
+        raise _user_error(f"--kind must be one of {', '.join(_PLOT_KINDS)}, got {kind!r}")
+    if not path.exists():
+        raise _user_error(f"{path}: no such file")
+    out = output if output is not None else path.with_name(f"{path.stem}_{kind}.png")
+    _check_writable(out)
+    options: dict[str, Any] = {}
+    if kind in ("deformation", "inclination", "rheology", "steady"):
+        options["theory"] = not no_theory
+    if kind == "contour" and times:
+        options["times"] = times
+    if kind == "tensions" and times:
+        options["t"] = times[-1]
+    if kind == "trajectory" and node is not None:
+        options["node"] = node
+
+    from capsim import plot as plotting
+    from capsim.config import ConfigError
+    from capsim.store import TrajectoryError
+
+    try:
+        plotting.plot(path, kind, out, **options)
+    except (TrajectoryError, ConfigError, ValueError, KeyError) as exc:
+        raise _user_error(str(exc)) from None
+    except OSError as exc:
+        raise _user_error(f"{path}: {exc.strerror or exc}") from None
+    typer.echo(str(out))
+
+
+@app.command()
+def export(
+    path: Path = typer.Argument(..., metavar="RUN.h5", help="run file"),
+    fmt: str = typer.Option("xdmf", "--format", "-f", help="xdmf (one .xdmf + .h5) or vtu (.vtu per snapshot + .pvd)"),
+    output: Optional[Path] = typer.Option(None, "-o", "--output", help="output directory (default RUN_<format>/)"),
+    no_fields: bool = typer.Option(False, "--no-fields", help="geometry and displacement only (no recomputed fields)"),
+) -> None:
+    """Write the surface mesh over time with membrane fields for ParaView."""
+    from capsim.config import ConfigError
+    from capsim.export import FORMATS, export_run
+    from capsim.store import TrajectoryError
+
+    if fmt not in FORMATS:
+        raise _user_error(f"--format must be one of {', '.join(FORMATS)}, got {fmt!r}")
+    out_dir = output if output is not None else path.with_name(f"{path.stem}_{fmt}")
+    if out_dir.exists() and not out_dir.is_dir():
+        raise _user_error(f"output path {out_dir} is not a directory")
+    try:
+        files = export_run(path, out_dir, fmt, fields=not no_fields)
+    except (TrajectoryError, ConfigError, ValueError) as exc:
+        raise _user_error(str(exc)) from None
+    except OSError as exc:
+        raise _user_error(f"cannot write {out_dir}: {exc.strerror or exc}") from None
+    typer.echo(f"{files[0]} ({len(files)} files)")
+
+
 if __name__ == "__main__":
     app()

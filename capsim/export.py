@@ -1,0 +1,235 @@
+"""A run's surface mesh over time, with membrane fields, for ParaView.
+
+``capsim export RUN.h5 [--format xdmf|vtu] [-o DIR]`` writes every snapshot of
+the trajectory as 6-node quadratic triangles (VTK_QUADRATIC_TRIANGLE / XDMF
+``Triangle_6``: three corners, then the mid-side nodes of edges 01, 12, 20 —
+the node order capsim uses) with
+
+point data
+    ``displacement``        x − X from the rest shape (a)
+    ``velocity``            u(x), recomputed from the boundary-integral equation (a k)
+    ``traction_jump``       nodal Δf, when the model's traction is nodal (galerkin) (E_s/a)
+    ``tension``             tension tensor T, 9 components row-major (E_s)
+    ``principal_tension_1/2``  eigenvalues of T in the tangent plane, τ1 ≥ τ2 (E_s)
+    ``principal_stretch_1/2``  λ1 ≥ λ2 (1)
+
+cell data
+    ``traction``            element average of Δf, ∫ Δf dS / S_e (E_s/a)
+
+T and the stretches live at the vertex nodes; a mid-side node gets the mean of
+its edge's two vertices. Fields are recomputed from the stored positions by
+rebuilding the run's model from its stored case (``runner.build_model``).
+
+xdmf: ``<stem>.xdmf`` (a temporal collection, one grid per snapshot with its
+own geometry, so the surface moves) with heavy data in ``<stem>_data.h5``.
+vtu: ``<stem>_NNNN.vtu`` per snapshot and ``<stem>.pvd`` giving their times.
+Open the .xdmf (XDMF reader) or the .pvd in ParaView.
+"""
+
+from __future__ import annotations
+
+import os
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+__all__ = ["FORMATS", "case_of", "export_run", "membrane_fields", "model_for", "snapshot_fields"]
+
+FORMATS = ("xdmf", "vtu")
+
+
+def case_of(data: dict[str, Any]):
+    """The Case a trajectory was run with (from its stored config_yaml)."""
+    import yaml
+
+    from capsim.config import case_from_dict
+
+    return case_from_dict(yaml.safe_load(data["attrs"]["config_yaml"]), source="config_yaml")
+
+
+def model_for(data: dict[str, Any]):
+    """The run's CapsuleModel, with the stored rest shape as reference."""
+    from capsim.runner import build_model
+
+    model, X = build_model(case_of(data))
+    rest = np.asarray(data["rest_positions"], dtype=np.float64)
+    if X.shape != rest.shape or not np.array_equal(model.disc.elements, data["elements"]):
+        raise ValueError(
+            f"the stored mesh ({rest.shape[0]} nodes) does not match the mesh rebuilt from the case "
+            f"({X.shape[0]} nodes)"
+        )
+    model.rest_positions = rest
+    return model
+
+
+def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit tangents (N, 3) orthogonal to the unit normals n (N, 3)."""
+    helper = np.zeros_like(n)
+    use_x = np.abs(n[:, 0]) < 0.9
+    helper[use_x, 0] = 1.0
+    helper[~use_x, 1] = 1.0
+    t1 = np.cross(n, helper)
+    t1 /= np.linalg.norm(t1, axis=1)[:, None]
+    return t1, np.cross(n, t1)
+
+
+def _vertex_to_nodes(values: np.ndarray, elements: np.ndarray, n_nodes: int) -> np.ndarray:
+    """Extend vertex values (N_v, ...) to all nodes: mid-side node = mean of its edge's vertices."""
+    out = np.empty((n_nodes,) + values.shape[1:], dtype=np.float64)
+    n_v = values.shape[0]
+    out[:n_v] = values
+    for mid, (a, b) in zip((3, 4, 5), ((0, 1), (1, 2), (2, 0))):
+        out[elements[:, mid]] = 0.5 * (values[elements[:, a]] + values[elements[:, b]])
+    return out
+
+
+def membrane_fields(model, x: np.ndarray, state=None) -> dict[str, np.ndarray]:
+    """Nodal tension tensor, principal tensions and stretches at configuration x."""
+    if state is None:
+        state = model.membrane(x)
+    elements = model.disc.elements
+    n_nodes = x.shape[0]
+    T = np.asarray(state.tension)
+    t1, t2 = _tangent_basis(np.asarray(state.strain.normals))
+    basis = np.stack([t1, t2], axis=1)                    # (N_v, 2, 3)
+    M = np.einsum("vai,vij,vbj->vab", basis, T, basis)
+    M = 0.5 * (M + np.swapaxes(M, 1, 2))
+    eig = np.linalg.eigvalsh(M)                           # ascending
+    l1, l2 = state.strain.principal_stretches
+    fields = {
+        "tension": _vertex_to_nodes(T.reshape(-1, 9), elements, n_nodes),
+        "principal_tension_1": _vertex_to_nodes(eig[:, 1], elements, n_nodes),
+        "principal_tension_2": _vertex_to_nodes(eig[:, 0], elements, n_nodes),
+        "principal_stretch_1": _vertex_to_nodes(np.asarray(l1), elements, n_nodes),
+        "principal_stretch_2": _vertex_to_nodes(np.asarray(l2), elements, n_nodes),
+    }
+    return fields
+
+
+def snapshot_fields(model, x: np.ndarray, rest: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """(point_data, cell_data) of one snapshot."""
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    state = model.membrane(x)
+    u = model.velocity(x, state)
+    point = {"displacement": x - rest, "velocity": np.asarray(u, dtype=np.float64)}
+    traction = np.asarray(state.traction)
+    if traction.shape[0] == x.shape[0] and traction.shape[0] != model.disc.elements.shape[0]:
+        point["traction_jump"] = traction
+    point.update(membrane_fields(model, x, state))
+    density = np.asarray(state.density)
+    w = state.geometry.weights
+    if density.ndim == 3:  # (N_e, 6, 3) nodal values of each element
+        integral = np.einsum("qk,ekd,eq->ed", model.disc.reg_phi, density, w)
+        cell_traction = integral / w.sum(axis=1)[:, None]
+    else:                  # (N_e, 3) element-constant
+        cell_traction = density
+    return point, {"traction": np.ascontiguousarray(cell_traction, dtype=np.float64)}
+
+
+# ------------------------------------------------------------------ writers
+
+
+def _xdmf_item(parent: ET.Element, h5name: str, path: str, array: np.ndarray) -> None:
+    if array.dtype.kind == "f":
+        number, precision = "Float", "8"
+    else:
+        number, precision = "Int", "8"
+    dims = " ".join(str(d) for d in array.shape)
+    item = ET.SubElement(parent, "DataItem", Dimensions=dims, NumberType=number, Precision=precision, Format="HDF")
+    item.text = f"{h5name}:{path}"
+
+
+def _attribute_type(array: np.ndarray) -> str:
+    if array.ndim == 1:
+        return "Scalar"
+    return {3: "Vector", 9: "Tensor"}.get(array.shape[1], "Matrix")
+
+
+def _write_xdmf(out_dir: Path, stem: str, elements, rest, snapshots) -> list[Path]:
+    h5name = f"{stem}_data.h5"
+    xdmf_path = out_dir / f"{stem}.xdmf"
+    root = ET.Element("Xdmf", Version="3.0")
+    domain = ET.SubElement(root, "Domain")
+    collection = ET.SubElement(domain, "Grid", Name=stem, GridType="Collection", CollectionType="Temporal")
+    elements = np.asarray(elements, dtype=np.int64)
+    with h5py.File(out_dir / h5name, "w") as h5:
+        h5.create_dataset("topology", data=elements)
+        for k, (t, x, point, cell) in enumerate(snapshots):
+            grid = ET.SubElement(collection, "Grid", Name=f"{stem}_{k:04d}", GridType="Uniform")
+            ET.SubElement(grid, "Time", Value=repr(float(t)))
+            topo = ET.SubElement(
+                grid, "Topology", TopologyType="Triangle_6", NumberOfElements=str(elements.shape[0]),
+                NodesPerElement="6",
+            )
+            _xdmf_item(topo, h5name, "/topology", elements)
+            geo = ET.SubElement(grid, "Geometry", GeometryType="XYZ")
+            h5.create_dataset(f"geometry/{k}", data=x)
+            _xdmf_item(geo, h5name, f"/geometry/{k}", x)
+            for center, fields in (("Node", point), ("Cell", cell)):
+                for name, value in fields.items():
+                    path = f"/{center.lower()}/{name}/{k}"
+                    h5.create_dataset(path, data=value)
+                    attr = ET.SubElement(grid, "Attribute", Name=name, AttributeType=_attribute_type(value), Center=center)
+                    _xdmf_item(attr, h5name, path, value)
+    ET.indent(root)
+    ET.ElementTree(root).write(xdmf_path, encoding="utf-8", xml_declaration=True)
+    return [xdmf_path, out_dir / h5name]
+
+
+def _write_vtu(out_dir: Path, stem: str, elements, rest, snapshots) -> list[Path]:
+    import meshio
+
+    written = []
+    root = ET.Element("VTKFile", type="Collection", version="0.1", byte_order="LittleEndian")
+    coll = ET.SubElement(root, "Collection")
+    for k, (t, x, point, cell) in enumerate(snapshots):
+        name = f"{stem}_{k:04d}.vtu"
+        mesh = meshio.Mesh(
+            np.asarray(x, dtype=np.float64), [("triangle6", np.asarray(elements, dtype=np.int64))],
+            point_data=point, cell_data={key: [value] for key, value in cell.items()},
+        )
+        meshio.write(out_dir / name, mesh, file_format="vtu", binary=True)
+        ET.SubElement(coll, "DataSet", timestep=repr(float(t)), group="", part="0", file=name)
+        written.append(out_dir / name)
+    pvd = out_dir / f"{stem}.pvd"
+    ET.indent(root)
+    ET.ElementTree(root).write(pvd, encoding="utf-8", xml_declaration=True)
+    return [pvd] + written
+
+
+def export_run(
+    path: str | os.PathLike,
+    out_dir: str | os.PathLike | None = None,
+    fmt: str = "xdmf",
+    fields: bool = True,
+) -> list[Path]:
+    """Write a trajectory's snapshots for ParaView; returns the files written (index file first)."""
+    from capsim.store import read_trajectory
+
+    if fmt not in FORMATS:
+        raise ValueError(f"format must be one of {', '.join(FORMATS)}, got {fmt!r}")
+    path = Path(path)
+    data = read_trajectory(path)
+    out = Path(out_dir) if out_dir is not None else path.parent / f"{path.stem}_{fmt}"
+    out.mkdir(parents=True, exist_ok=True)
+    elements = np.asarray(data["elements"])
+    rest = np.asarray(data["rest_positions"], dtype=np.float64)
+    positions, times = data["positions"], data["snapshot_t"]
+    if len(positions) == 0:
+        positions, times = rest[None], np.zeros(1)
+    model = model_for(data) if fields else None
+
+    def snapshots():
+        for t, x in zip(times, positions):
+            x = np.asarray(x, dtype=np.float64)
+            if model is None:
+                point, cell = {"displacement": x - rest}, {}
+            else:
+                point, cell = snapshot_fields(model, x, rest)
+            yield float(t), x, point, cell
+
+    writer = _write_xdmf if fmt == "xdmf" else _write_vtu
+    return writer(out, path.stem, elements, rest, snapshots())
