@@ -15,6 +15,14 @@ import numpy as np
 from capsim.quadrature import triangle_rule
 
 
+def interpolate(phi: np.ndarray, nodal: np.ndarray) -> np.ndarray:
+    """Values at rule points from element-nodal values: (q, 6) × (N_e, 6, d) →
+    (N_e, q, d), as one matrix product (much faster than einsum here)."""
+    ne, _, d = nodal.shape
+    flat = nodal.transpose(0, 2, 1).reshape(ne * d, 6) @ phi.T  # (N_e·d, q)
+    return flat.reshape(ne, d, -1).transpose(0, 2, 1)
+
+
 def shape_functions(xi: np.ndarray, eta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Quadratic Lagrange basis φ_k and its derivatives at (ξ, η); each (m, 6).
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from capsim import kernels
-from capsim.geometry import ElementGeometry, element_geometry, shape_functions
+from capsim.geometry import ElementGeometry, element_geometry, interpolate, shape_functions
 from capsim.membrane import MembraneLaw, VertexStrain, get_law, strain_from_gradient, tension_tensor
 from capsim.mesh import node_element_incidence
 from capsim.quadrature import NODE_XI, NODE_ETA, gauss_legendre_01, singular_rules, triangle_rule
@@ -96,7 +96,7 @@ class Discretization:
             point_density = np.repeat(density[:, None, :], geo.weights.shape[1], axis=1)
         else:
             nodal = density
-            point_density = np.einsum("qk,ekd->eqd", self.reg_phi, density)
+            point_density = interpolate(self.reg_phi, density)
         strengths = (point_density * geo.weights[..., None]).reshape(-1, 3)
         u = kernels.stokeslet_sum(x, geo.points.reshape(-1, 3), strengths)
         u += kernels.single_layer_singular_correction(
@@ -110,8 +110,8 @@ class Discretization:
     def nodal_normals(self, x: np.ndarray) -> np.ndarray:
         """Unit normals at all nodes: mean of the element normals at each node."""
         xe = x[self.elements]
-        t1 = np.einsum("kj,ejd->ekd", self.node_dxi, xe)
-        t2 = np.einsum("kj,ejd->ekd", self.node_deta, xe)
+        t1 = interpolate(self.node_dxi, xe)
+        t2 = interpolate(self.node_deta, xe)
         n = np.cross(t1, t2)
         n /= np.linalg.norm(n, axis=2)[..., None]
         acc = np.zeros_like(x)
@@ -127,7 +127,7 @@ class Discretization:
         """
         if u_target is None:
             u_target = u
-        u_pts = np.einsum("qk,ekd->eqd", self.reg_phi, u[self.elements])
+        u_pts = interpolate(self.reg_phi, u[self.elements])
         nw = geo.normals * geo.weights[..., None]
         out = kernels.double_layer_sum(x, u_target, geo.points.reshape(-1, 3), nw.reshape(-1, 3), u_pts.reshape(-1, 3))
         out += kernels.double_layer_singular_correction(
@@ -261,8 +261,8 @@ class CapsuleModel:
         disc = self.disc
         n_nodes = disc.nodal_normals(x)
         n_q = geo.normals * geo.weights[..., None]
-        flux = np.einsum("qk,ekd,eqd->", disc.reg_phi, u[disc.elements], n_q)
-        norm = np.einsum("qk,ekd,eqd->", disc.reg_phi, n_nodes[disc.elements], n_q)
+        flux = float((interpolate(disc.reg_phi, u[disc.elements]) * n_q).sum())
+        norm = float((interpolate(disc.reg_phi, n_nodes[disc.elements]) * n_q).sum())
         return u - (flux / norm) * n_nodes
 
     def _solve_double_layer(self, x: np.ndarray, geo: ElementGeometry, rhs: np.ndarray) -> np.ndarray:
@@ -275,7 +275,7 @@ class CapsuleModel:
         area = geo.weights.sum()
 
         def flux(u):
-            return float(np.einsum("qk,ekd,eqd->", phi, u[disc.elements], n_q))
+            return float((interpolate(phi, u[disc.elements]) * n_q).sum())
 
         def apply(u):
             return u - c * disc.double_layer(x, geo, u) + (1.0 - lam) * normals * (flux(u) / area)
