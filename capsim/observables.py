@@ -12,7 +12,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from capsim.geometry import ElementGeometry, centroid, second_moment, vertex_triangle_quality, volume_area
+from capsim.geometry import (
+    ElementGeometry,
+    centroid,
+    interpolate,
+    second_moment,
+    vertex_triangle_quality,
+    volume_area,
+)
 
 
 def ellipsoid_axes(geo: ElementGeometry) -> dict:
@@ -90,15 +97,15 @@ def particle_stresslet(
     nodal u (N_p, 3), interpolated quadratically to the Gauss points.
     """
     if density.ndim == 3:
-        df = np.einsum("qk,ekd->eqd", phi, density)
+        df = interpolate(phi, density)
     else:
         df = np.broadcast_to(density[:, None, :], geo.points.shape)
     x = geo.points - center
-    elastic = np.einsum("eqi,eqj,eq->ij", df, x, geo.weights)
+    elastic = (df * geo.weights[..., None]).reshape(-1, 3).T @ x.reshape(-1, 3)
     S = 0.5 * (elastic + elastic.T) / shear_rate_G
     if viscosity_ratio != 1.0:
-        u = np.einsum("qk,ekd->eqd", phi, velocity[elements])
-        un = np.einsum("eqi,eqj,eq->ij", u, geo.normals, geo.weights)
+        u = interpolate(phi, velocity[elements])
+        un = (u * geo.weights[..., None]).reshape(-1, 3).T @ geo.normals.reshape(-1, 3)
         S -= (1.0 - viscosity_ratio) * (un + un.T)
     return S / (2.5 * volume)
 
