@@ -71,3 +71,43 @@ def test_no_double_layer_work_at_lambda_one(sphere2, monkeypatch):
     model = CapsuleModel(disc, mesh.positions, 0.1, viscosity_ratio=1.0)
     model.velocity(mesh.positions * 1.01)
     assert calls == [] and model.last_solve_info["iterations"] == 0
+
+
+# first-order slow times kτ·G_s/(μa) (theory.md): kτ = τ̂·Ca = 3 τ̂ G
+TAU_HAT = {0.2: 2.63, 5.0: 11.0}
+
+
+@pytest.mark.parametrize(
+    "lam,G_pair",
+    [
+        (0.2, (0.0125, 0.00625)),
+        pytest.param(5.0, (0.00625, 0.003125), marks=pytest.mark.slow),
+    ],
+)
+def test_first_order_deformation_does_not_depend_on_lambda(tmp_path, lam, G_pair):
+    """D_xy/G extrapolated linearly to G → 0 is 25/4 for every λ (level 2),
+    each run measured at five first-order relaxation times after the start."""
+    from capsim.config import case_from_dict
+    from capsim.runner import run_case
+    from capsim.store import read_trajectory
+
+    ratios = []
+    for G in G_pair:
+        path = tmp_path / f"lam{lam}-G{G}.h5"
+        case = case_from_dict(
+            {
+                "name": "first-order",
+                "flow": {"shear_rate_G": G, "viscosity_ratio": lam},
+                "mesh": {"level": 2},
+                "time": {"t_end": 5 * TAU_HAT[lam] * 3 * G},
+                "solver": {"tol": 1e-6},
+                "output": {"path": str(path), "snapshot_every": 10.0},
+            }
+        )
+        assert run_case(case)["status"] == "completed"
+        ts = read_trajectory(path)["timeseries"]
+        assert (ts["solver_residual"] <= 1e-6 * 10).all()
+        ratios.append(ts["D_xy"][-1] / G)
+    extrapolated = 2 * ratios[1] - ratios[0]
+    print(lam, ratios, extrapolated)
+    assert abs(extrapolated / 6.25 - 1) < 0.03
