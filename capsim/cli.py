@@ -128,6 +128,9 @@ def _summary_table(summary: dict[str, Any]) -> str:
 def run(
     case_path: Path = typer.Argument(..., metavar="CASE.yaml", help="case file"),
     output: Optional[Path] = typer.Option(None, "-o", "--output", help="output HDF5 path"),
+    error_estimate: bool = typer.Option(
+        False, "--error-estimate", help="also run one level coarser and rtol x 10; store the differences"
+    ),
     t_end: Optional[float] = typer.Option(None, "--t-end", help="override time.t_end"),
     level: Optional[int] = typer.Option(None, "--level", help="override mesh.level"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress line"),
@@ -157,6 +160,10 @@ def run(
         if progress is not None:
             progress.finish()
     typer.echo(_summary_table(summary))
+    if error_estimate and summary.get("status") == "completed":
+        from capsim.study import run_error_estimate
+
+        typer.echo(run_error_estimate(case, summary))
     raise typer.Exit(code=0 if summary.get("status") == "completed" else 1)
 
 
@@ -350,6 +357,58 @@ def export(
     except OSError as exc:
         raise _user_error(f"cannot write {out_dir}: {exc.strerror or exc}") from None
     typer.echo(f"{files[0]} ({len(files)} files)")
+
+
+def _number_list(text: str, kind: type, option: str) -> list:
+    try:
+        values = [kind(v) for v in text.replace(" ", "").split(",") if v]
+    except ValueError:
+        raise _user_error(f"{option} must be a comma-separated list of {kind.__name__}s, got {text!r}") from None
+    if not values:
+        raise _user_error(f"{option} is empty")
+    return values
+
+
+@app.command()
+def study(
+    case_path: Path = typer.Argument(..., metavar="CASE.yaml", help="case file"),
+    levels: str = typer.Option("2,3,4", "--levels", help="mesh levels, comma-separated"),
+    rtols: str = typer.Option("1e-3,1e-4,1e-5", "--rtols", help="RKF23 tolerances, comma-separated"),
+    quad: Optional[str] = typer.Option(None, "--quad", help="regular Gauss orders (points per element), comma-separated"),
+    reference: str = typer.Option("finest", "--reference", help="finest (run) or richardson (extrapolated in the level)"),
+    t_end: Optional[float] = typer.Option(None, "--t-end", help="override time.t_end"),
+    workers: int = typer.Option(1, "--workers", min=1, help="runs side by side (the kernels already use every core)"),
+    output: Path = typer.Option(Path("study.nc"), "-o", "--output", help="netCDF path; the Pareto plot goes next to it (.png)"),
+    runs_dir: Optional[Path] = typer.Option(None, "--runs-dir", help="keep the run files here (default: discarded)"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no line per finished run"),
+) -> None:
+    """Accuracy against cost: run a ladder of settings, print errors, wall time and observed order."""
+    from capsim.config import ConfigError
+    from capsim.study import format_study_table, plot_pareto, run_study, write_study
+
+    if reference not in ("finest", "richardson"):
+        raise _user_error(f"--reference must be finest or richardson, got {reference!r}")
+    level_list = _number_list(levels, int, "--levels")
+    rtol_list = _number_list(rtols, float, "--rtols")
+    quad_list = _number_list(quad, int, "--quad") if quad is not None else None
+    if reference == "richardson" and len(set(level_list)) < 2:
+        raise _user_error("--reference richardson needs at least two levels")
+    case = _load(case_path, **{"time.t_end": t_end})
+    _check_writable(output)
+    report = None if quiet else (lambda line: typer.echo(line, err=True))
+    try:
+        ds = run_study(case, level_list, rtol_list, regular_orders=quad_list, reference=reference,
+                       workers=workers, out_dir=runs_dir, progress=report)
+    except ConfigError as exc:
+        raise _user_error(str(exc)) from None
+    except KeyboardInterrupt:
+        typer.echo("\ninterrupted", err=True)
+        raise typer.Exit(code=1) from None
+    typer.echo(format_study_table(ds))
+    write_study(ds, output)
+    png = plot_pareto(ds, output.with_suffix(".png"))
+    typer.echo(f"{output}, {png}")
+    raise typer.Exit(code=0 if bool((ds["status"] == "completed").all()) else 1)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,590 @@
+"""Accuracy against cost: a ladder of settings, errors against a reference, wall time.
+
+:func:`run_study` runs one case over a ladder of mesh levels × RKF23 tolerances
+(× regular Gauss orders, optionally), in a process pool, and returns an xarray
+Dataset with, for every setting, the raw values of the observables at ``t_end``,
+their errors against the reference, the wall time, the number of steps and the
+volume drift. The reference is the finest run (highest level, smallest rtol,
+highest Gauss order) or a Richardson extrapolation in the mesh level of the
+finest-tolerance runs.
+
+Errors are taken at the same instant ``t = t_end`` for every setting (the last
+row of each trajectory; every run ends exactly at ``t_end``), so that a run still
+in its start-up transient is compared like for like; ``ttf_ratio`` is the
+instantaneous tank-treading ratio of the time series at ``t_end``.
+
+Observed order in the mesh level, per quantity, at each tolerance:
+
+- ``<q>_order``: ``log2(|e_l| / |e_{l+1}|)`` with ``e`` the error against the
+  reference (NaN where ``e_{l+1} = 0``, i.e. the reference itself);
+- ``<q>_order3``: the classic three-level estimate
+  ``log2(|f_l − f_{l+1}| / |f_{l+1} − f_{l+2}|)``, independent of the reference.
+
+The mesh spacing halves with every level, so ``p`` is the order in ``h``.
+
+:func:`run_error_estimate` is ``capsim run --error-estimate``: it reruns a case
+one level coarser and with a ten times looser tolerance and stores
+``|Δ_mesh| + |Δ_time|`` for each summary value in the run file's
+``error_estimate`` group.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing
+import os
+import shutil
+import tempfile
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from capsim.config import Case, apply_overrides
+
+__all__ = [
+    "QUANTITIES",
+    "analyse_study",
+    "error_estimate",
+    "format_error_estimate",
+    "format_study_table",
+    "plot_pareto",
+    "run_error_estimate",
+    "run_study",
+    "write_error_estimate",
+    "write_study",
+]
+
+#: Observables whose error the study reports.
+QUANTITIES = ("D_xy", "theta", "ttf_ratio", "Sxy_star")
+
+_UNITS = {"D_xy": "1", "theta": "rad", "ttf_ratio": "1", "Sxy_star": "1"}
+
+
+# ---------------------------------------------------------------- one run
+
+
+def _window_mean(t: np.ndarray, s: np.ndarray, t0: float, t1: float) -> float:
+    """Trapezoidal time mean of s over [t0, t1] (linear interpolation at the ends)."""
+    if not (math.isfinite(t0) and math.isfinite(t1)) or t1 <= t0 or t.size < 2:
+        return float("nan")
+    inner = (t > t0) & (t < t1)
+    tt = np.concatenate([[t0], t[inner], [t1]])
+    ss = np.concatenate([[np.interp(t0, t, s)], s[inner], [np.interp(t1, t, s)]])
+    return float(np.trapezoid(ss, tt) / (t1 - t0)) if hasattr(np, "trapezoid") else float(
+        np.trapz(ss, tt) / (t1 - t0)
+    )
+
+
+_WARM = False
+
+
+def _warm_up() -> None:
+    """Compile/load the JIT kernels once per process, so that wall times measure the run."""
+    global _WARM
+    if _WARM:
+        return
+    from capsim.config import case_from_dict
+    from capsim.runner import run_case
+
+    tmp = tempfile.mkdtemp(prefix="capsim-warm-")
+    try:
+        for lam in (1.0, 2.0):
+            run_case(case_from_dict({
+                "name": "warm", "mesh": {"level": 0}, "flow": {"viscosity_ratio": lam},
+                "time": {"t_end": 0.002, "dt_initial": 0.001},
+                "output": {"path": str(Path(tmp) / f"warm{lam:g}.h5")},
+            }))
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    _WARM = True
+
+
+def _failed_record(reason: str) -> dict[str, Any]:
+    record: dict[str, Any] = {"status": "failed", "status_reason": reason, "wall_time_s": float("nan"),
+                              "steps": -1, "volume_drift": float("nan"), "n_nodes": -1, "t": float("nan")}
+    for q in QUANTITIES:
+        record[q] = float("nan")
+        record[f"{q}_mean"] = float("nan")
+    return record
+
+
+def _run_one(case: Case, window: tuple[float, float] | None = None) -> dict[str, Any]:
+    """Run `case` and return its record: values at t_end, cost, status.
+
+    With `window` = (t0, t1), also the time means of the quantities over it
+    (``<q>_mean``), so that runs can be compared over one averaging window.
+    """
+    from capsim.runner import run_case
+    from capsim.store import read_trajectory
+
+    record = _failed_record("")
+    try:
+        _warm_up()
+        summary = run_case(case)
+    except Exception as exc:  # one failed setting must not sink the study
+        record["status_reason"] = f"{type(exc).__name__}: {exc}"
+        return record
+    record.update(
+        status=summary.get("status", "failed"),
+        status_reason=summary.get("status_reason", ""),
+        wall_time_s=float(summary["wall_time_s"]),
+        steps=int(summary["steps"]),
+        volume_drift=float(summary["volume_drift"]),
+        t=float(summary["t"]),
+    )
+    traj = read_trajectory(case.output.path)
+    ts = traj["timeseries"]
+    record["n_nodes"] = int(traj["attrs"].get("n_nodes", traj["rest_positions"].shape[0]))
+    t = np.asarray(ts["t"], float)
+    for q in QUANTITIES:
+        s = np.asarray(ts[q], float)
+        if q == "theta":
+            s = np.unwrap(s, period=np.pi)
+        record[q] = float(s[-1])
+        if window is not None:
+            record[f"{q}_mean"] = _window_mean(t, s, *window)
+    if record["status"] == "completed" and abs(record["t"] - case.time.t_end) > 1e-9 * max(1.0, case.time.t_end):
+        record["status_reason"] = f"stopped at kt = {record['t']:.6g} before t_end"
+    return record
+
+
+def _run_jobs(jobs: list[tuple[Case, Any]], workers: int, progress: Callable[[str], None] | None,
+              window: tuple[float, float] | None = None) -> list[dict[str, Any]]:
+    """Run the cases (in a process pool when workers > 1); records in job order."""
+    records: list[dict[str, Any] | None] = [None] * len(jobs)
+    # Biggest first, so that the pool is not left waiting on one long run at the end.
+    order = sorted(range(len(jobs)), key=lambda i: (-jobs[i][0].mesh.level, jobs[i][0].time.rtol))
+    if workers <= 1 or len(jobs) == 1:
+        for i in order:
+            records[i] = _run_one(jobs[i][0], window)
+            if progress is not None:
+                progress(_describe_done(jobs[i][0], records[i]))
+        return records  # type: ignore[return-value]
+    # spawn, not fork: the numba kernels run on OpenMP threads, and forking a
+    # process that has used them kills the child.
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx) as pool:
+        futures = {pool.submit(_run_one, jobs[i][0], window): i for i in order}
+        for fut in as_completed(futures):
+            i = futures[fut]
+            try:
+                records[i] = fut.result()
+            except Exception as exc:  # a worker that died (BrokenProcessPool, MemoryError …)
+                records[i] = _failed_record(f"{type(exc).__name__}: {exc}")
+            if progress is not None:
+                progress(_describe_done(jobs[i][0], records[i]))
+    return records  # type: ignore[return-value]
+
+
+def _describe_done(case: Case, record: dict[str, Any]) -> str:
+    return (f"level {case.mesh.level} rtol {case.time.rtol:g} q{case.quadrature.regular_order}: "
+            f"{record['status']}, {record['wall_time_s']:.1f} s, {record['steps']} steps, "
+            f"D_xy = {record['D_xy']:.6f}")
+
+
+# ---------------------------------------------------------------- the study
+
+
+def _order_from_errors(e: np.ndarray) -> np.ndarray:
+    """log2(|e_l| / |e_{l+1}|) along the last axis (NaN past the end or where undefined)."""
+    e = np.abs(np.asarray(e, float))
+    out = np.full(e.shape, np.nan)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.log2(e[..., :-1] / e[..., 1:])
+    out[..., :-1] = np.where(np.isfinite(r), r, np.nan)
+    return out
+
+
+def _order_three_level(f: np.ndarray) -> np.ndarray:
+    """log2(|f_l − f_{l+1}| / |f_{l+1} − f_{l+2}|) along the last axis."""
+    f = np.asarray(f, float)
+    out = np.full(f.shape, np.nan)
+    if f.shape[-1] >= 3:
+        d = np.abs(np.diff(f, axis=-1))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.log2(d[..., :-1] / d[..., 1:])
+        out[..., :-2] = np.where(np.isfinite(r), r, np.nan)
+    return out
+
+
+def _richardson(f: np.ndarray, levels: np.ndarray) -> tuple[float, float]:
+    """Extrapolated value and the order used, from values f over consecutive levels."""
+    ok = np.isfinite(f)
+    f, levels = f[ok], levels[ok]
+    if f.size == 0:
+        return float("nan"), float("nan")
+    if f.size == 1 or np.any(np.diff(levels) != 1):
+        return float(f[-1]), float("nan")
+    p = 2.0
+    if f.size >= 3:
+        d1, d2 = abs(f[-2] - f[-3]), abs(f[-1] - f[-2])
+        if d1 > 0 and d2 > 0:
+            p_obs = math.log2(d1 / d2)
+            if 0.5 <= p_obs <= 8.0:
+                p = p_obs
+    return float(f[-1] + (f[-1] - f[-2]) / (2.0**p - 1.0)), p
+
+
+def run_study(
+    case: Case,
+    levels: Sequence[int],
+    rtols: Sequence[float],
+    regular_orders: Sequence[int] | None = None,
+    reference: str = "finest",
+    workers: int = 1,
+    out_dir: str | os.PathLike | None = None,
+    progress: Callable[[str], None] | None = None,
+):
+    """Run the ladder levels × rtols (× regular_orders) and compare with the reference.
+
+    `reference` is ``"finest"`` (the run at the highest level, smallest rtol and
+    highest Gauss order) or ``"richardson"`` (extrapolation in the level of the
+    finest-tolerance runs, with the observed order when three levels give one
+    between 0.5 and 8, else 2). The run files go to `out_dir` (a temporary
+    directory, removed afterwards, when None). Returns an xarray Dataset.
+    """
+    import xarray as xr
+
+    if reference not in ("finest", "richardson"):
+        raise ValueError(f"reference must be 'finest' or 'richardson', got {reference!r}")
+    levels = sorted({int(v) for v in levels})
+    rtols = sorted({float(v) for v in rtols}, reverse=True)  # loosest first: error falls along the axis
+    quads = sorted({int(v) for v in regular_orders}) if regular_orders else [case.quadrature.regular_order]
+    if not levels or not rtols:
+        raise ValueError("the study needs at least one level and one rtol")
+    if reference == "richardson" and len(levels) < 2:
+        raise ValueError("a Richardson reference needs at least two levels")
+
+    tmp = None
+    if out_dir is None:
+        tmp = tempfile.mkdtemp(prefix="capsim-study-")
+        run_dir = Path(tmp)
+    else:
+        run_dir = Path(out_dir)
+        run_dir.mkdir(parents=True, exist_ok=True)
+
+    base = apply_overrides(case, **{"time.stop_when_steady": False})
+    jobs: list[tuple[Case, tuple[int, int, int]]] = []
+    for iq, q in enumerate(quads):
+        for ir, rtol in enumerate(rtols):
+            for il, level in enumerate(levels):
+                name = f"{case.name}_L{level}_rtol{rtol:g}_q{q}"
+                c = apply_overrides(base, **{
+                    "mesh.level": level, "time.rtol": rtol, "quadrature.regular_order": q,
+                    "output.path": str(run_dir / f"{name}.h5"),
+                })
+                jobs.append((c, (iq, ir, il)))
+    try:
+        records = _run_jobs(jobs, workers, progress)
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+    shape = (len(quads), len(rtols), len(levels))
+
+    def grid(key: str, dtype=float, fill=np.nan) -> np.ndarray:
+        a = np.full(shape, fill, dtype=dtype)
+        for (c, idx), rec in zip(jobs, records):
+            a[idx] = rec[key]
+        return a
+
+    dims = ("regular_order", "rtol", "level")
+    status = grid("status", dtype=object, fill="")
+    completed = status == "completed"
+    data_vars: dict[str, Any] = {}
+    for q in QUANTITIES:
+        data_vars[q] = (dims, np.where(completed, grid(q), np.nan), {"long_name": f"{q} at t_end", "units": _UNITS[q]})
+    data_vars["wall_time_s"] = (dims, grid("wall_time_s"), {
+        "long_name": "wall-clock time of the run (mesh set-up included, JIT warmed up)", "units": "s"})
+    data_vars["steps"] = (dims, grid("steps", dtype=np.int64, fill=-1), {"long_name": "accepted RKF23 steps"})
+    data_vars["volume_drift"] = (dims, grid("volume_drift"), {"long_name": "(V - V0)/V0 at t_end", "units": "1"})
+    data_vars["n_nodes"] = (dims, grid("n_nodes", dtype=np.int64, fill=-1), {"long_name": "mesh nodes"})
+    data_vars["status"] = (dims, status.astype(str), {"long_name": "final status of the run"})
+    data_vars["status_reason"] = (dims, grid("status_reason", dtype=object, fill="").astype(str), {})
+
+    from capsim import __version__
+
+    ds = xr.Dataset(
+        data_vars,
+        coords={"regular_order": quads, "rtol": rtols, "level": levels},
+        attrs={
+            "title": f"capsim accuracy study of case {case.name}",
+            "case_yaml": base.to_yaml(),
+            "t_end": float(case.time.t_end),
+            "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "workers": int(workers),
+            "capsim_version": __version__,
+        },
+    )
+    ds = analyse_study(ds, reference)
+    if len(quads) == 1:
+        ds = ds.squeeze("regular_order")
+    return ds
+
+
+def analyse_study(ds, reference: str = "finest"):
+    """Errors, relative errors, observed orders and cost exponents of a study Dataset.
+
+    `ds` holds the raw values (``D_xy`` …, ``wall_time_s``, ``steps``,
+    ``n_nodes``) on dimensions (``regular_order``,) ``rtol`` (loosest first),
+    ``level``; returns a copy with the ``*_error``, ``*_relative_error``,
+    ``*_order``, ``*_order3`` and ``*_reference`` variables (re)computed against
+    `reference` (``"finest"`` or ``"richardson"``).
+    """
+    if reference not in ("finest", "richardson"):
+        raise ValueError(f"reference must be 'finest' or 'richardson', got {reference!r}")
+    squeezed = "regular_order" not in ds.dims
+    if squeezed:
+        ds = ds.expand_dims("regular_order")
+    ds = ds.transpose("regular_order", "rtol", "level")
+    levels = np.asarray(ds["level"].values, int)
+    if reference == "richardson" and levels.size < 2:
+        raise ValueError("a Richardson reference needs at least two levels")
+    dims = ("regular_order", "rtol", "level")
+    shape = tuple(ds.sizes[d] for d in dims)
+    out = ds.copy()
+    for q in QUANTITIES:
+        raw = np.asarray(ds[q].values, float)
+        if reference == "finest":
+            ref, ref_order = float(raw[-1, -1, -1]), float("nan")
+        else:
+            ref, ref_order = _richardson(raw[-1, -1, :], levels)
+        err = raw - ref
+        out[f"{q}_error"] = (dims, err, {
+            "long_name": f"error of {q} at t_end against the {reference} reference", "units": _UNITS[q]})
+        rel = np.abs(err) / abs(ref) if ref else np.full(shape, np.nan)
+        out[f"{q}_relative_error"] = (dims, rel, {"long_name": f"|error| / |reference| of {q}", "units": "1"})
+        out[f"{q}_order"] = (dims, _order_from_errors(err), {
+            "long_name": f"observed order of {q} in h: log2(|e_l|/|e_(l+1)|)", "units": "1"})
+        out[f"{q}_order3"] = (dims, _order_three_level(raw), {
+            "long_name": f"observed order of {q} in h: log2(|f_l - f_(l+1)|/|f_(l+1) - f_(l+2)|)", "units": "1"})
+        out[f"{q}_reference"] = ((), ref, {"long_name": f"reference value of {q}", "units": _UNITS[q],
+                                           "richardson_order": ref_order})
+    out.attrs["reference"] = reference
+    out.attrs["error_definition"] = "value at t_end minus the reference value"
+    # Wall time against the number of nodes at the finest tolerance: measured exponents.
+    n = np.asarray(ds["n_nodes"].values[-1, -1, :], float)
+    for name, y in (("wall_time_exponent", ds["wall_time_s"].values),
+                    ("wall_time_per_step_exponent", ds["wall_time_s"].values / ds["steps"].values)):
+        w = np.asarray(y[-1, -1, :], float)
+        ok = (n > 0) & np.isfinite(w) & (w > 0)
+        out.attrs[name] = float(np.polyfit(np.log(n[ok]), np.log(w[ok]), 1)[0]) if ok.sum() >= 2 else float("nan")
+    if squeezed:
+        out = out.squeeze("regular_order")
+    return out
+
+
+def write_study(ds, path: str | os.PathLike) -> Path:
+    """Write the study Dataset as netCDF (string variables as plain strings)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    out = ds.copy()
+    for name in ("status", "status_reason"):
+        out[name] = out[name].astype(str)
+    out.to_netcdf(path)
+    return path
+
+
+# ---------------------------------------------------------------- reporting
+
+
+def _settings(ds):
+    """(label, index dict) for every setting, loosest first."""
+    import itertools
+
+    dims = [d for d in ("regular_order", "rtol", "level") if d in ds.dims]
+    for combo in itertools.product(*(range(ds.sizes[d]) for d in dims)):
+        idx = dict(zip(dims, combo))
+        yield idx
+
+
+def format_study_table(ds) -> str:
+    """The study as a text table: one row per setting, then the observed orders."""
+    head = ["level", "rtol"] + (["quad"] if "regular_order" in ds.dims else []) + [
+        "nodes", "steps", "wall s", "D_xy", "err D_xy", "err θ", "err ttf", "err S*xy", "vol drift", "status"]
+    rows = []
+    for idx in _settings(ds):
+        sel = ds.isel(idx)
+        row = [str(int(sel["level"])), f"{float(sel['rtol']):.0e}"]
+        if "regular_order" in ds.dims:
+            row.append(str(int(sel["regular_order"])))
+        row += [
+            str(int(sel["n_nodes"])), str(int(sel["steps"])), f"{float(sel['wall_time_s']):.1f}",
+            f"{float(sel['D_xy']):.6f}",
+            *(f"{float(sel[f'{q}_error']):+.2e}" for q in QUANTITIES),
+            f"{float(sel['volume_drift']):.1e}", str(sel["status"].values),
+        ]
+        rows.append(row)
+    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(head)]
+    lines = ["  ".join(h.rjust(w) for h, w in zip(head, widths))]
+    lines += ["  ".join(c.rjust(w) for c, w in zip(r, widths)) for r in rows]
+    lines.append(f"reference ({ds.attrs['reference']}): " + ", ".join(
+        f"{q} = {float(ds[f'{q}_reference']):.6f}" for q in QUANTITIES))
+    # Observed orders at the finest tolerance (and Gauss order).
+    fine = ds.isel(rtol=-1, **({"regular_order": -1} if "regular_order" in ds.dims else {}))
+    levels = [int(v) for v in ds["level"].values]
+    for q in ("D_xy", "theta"):
+        parts = []
+        for i, level in enumerate(levels):
+            p, p3 = float(fine[f"{q}_order"][i]), float(fine[f"{q}_order3"][i])
+            if math.isfinite(p):
+                parts.append(f"p(L{level}→L{levels[i + 1]}) = {p:.2f}")
+            if math.isfinite(p3):
+                parts.append(f"p3(L{level},L{levels[i + 1]},L{levels[i + 2]}) = {p3:.2f}")
+        if parts:
+            lines.append(f"observed order of {q} at rtol {float(fine['rtol']):.0e}: " + ", ".join(parts))
+    lines.append(
+        f"wall time ∝ N^{ds.attrs['wall_time_exponent']:.2f}, wall time per step ∝ "
+        f"N^{ds.attrs['wall_time_per_step_exponent']:.2f} (N nodes, finest tolerance)")
+    return "\n".join(lines)
+
+
+def plot_pareto(ds, path: str | os.PathLike, quantities: Sequence[str] = ("D_xy", "theta")) -> Path:
+    """PNG of |error| against wall time for every setting, with the Pareto front."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig, axes = plt.subplots(1, len(quantities), figsize=(5.5 * len(quantities), 4.5), squeeze=False)
+    rtols = [float(v) for v in ds["rtol"].values]
+    markers = "osD^v<>"
+    for ax, q in zip(axes[0], quantities):
+        pts = []
+        for idx in _settings(ds):
+            sel = ds.isel(idx)
+            w, e = float(sel["wall_time_s"]), abs(float(sel[f"{q}_error"]))
+            if not (math.isfinite(w) and math.isfinite(e)) or e == 0.0:
+                continue  # the reference itself has no error to show
+            r = float(sel["rtol"])
+            label = f"L{int(sel['level'])}"
+            ax.loglog(w, e, markers[rtols.index(r) % len(markers)], color=f"C{rtols.index(r)}",
+                      label=f"rtol {r:.0e}")
+            ax.annotate(label, (w, e), textcoords="offset points", xytext=(4, 3), fontsize=8)
+            pts.append((w, e))
+        pts.sort()
+        front, best = [], math.inf
+        for w, e in pts:
+            if e < best:
+                front.append((w, e))
+                best = e
+        if front:
+            ax.loglog(*zip(*front), "k--", lw=1, label="Pareto front")
+        handles, labels = ax.get_legend_handles_labels()
+        uniq = dict(zip(labels, handles))
+        ax.legend(uniq.values(), uniq.keys(), fontsize=8)
+        ax.set_xlabel("wall time (s)")
+        ax.set_ylabel(f"|error of {q}| at kt = {ds.attrs['t_end']:g}")
+        ax.grid(True, which="both", alpha=0.3)
+    fig.suptitle(f"{ds.attrs['title']} (reference: {ds.attrs['reference']})", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+# ---------------------------------------------------------------- run --error-estimate
+
+
+def error_estimate(case: Case, summary: dict[str, Any], workers: int = 2,
+                   rtol_factor: float = 10.0) -> dict[str, Any]:
+    """Error estimate of a finished run: rerun one level coarser and with a looser tolerance.
+
+    Returns, for each quantity q of :data:`QUANTITIES`, ``q`` (estimate of the
+    error of the value at t_end: ``|Δ_mesh| + |Δ_time|``), ``q_mesh`` and
+    ``q_time`` (the two signed differences, run minus coarser/looser run), and
+    the same for the time mean over the run's averaging window as ``q_mean*``.
+    The mesh part is NaN at level 0 (no coarser mesh).
+    """
+    from capsim.store import read_trajectory
+
+    traj = read_trajectory(case.output.path)
+    ts = traj["timeseries"]
+    t = np.asarray(ts["t"], float)
+    t0 = float(summary.get("averaging_t_from", float("nan")))
+    t1 = float(summary.get("averaging_t_to", t[-1] if t.size else float("nan")))
+    window = (t0, t1)
+    main: dict[str, float] = {}
+    for q in QUANTITIES:
+        s = np.asarray(ts[q], float)
+        if q == "theta":
+            s = np.unwrap(s, period=np.pi)
+        main[q] = float(s[-1])
+        main[f"{q}_mean"] = _window_mean(t, s, *window)
+
+    tmp = tempfile.mkdtemp(prefix="capsim-errest-")
+    try:
+        base = apply_overrides(case, **{"time.stop_when_steady": False})
+        loose_rtol = min(case.time.rtol * rtol_factor, 0.5)
+        jobs: list[tuple[Case, str]] = [(apply_overrides(base, **{
+            "time.rtol": loose_rtol, "output.path": str(Path(tmp) / "time.h5")}), "time")]
+        if case.mesh.level > 0:
+            jobs.append((apply_overrides(base, **{
+                "mesh.level": case.mesh.level - 1, "output.path": str(Path(tmp) / "mesh.h5")}), "mesh"))
+        records = _run_jobs(jobs, workers, None, window=window)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    by_kind = {kind: rec for (_, kind), rec in zip(jobs, records)}
+
+    out: dict[str, Any] = {
+        "coarse_level": case.mesh.level - 1 if case.mesh.level > 0 else -1,
+        "loose_rtol": loose_rtol,
+        "wall_time_s": float(sum(r["wall_time_s"] for r in records)),
+    }
+    for q in QUANTITIES:
+        for suffix in ("", "_mean"):
+            key = f"{q}{suffix}"
+            d_time = main[key] - by_kind["time"][key] if by_kind["time"]["status"] == "completed" else float("nan")
+            d_mesh = (main[key] - by_kind["mesh"][key]
+                      if "mesh" in by_kind and by_kind["mesh"]["status"] == "completed" else float("nan"))
+            out[f"{key}_value"] = main[key]
+            out[f"{key}_time"] = float(d_time)
+            out[f"{key}_mesh"] = float(d_mesh)
+            parts = [abs(v) for v in (d_time, d_mesh) if math.isfinite(v)]
+            out[key] = float(sum(parts)) if parts else float("nan")
+    return out
+
+
+def write_error_estimate(path: str | os.PathLike, estimate: dict[str, Any]) -> None:
+    """Store the estimate as the run file's ``error_estimate`` group (replacing any)."""
+    import h5py
+
+    with h5py.File(path, "a") as f:
+        if "error_estimate" in f:
+            del f["error_estimate"]
+        g = f.create_group("error_estimate")
+        g.attrs["definition"] = (
+            "q: |q(run) - q(one level coarser)| + |q(run) - q(rtol x 10)| at t_end; q_mean: the same for the "
+            "time mean over the run's averaging window; q_mesh, q_time: the signed differences")
+        for key, value in estimate.items():
+            g.create_dataset(key, data=value)
+
+
+def format_error_estimate(summary: dict[str, Any], estimate: dict[str, Any]) -> str:
+    """Lines 'q  value ± estimate (mesh …, time …)' for the summary values."""
+    lines = [f"error estimate (level {estimate['coarse_level']} and rtol {estimate['loose_rtol']:g} reruns, "
+             f"{estimate['wall_time_s']:.1f} s):"]
+    names = {"D_xy": "D_xy", "theta": "theta", "ttf_ratio": "TTF/f_s", "Sxy_star": "S*_xy"}
+    width = max(len(v) for v in names.values()) + len(" (t_end)")
+    for q, label in names.items():
+        for suffix, where in (("_mean", ""), ("", " (t_end)")):
+            key = f"{q}{suffix}"
+            value = summary.get(q) if suffix == "_mean" else estimate.get(f"{key}_value")
+            if not isinstance(value, (int, float)) or not math.isfinite(value):
+                continue
+            lines.append(f"  {label + where:<{width}}  {value:.6f} ± {estimate[key]:.2e}"
+                         f"  (mesh {estimate[f'{key}_mesh']:+.1e}, time {estimate[f'{key}_time']:+.1e})")
+    return "\n".join(lines)
+
+
+def run_error_estimate(case: Case, summary: dict[str, Any], workers: int = 2) -> str:
+    """`capsim run --error-estimate`: estimate, store in the run file, return the lines to print."""
+    estimate = error_estimate(case, summary, workers=workers)
+    write_error_estimate(case.output.path, estimate)
+    summary["error_estimate"] = estimate
+    return format_error_estimate(summary, estimate)
