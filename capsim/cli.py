@@ -48,7 +48,7 @@ def _check_writable(path: Path) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise _user_error(f"cannot create output directory {path.parent}: {exc.strerror}") from None
+        raise _user_error(f"output path {path}: cannot create its directory {path.parent}: {exc.strerror}") from None
     if not os.access(path.parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
         raise _user_error(f"output path {path} is not writable")
 
@@ -134,8 +134,11 @@ def run(
     t_end: Optional[float] = typer.Option(None, "--t-end", help="override time.t_end"),
     level: Optional[int] = typer.Option(None, "--level", help="override mesh.level"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress line"),
+    resume: bool = typer.Option(
+        False, "--resume", help="continue an interrupted run from its checkpoint <output>.ckpt.npz"
+    ),
 ) -> None:
-    """Run one case and write its trajectory."""
+    """Run one case and write its trajectory (or, with --resume, finish an interrupted one)."""
     case = _load(
         case_path,
         **{
@@ -146,11 +149,13 @@ def run(
     )
     _check_writable(Path(case.output.path))
 
-    from capsim.runner import run_case
+    from capsim.runner import ResumeError, run_case
 
     progress = None if quiet else _Progress()
     try:
-        summary = run_case(case, progress=progress)
+        summary = run_case(case, progress=progress, resume=resume)
+    except ResumeError as exc:
+        raise _user_error(f"cannot resume: {exc}") from None
     except OSError as exc:
         raise _user_error(f"cannot write {case.output.path}: {exc.strerror or exc}") from None
     except KeyboardInterrupt:

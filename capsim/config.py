@@ -27,6 +27,7 @@ __all__ = [
     "Case",
     "ConfigError",
     "Flow",
+    "Guards",
     "Membrane",
     "Mesh",
     "Output",
@@ -158,7 +159,24 @@ class Solver(_Model):
 class Output(_Model):
     path: str = Field("runs/{name}.h5", min_length=1, description="'{name}' is the case name")
     snapshot_every: float = Field(0.5, gt=0, description="time between full snapshots, 1/k")
-    checkpoint_every_steps: int = Field(50, ge=1, strict=True)
+    checkpoint_every_steps: int = Field(
+        50, ge=1, strict=True, description="write the restart checkpoint <path>.ckpt.npz every N accepted steps"
+    )
+    checkpoint_every_s: float = Field(
+        60.0, gt=0, description="... and at least every M seconds of wall time"
+    )
+
+
+class Guards(_Model):
+    """Stability guards checked after every accepted step; crossing one stops the
+    run as 'unstable' (non-finite positions and dt < time.dt_min always do)."""
+
+    min_element_quality: float = Field(
+        0.05, ge=0, lt=1, description="worst vertex-triangle quality (1 = equilateral) allowed"
+    )
+    max_volume_drift: float = Field(0.01, gt=0, description="largest |V - V0| / V0 allowed")
+    max_area_change: float = Field(2.0, gt=0, description="largest |A - A0| / A0 allowed")
+    max_principal_stretch: float = Field(10.0, gt=1, description="largest membrane principal stretch allowed")
 
 
 class Case(_Model):
@@ -173,6 +191,7 @@ class Case(_Model):
     quadrature: Quadrature = Quadrature()
     time: Time = Time()
     solver: Solver = Solver()
+    guards: Guards = Guards()
     output: Output = Field(default_factory=Output, validate_default=True)
 
     @field_validator("output")

@@ -25,7 +25,10 @@ from typing import Any
 import h5py
 import numpy as np
 
-__all__ = ["STATUSES", "TrajectoryError", "TrajectoryWriter", "VARIABLE_ATTRS", "read_trajectory"]
+__all__ = [
+    "STATUSES", "CheckpointError", "TrajectoryError", "TrajectoryWriter", "VARIABLE_ATTRS",
+    "checkpoint_path", "read_checkpoint", "read_trajectory", "remove_checkpoint", "write_checkpoint",
+]
 
 STATUSES = frozenset({"completed", "unstable", "interrupted", "failed"})
 
@@ -60,6 +63,10 @@ _STEP_FLUSH_EVERY = 20
 
 class TrajectoryError(Exception):
     """A trajectory file that cannot be read; the message is one line naming it."""
+
+
+class CheckpointError(Exception):
+    """A restart checkpoint that is missing or cannot be read; one line naming it."""
 
 
 def _now() -> str:
@@ -135,6 +142,53 @@ class TrajectoryWriter:
         self._positions.dims[0].attach_scale(self._snapshot_t)
         self._timeseries = f.create_group("timeseries")
         f.flush()
+
+    @classmethod
+    def reopen(cls, path: str | os.PathLike, n_steps: int, n_snapshots: int) -> TrajectoryWriter:
+        """Reopen a trajectory to append to it, cut back to its first ``n_steps`` rows
+        and ``n_snapshots`` snapshots (those of a checkpoint); status back to 'running'.
+
+        The file is checked read-only first, so that a file too short or unreadable
+        raises :class:`TrajectoryError` without being touched.
+        """
+        data = read_trajectory(path)
+        have_steps = len(data["timeseries"].get("t", ()))
+        have_snaps = len(data["snapshot_t"])
+        if have_steps < n_steps or have_snaps < n_snapshots:
+            raise TrajectoryError(
+                f"{os.fspath(path)}: holds {have_steps} steps and {have_snaps} snapshots, "
+                f"the checkpoint needs {n_steps} and {n_snapshots}"
+            )
+        self = cls.__new__(cls)
+        self.path = Path(path)
+        try:
+            self._file = h5py.File(self.path, "a")
+        except OSError as exc:
+            first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise TrajectoryError(f"{self.path}: cannot reopen for appending: {first}") from None
+        f = self._file
+        mesh = f["mesh"]
+        self._positions, self._snapshot_t = mesh["positions"], mesh["snapshot_t"]
+        self._n_nodes = self._positions.shape[1]
+        self._positions.resize((n_snapshots, self._n_nodes, 3))
+        self._snapshot_t.resize((n_snapshots,))
+        self._timeseries = f["timeseries"]
+        self._keys = tuple(self._timeseries) or None
+        for ds in self._timeseries.values():
+            ds.resize((n_steps,))
+        for name in ("summary", "run"):  # rewritten when the run ends
+            if name in f:
+                del f[name]
+        self._n_steps, self._n_snapshots, self._unflushed_steps = n_steps, n_snapshots, 0
+        f.attrs["status"] = "running"
+        f.attrs["status_reason"] = ""
+        f.attrs["resumed"] = _now()
+        f.flush()
+        return self
+
+    def steps(self) -> dict[str, np.ndarray]:
+        """Every time series written so far, one array per column."""
+        return {key: ds[: self._n_steps] for key, ds in self._timeseries.items()}
 
     # -- context manager -------------------------------------------------
     def __enter__(self) -> TrajectoryWriter:
@@ -244,6 +298,41 @@ def _write_dict(group: h5py.Group, data: dict[str, Any]) -> None:
             raise TypeError(f"cannot store None for '{group.name}/{key}'")
         else:
             group.create_dataset(key, data=value)
+
+
+# ---------------------------------------------------------------- checkpoints
+
+
+def checkpoint_path(trajectory_path: str | os.PathLike) -> Path:
+    """Where the restart checkpoint of a trajectory lives: ``<path>.ckpt.npz``."""
+    return Path(os.fspath(trajectory_path) + ".ckpt.npz")
+
+
+def write_checkpoint(path: str | os.PathLike, arrays: dict[str, Any]) -> None:
+    """Write arrays and scalars to an .npz atomically: a killed writer leaves the
+    previous checkpoint in place, never half of a new one."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as fh:
+        np.savez(fh, **{key: np.asarray(value) for key, value in arrays.items()})
+    os.replace(tmp, path)
+
+
+def read_checkpoint(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    source = os.fspath(path)
+    if not os.path.exists(source):
+        raise CheckpointError(f"{source}: no checkpoint (nothing to resume)")
+    try:
+        with np.load(source, allow_pickle=False) as data:
+            return {key: data[key] for key in data.files}
+    except Exception as exc:  # zipfile, ValueError, OSError: all mean a damaged file
+        first = str(exc).splitlines()[0] if str(exc) else ""
+        raise CheckpointError(f"{source}: unreadable checkpoint: {type(exc).__name__}: {first}".rstrip(": ")) from None
+
+
+def remove_checkpoint(path: str | os.PathLike) -> None:
+    Path(path).unlink(missing_ok=True)
+    Path(os.fspath(path) + ".tmp").unlink(missing_ok=True)
 
 
 # ---------------------------------------------------------------- reading
