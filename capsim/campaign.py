@@ -286,21 +286,30 @@ def execute_run(spec: RunSpec, progress_queue: Any = None) -> dict[str, Any]:
     """Run one case in this process; never raises for a failing case.
 
     Returns the run summary (or a ``failed`` record with the exception text).
-    A stale file of an earlier attempt is removed first so that the file on
-    disk always belongs to this attempt.
+    A run interrupted earlier continues from its checkpoint (same step
+    sequence as an uninterrupted run); otherwise a stale file of an earlier
+    attempt is removed first so that the file on disk belongs to this attempt.
     """
     try:
         import numba
 
-        from capsim.runner import run_case  # numba is first imported here, in the worker
+        from capsim.runner import ResumeError, run_case  # numba is first imported here, in the worker
+        from capsim.store import checkpoint_path
 
-        Path(spec.path).unlink(missing_ok=True)
         case = spec.case()
         callback = None
         if progress_queue is not None:
             progress_queue.put((spec.run_id, 0.0))  # started: the parent counts it as running
             callback = _QueueProgress(spec.run_id, progress_queue)
-        summary = run_case(case, progress=callback)
+        summary = None
+        if checkpoint_path(spec.path).exists() and Path(spec.path).exists():
+            try:
+                summary = run_case(case, progress=callback, resume=True)
+            except ResumeError:
+                summary = None  # damaged or foreign checkpoint: start over
+        if summary is None:
+            Path(spec.path).unlink(missing_ok=True)
+            summary = run_case(case, progress=callback)
         return _record(spec, summary["status"], summary["status_reason"], summary=summary,
                        numba_threads=numba.get_num_threads())
     except Exception as exc:  # one bad case must not stop the campaign
@@ -440,8 +449,14 @@ def run_campaign(
     """
     specs = expand_campaign(campaign)
     out_dir = Path(campaign.output.dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / CAMPAIGN_FILE).write_text(campaign.to_yaml(), encoding="utf-8")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / CAMPAIGN_FILE).write_text(campaign.to_yaml(), encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(
+            f"output.dir = {str(out_dir)!r}: cannot create or write the campaign directory "
+            f"({exc.strerror or type(exc).__name__})"
+        ) from None
     index = _Index(out_dir, specs)
     todo = []
     for spec in specs:

@@ -82,10 +82,7 @@ EXPECTED = {
 TRAJECTORY_FILES = ("truncated.h5", "not_hdf5.h5")
 CHECKPOINT_FILES = ("garbage.ckpt.npz",)
 
-_KNOWN = {
-    # run_campaign's mkdir raises NotADirectoryError past `capsim sweep`'s ConfigError handler (campaign.py).
-    "campaign_unwritable_dir.yaml": pytest.mark.xfail(reason="campaign.py: output.dir mkdir error is not a ConfigError"),
-}
+_KNOWN: dict = {}
 
 
 def _fails_cleanly(result, expected: str) -> str:
