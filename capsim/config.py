@@ -149,7 +149,7 @@ class Solver(_Model):
     method: Literal["gmres", "substitution"] = Field(
         "gmres", description="GMRES (scipy, matrix-free) or the seed's successive substitution"
     )
-    tol: float = Field(1.0e-8, gt=0, lt=1, description="relative residual of the velocity solve")
+    tol: float = Field(1.0e-6, gt=0, lt=1, description="relative residual of the velocity solve")
     max_iter: int = Field(200, ge=1, strict=True)
     volume_correction: bool = Field(
         True, description="remove the discrete net flux of the nodal velocities (volume conservation)"
