@@ -172,7 +172,7 @@ def write_markdown() -> None:
         "Measured with `benchmarks/accuracy_study.py` (`capsim study` underneath) on "
         f"{platform.machine()} with {os.cpu_count()} cores (numba threads: all cores; runs one after another), "
         f"capsim {__version__}, {datetime.now(timezone.utc):%Y-%m-%d}. Every value is taken at the same "
-        f"instant kt = {sections[0][2]:g} (still in the start-up transient, where the ladder is most sensitive). "
+        f"instant kt = {sections[0][2]:g}. "
         "Errors are value minus reference: `D_xy err (finest)` against the finest run of the ladder, the other "
         "columns against the Richardson extrapolation in the mesh level of the finest-tolerance runs.\n\n"
         + "\n".join(text for _, text, _ in sections)

@@ -162,6 +162,8 @@ def _run_jobs(jobs: list[tuple[Case, Any]], workers: int, progress: Callable[[st
             records[i] = _run_one(jobs[i][0], window)
             if progress is not None:
                 progress(_describe_done(jobs[i][0], records[i]))
+            if records[i]["status"] == "interrupted":  # Ctrl-C or SIGTERM stops the ladder, not one run
+                raise KeyboardInterrupt(records[i]["status_reason"])
         return records  # type: ignore[return-value]
     # spawn, not fork: the numba kernels run on OpenMP threads, and forking a
     # process that has used them kills the child.
@@ -176,6 +178,9 @@ def _run_jobs(jobs: list[tuple[Case, Any]], workers: int, progress: Callable[[st
                 records[i] = _failed_record(f"{type(exc).__name__}: {exc}")
             if progress is not None:
                 progress(_describe_done(jobs[i][0], records[i]))
+            if records[i]["status"] == "interrupted":
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise KeyboardInterrupt(records[i]["status_reason"])
     return records  # type: ignore[return-value]
 
 

@@ -180,3 +180,20 @@ def test_cli_run_error_estimate_stores_group(tmp_path):
         assert int(g["coarse_level"][()]) == 0
     # the temporary reruns leave nothing beside the run file
     assert sorted(p.name for p in tmp_path.glob("*.h5")) == [case.output.path.rsplit("/", 1)[-1]]
+
+
+def test_interrupted_run_stops_the_ladder(tmp_path, monkeypatch):
+    import capsim.study as study
+
+    calls = []
+
+    def fake_run_one(case, window=None):
+        calls.append(case.mesh.level)
+        rec = study._failed_record("KeyboardInterrupt at kt = 0")
+        rec["status"] = "interrupted"
+        return rec
+
+    monkeypatch.setattr(study, "_run_one", fake_run_one)
+    with pytest.raises(KeyboardInterrupt):
+        run_study(small_case(tmp_path), levels=[0, 1, 2], rtols=[1e-3], workers=1)
+    assert len(calls) == 1
