@@ -760,3 +760,40 @@ def double_layer_singular_correction(
         out[p, 1] = ay
         out[p, 2] = az
     return out
+
+
+@njit(**_JIT)
+def nodal_unit_normals(x, elements, node_dxi, node_deta):
+    """Unit normals at all nodes: the mean of the normals of the elements holding
+    each node, each evaluated at the node (node_dxi, node_deta: (6, 6) basis
+    derivatives at the six element nodes)."""
+    n_nodes = x.shape[0]
+    acc = np.zeros((n_nodes, 3))
+    for e in range(elements.shape[0]):
+        for k in range(6):
+            ax = 0.0
+            ay = 0.0
+            az = 0.0
+            bx = 0.0
+            by = 0.0
+            bz = 0.0
+            for a in range(6):
+                node = elements[e, a]
+                ax += node_dxi[k, a] * x[node, 0]
+                ay += node_dxi[k, a] * x[node, 1]
+                az += node_dxi[k, a] * x[node, 2]
+                bx += node_deta[k, a] * x[node, 0]
+                by += node_deta[k, a] * x[node, 1]
+                bz += node_deta[k, a] * x[node, 2]
+            nx, ny, nz = _cross(ax, ay, az, bx, by, bz)
+            s = 1.0 / np.sqrt(nx * nx + ny * ny + nz * nz)
+            v = elements[e, k]
+            acc[v, 0] += nx * s
+            acc[v, 1] += ny * s
+            acc[v, 2] += nz * s
+    for v in range(n_nodes):
+        s = 1.0 / np.sqrt(acc[v, 0] ** 2 + acc[v, 1] ** 2 + acc[v, 2] ** 2)
+        acc[v, 0] *= s
+        acc[v, 1] *= s
+        acc[v, 2] *= s
+    return acc

@@ -37,7 +37,7 @@ class Discretization:
     elements: np.ndarray
     n_vertices: int
     regular_order: int = 6
-    singular_order: int = 3
+    singular_order: int = 2
     contour_order: int = 4
     membrane_order: int = 6
 
@@ -109,15 +109,7 @@ class Discretization:
 
     def nodal_normals(self, x: np.ndarray) -> np.ndarray:
         """Unit normals at all nodes: mean of the element normals at each node."""
-        xe = x[self.elements]
-        t1 = interpolate(self.node_dxi, xe)
-        t2 = interpolate(self.node_deta, xe)
-        n = np.cross(t1, t2)
-        n /= np.linalg.norm(n, axis=2)[..., None]
-        acc = np.zeros_like(x)
-        for d in range(3):
-            acc[:, d] = np.bincount(self.elements.ravel(), weights=n[..., d].ravel(), minlength=x.shape[0])
-        return acc / np.linalg.norm(acc, axis=1)[:, None]
+        return kernels.nodal_unit_normals(np.ascontiguousarray(x), self.elements, self.node_dxi, self.node_deta)
 
     def double_layer(self, x: np.ndarray, geo: ElementGeometry, u: np.ndarray, u_target: np.ndarray | None = None) -> np.ndarray:
         """D[u](x0) = ∫ (u − u0)·T·n dS at every node, u quadratic over elements.
@@ -163,7 +155,7 @@ class CapsuleModel:
     law: MembraneLaw = field(default_factory=lambda: get_law("thin_shell"))
     law_params: dict = field(default_factory=dict)
     traction_method: str = "galerkin"
-    mass_tol: float = 1e-10
+    mass_tol: float = 1e-8
     stage_times: dict = field(default_factory=lambda: {"geometry": 0.0, "membrane": 0.0, "single_layer": 0.0, "solve": 0.0})
     _last_traction: np.ndarray | None = field(default=None, repr=False)
     volume_correction: bool = True
