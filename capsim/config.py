@@ -101,6 +101,11 @@ class Flow(_Model):
 class Mesh(_Model):
     base: Literal["octahedron", "icosahedron"] = "octahedron"
     level: int = Field(3, ge=0, le=6, strict=True)
+    symmetry: bool = Field(
+        True, strict=True,
+        description="use the mirror symmetry about z = 0 (halves the boundary-integral work; "
+        "false lets out-of-plane asymmetry develop)",
+    )
 
 
 class Quadrature(_Model):

@@ -65,7 +65,7 @@ def _interp6(phi_row, vals, e, d):
 def single_layer_singular_correction(
     x, elements, inc_offsets, inc_elem, inc_local,
     density, reg_points, reg_weights, reg_phi,
-    sing_phi, sing_dxi, sing_deta, sing_w,
+    sing_phi, sing_dxi, sing_deta, sing_w, targets,
 ):
     """Replace the regular-rule contribution of the elements holding each node by
     a Duffy-rule integral singular at that node (seed §3, "polar" treatment).
@@ -74,7 +74,8 @@ def single_layer_singular_correction(
     the element-constant traction of seed 3.7). reg_points (N_e, q, 3), reg_weights
     (N_e, q): the regular rule; reg_phi (q, 6) its basis values. sing_* (6, m, 6)
     and sing_w (6, m): the Duffy rule for a singularity at local node k.
-    Returns the correction (N_p, 3) to add to ``stokeslet_sum``.
+    Returns the correction (len(targets), 3) to add to ``stokeslet_sum``
+    evaluated at x[targets].
     """
     n_nodes = x.shape[0]
     nq = reg_points.shape[1]
@@ -85,8 +86,9 @@ def single_layer_singular_correction(
         for a in range(6):
             for d in range(3):
                 xe[e, a, d] = x[elements[e, a], d]
-    out = np.zeros((n_nodes, 3))
-    for p in prange(n_nodes):
+    out = np.zeros((targets.shape[0], 3))
+    for i_t in prange(targets.shape[0]):
+        p = targets[i_t]
         x0 = x[p, 0]
         y0 = x[p, 1]
         z0 = x[p, 2]
@@ -159,9 +161,9 @@ def single_layer_singular_correction(
                 ux += fx * rinv + dx * rg
                 uy += fy * rinv + dy * rg
                 uz += fz * rinv + dz * rg
-        out[p, 0] = ux
-        out[p, 1] = uy
-        out[p, 2] = uz
+        out[i_t, 0] = ux
+        out[i_t, 1] = uy
+        out[i_t, 2] = uz
     return out
 
 
@@ -668,13 +670,13 @@ def double_layer_sum(targets, u_targets, sources, normals_w, u_sources):
 def double_layer_singular_correction(
     x, u, u_target, elements, inc_offsets, inc_elem, inc_local,
     reg_points, reg_normals_w, reg_u,
-    sing_phi, sing_dxi, sing_deta, sing_w,
+    sing_phi, sing_dxi, sing_deta, sing_w, targets,
 ):
     """Replace the regular-rule double-layer contribution of the elements
     holding each node by the Duffy rule singular at that node. The desingularised
     integrand (u − u0)·T·n is bounded but not smooth there. u: nodal values of
-    the density; u_target: the value u0 subtracted at each target (normally u).
-    Returns (N_p, 3)."""
+    the density; u_target: the value u0 subtracted at each node (normally u).
+    Returns (len(targets), 3)."""
     n_nodes = x.shape[0]
     nq = reg_points.shape[1]
     ms = sing_w.shape[1]
@@ -686,8 +688,9 @@ def double_layer_singular_correction(
             for d in range(3):
                 xe[e, a, d] = x[elements[e, a], d]
                 ue[e, a, d] = u[elements[e, a], d]
-    out = np.zeros((n_nodes, 3))
-    for p in prange(n_nodes):
+    out = np.zeros((targets.shape[0], 3))
+    for i_t in prange(targets.shape[0]):
+        p = targets[i_t]
         x0 = x[p, 0]
         y0 = x[p, 1]
         z0 = x[p, 2]
@@ -756,9 +759,9 @@ def double_layer_singular_correction(
                 ax += c * dx
                 ay += c * dy
                 az += c * dz
-        out[p, 0] = ax
-        out[p, 1] = ay
-        out[p, 2] = az
+        out[i_t, 0] = ax
+        out[i_t, 1] = ay
+        out[i_t, 2] = az
     return out
 
 

@@ -45,17 +45,22 @@ def build_model(case: Case) -> tuple[CapsuleModel, np.ndarray]:
         regular_order=case.quadrature.regular_order,
         singular_order=case.quadrature.singular_order,
     )
+    positions = mesh.positions
+    if case.mesh.symmetry:
+        symmetric = disc.enable_mirror_symmetry(positions)
+        if symmetric is not None:
+            positions = symmetric
     law = get_law(case.membrane.law)
     params = {p: getattr(case.membrane, p) for p in law.parameters}
     model = CapsuleModel(
-        disc, mesh.positions, case.flow.shear_rate_G, case.flow.viscosity_ratio, law, params,
+        disc, positions, case.flow.shear_rate_G, case.flow.viscosity_ratio, law, params,
         traction_method=case.membrane.traction,
         volume_correction=case.solver.volume_correction,
         solver_method=case.solver.method,
         solver_tol=case.solver.tol,
         solver_max_iter=case.solver.max_iter,
     )
-    return model, mesh.positions
+    return model, positions
 
 
 class ResumeError(Exception):

@@ -64,6 +64,43 @@ class Discretization:
         mphi, mdxi, mdeta = shape_functions(mxi, meta)
         self.mem_phi, self.mem_dxi, self.mem_deta, self.mem_w = mphi, mdxi, mdeta, mw
         self._build_mass_pattern()
+        self.targets = np.arange(n_nodes, dtype=np.int64)
+        self.mirror: np.ndarray | None = None
+
+    def enable_mirror_symmetry(self, positions: np.ndarray) -> np.ndarray | None:
+        """Use the symmetry of the problem about the plane z = 0.
+
+        Shear flow (y, 0, 0) and every rest shape here (tilted about z) are
+        mirror-symmetric in z, so the velocities of the nodes with z < 0 follow
+        from those with z > 0: the boundary integrals are evaluated at about half
+        the nodes (the seed used this symmetry too). Returns the positions made
+        exactly symmetric, or None (and nothing changes) if the mesh has no
+        mirror image of every node.
+        """
+        from scipy.spatial import cKDTree
+
+        reflected = positions * np.array([1.0, 1.0, -1.0])
+        dist, mirror = cKDTree(positions).query(reflected)
+        scale = np.abs(positions).max()
+        if dist.max() > 1e-9 * scale or np.any(mirror[mirror] != np.arange(len(mirror))):
+            return None
+        self.mirror = mirror.astype(np.int64)
+        self.targets = np.flatnonzero(np.arange(len(mirror)) <= mirror).astype(np.int64)
+        self._self_mirror = np.flatnonzero(mirror == np.arange(len(mirror)))
+        sym = positions.copy()
+        sym[self.mirror[self.targets]] = positions[self.targets] * np.array([1.0, 1.0, -1.0])
+        sym[self._self_mirror, 2] = 0.0
+        return sym
+
+    def expand(self, values_at_targets: np.ndarray) -> np.ndarray:
+        """Nodal vectors from their values at the target nodes (mirror in z)."""
+        if self.mirror is None:
+            return values_at_targets
+        out = np.empty((self.n_nodes, 3))
+        out[self.mirror[self.targets]] = values_at_targets * np.array([1.0, 1.0, -1.0])
+        out[self.targets] = values_at_targets
+        out[self._self_mirror, 2] = 0.0
+        return out
 
     def _build_mass_pattern(self) -> None:
         """CSR pattern of the consistent mass matrix and the slot of every
@@ -98,13 +135,13 @@ class Discretization:
             nodal = density
             point_density = interpolate(self.reg_phi, density)
         strengths = (point_density * geo.weights[..., None]).reshape(-1, 3)
-        u = kernels.stokeslet_sum(x, geo.points.reshape(-1, 3), strengths)
+        u = kernels.stokeslet_sum(x[self.targets], geo.points.reshape(-1, 3), strengths)
         u += kernels.single_layer_singular_correction(
             x, self.elements, self.inc_offsets, self.inc_elem, self.inc_local,
             np.ascontiguousarray(nodal), geo.points, geo.weights, self.reg_phi,
-            self.sing_phi, self.sing_dxi, self.sing_deta, self.sing_w,
+            self.sing_phi, self.sing_dxi, self.sing_deta, self.sing_w, self.targets,
         )
-        return u
+        return self.expand(u)
 
 
     def nodal_normals(self, x: np.ndarray) -> np.ndarray:
@@ -121,12 +158,15 @@ class Discretization:
             u_target = u
         u_pts = interpolate(self.reg_phi, u[self.elements])
         nw = geo.normals * geo.weights[..., None]
-        out = kernels.double_layer_sum(x, u_target, geo.points.reshape(-1, 3), nw.reshape(-1, 3), u_pts.reshape(-1, 3))
+        t = self.targets
+        out = kernels.double_layer_sum(
+            x[t], np.ascontiguousarray(u_target[t]), geo.points.reshape(-1, 3), nw.reshape(-1, 3), u_pts.reshape(-1, 3)
+        )
         out += kernels.double_layer_singular_correction(
             x, u, u_target, self.elements, self.inc_offsets, self.inc_elem, self.inc_local,
-            geo.points, nw, u_pts, self.sing_phi, self.sing_dxi, self.sing_deta, self.sing_w,
+            geo.points, nw, u_pts, self.sing_phi, self.sing_dxi, self.sing_deta, self.sing_w, t,
         )
-        return out
+        return self.expand(out)
 
 
 @dataclass
@@ -242,6 +282,8 @@ class CapsuleModel:
             self.stage_times["solve"] += time.perf_counter() - t1
         if self.volume_correction:
             u = self._remove_net_flux(x, state.geometry, u)
+            if self.disc.mirror is not None:  # keep the mirror symmetry exact
+                u = self.disc.expand(u[self.disc.targets])
         return u
 
     def _remove_net_flux(self, x: np.ndarray, geo: ElementGeometry, u: np.ndarray) -> np.ndarray:
