@@ -183,6 +183,10 @@ class Guards(_Model):
     max_volume_drift: float = Field(0.01, gt=0, description="largest |V - V0| / V0 allowed")
     max_area_change: float = Field(2.0, gt=0, description="largest |A - A0| / A0 allowed")
     max_principal_stretch: float = Field(10.0, gt=1, description="largest membrane principal stretch allowed")
+    min_dt_fraction: float = Field(
+        1e-3, ge=0, lt=1,
+        description="stop when the recent time step falls below this fraction of the typical one (stalled run)",
+    )
 
 
 class Case(_Model):

@@ -170,6 +170,20 @@ class _Committed:
 _CHECKPOINT_FORMAT = 1
 
 
+def step_collapse(dts: list[float], min_fraction: float, window: int = 200, recent: int = 20) -> str | None:
+    """Stepping that has stalled: the median of the last ``recent`` accepted steps
+    below ``min_fraction`` × the median of the last ``window`` (e.g. a rim
+    folding onto itself makes the near-singular velocity erratic and the error
+    control shrinks dt by orders of magnitude while kt stands still)."""
+    if len(dts) < window:
+        return None
+    typical = float(np.median(dts[-window:]))
+    now = float(np.median(dts[-recent:]))
+    if now < min_fraction * typical:
+        return f"guard min_dt_fraction: median dt of the last {recent} steps = {now:.3g} < {min_fraction:g} x {typical:.3g}"
+    return None
+
+
 def guard_violation(row: dict, row0: dict, guards: Guards) -> str | None:
     """The first stability guard an accepted step crosses, as 'guard NAME: value', or None."""
     bad = [key for key, value in row.items() if not np.isfinite(value)]
@@ -259,7 +273,7 @@ def _run(case: Case, progress: ProgressCallback | None, resume: bool, stop: _Sto
             raise ResumeError(str(exc)) from None
         writer.set_attrs(config_yaml=config_yaml)
         rows = writer.steps()
-        for key in ("t", "tt_angle", *SUMMARY_QUANTITIES):
+        for key in ("t", "dt", "tt_angle", *SUMMARY_QUANTITIES):
             history[key] = [float(v) for v in rows[key]]
         row0 = {key: float(v[0]) for key, v in rows.items()}
         last = {key: float(v[-1]) for key, v in rows.items()}
@@ -286,7 +300,7 @@ def _run(case: Case, progress: ProgressCallback | None, resume: bool, stop: _Sto
         row["solver_iterations"] = float(model.last_solve_info.get("iterations", 0))
         row["solver_residual"] = float(model.last_solve_info.get("residual", 0.0))
         writer.append_step(row)
-        for key in ("t", "tt_angle", *SUMMARY_QUANTITIES):
+        for key in ("t", "dt", "tt_angle", *SUMMARY_QUANTITIES):
             history.setdefault(key, []).append(row[key])
         return row
 
@@ -351,7 +365,9 @@ def _run(case: Case, progress: ProgressCallback | None, resume: bool, stop: _Sto
                 )
                 if progress is not None:
                     progress({"t": t, "dt": h, "D_xy": last["D_xy"], "step": steps, "t_end": tc.t_end})
-                violation = guard_violation(last, row0, case.guards)
+                violation = guard_violation(last, row0, case.guards) or step_collapse(
+                    history["dt"], case.guards.min_dt_fraction
+                )
                 if violation is not None:
                     status, reason = "unstable", f"{violation} at kt = {t:.6g}"
                     break

@@ -402,3 +402,14 @@ def test_fuzzed_case_dicts_validate_or_fail_in_one_line(name, sections):
         assert "\n" not in message and message.startswith("<dict>: ")
         return
     assert case_from_dict(yaml.safe_load(case.to_yaml())) == case
+
+
+def test_step_collapse_guard_names_the_stall():
+    from capsim.runner import step_collapse
+
+    steady = [0.05] * 300
+    assert step_collapse(steady, 1e-3) is None
+    stalled = [0.05] * 250 + [1e-5] * 20
+    reason = step_collapse(stalled, 1e-3)
+    assert reason is not None and "min_dt_fraction" in reason and "1e-05" in reason
+    assert step_collapse([0.05] * 100 + [1e-5] * 20, 1e-3) is None  # too short a history to judge
