@@ -19,8 +19,8 @@ import yaml
 from capsim import __version__
 from capsim.config import Case, Guards
 from capsim.integrate import SCHEMES, StepController, attempt_step
-from capsim.membrane import get_law
-from capsim.mesh import rest_shape_mesh
+from capsim.membrane import get_law, law_attributes
+from capsim.mesh import SurfaceMesh, rest_shape_attributes, rest_shape_mesh
 from capsim.observables import (
     SUMMARY_QUANTITIES, TankTreadingTracker, is_steady, particle_stresslet, run_summary,
     step_observables, stresslet_observables,
@@ -284,6 +284,11 @@ def _run(case: Case, progress: ProgressCallback | None, resume: bool, stop: _Sto
             path, config_yaml=config_yaml, elements=elements, rest_positions=X, version=__version__,
             attrs={"n_nodes": X.shape[0], "n_elements": elements.shape[0], "time_scheme": scheme.name},
         )
+        # the law with its parameters and moduli, and the rest shape's measures
+        law = law_attributes(case.membrane.law, model.law_params)
+        writer.write_group("membrane_law", {k: v for k, v in law.items() if k != "parameters"}
+                           | {"parameters": law["parameters"] or {"none": 0.0}})
+        writer.write_group("rest_shape", rest_shape_attributes(SurfaceMesh(X, elements, model.disc.n_vertices)))
         wall_before = 0.0
 
     def record(t_now: float, y_now: np.ndarray, u_now: np.ndarray, state, dt_used: float, err: float) -> dict:

@@ -206,3 +206,24 @@ def test_skalak_area_dilation_is_much_smaller_than_neo_hookean(tmp_path):
     assert nh["status"] == sk["status"] == "completed"
     assert nh["area_change"] > 0.15
     assert 0 < sk["area_change"] < nh["area_change"] / 3
+
+
+def test_trajectory_stores_law_and_rest_shape(tmp_path):
+    import h5py
+
+    from capsim.config import case_from_dict
+    from capsim.runner import run_case
+
+    path = tmp_path / "attrs.h5"
+    case = case_from_dict({
+        "name": "attrs", "membrane": {"law": "skalak", "skalak_c": 5.0},
+        "shape": {"kind": "oblate", "aspect_ratio": 0.5},
+        "mesh": {"level": 1}, "time": {"t_end": 0.02}, "output": {"path": str(path)},
+    })
+    run_case(case)
+    with h5py.File(path, "r") as f:
+        assert f["membrane_law/name"][()].decode() == "skalak"
+        assert f["membrane_law/parameters/skalak_c"][()] == 5.0
+        assert f["membrane_law/K_s"][()] == pytest.approx((1 + 2 * 5.0) / 3)
+        assert f["rest_shape/equal_volume_radius"][()] == pytest.approx(1.0, abs=1e-12)
+        assert f["rest_shape/sphericity"][()] < 0.95
