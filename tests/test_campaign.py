@@ -22,10 +22,10 @@ SMOKE = ROOT / "campaigns" / "smoke.yaml"
 
 
 def smoke_dict(out_dir, **changes):
-    """The CI smoke campaign, shortened; law instead of lambda while lambda != 1 is not in the solver."""
+    """The CI smoke campaign (G x lambda), shortened."""
     d = yaml.safe_load(SMOKE.read_text())
     d["base"]["time"]["t_end"] = 0.25
-    d["sweep"] = {"flow.shear_rate_G": [0.05, 0.1], "membrane.law": ["thin_shell", "neo_hookean"]}
+    d["sweep"] = {"flow.shear_rate_G": [0.05, 0.1], "flow.viscosity_ratio": [1.0, 5.0]}
     d["output"]["dir"] = str(out_dir)
     d.update(changes)
     return d
@@ -124,13 +124,13 @@ def test_pool_sweep_writes_every_run_and_summarizes(pool_sweep, tmp_path):
     assert {r["numba_threads"] for r in result["records"]} == {max(1, usable_cores() // 2)}
 
     ds = summarize_campaign(out)
-    assert dict(ds.sizes) == {"shear_rate_G": 2, "law": 2}
+    assert dict(ds.sizes) == {"shear_rate_G": 2, "viscosity_ratio": 2}
     assert list(ds["shear_rate_G"].values) == [0.05, 0.1]
-    assert list(ds["law"].values) == ["thin_shell", "neo_hookean"]
+    assert list(ds["viscosity_ratio"].values) == [1.0, 5.0]
     for record in result["records"]:
         s = record["summary"]
         params = next(x.params for x in expand_campaign(campaign) if x.run_id == record["run_id"])
-        cell = ds.sel(shear_rate_G=params["flow.shear_rate_G"], law=params["membrane.law"])
+        cell = ds.sel(shear_rate_G=params["flow.shear_rate_G"], viscosity_ratio=params["flow.viscosity_ratio"])
         assert str(cell["status"].values) == "completed"
         assert str(cell["run_id"].values) == record["run_id"]
         for name in ("D_xy", "theta", "steps", "wall_time_s", "volume_drift"):
@@ -229,7 +229,7 @@ def test_cli_sweep_and_summarize(pool_sweep, tmp_path):
     assert "4 runs, 4 skipped" in res.output
     res = runner.invoke(app, ["summarize", str(out), "-o", str(tmp_path / "s.nc")])
     assert res.exit_code == 0, res.output
-    assert xr.open_dataset(tmp_path / "s.nc").sizes == {"shear_rate_G": 2, "law": 2}
+    assert xr.open_dataset(tmp_path / "s.nc").sizes == {"shear_rate_G": 2, "viscosity_ratio": 2}
     path.write_text("name: x\nsweep: {flow.shear_rate: [1]}\noutput: {dir: y}\n")
     res = runner.invoke(app, ["sweep", str(path)])
     assert res.exit_code == 2 and "is not a case field" in res.output
