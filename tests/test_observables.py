@@ -321,7 +321,6 @@ def test_oblate_0_9_oscillates_seed_table_1(tmp_path, G, ttf_4pi, T_osc):
     assert summary["period"] == pytest.approx(T_osc, rel=0.15)
 
 
-@pytest.mark.slow
 def test_stiff_inner_fluid_makes_a_flat_capsule_tumble(tmp_path):
     """b/a = 0.3 spheroid at λ = 10, G = 0.2 (seed §5): θ passes through −π/2 and
     the classifier says `tumbling` (level 1, kt = 40: kT = 21.4 measured; the
