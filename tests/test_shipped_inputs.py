@@ -1,0 +1,23 @@
+"""Every case and campaign shipped in configs/ and campaigns/ validates."""
+
+from pathlib import Path
+
+import pytest
+
+from capsim.campaign import expand_campaign, load_campaign
+from capsim.config import load_case
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "configs").glob("*.yaml")), ids=lambda p: p.name)
+def test_config_validates(path):
+    case = load_case(path)
+    assert case.name
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "campaigns").glob("*.yaml")), ids=lambda p: p.name)
+def test_campaign_expands(path):
+    specs = expand_campaign(load_campaign(path))
+    assert len(specs) >= 3
+    assert len({s.run_id for s in specs}) == len(specs)
