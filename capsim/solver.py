@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Callable
 
 import numpy as np
 
@@ -145,8 +147,15 @@ class Discretization:
 
 
     def nodal_normals(self, x: np.ndarray) -> np.ndarray:
-        """Unit normals at all nodes: mean of the element normals at each node."""
-        return kernels.nodal_unit_normals(np.ascontiguousarray(x), self.elements, self.node_dxi, self.node_deta)
+        """Unit normals at all nodes: mean of the element normals at each node
+        (mirror-symmetric to the bit when the symmetry is in use)."""
+        n = kernels.nodal_unit_normals(np.ascontiguousarray(x), self.elements, self.node_dxi, self.node_deta)
+        return n if self.mirror is None else self.expand(n[self.targets])
+
+    def flux(self, geo: ElementGeometry, u: np.ndarray) -> float:
+        """∫ u·n dS of a nodal field u interpolated quadratically over the elements."""
+        n_q = geo.normals * geo.weights[..., None]
+        return float((interpolate(self.reg_phi, u[self.elements]) * n_q).sum())
 
     def double_layer(self, x: np.ndarray, geo: ElementGeometry, u: np.ndarray, u_target: np.ndarray | None = None) -> np.ndarray:
         """D[u](x0) = ∫ (u − u0)·T·n dS at every node, u quadratic over elements.
@@ -171,14 +180,31 @@ class Discretization:
 
 @dataclass
 class MembraneState:
-    """Everything the membrane step produced at one configuration."""
+    """Everything the membrane step produced at one configuration.
 
-    strain: VertexStrain
-    tension: np.ndarray     # (N_v, 3, 3) at the vertex nodes
+    The vertex strain and tension are computed on first use: the Galerkin
+    traction does not need them, so the three evaluations of an RKF23 step skip
+    them and only the recorded (accepted) states pay for them.
+    """
+
     traction: np.ndarray    # Δf: (N_p, 3) nodal (galerkin) or (N_e, 3) element-averaged (contour)
     geometry: ElementGeometry
     density: np.ndarray     # Δf as the single layer takes it: (N_e, 6, 3) or (N_e, 3)
+    vertex_state: Callable[[], tuple[VertexStrain, np.ndarray]] = field(repr=False)
     mass_iterations: int = 0
+
+    @cached_property
+    def _vertex(self) -> tuple[VertexStrain, np.ndarray]:
+        return self.vertex_state()
+
+    @property
+    def strain(self) -> VertexStrain:
+        return self._vertex[0]
+
+    @property
+    def tension(self) -> np.ndarray:
+        """(N_v, 3, 3) Cauchy tension at the vertex nodes (seed 2.7)."""
+        return self._vertex[1]
 
 
 TRACTION_METHODS = ("galerkin", "contour")
@@ -219,11 +245,13 @@ class CapsuleModel:
         disc = self.disc
         geo = disc.geometry(x)
         t1 = time.perf_counter()
-        A, n_cur, _ = kernels.vertex_deformation_gradient(
-            x, self.rest_positions, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta,
-        )
-        strain = strain_from_gradient(A, n_cur)
-        tension = tension_tensor(strain, self.law, self.law_params)
+        def vertex_state() -> tuple[VertexStrain, np.ndarray]:
+            A, n_cur, _ = kernels.vertex_deformation_gradient(
+                x, self.rest_positions, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta,
+            )
+            strain = strain_from_gradient(A, n_cur)
+            return strain, tension_tensor(strain, self.law, self.law_params)
+
         iterations = 0
         if self.traction_method == "galerkin":
             inv1, inv2, dual_cur, dual_ref, jac0 = kernels.gauss_point_strain(
@@ -242,16 +270,20 @@ class CapsuleModel:
             self._last_traction = traction
             density = np.ascontiguousarray(traction[disc.elements])
         elif self.traction_method == "contour":
+            state = MembraneState(np.empty(0), geo, np.empty(0), vertex_state)
             traction = kernels.element_tractions(
-                x, disc.elements, np.ascontiguousarray(tension), disc.contour_s, disc.contour_w, geo.element_areas,
+                x, disc.elements, np.ascontiguousarray(state.tension), disc.contour_s, disc.contour_w, geo.element_areas,
             )
-            density = traction
+            state.traction = state.density = traction
+            self.stage_times["geometry"] += t1 - t0
+            self.stage_times["membrane"] += time.perf_counter() - t1
+            return state
         else:
             raise ValueError(f"unknown traction method {self.traction_method!r} (allowed: {TRACTION_METHODS})")
         t2 = time.perf_counter()
         self.stage_times["geometry"] += t1 - t0
         self.stage_times["membrane"] += t2 - t1
-        return MembraneState(strain, tension, traction, geo, density, iterations)
+        return MembraneState(traction, geo, density, vertex_state, iterations)
 
     def velocity(self, x: np.ndarray, state: MembraneState | None = None) -> np.ndarray:
         """Nodal velocities (N_p, 3) at configuration x.
@@ -274,45 +306,34 @@ class CapsuleModel:
         t1 = time.perf_counter()
         self.stage_times["single_layer"] += t1 - t0
         u_explicit = shear_flow(x) - sl / (8.0 * np.pi * self.shear_rate_G)
+        needs_normals = lam != 1.0 or self.volume_correction
+        normals = self.disc.nodal_normals(x) if needs_normals else None
         if lam == 1.0:
             self.last_solve_info = {"iterations": 0, "residual": 0.0}
             u = u_explicit
         else:
-            u = self._solve_double_layer(x, state.geometry, u_explicit)
+            u = self._solve_double_layer(x, state.geometry, u_explicit, normals)
             self.stage_times["solve"] += time.perf_counter() - t1
         if self.volume_correction:
-            u = self._remove_net_flux(x, state.geometry, u)
-            if self.disc.mirror is not None:  # keep the mirror symmetry exact
-                u = self.disc.expand(u[self.disc.targets])
+            # The exact velocity conserves volume; the discretised single layer
+            # does so only to its quadrature error, which a stiff membrane
+            # (small G) amplifies by 1/G, and a slowly deflating capsule gains
+            # excess area and deforms without stretching: remove the net flux
+            # with a uniform normal velocity.
+            geo = state.geometry
+            u = u - (self.disc.flux(geo, u) / self.disc.flux(geo, normals)) * normals
         return u
 
-    def _remove_net_flux(self, x: np.ndarray, geo: ElementGeometry, u: np.ndarray) -> np.ndarray:
-        """Subtract the uniform normal velocity that carries the discrete net flux
-        ∫ u·n dS. The exact velocity conserves volume; the discretised single
-        layer does so only to its quadrature error, which the stiff membrane
-        (small G) amplifies by 1/G, and a slowly deflating capsule gains
-        excess area and deforms without stretching."""
-        disc = self.disc
-        n_nodes = disc.nodal_normals(x)
-        n_q = geo.normals * geo.weights[..., None]
-        flux = float((interpolate(disc.reg_phi, u[disc.elements]) * n_q).sum())
-        norm = float((interpolate(disc.reg_phi, n_nodes[disc.elements]) * n_q).sum())
-        return u - (flux / norm) * n_nodes
-
-    def _solve_double_layer(self, x: np.ndarray, geo: ElementGeometry, rhs: np.ndarray) -> np.ndarray:
+    def _solve_double_layer(
+        self, x: np.ndarray, geo: ElementGeometry, rhs: np.ndarray, normals: np.ndarray
+    ) -> np.ndarray:
         lam = self.viscosity_ratio
         disc = self.disc
         c = (1.0 - lam) / (8.0 * np.pi)
-        normals = disc.nodal_normals(x)
-        phi = disc.reg_phi
-        n_q = geo.normals * geo.weights[..., None]
         area = geo.weights.sum()
 
-        def flux(u):
-            return float((interpolate(phi, u[disc.elements]) * n_q).sum())
-
         def apply(u):
-            return u - c * disc.double_layer(x, geo, u) + (1.0 - lam) * normals * (flux(u) / area)
+            return u - c * disc.double_layer(x, geo, u) + (1.0 - lam) * normals * (disc.flux(geo, u) / area)
 
         guess = self._last_velocity if self._last_velocity is not None and self._last_velocity.shape == rhs.shape else rhs
         b = rhs.ravel()

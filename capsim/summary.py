@@ -48,8 +48,8 @@ SUMMARY_ATTRS: dict[str, dict[str, str]] = {
                              "missing when the run has no readable file"},
     "status_reason": {"long_name": "why the run stopped", "units": "", "definition": "one line from the run"},
     "motion": {"long_name": "class of steady motion", "units": "",
-               "definition": "as reported by the run (e.g. tank_treading, tumbling, swinging); "
-                             "empty when the run did not classify it"},
+               "definition": "as classified by the run: steady, oscillating, tumbling, transient "
+                             "or unstable; empty when the run did not classify it"},
     "steps": {"long_name": "accepted time steps", "units": "1",
               "definition": "number of accepted RKF23 steps; -1 when the run has no file"},
     "wall_time_s": {"long_name": "wall-clock time of the run", "units": "s",
