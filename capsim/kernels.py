@@ -61,6 +61,57 @@ def _interp6(phi_row, vals, e, d):
     return s
 
 
+@njit(inline="always")
+def _duffy_point(xe, fe, e, k, j, sing_phi, sing_dxi, sing_deta):
+    """Position, unnormalised normal ∂x/∂ξ × ∂x/∂η and density at Duffy point j
+    of the rule singular at local node k of element e (xe, fe: (N_e, 6, 3))."""
+    px = 0.0
+    py = 0.0
+    pz = 0.0
+    ax = 0.0
+    ay = 0.0
+    az = 0.0
+    bx = 0.0
+    by = 0.0
+    bz = 0.0
+    fx = 0.0
+    fy = 0.0
+    fz = 0.0
+    for a in range(6):
+        ph = sing_phi[k, j, a]
+        d1 = sing_dxi[k, j, a]
+        d2 = sing_deta[k, j, a]
+        xa = xe[e, a, 0]
+        ya = xe[e, a, 1]
+        za = xe[e, a, 2]
+        px += ph * xa
+        py += ph * ya
+        pz += ph * za
+        ax += d1 * xa
+        ay += d1 * ya
+        az += d1 * za
+        bx += d2 * xa
+        by += d2 * ya
+        bz += d2 * za
+        fx += ph * fe[e, a, 0]
+        fy += ph * fe[e, a, 1]
+        fz += ph * fe[e, a, 2]
+    nx, ny, nz = _cross(ax, ay, az, bx, by, bz)
+    return px, py, pz, nx, ny, nz, fx, fy, fz
+
+
+@njit(**_JIT)
+def _gather(values, elements):
+    """Element-nodal copy (N_e, 6, 3) of a nodal field, for contiguous reads."""
+    ne = elements.shape[0]
+    out = np.empty((ne, 6, 3))
+    for e in range(ne):
+        for a in range(6):
+            for d in range(3):
+                out[e, a, d] = values[elements[e, a], d]
+    return out
+
+
 @njit(parallel=True, **_JIT)
 def single_layer_singular_correction(
     x, elements, inc_offsets, inc_elem, inc_local,
@@ -80,12 +131,7 @@ def single_layer_singular_correction(
     n_nodes = x.shape[0]
     nq = reg_points.shape[1]
     ms = sing_w.shape[1]
-    ne = elements.shape[0]
-    xe = np.empty((ne, 6, 3))
-    for e in range(ne):
-        for a in range(6):
-            for d in range(3):
-                xe[e, a, d] = x[elements[e, a], d]
+    xe = _gather(x, elements)
     out = np.zeros((targets.shape[0], 3))
     for i_t in prange(targets.shape[0]):
         p = targets[i_t]
@@ -115,40 +161,7 @@ def single_layer_singular_correction(
                 uz -= fz * rinv + dz * rg
             # add the singular (Duffy) integral
             for j in range(ms):
-                px = 0.0
-                py = 0.0
-                pz = 0.0
-                ax = 0.0
-                ay = 0.0
-                az = 0.0
-                bx = 0.0
-                by = 0.0
-                bz = 0.0
-                fx = 0.0
-                fy = 0.0
-                fz = 0.0
-                for a in range(6):
-                    ph = sing_phi[k, j, a]
-                    d1 = sing_dxi[k, j, a]
-                    d2 = sing_deta[k, j, a]
-                    xa = xe[e, a, 0]
-                    ya = xe[e, a, 1]
-                    za = xe[e, a, 2]
-                    px += ph * xa
-                    py += ph * ya
-                    pz += ph * za
-                    ax += d1 * xa
-                    ay += d1 * ya
-                    az += d1 * za
-                    bx += d2 * xa
-                    by += d2 * ya
-                    bz += d2 * za
-                    fx += ph * density[e, a, 0]
-                    fy += ph * density[e, a, 1]
-                    fz += ph * density[e, a, 2]
-                nx = ay * bz - az * by
-                ny = az * bx - ax * bz
-                nz = ax * by - ay * bx
+                px, py, pz, nx, ny, nz, fx, fy, fz = _duffy_point(xe, density, e, k, j, sing_phi, sing_dxi, sing_deta)
                 w = sing_w[k, j] * np.sqrt(nx * nx + ny * ny + nz * nz)
                 dx = px - x0
                 dy = py - y0
@@ -680,14 +693,8 @@ def double_layer_singular_correction(
     n_nodes = x.shape[0]
     nq = reg_points.shape[1]
     ms = sing_w.shape[1]
-    ne = elements.shape[0]
-    xe = np.empty((ne, 6, 3))
-    ue = np.empty((ne, 6, 3))
-    for e in range(ne):
-        for a in range(6):
-            for d in range(3):
-                xe[e, a, d] = x[elements[e, a], d]
-                ue[e, a, d] = u[elements[e, a], d]
+    xe = _gather(x, elements)
+    ue = _gather(u, elements)
     out = np.zeros((targets.shape[0], 3))
     for i_t in prange(targets.shape[0]):
         p = targets[i_t]
@@ -717,38 +724,11 @@ def double_layer_singular_correction(
                 ay -= c * dy
                 az -= c * dz
             for j in range(ms):
-                px = 0.0
-                py = 0.0
-                pz = 0.0
-                tx = 0.0
-                ty = 0.0
-                tz = 0.0
-                bx = 0.0
-                by = 0.0
-                bz = 0.0
-                ux = 0.0
-                uy = 0.0
-                uz = 0.0
-                for a in range(6):
-                    ph = sing_phi[k, j, a]
-                    d1 = sing_dxi[k, j, a]
-                    d2 = sing_deta[k, j, a]
-                    px += ph * xe[e, a, 0]
-                    py += ph * xe[e, a, 1]
-                    pz += ph * xe[e, a, 2]
-                    tx += d1 * xe[e, a, 0]
-                    ty += d1 * xe[e, a, 1]
-                    tz += d1 * xe[e, a, 2]
-                    bx += d2 * xe[e, a, 0]
-                    by += d2 * xe[e, a, 1]
-                    bz += d2 * xe[e, a, 2]
-                    ux += ph * ue[e, a, 0]
-                    uy += ph * ue[e, a, 1]
-                    uz += ph * ue[e, a, 2]
+                px, py, pz, nx, ny, nz, ux, uy, uz = _duffy_point(xe, ue, e, k, j, sing_phi, sing_dxi, sing_deta)
                 # unnormalised normal × Duffy weight = n dS
-                mx = (ty * bz - tz * by) * sing_w[k, j]
-                my = (tz * bx - tx * bz) * sing_w[k, j]
-                mz = (tx * by - ty * bx) * sing_w[k, j]
+                mx = nx * sing_w[k, j]
+                my = ny * sing_w[k, j]
+                mz = nz * sing_w[k, j]
                 dx = px - x0
                 dy = py - y0
                 dz = pz - z0
