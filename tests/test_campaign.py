@@ -210,8 +210,11 @@ def test_dask_local_cluster_gives_the_same_numbers(pool_sweep, tmp_path):
         result = run_campaign(campaign, scheduler=cluster.scheduler_address)
     assert (result["completed"], result["failed"]) == (4, 0)
     pool, dask = summarize_campaign(out), summarize_campaign(tmp_path / "dask")
-    for name in ("D_xy", "theta", "steps", "volume_drift"):
+    for name in ("D_xy", "theta", "steps"):
         np.testing.assert_allclose(dask[name].values, pool[name].values, rtol=1e-12, atol=0)
+    # (V − V0)/V0 is a difference of nearly equal volumes: it carries ~1e-16
+    # absolute precision, and the workers' thread counts differ (λ = 5 solves)
+    np.testing.assert_allclose(dask["volume_drift"].values, pool["volume_drift"].values, rtol=0, atol=1e-14)
     assert (dask["run_id"].values == pool["run_id"].values).all()
 
 
