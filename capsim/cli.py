@@ -98,6 +98,23 @@ def _mean_std(summary: dict[str, Any], name: str, scale: float = 1.0) -> str | N
     return shown + (f" ± {std / scale:.2e}" if isinstance(std, (int, float)) else "")
 
 
+def _compression(summary: dict[str, Any]) -> str | None:
+    """Share of the membrane under compression at the end, with a warning when large.
+
+    A membrane without bending stiffness cannot carry compression: where the smaller
+    principal tension is negative a real capsule wrinkles, and where the compression
+    persists the computed solution comes to depend on the mesh (README, "Known
+    limitation").
+    """
+    frac, low = summary.get("compressed_fraction"), summary.get("min_tension")
+    if not isinstance(frac, float):
+        return None
+    text = f"{100 * frac:.0f} % (smallest tension {low:.3g} μka)"
+    if frac > 0.05:
+        text += ": a membrane without bending stiffness would wrinkle there; check mesh convergence"
+    return text
+
+
 def _summary_table(summary: dict[str, Any]) -> str:
     period = summary.get("period")
     window = (summary.get("averaging_t_from"), summary.get("averaging_t_to"))
@@ -117,6 +134,7 @@ def _summary_table(summary: dict[str, Any]) -> str:
         ("steps", _fmt(summary.get("steps"), "d")),
         ("wall time (s)", _fmt(summary.get("wall_time_s"), ".1f")),
         ("volume drift", _fmt(summary.get("volume_drift"), ".3e")),
+        ("compressed vertices", _compression(summary)),
         ("output", summary.get("path")),
     ]
     rows = [(key, value) for key, value in rows if value is not None]

@@ -81,7 +81,7 @@ class Shape(_Model):
 class Membrane(_Model):
     """Constitutive law of the membrane (design.md, 'Laws')."""
 
-    law: Literal["thin_shell", "neo_hookean", "mooney_rivlin", "skalak"] = "thin_shell"
+    law: Literal["thin_shell", "neo_hookean", "mooney_rivlin", "skalak", "surface_tension"] = "thin_shell"
     psi: float = Field(0.0, ge=0, le=1, description="Mooney-Rivlin parameter psi'")
     skalak_c: float = Field(10.0, gt=0, description="Skalak area-dilation parameter C")
     traction: Literal["galerkin", "contour"] = Field(

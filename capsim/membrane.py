@@ -25,7 +25,14 @@ of E_s. Derived from the invariant forms:
   once its misprinted e^{2Λ2} is read as e^{2Λ1}; its shear modulus is B/2 and
   its area modulus B/2 + C.
 
-In every case the Poisson ratio is ν_s = (K_s − G_s)/(K_s + G_s) and the
+* surface tension (a clean drop, no membrane elasticity): W = γ λ1λ2 = γ e^{Λ1}
+  per unit rest area, i.e. γ times the current area, with γ = 1 in the units of
+  the modulus scale, so that T = γ(I − n n) at every deformation and G = μka/γ
+  is the drop's capillary number. G_s = 0; there is no small-strain area modulus
+  either (the tension does not depend on the strain), reported as K_s = 0.
+  Useful as a check against the classical small-deformation theory of drops.
+
+For the elastic laws the Poisson ratio is ν_s = (K_s − G_s)/(K_s + G_s) and the
 capillary number of papers that scale by G_s is Ca = μka/G_s = G/G_s = 3G.
 docs/laws.md gives the derivations.
 """
@@ -91,6 +98,14 @@ def _skalak_dw(l1, l2, skalak_c=10.0):
     return w1, w2
 
 
+def _surface_tension_w(l1, l2):
+    return np.exp(l1)
+
+
+def _surface_tension_dw(l1, l2):
+    return np.exp(l1), np.zeros_like(l2)
+
+
 LAWS: dict[str, MembraneLaw] = {
     "thin_shell": MembraneLaw("thin_shell", _thin_shell_w, _thin_shell_dw, lambda: 1 / 3, lambda: 1.0),
     "neo_hookean": MembraneLaw(
@@ -106,6 +121,9 @@ LAWS: dict[str, MembraneLaw] = {
     "skalak": MembraneLaw(
         "skalak", _skalak_w, _skalak_dw, lambda skalak_c=10.0: _SKALAK_GS,
         lambda skalak_c=10.0: _SKALAK_GS * (1.0 + 2.0 * skalak_c), ("skalak_c",),
+    ),
+    "surface_tension": MembraneLaw(
+        "surface_tension", _surface_tension_w, _surface_tension_dw, lambda: 0.0, lambda: 0.0,
     ),
 }
 
@@ -129,13 +147,15 @@ def law_attributes(name: str, params: dict | None = None) -> dict:
     used = {p: float(params.get(p, defaults[p].default)) for p in law.parameters}
     g_s = float(law.shear_modulus(**used))
     k_s = float(law.area_modulus(**used))
+    elastic = g_s > 0.0
     return {
         "name": law.name,
         "parameters": used,
         "G_s": g_s,
         "K_s": k_s,
-        "poisson_ratio": (k_s - g_s) / (k_s + g_s),
-        "ca_over_G": 1.0 / g_s,
+        # a drop (surface tension) has no Poisson ratio, and G is its capillary number
+        "poisson_ratio": (k_s - g_s) / (k_s + g_s) if elastic else float("nan"),
+        "ca_over_G": 1.0 / g_s if elastic else 1.0,
         "units": "E_s",
     }
 
@@ -175,3 +195,13 @@ def tension_tensor(strain: VertexStrain, law: MembraneLaw, params: dict) -> Arra
     proj = np.eye(3)[None] - n[:, :, None] * n[:, None, :]
     scale = np.exp(-strain.inv1)
     return scale[:, None, None] * (w1[:, None, None] * proj + w2[:, None, None] * strain.B)
+
+
+def principal_tensions(strain: VertexStrain, law: MembraneLaw, params: dict) -> tuple[Array, Array]:
+    """Principal tensions τ1 ≥ τ2 at the vertices, τi = e^{−Λ1}(W_1 + W_2 λi²) (the
+    eigenvalues of T in the tangent plane; seed 2.7 in principal axes)."""
+    w1, w2 = law.derivatives(strain.inv1, strain.inv2, **params)
+    l1, l2 = strain.principal_stretches
+    scale = np.exp(-strain.inv1)
+    t1, t2 = scale * (w1 + w2 * l1 * l1), scale * (w1 + w2 * l2 * l2)
+    return np.maximum(t1, t2), np.minimum(t1, t2)

@@ -19,7 +19,7 @@ import yaml
 from capsim import __version__
 from capsim.config import Case, Guards
 from capsim.integrate import SCHEMES, StepController, attempt_step
-from capsim.membrane import get_law, law_attributes
+from capsim.membrane import get_law, law_attributes, principal_tensions
 from capsim.mesh import SurfaceMesh, rest_shape_attributes, rest_shape_mesh
 from capsim.observables import (
     SUMMARY_QUANTITIES, TankTreadingTracker, is_steady, particle_stresslet, run_summary,
@@ -295,6 +295,10 @@ def _run(case: Case, progress: ProgressCallback | None, resume: bool, stop: _Sto
         smax = float(np.max(state.strain.principal_stretches[0]))
         row = {"t": t_now, "dt": dt_used, "error_estimate": err}
         row.update(step_observables(y_now, elements, state.geometry, smax))
+        # compressive tensions: where a membrane without bending stiffness would wrinkle
+        _, tau2 = principal_tensions(state.strain, model.law, model.law_params)
+        row["min_tension"] = float(tau2.min()) / model.shear_rate_G
+        row["compressed_fraction"] = float(np.mean(tau2 < -COMPRESSION_TOL))
         center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
         S_star = particle_stresslet(
             state.geometry, state.density, u_now, elements, model.disc.reg_phi, center, row["volume"],
@@ -429,6 +433,8 @@ def _run(case: Case, progress: ProgressCallback | None, resume: bool, stop: _Sto
         "area_change": last["area"] / row0["area"] - 1.0,
         "min_element_quality": last["min_element_quality"],
         "max_principal_stretch": last["max_principal_stretch"],
+        "min_tension": last["min_tension"],
+        "compressed_fraction": last["compressed_fraction"],
     }
     writer.write_group("run", {k: v for k, v in summary.items() if k not in ("status", "status_reason", "path")})
     # The summary (motion and window means) replaces the final D_xy and θ, kept as final_*.
@@ -442,6 +448,9 @@ def _run(case: Case, progress: ProgressCallback | None, resume: bool, stop: _Sto
         summary.update(motion)
     writer.close(status, reason)
     return summary
+
+
+COMPRESSION_TOL = 1e-10  # in E_s: below round-off of the tension at the rest shape
 
 
 def _fail(writer: TrajectoryWriter, committed: _Committed | None, save, exc: BaseException) -> None:

@@ -51,6 +51,8 @@ VARIABLE_ATTRS: dict[str, dict[str, str]] = {
     "N2_star": {"units": "1", "long_name": "second normal stress difference S_yy - S_zz, same scale"},
     "motion": {"units": "", "long_name": "steady, oscillating, tumbling, transient or unstable"},
     "period": {"units": "k^-1", "long_name": "oscillation period, or rotation period (theta turning by 2 pi)"},
+    "min_tension": {"units": "mu k a", "long_name": "smallest principal membrane tension over the vertices, tension / G"},
+    "compressed_fraction": {"units": "1", "long_name": "fraction of vertices whose smaller principal tension is negative"},
     "error_estimate": {"units": "1", "long_name": "RKF23 local error estimate / rtol"},
     "solver_iterations": {"units": "1", "long_name": "iterations of the velocity solve"},
     "solver_residual": {"units": "1", "long_name": "relative residual of the velocity solve"},

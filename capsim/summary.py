@@ -56,6 +56,12 @@ SUMMARY_ATTRS: dict[str, dict[str, str]] = {
                     "definition": "elapsed time of run_case, mesh construction included"},
     "volume_drift": {"long_name": "relative volume change", "units": "1",
                      "definition": "(V − V0)/V0 at the end of the run; V the enclosed volume"},
+    "compressed_fraction": {"long_name": "fraction of the membrane in compression", "units": "1",
+                            "definition": "share of vertices whose smaller principal tension is negative at the "
+                                          "end of the run; a membrane without bending stiffness would wrinkle there"},
+    "min_tension": {"long_name": "smallest principal membrane tension", "units": "mu k a",
+                    "definition": "minimum over the vertices of the smaller principal tension at the end of "
+                                  "the run, divided by G (tension in units of mu k a)"},
     "run_id": {"long_name": "run identifier", "units": "",
                "definition": "readable swept values and a hash of the resolved case; the run file is <run_id>.h5"},
     # coordinates (swept case fields)
@@ -83,7 +89,7 @@ for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star"):
 
 _FLOATS = ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star",
            "D_xy_std", "theta_std", "ttf_ratio_std", "Sxy_star_std", "N1_star_std", "N2_star_std",
-           "wall_time_s", "volume_drift")
+           "wall_time_s", "volume_drift", "compressed_fraction", "min_tension")
 _STRINGS = ("status", "status_reason", "motion")
 
 

@@ -113,3 +113,28 @@ def test_galerkin_traction_is_the_energy_gradient(sphere2):
     M = csr_matrix((data, disc.mass_indices, disc.mass_indptr))
     b = M @ state.traction
     assert abs(2 * np.sum(b * dx) / dE - 1) < 1e-5
+
+
+@pytest.mark.parametrize("law_name", sorted(LAWS))
+def test_principal_tensions_are_the_tangent_eigenvalues_of_T(sphere3, law_name):
+    """τi = e^{−Λ1}(W_1 + W_2 λi²) against an eigen-decomposition of T (seed 2.7)."""
+    from capsim.membrane import principal_tensions
+
+    mesh, disc = sphere3
+    X = mesh.positions
+    law = get_law(law_name)
+    model = CapsuleModel(disc, X, 0.1, law=law)
+    # an anisotropic stretch with compression along z: both signs of tension for the elastic laws
+    x = X @ np.diag([1.25, 1.05, 0.8]) @ rotation(0.3, 0.7).T
+    state = model.membrane(x)
+    t1, t2 = principal_tensions(state.strain, law, {})
+    eig = np.linalg.eigvalsh(state.tension)  # (N_v, 3): the normal direction carries 0
+    n = state.strain.normals
+    normal_value = np.einsum("vi,vij,vj->v", n, state.tension, n)
+    assert np.abs(normal_value).max() < 1e-12
+    # the three eigenvalues are {τ2, 0, τ1}: match them, with the zero taken once
+    expected = np.sort(np.stack([t1, t2, np.zeros_like(t1)], axis=1), axis=1)
+    assert np.allclose(np.sort(eig, axis=1), expected, atol=1e-12 + 1e-10 * np.abs(eig).max())
+    assert np.all(t1 >= t2)
+    if law_name != "surface_tension":
+        assert (t2 < 0).any() and (t1 > 0).any()

@@ -263,14 +263,26 @@ def test_rigid_sphere_limit_level2(root):
     _check_rigid_limit(summary, 0.0125)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "unresolved: theory.md's derived N2* ≈ −N1*/2 disagrees with both traction discretisations "
-    "(N2*/N1* ≈ −0.17 galerkin, −0.10 contour at G = 0.00625, level 2) while N1*/G → 18-19 "
-    "matches its 19; see REPRODUCTION.md"
-))
-def test_second_normal_stress_difference_is_minus_half_the_first(root):
-    summary, _ = _run(root, 0.0125, 1.0, 1)
-    assert summary["N2_star"] / summary["N1_star"] == pytest.approx(-0.5, abs=0.1)
+def test_first_order_stresslet_depends_only_on_the_linear_moduli(tmp_path):
+    """Thin shell and neo-Hookean share G_s = 1/3, K_s = 1: their N1*, N2* agree at small G.
+
+    (theory.md's derived N2* ≈ −N1*/2 is not asserted: the drop check in
+    test_drop.py shows the machinery reproduces the exact classical N2*, and the
+    same kind of derivation would give −1/2 for a drop, where the exact ratio is
+    −2/7. See REPRODUCTION.md, "N2*".)
+    """
+    runs = {}
+    for law in ("thin_shell", "neo_hookean"):
+        case = case_from_dict({
+            "name": law, "membrane": {"law": law}, "flow": {"shear_rate_G": 0.0125},
+            "mesh": {"level": 1}, "time": {"t_end": 1.0},
+            "output": {"path": str(tmp_path / f"{law}.h5"), "snapshot_every": 100.0},
+        })
+        runs[law] = run_case(case)
+    a, b = runs["thin_shell"], runs["neo_hookean"]
+    assert a["N1_star"] == pytest.approx(b["N1_star"], rel=0.02)
+    assert a["N2_star"] == pytest.approx(b["N2_star"], rel=0.02)
+    assert a["N1_star"] > 0 > a["N2_star"]
 
 
 def _check_shear_thinning(runs):
