@@ -323,8 +323,16 @@ def tensions_figure(source, t: float | None = None, z0: float = 0.0):
 # ------------------------------------------------------------ campaign summary
 
 
+RHEOLOGY_SUMMARY = ("ttf_ratio", "Sxy_star", "N1_star", "N2_star")
+
+
 def steady_figure(source, theory: bool = True):
-    """Steady D_xy and θ/π against G from a campaign summary (netCDF or Dataset)."""
+    """Steady D_xy and θ/π against G from a campaign summary (netCDF or Dataset).
+
+    When the summary holds the tank-treading frequency and the stresslet (as
+    `capsim summarize` writes them), a second column shows TTF/f_s (seed fig. 11)
+    and S*_xy, N1*, N2* (fig. 13) against G, with their G → 0 limits.
+    """
     import xarray as xr
 
     if isinstance(source, xr.Dataset):
@@ -334,42 +342,68 @@ def steady_figure(source, theory: bool = True):
     for name in ("D_xy", "theta", "shear_rate_G"):
         if name not in ds.variables:
             raise ValueError(f"the summary has no '{name}' (is it a capsim summarize output?)")
-    fig = _figure(figsize=(FIGSIZE[0], FIGSIZE[1]))
-    ax_d, ax_t = fig.subplots(2, 1, sharex=True)
-    groups = _steady_groups(ds)
-    for j, (label, G, D, theta) in enumerate(groups):
+    rheology = all(name in ds.variables for name in RHEOLOGY_SUMMARY) and bool(
+        np.isfinite(np.asarray(ds["Sxy_star"].values, dtype=np.float64)).any()
+    )
+    if rheology:
+        fig = _figure(figsize=(1.8 * FIGSIZE[0], FIGSIZE[1]))
+        (ax_d, ax_f), (ax_t, ax_s) = fig.subplots(2, 2, sharex=True)
+    else:
+        fig = _figure(figsize=(FIGSIZE[0], FIGSIZE[1]))
+        ax_d, ax_t = fig.subplots(2, 1, sharex=True)
+    groups = _steady_groups(ds, ("D_xy", "theta") + (RHEOLOGY_SUMMARY if rheology else ()))
+    for j, (label, G, values) in enumerate(groups):
         order = np.argsort(G)
-        ax_d.plot(G[order], D[order], "o-", color=f"C{j % 10}", label=label or "capsim")
-        ax_t.plot(G[order], theta[order] / math.pi, "o-", color=f"C{j % 10}", label=label or "capsim")
+        color = f"C{j % 10}"
+        ax_d.plot(G[order], values["D_xy"][order], "o-", color=color, label=label or "capsim")
+        ax_t.plot(G[order], values["theta"][order] / math.pi, "o-", color=color, label=label or "capsim")
+        if rheology:
+            ax_f.plot(G[order], values["ttf_ratio"][order], "o-", color=color, label=label or "capsim")
+            ax_s.plot(G[order], values["Sxy_star"][order], "o-", color=color,
+                      label=r"$S^*_{xy}$" if j == 0 else None)
+            ax_s.plot(G[order], values["N1_star"][order], "s--", color=color,
+                      label=r"$N_1^*$" if j == 0 else None)
+            ax_s.plot(G[order], values["N2_star"][order], "^:", color=color,
+                      label=r"$N_2^*$" if j == 0 else None)
     G_all = np.asarray(ds["shear_rate_G"].values, dtype=np.float64).ravel()
     if theory and G_all.size:
         g = np.linspace(0.0, float(np.nanmax(G_all)), 50)
         ax_d.plot(g, 25.0 / 4.0 * g, "k--", lw=1, label=r"first order, $25G/4$")
         ax_t.axhline(0.25, color="k", ls="--", lw=1, label=r"first order, $\pi/4$")
+        if rheology:
+            ax_f.axhline(1.0, color="k", ls="--", lw=1, label="rigid sphere")
+            ax_s.axhline(1.0, color="k", ls="--", lw=1)
+            small = g[g <= 0.1]
+            ax_s.plot(small, 19.0 * small, "k:", lw=1, label=r"$N_1^* \approx 19G$")
     ax_d.set_ylabel(r"$D_{xy}$")
     ax_t.set_ylabel(r"$\theta/\pi$")
     ax_t.set_xlabel(r"$G = \mu k a / E_s$")
     ax_d.legend(fontsize="small")
     ax_d.set_title(str(ds.attrs.get("title", "")), fontsize="small")
+    if rheology:
+        ax_f.set_ylabel(r"TTF $/ f_s$")
+        ax_s.set_ylabel(r"$S^*_{xy}$, $N_1^*$, $N_2^*$")
+        ax_s.set_xlabel(r"$G = \mu k a / E_s$")
+        ax_f.legend(fontsize="small")
+        ax_s.legend(fontsize="small")
     return fig
 
 
-def _steady_groups(ds) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
-    """One (label, G, D_xy, θ) series per combination of the other swept values."""
-    D, theta = ds["D_xy"], ds["theta"]
-    if "shear_rate_G" in D.dims:
-        others = [d for d in D.dims if d != "shear_rate_G"]
-        D = D.transpose(*others, "shear_rate_G")
-        theta = theta.transpose(*others, "shear_rate_G")
+def _steady_groups(ds, names: tuple[str, ...] = ("D_xy", "theta")) -> list[tuple[str, np.ndarray, dict]]:
+    """One (label, G, {name: values}) series per combination of the other swept values."""
+    first = ds[names[0]]
+    if "shear_rate_G" in first.dims:
+        others = [d for d in first.dims if d != "shear_rate_G"]
+        arrays = {n: ds[n].transpose(*others, "shear_rate_G") for n in names}
         G = np.asarray(ds["shear_rate_G"].values, dtype=np.float64)
         out = []
         for index in np.ndindex(*(ds.sizes[d] for d in others)):
             sel = dict(zip(others, index))
             label = ", ".join(f"{_short(d)} = {_value(ds, d, i)}" for d, i in sel.items())
-            out.append((label, G, np.asarray(D.isel(sel).values, float), np.asarray(theta.isel(sel).values, float)))
+            out.append((label, G, {n: np.asarray(a.isel(sel).values, float) for n, a in arrays.items()}))
         return out
     # 'run' dimension: group by the other coordinates on it.
-    dim = D.dims[0]
+    dim = first.dims[0]
     G = np.asarray(ds["shear_rate_G"].values, dtype=np.float64)
     others = [name for name, c in ds.coords.items() if c.dims == (dim,) and name not in (dim, "shear_rate_G")]
     keys = [tuple(np.asarray(ds[name].values)[i] for name in others) for i in range(ds.sizes[dim])]
@@ -377,7 +411,7 @@ def _steady_groups(ds) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
     for key in dict.fromkeys(keys):
         mask = np.array([k == key for k in keys])
         label = ", ".join(f"{_short(n)} = {v}" for n, v in zip(others, key))
-        out.append((label, G[mask], np.asarray(D.values, float)[mask], np.asarray(theta.values, float)[mask]))
+        out.append((label, G[mask], {n: np.asarray(ds[n].values, float)[mask] for n in names}))
     return out
 
 

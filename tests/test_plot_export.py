@@ -250,3 +250,20 @@ def test_steady_groups_runs_of_a_non_grid_summary():
     assert list(lines) == ["λ = 1.0", "λ = 5.0", "first order, $25G/4$"]
     assert list(lines["λ = 1.0"].get_xdata()) == [0.05, 0.1]
     assert list(lines["λ = 1.0"].get_ydata()) == [0.1, 0.2]
+
+
+def test_steady_adds_tank_treading_and_stresslet_panels_when_summarised(summary_nc, tmp_path):
+    """Seed figs 11 and 13: TTF/f_s and S*_xy, N1*, N2* against G, beside D_xy and θ."""
+    ds = xr.load_dataset(summary_nc)
+    shape = ds["D_xy"].shape
+    G = ds["shear_rate_G"].values[:, None] * np.ones(shape)
+    for name, values in {"ttf_ratio": 1 - G, "Sxy_star": 1 - 2 * G, "N1_star": 19 * G, "N2_star": -4 * G}.items():
+        ds[name] = (("shear_rate_G", "viscosity_ratio"), values)
+    out = tmp_path / "steady4.png"
+    fig = plot(ds, "steady", out)
+    labels = [(ax.get_xlabel(), ax.get_ylabel()) for ax in fig.axes]
+    assert labels == [("", "$D_{xy}$"), ("", r"TTF $/ f_s$"), ("$G = \\mu k a / E_s$", r"$\theta/\pi$"),
+                      ("$G = \\mu k a / E_s$", r"$S^*_{xy}$, $N_1^*$, $N_2^*$")]
+    ttf_lines = [line for line in fig.axes[1].get_lines() if line.get_label() == "λ = 5"]
+    assert np.allclose(ttf_lines[0].get_ydata(), 1 - ds["shear_rate_G"].values)
+    assert png_size(out)[0] > WIDTH
