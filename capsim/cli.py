@@ -314,12 +314,16 @@ def summarize(
     typer.echo(f"{path}: dims {dict(ds.sizes)}, status {counts}")
 
 
+_OVERLAY_KINDS = ("deformation", "inclination")
 _PLOT_KINDS = ("deformation", "inclination", "contour", "trajectory", "tensions", "rheology", "steady")
 
 
 @app.command()
 def plot(
-    path: Path = typer.Argument(..., metavar="PATH", help="run file (.h5), or campaign summary (.nc) for --kind steady"),
+    paths: list[Path] = typer.Argument(
+        ..., metavar="PATH...",
+        help="run file (.h5), several for deformation/inclination (overlaid), or campaign summary (.nc) for --kind steady",
+    ),
     kind: str = typer.Option(..., "--kind", "-k", help="one of: " + ", ".join(_PLOT_KINDS)),
     output: Optional[Path] = typer.Option(None, "-o", "--output", help="PNG path (default PATH_<kind>.png)"),
     times: Optional[list[float]] = typer.Option(None, "--time", "-t", help="snapshot time kt (contour: repeatable; tensions: one)"),
@@ -329,8 +333,14 @@ def plot(
     """Write a PNG figure of a run (or of a campaign summary for --kind steady)."""
     if kind not in _PLOT_KINDS:
         raise _user_error(f"--kind must be one of {', '.join(_PLOT_KINDS)}, got {kind!r}")
-    if not path.exists():
-        raise _user_error(f"{path}: no such file")
+    if len(paths) > 1 and kind not in _OVERLAY_KINDS:
+        raise _user_error(
+            f"--kind {kind} takes one PATH, got {len(paths)}; several runs overlay only for {', '.join(_OVERLAY_KINDS)}"
+        )
+    for path in paths:
+        if not path.exists():
+            raise _user_error(f"{path}: no such file")
+    path = paths[0]
     out = output if output is not None else path.with_name(f"{path.stem}_{kind}.png")
     _check_writable(out)
     options: dict[str, Any] = {}
@@ -347,8 +357,9 @@ def plot(
     from capsim.config import ConfigError
     from capsim.store import TrajectoryError
 
+    source: Any = [str(p) for p in paths] if len(paths) > 1 else path
     try:
-        plotting.plot(path, kind, out, **options)
+        plotting.plot(source, kind, out, **options)
     except (TrajectoryError, ConfigError, ValueError, KeyError) as exc:
         raise _user_error(str(exc)) from None
     except OSError as exc:

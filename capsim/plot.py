@@ -106,42 +106,68 @@ def _snapshot_index(data: dict[str, Any], t: float | None) -> int:
 # ------------------------------------------------------------ time series
 
 
+def _sources(source) -> list:
+    """One run, or several to overlay (a list or tuple of paths or loaded runs)."""
+    return list(source) if isinstance(source, (list, tuple)) else [source]
+
+
+def _run_label(info: dict[str, Any]) -> str:
+    return f"G = {info['G']:g}, λ = {info['lam']:g}" if info else "capsim"
+
+
 def deformation_figure(source, theory: bool = True):
-    """D_xy(t) with the first-order transient D∞(1 − e^{−t/τ}) and D∞."""
-    data = _load_run(source)
-    info = _case_info(data)
-    t, D = _series(data, "t"), _series(data, "D_xy")
+    """D_xy(t) with the first-order transient D∞(1 − e^{−t/τ}) and D∞.
+
+    Several runs (a list) are overlaid in colours, each with its own theory curve
+    (seed figs 4–6).
+    """
+    runs = _sources(source)
     fig = _figure()
     ax = fig.add_subplot()
-    ax.plot(t, D, "k-", label="capsim")
-    if theory and _theory_applies(info):
-        D_inf = 25.0 / 4.0 * info["G"]
-        ax.axhline(D_inf, color="C0", ls=":", label=r"$D_\infty = 25G/4$")
-        tau = relaxation_time(info["G"], info["lam"])
-        if tau is not None:
-            tt = np.linspace(0.0, max(float(t[-1]), 0.0), 200)
-            ax.plot(tt, D_inf * (1.0 - np.exp(-tt / tau)), "C0--",
-                    label=rf"first order, $k\tau$ = {tau:.3g}")
+    for i, run in enumerate(runs):
+        data = _load_run(run)
+        info = _case_info(data)
+        t, D = _series(data, "t"), _series(data, "D_xy")
+        single = len(runs) == 1
+        color = "k" if single else f"C{i % 10}"
+        theory_color = "C0" if single else color
+        ax.plot(t, D, "-", color=color, label="capsim" if single else _run_label(info))
+        if theory and _theory_applies(info):
+            D_inf = 25.0 / 4.0 * info["G"]
+            ax.axhline(D_inf, color=theory_color, ls=":", lw=1,
+                       label=r"$D_\infty = 25G/4$" if i == 0 else None)
+            tau = relaxation_time(info["G"], info["lam"])
+            if tau is not None:
+                tt = np.linspace(0.0, max(float(t[-1]), 0.0), 200)
+                label = rf"first order, $k\tau$ = {tau:.3g}" if single else ("first order" if i == 0 else None)
+                ax.plot(tt, D_inf * (1.0 - np.exp(-tt / tau)), "--", color=theory_color, lw=1, label=label)
+        if single:
+            ax.set_title(_title(info), fontsize="small")
     ax.set_xlabel(r"$kt$")
     ax.set_ylabel(r"$D_{xy}$")
-    ax.set_title(_title(info), fontsize="small")
     ax.legend(fontsize="small")
     return fig
 
 
 def inclination_figure(source, theory: bool = True):
-    """θ/π against kt with the first-order π/4."""
-    data = _load_run(source)
-    info = _case_info(data)
-    t, theta = _series(data, "t"), _series(data, "theta")
+    """θ/π against kt with the first-order π/4 (several runs overlaid when given a list)."""
+    runs = _sources(source)
     fig = _figure()
     ax = fig.add_subplot()
-    ax.plot(t, theta / math.pi, "k-", label="capsim")
+    for i, run in enumerate(runs):
+        data = _load_run(run)
+        info = _case_info(data)
+        t, theta = _series(data, "t"), _series(data, "theta")
+        single = len(runs) == 1
+        ax.plot(t, theta / math.pi, "-", color="k" if single else f"C{i % 10}",
+                label="capsim" if single else _run_label(info))
+        if single:
+            ax.set_title(_title(info), fontsize="small")
     if theory:
-        ax.axhline(0.25, color="C0", ls="--", label=r"first order, $\theta = \pi/4$")
+        ax.axhline(0.25, color="C0" if len(runs) == 1 else "k", ls="--", lw=1,
+                   label=r"first order, $\theta = \pi/4$")
     ax.set_xlabel(r"$kt$")
     ax.set_ylabel(r"$\theta/\pi$")
-    ax.set_title(_title(info), fontsize="small")
     ax.legend(fontsize="small")
     return fig
 
@@ -155,7 +181,8 @@ def rheology_figure(source, theory: bool = True):
     ax = fig.add_subplot()
     first = {}
     if theory and _theory_applies(info):
-        first = {"Sxy_star": 1.0, "N1_star": 19.0 * info["G"], "N2_star": -9.5 * info["G"]}
+        # no N2* line: theory.md's derived −N1*/2 is not borne out (REPRODUCTION.md, "N2*")
+        first = {"Sxy_star": 1.0, "N1_star": 19.0 * info["G"]}
     labels = {"Sxy_star": r"$S^*_{xy}$", "N1_star": r"$N_1^*$", "N2_star": r"$N_2^*$"}
     for i, (name, label) in enumerate(labels.items()):
         ax.plot(t, _series(data, name), color=f"C{i}", label=label)

@@ -267,3 +267,28 @@ def test_steady_adds_tank_treading_and_stresslet_panels_when_summarised(summary_
     ttf_lines = [line for line in fig.axes[1].get_lines() if line.get_label() == "λ = 5"]
     assert np.allclose(ttf_lines[0].get_ydata(), 1 - ds["shear_rate_G"].values)
     assert png_size(out)[0] > WIDTH
+
+
+def test_deformation_overlays_several_runs_each_with_its_theory(tiny_run, tmp_path):
+    """Seed figs 4–6 put several G on one axis: one coloured line and one theory curve per run."""
+    other = tmp_path / "G0.05.h5"
+    case = case_from_dict({
+        "name": "tiny-G0.05", "flow": {"shear_rate_G": 0.05}, "mesh": {"level": 1},
+        "time": {"t_end": 0.2}, "output": {"path": str(other), "snapshot_every": 0.1},
+    })
+    assert run_case(case)["status"] == "completed"
+    fig = plot([tiny_run, other], "deformation")
+    lines = fig.axes[0].get_lines()
+    runs = [line for line in lines if line.get_label().startswith("G = ")]
+    assert [line.get_label() for line in runs] == ["G = 0.1, λ = 1", "G = 0.05, λ = 1"]
+    plateaus = sorted(line.get_ydata()[0] for line in lines if line.get_linestyle() == ":")
+    assert np.allclose(plateaus, [25 / 4 * 0.05, 25 / 4 * 0.1])
+    fig = plot([tiny_run, other], "inclination")
+    assert len([line for line in fig.axes[0].get_lines() if line.get_label().startswith("G = ")]) == 2
+    runner = CliRunner()
+    out = tmp_path / "both.png"
+    result = runner.invoke(app, ["plot", str(tiny_run), str(other), "--kind", "deformation", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert png_size(out) == (WIDTH, HEIGHT)
+    result = runner.invoke(app, ["plot", str(tiny_run), str(other), "--kind", "contour"])
+    assert result.exit_code == 2 and "takes one PATH" in result.output
