@@ -72,6 +72,7 @@ def _case_info(data: dict[str, Any]) -> dict[str, Any]:
         "lam": float(case.flow.viscosity_ratio),
         "law": str(case.membrane.law),
         "shape": str(case.shape.kind),
+        "aspect_ratio": float(case.shape.aspect_ratio),
         "tilt": float(case.initial_tilt_deg),
         "name": str(case.name),
     }
@@ -112,7 +113,12 @@ def _sources(source) -> list:
 
 
 def _run_label(info: dict[str, Any]) -> str:
-    return f"G = {info['G']:g}, λ = {info['lam']:g}" if info else "capsim"
+    if not info:
+        return "capsim"
+    shape = {"sphere": "", "biconcave": "biconcave, "}.get(
+        info["shape"], f"{info['shape']} b/a = {info.get('aspect_ratio', float('nan')):g}, "
+    )
+    return f"{shape}G = {info['G']:g}, λ = {info['lam']:g}"
 
 
 def deformation_figure(source, theory: bool = True):
@@ -124,6 +130,7 @@ def deformation_figure(source, theory: bool = True):
     runs = _sources(source)
     fig = _figure()
     ax = fig.add_subplot()
+    top = 0.0
     for i, run in enumerate(runs):
         data = _load_run(run)
         info = _case_info(data)
@@ -143,6 +150,10 @@ def deformation_figure(source, theory: bool = True):
                 ax.plot(tt, D_inf * (1.0 - np.exp(-tt / tau)), "--", color=theory_color, lw=1, label=label)
         if single:
             ax.set_title(_title(info), fontsize="small")
+        top = max(top, float(np.nanmax(D)))
+    if len(runs) > 1:
+        # first-order curves of the larger G run far above the data (D∞ = 25G/4 > 1): keep the data in view
+        ax.set_ylim(0.0, 1.15 * top)
     ax.set_xlabel(r"$kt$")
     ax.set_ylabel(r"$D_{xy}$")
     ax.legend(fontsize="small")
