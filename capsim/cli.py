@@ -111,7 +111,10 @@ def _compression(summary: dict[str, Any]) -> str | None:
         return None
     text = f"{100 * frac:.0f} % (smallest tension {low:.3g} μka)"
     if frac > 0.05:
-        text += ": a membrane without bending stiffness would wrinkle there; check mesh convergence"
+        if summary.get("bending_modulus", 0.0) > 0:
+            text += f": held by the bending modulus {summary['bending_modulus']:g}; check mesh convergence"
+        else:
+            text += ": a membrane without bending stiffness would wrinkle there; check mesh convergence"
     return text
 
 

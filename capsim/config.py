@@ -21,6 +21,7 @@ from pydantic import (
     ValidationError,
     ValidationInfo,
     field_validator,
+    model_validator,
 )
 
 __all__ = [
@@ -89,6 +90,20 @@ class Membrane(_Model):
         description="galerkin: Δf from the energy gradient and the consistent mass matrix "
         "(every node restrained); contour: the seed's element average (3.6)-(3.7)",
     )
+    bending_modulus: float = Field(
+        0.0, ge=0,
+        description="bending modulus κ/(E_s a²) of a dihedral-hinge energy relative to the rest shape "
+        "(0: none, the seed's membrane); needs traction: galerkin",
+    )
+
+    @model_validator(mode="after")
+    def _bending_needs_galerkin(self):
+        if self.bending_modulus > 0 and self.traction != "galerkin":
+            raise ValueError(
+                f"bending_modulus = {self.bending_modulus} needs traction: galerkin "
+                f"(got traction: {self.traction}); the contour traction has no bending term"
+            )
+        return self
 
 
 class Flow(_Model):

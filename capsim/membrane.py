@@ -205,3 +205,94 @@ def principal_tensions(strain: VertexStrain, law: MembraneLaw, params: dict) -> 
     scale = np.exp(-strain.inv1)
     t1, t2 = scale * (w1 + w2 * l1 * l1), scale * (w1 + w2 * l2 * l2)
     return np.maximum(t1, t2), np.minimum(t1, t2)
+
+
+# ---------------------------------------------------------------- bending
+
+# Sphere calibration of the hinge energy: for a smooth surface triangulated
+# near-equilaterally, θ_e ≈ κ_⊥ (h1 + h2)/3 across an edge, so that
+# Σ θ_e² |e|²/A_e → (4/3) ∫ ⟨κ_⊥²⟩ dA; on a sphere ⟨κ_⊥²⟩ = H², and (3/2) of it
+# is the Helfrich energy (κ/2) ∫ (2H)² dA (tests/test_bending.py checks 8πκ).
+HINGE_CALIBRATION = 1.5
+
+
+def linear_subtriangles(elements: Array) -> Array:
+    """Each 6-node triangle as its four straight sub-triangles, oriented as the element."""
+    e = np.asarray(elements)
+    v0, v1, v2, m01, m12, m20 = (e[:, i] for i in range(6))
+    return np.concatenate([
+        np.stack([v0, m01, m20], 1), np.stack([m01, v1, m12], 1),
+        np.stack([m20, m12, v2], 1), np.stack([m01, m12, m20], 1),
+    ])
+
+
+def surface_hinges(triangles: Array) -> Array:
+    """(H, 4) hinges (o1, o2, a, b) of a closed, consistently oriented triangulation:
+    a→b is an edge of triangle (a, b, o1) and b→a of triangle (b, a, o2)."""
+    tri = np.asarray(triangles, dtype=np.int64)
+    directed = {}
+    for t in tri:
+        for k in range(3):
+            a, b, o = int(t[k]), int(t[(k + 1) % 3]), int(t[(k + 2) % 3])
+            if (a, b) in directed:
+                raise ValueError("triangulation is not consistently oriented (an edge repeats in one direction)")
+            directed[(a, b)] = o
+    hinges = []
+    for (a, b), o1 in directed.items():
+        if a < b:
+            if (b, a) not in directed:
+                raise ValueError(f"edge ({a}, {b}) has one triangle: the surface is not closed")
+            hinges.append((o1, directed[(b, a)], a, b))
+    return np.array(hinges, dtype=np.int64)
+
+
+@dataclass(frozen=True)
+class HingeBending:
+    """Bending resistance relative to the rest shape, as a dihedral-hinge energy
+
+        E_b = (3/2) κ Σ_e (θ_e − θ̄_e)² |ē|² / Ā_e
+
+    over the edges of the linear sub-triangulation of the quadratic mesh (four
+    straight triangles per element), θ the signed angle between the outward
+    normals of the two triangles at edge e, θ̄, |ē| and Ā_e (the two triangles'
+    area) at the rest shape. On a smooth surface it tends to the Helfrich energy
+    (κ/2) ∫ (2H − 2H̄)² dA plus a deviatoric part of the same order (a hinge sees
+    the normal curvature across its edge), with κ = ``modulus`` in units of E_s a².
+    Its gradient is added to the membrane's energy gradient (Galerkin forces).
+    """
+
+    hinges: Array
+    theta0: Array
+    weight: Array
+    modulus: float
+
+    @classmethod
+    def from_rest(cls, rest_positions: Array, elements: Array, modulus: float) -> "HingeBending":
+        from capsim import kernels
+
+        triangles = linear_subtriangles(elements)
+        hinges = surface_hinges(triangles)
+        X = np.ascontiguousarray(rest_positions, dtype=np.float64)
+        o1, o2, a, b = hinges.T
+        e = X[b] - X[a]
+        area = 0.5 * (np.linalg.norm(np.cross(e, X[o1] - X[a]), axis=1)
+                      + np.linalg.norm(np.cross(X[o2] - X[a], e), axis=1))
+        length2 = np.einsum("ij,ij->i", e, e)
+        weight = HINGE_CALIBRATION * modulus * length2 / area
+        theta0 = hinge_angles(X, hinges)
+        return cls(hinges, theta0, np.ascontiguousarray(weight), float(modulus))
+
+    def energy_gradient(self, x: Array) -> tuple[float, Array]:
+        from capsim import kernels
+
+        return kernels.hinge_bending_gradient(np.ascontiguousarray(x), self.hinges, self.theta0, self.weight)
+
+
+def hinge_angles(x: Array, hinges: Array) -> Array:
+    """Signed dihedral angles θ of the hinges (positive where convex)."""
+    o1, o2, a, b = np.asarray(hinges).T
+    e = x[b] - x[a]
+    n1 = np.cross(e, x[o1] - x[a])
+    n2 = np.cross(x[o2] - x[a], e)
+    sin_t = np.einsum("ij,ij->i", np.cross(n1, n2), e) / np.linalg.norm(e, axis=1)
+    return np.arctan2(sin_t, np.einsum("ij,ij->i", n1, n2))

@@ -19,7 +19,7 @@ import yaml
 from capsim import __version__
 from capsim.config import Case, Guards
 from capsim.integrate import SCHEMES, StepController, attempt_step
-from capsim.membrane import get_law, law_attributes, principal_tensions
+from capsim.membrane import HingeBending, get_law, law_attributes, principal_tensions
 from capsim.mesh import SurfaceMesh, rest_shape_attributes, rest_shape_mesh
 from capsim.observables import (
     SUMMARY_QUANTITIES, TankTreadingTracker, is_steady, particle_stresslet, run_summary,
@@ -60,6 +60,8 @@ def build_model(case: Case) -> tuple[CapsuleModel, np.ndarray]:
         solver_tol=case.solver.tol,
         solver_max_iter=case.solver.max_iter,
     )
+    if case.membrane.bending_modulus > 0:
+        model.bending = HingeBending.from_rest(positions, mesh.elements, case.membrane.bending_modulus)
     return model, positions
 
 
@@ -435,6 +437,7 @@ def _run(case: Case, progress: ProgressCallback | None, resume: bool, stop: _Sto
         "max_principal_stretch": last["max_principal_stretch"],
         "min_tension": last["min_tension"],
         "compressed_fraction": last["compressed_fraction"],
+        "bending_modulus": float(case.membrane.bending_modulus),
     }
     writer.write_group("run", {k: v for k, v in summary.items() if k not in ("status", "status_reason", "path")})
     # The summary (motion and window means) replaces the final D_xy and θ, kept as final_*.

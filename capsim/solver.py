@@ -14,7 +14,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -228,6 +228,8 @@ class CapsuleModel:
     solver_method: str = "gmres"
     solver_tol: float = 1e-8
     solver_max_iter: int = 200
+    # bending resistance (membrane.HingeBending), added to the Galerkin energy gradient
+    bending: Any = None
     _last_velocity: np.ndarray | None = field(default=None, repr=False)
     # iterations and relative residual of the last velocity solve (0 at λ = 1)
     last_solve_info: dict = field(default_factory=lambda: {"iterations": 0, "residual": 0.0})
@@ -262,6 +264,8 @@ class CapsuleModel:
                 disc.elements, disc.n_nodes, disc.mem_dxi, disc.mem_deta, disc.mem_w,
                 jac0, np.ascontiguousarray(w1), np.ascontiguousarray(w2), dual_cur, dual_ref,
             )
+            if self.bending is not None:
+                rhs = rhs + self.bending.energy_gradient(x)[1]
             data = disc.mass_matrix_data(geo)
             guess = self._last_traction if self._last_traction is not None else np.zeros_like(rhs)
             traction, iterations = kernels.block_cg(
