@@ -268,8 +268,6 @@ class HingeBending:
 
     @classmethod
     def from_rest(cls, rest_positions: Array, elements: Array, modulus: float) -> "HingeBending":
-        from capsim import kernels
-
         triangles = linear_subtriangles(elements)
         hinges = surface_hinges(triangles)
         X = np.ascontiguousarray(rest_positions, dtype=np.float64)

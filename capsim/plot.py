@@ -22,6 +22,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from capsim.membrane import linear_subtriangles
+
 __all__ = [
     "DPI", "FIGSIZE", "KINDS", "contour_figure", "deformation_figure", "inclination_figure",
     "plot", "relaxation_time", "rheology_figure", "steady_figure", "tensions_figure",
@@ -211,16 +213,6 @@ def rheology_figure(source, theory: bool = True):
 # ------------------------------------------------------------ xy-plane section
 
 
-def _linear_triangles(elements: np.ndarray) -> np.ndarray:
-    """Each 6-node triangle as its four straight sub-triangles (corner and centre)."""
-    e = np.asarray(elements)
-    v0, v1, v2, m01, m12, m20 = (e[:, i] for i in range(6))
-    return np.concatenate([
-        np.stack([v0, m01, m20], 1), np.stack([m01, v1, m12], 1),
-        np.stack([m20, m12, v2], 1), np.stack([m01, m12, m20], 1),
-    ])
-
-
 def xy_section(
     x: np.ndarray, elements: np.ndarray, z0: float = 0.0, values: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -232,7 +224,7 @@ def xy_section(
     interpolated linearly to the points. Returns (points (n, 3), values (n, ...)).
     """
     x = np.asarray(x, dtype=np.float64)
-    tri = _linear_triangles(elements)
+    tri = linear_subtriangles(elements)
     edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
     edges = np.unique(np.sort(edges, axis=1), axis=0)
     phi = x[:, 2] - z0
