@@ -336,28 +336,48 @@ _WORKER_QUEUE: Any = None
 _WORKER_STOP: Any = None
 
 
+_WORKER_BUSY = threading.Event()
+
+
 def _init_worker(numba_threads: int, progress_queue: Any, stop: Any) -> None:
     # Must run before numba is imported: NUMBA_NUM_THREADS is read once, at import.
     os.environ["NUMBA_NUM_THREADS"] = str(numba_threads)
     # Ctrl-C goes to the whole process group; the parent decides what stops.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # So does a batch system's SIGTERM. An idle worker must not die of it: it waits
+    # for work holding the task queue's lock, and dying there would leave every other
+    # worker, and the pool's shutdown, waiting for that lock for ever. A running case
+    # replaces this handler with run_case's, which closes the run as 'interrupted'.
+    signal.signal(signal.SIGTERM, _ignore_while_idle)
     global _WORKER_QUEUE, _WORKER_STOP
     _WORKER_QUEUE, _WORKER_STOP = progress_queue, stop
     threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()
 
 
+def _ignore_while_idle(signum, frame) -> None:
+    """SIGTERM between runs: nothing to stop; the parent shuts the pool down."""
+
+
 def _exit_with_parent(parent: int) -> None:
     # A killed parent must not leave workers computing for nobody: SIGTERM closes
-    # the running run's file as 'interrupted' (run_case's guard), or ends an idle worker.
+    # the running run's file as 'interrupted' (run_case's guard); then the worker ends.
     while os.getppid() == parent:
         time.sleep(2.0)
-    os.kill(os.getpid(), signal.SIGTERM)
+    if _WORKER_BUSY.is_set():
+        os.kill(os.getpid(), signal.SIGTERM)
+        while _WORKER_BUSY.is_set():
+            time.sleep(0.2)
+    os._exit(0)
 
 
 def _pool_run(spec: RunSpec) -> dict[str, Any]:
     if _WORKER_STOP is not None and _WORKER_STOP.is_set():
         return _record(spec, "interrupted", "campaign stopped before this run started")
-    return execute_run(spec, _WORKER_QUEUE)
+    _WORKER_BUSY.set()
+    try:
+        return execute_run(spec, _WORKER_QUEUE)
+    finally:
+        _WORKER_BUSY.clear()
 
 
 def warm_numba(specs: list[RunSpec]) -> None:

@@ -413,3 +413,51 @@ def test_step_collapse_guard_names_the_stall():
     reason = step_collapse(stalled, 1e-3)
     assert reason is not None and "min_dt_fraction" in reason and "1e-05" in reason
     assert step_collapse([0.05] * 100 + [1e-5] * 20, 1e-3) is None  # too short a history to judge
+
+
+def test_sweep_stops_on_sigterm_to_its_process_group_with_idle_workers(tmp_path):
+    """A batch system's SIGTERM reaches the parent and every worker. Workers that
+    had no run left must not die of it (they wait for work holding the task queue's
+    lock; dying there hung the pool's shutdown): the sweep exits promptly, the
+    running case is closed as 'interrupted' and the finished ones stay completed."""
+    campaign = tmp_path / "c.yaml"
+    campaign.write_text(yaml.safe_dump({
+        "name": "sigterm",
+        "base": {"shape": {"kind": "sphere"}, "time": {"t_end": 60.0}},
+        "sweep": {},
+        "zip": {"flow.shear_rate_G": [0.1, 0.2, 0.3], "mesh.level": [2, 0, 0], "time.t_end": [60.0, 0.3, 0.3]},
+        "output": {"dir": str(tmp_path / "out")},
+    }))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "capsim.cli", "sweep", str(campaign), "--workers", "3", "-q"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+    )
+    out = tmp_path / "out"
+    deadline = time.monotonic() + 180.0
+    # wait until both short runs are done and the long one has written some steps
+    while True:
+        assert proc.poll() is None, proc.stderr.read()
+        assert time.monotonic() < deadline, "the short runs did not finish in 180 s"
+        done = [p for p in out.glob("*.h5") if "level0" in p.name and _status(p) == "completed"]
+        long_run = [p for p in out.glob("*level2*.ckpt.npz")]
+        if len(done) == 2 and long_run:
+            break
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        pytest.fail("the sweep did not exit within 30 s of SIGTERM")
+    statuses = sorted(_status(p) for p in out.glob("*.h5"))
+    assert statuses == ["completed", "completed", "interrupted"]
+
+
+def _status(path: Path) -> str:
+    import h5py
+
+    try:
+        with h5py.File(path, "r", locking=False) as f:
+            return str(f.attrs.get("status", ""))
+    except (OSError, ValueError):
+        return ""
