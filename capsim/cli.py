@@ -289,10 +289,12 @@ def sweep(
     for record in result["records"]:
         if record["status"] != "completed":
             typer.echo(f"{record['run_id']}: {record['status']}: {record['status_reason']}", err=True)
+    not_started = result["total"] - result["skipped"] - result["completed"] - result["failed"]
     typer.echo(
         f"{campaign.name}: {result['total']} runs, {result['skipped']} skipped, {result['completed']} completed, "
         f"{result['failed']} not completed{' (interrupted)' if result['interrupted'] else ''}"
-        f" -> {campaign.output.dir}"
+        + (f", {not_started} not started" if not_started > 0 else "")
+        + f" -> {campaign.output.dir}"
     )
     raise typer.Exit(code=0 if result["failed"] == 0 and not result["interrupted"] else 1)
 
