@@ -65,6 +65,8 @@ EXPECTED = {
     "case_unwritable_output.yaml": "output path /dev/null/bad.h5: cannot create its directory /dev/null",
     "case_output_is_directory.yaml": "output path /tmp is a directory",
     "case_does_not_exist.yaml": "case_does_not_exist.yaml: no such file",
+    "case_bending_string.yaml": "membrane.bending_modulus = 'abc': must be a number",
+    "case_bending_contour.yaml": "bending_modulus = 0.01 needs traction: galerkin (got traction: contour)",
     "campaign_empty.yaml": "top level must be a mapping of fields",
     "campaign_not_yaml.yaml": "not valid YAML",
     "campaign_missing_output.yaml": "output: required field is missing",
