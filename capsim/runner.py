@@ -129,6 +129,7 @@ class _Committed:
     # solver warm starts: they move results only at the 1e-10 level, but a bit-identical restart needs them
     warm_traction: np.ndarray | None
     warm_velocity: np.ndarray | None
+    warm_rhs: np.ndarray | None
     # the step-size controller's memory (private fields, e.g. the PI rule's previous error)
     controller_state: dict
 
@@ -141,6 +142,7 @@ class _Committed:
         return cls(
             tracker_raw=copy(tracker._raw), tracker_unwrapped=copy(tracker._unwrapped),
             warm_traction=copy(model._last_traction), warm_velocity=copy(model._last_velocity),
+            warm_rhs=copy(model._last_rhs),
             controller_state={f.name: getattr(controller, f.name) for f in fields(controller) if f.name.startswith("_")},
             **{k: copy(v) if isinstance(v, np.ndarray) else v for k, v in loop.items()},
         )
@@ -149,6 +151,7 @@ class _Committed:
         tracker._raw, tracker._unwrapped = self.tracker_raw.copy(), self.tracker_unwrapped.copy()
         model._last_traction = None if self.warm_traction is None else self.warm_traction.copy()
         model._last_velocity = None if self.warm_velocity is None else self.warm_velocity.copy()
+        model._last_rhs = None if self.warm_rhs is None else self.warm_rhs.copy()
         for name, value in self.controller_state.items():
             setattr(controller, name, value)
 

@@ -231,6 +231,7 @@ class CapsuleModel:
     # bending resistance (membrane.HingeBending), added to the Galerkin energy gradient
     bending: Any = None
     _last_velocity: np.ndarray | None = field(default=None, repr=False)
+    _last_rhs: np.ndarray | None = field(default=None, repr=False)
     # iterations and relative residual of the last velocity solve (0 at λ = 1)
     last_solve_info: dict = field(default_factory=lambda: {"iterations": 0, "residual": 0.0})
 
@@ -339,7 +340,15 @@ class CapsuleModel:
         def apply(u):
             return u - c * disc.double_layer(x, geo, u) + (1.0 - lam) * normals * (disc.flux(geo, u) / area)
 
-        guess = self._last_velocity if self._last_velocity is not None and self._last_velocity.shape == rhs.shape else rhs
+        if self._last_velocity is not None and self._last_velocity.shape == rhs.shape:
+            guess = self._last_velocity
+            if self._last_rhs is not None and self._last_rhs.shape == rhs.shape:
+                # the operator's spectrum lies in [min(1, λ), max(1, λ)]: carry the change
+                # of the right-hand side over with the Richardson step 2/(1+λ)
+                guess = guess + (2.0 / (1.0 + lam)) * (rhs - self._last_rhs)
+        else:
+            guess = rhs
+        self._last_rhs = rhs
         b = rhs.ravel()
         bnorm = max(float(np.linalg.norm(b)), 1e-300)
         u = guess.copy()
