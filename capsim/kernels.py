@@ -836,3 +836,250 @@ def hinge_bending_gradient(x, hinges, theta0, weight):
             grad[a, k] += g * (-(1.0 - t1) * g1 - (1.0 - t2) * g2)
             grad[b, k] += g * (-t1 * g1 - t2 * g2)
     return energy, grad
+
+
+# ---------------------------------------------------------------- near field
+
+@njit(**_JIT)
+def _is_incident(node, e, inc_offsets, inc_elem):
+    for k in range(inc_offsets[node], inc_offsets[node + 1]):
+        if inc_elem[k] == e:
+            return True
+    return False
+
+
+@njit(parallel=True, **_JIT)
+def near_field_pairs(x, elements, n_vertices, inc_offsets, inc_elem, targets, factor):
+    """Elements close to each target node but not holding it: some node of the
+    element lies within ``factor`` × its longest vertex-to-vertex edge of the
+    target. There the regular rule under-resolves the kernel (a sharp rim, two
+    faces of a thin capsule). Returns CSR (offsets (Nt+1,), elements)."""
+    ne = elements.shape[0]
+    nt = targets.shape[0]
+    size = np.empty(ne)
+    cen = np.empty((ne, 3))
+    for e in range(ne):
+        h2 = 0.0
+        for a in range(3):
+            b = (a + 1) % 3
+            d = 0.0
+            for k in range(3):
+                t = x[elements[e, a], k] - x[elements[e, b], k]
+                d += t * t
+            h2 = max(h2, d)
+        size[e] = np.sqrt(h2)
+        for k in range(3):
+            cen[e, k] = (x[elements[e, 0], k] + x[elements[e, 1], k] + x[elements[e, 2], k]) / 3.0
+    counts = np.zeros(nt, dtype=np.int64)
+    for it in prange(nt):
+        p = targets[it]
+        c = 0
+        for e in range(ne):
+            reach = factor * size[e]
+            d2 = 0.0
+            for k in range(3):
+                t = x[p, k] - cen[e, k]
+                d2 += t * t
+            if d2 > (reach + size[e]) ** 2:  # no node of e can be within reach
+                continue
+            near = False
+            for a in range(6):
+                d2 = 0.0
+                for k in range(3):
+                    t = x[p, k] - x[elements[e, a], k]
+                    d2 += t * t
+                if d2 < reach * reach:
+                    near = True
+            if near and not _is_incident(p, e, inc_offsets, inc_elem):
+                c += 1
+        counts[it] = c
+    offsets = np.zeros(nt + 1, dtype=np.int64)
+    for it in range(nt):
+        offsets[it + 1] = offsets[it] + counts[it]
+    pair_elem = np.empty(offsets[nt], dtype=np.int64)
+    for it in prange(nt):
+        p = targets[it]
+        j = offsets[it]
+        for e in range(ne):
+            reach = factor * size[e]
+            d2 = 0.0
+            for k in range(3):
+                t = x[p, k] - cen[e, k]
+                d2 += t * t
+            if d2 > (reach + size[e]) ** 2:
+                continue
+            near = False
+            for a in range(6):
+                d2 = 0.0
+                for k in range(3):
+                    t = x[p, k] - x[elements[e, a], k]
+                    d2 += t * t
+                if d2 < reach * reach:
+                    near = True
+            if near and not _is_incident(p, e, inc_offsets, inc_elem):
+                pair_elem[j] = e
+                j += 1
+    return offsets, pair_elem
+
+
+@njit(parallel=True, **_JIT)
+def single_layer_near_correction(
+    x, elements, nodal_density, reg_points, reg_weights, reg_density,
+    fine_phi, fine_dxi, fine_deta, fine_w, targets, pair_offsets, pair_elem,
+):
+    """For each (target, near element) pair: the element's ∫ G·f dS by the
+    subdivided rule minus its regular-rule share already in the Stokeslet sum.
+    nodal_density (N_e, 6, 3); reg_density (N_e, q, 3) at the regular points."""
+    nt = targets.shape[0]
+    nf = fine_w.shape[0]
+    nq = reg_weights.shape[1]
+    out = np.zeros((nt, 3))
+    for it in prange(nt):
+        p = targets[it]
+        x0 = x[p, 0]
+        y0 = x[p, 1]
+        z0 = x[p, 2]
+        sx = 0.0
+        sy = 0.0
+        sz = 0.0
+        for k in range(pair_offsets[it], pair_offsets[it + 1]):
+            e = pair_elem[k]
+            for q in range(nf):
+                px = 0.0
+                py = 0.0
+                pz = 0.0
+                ax = 0.0
+                ay = 0.0
+                az = 0.0
+                bx = 0.0
+                by = 0.0
+                bz = 0.0
+                fx = 0.0
+                fy = 0.0
+                fz = 0.0
+                for a in range(6):
+                    node = elements[e, a]
+                    ph = fine_phi[q, a]
+                    da = fine_dxi[q, a]
+                    db = fine_deta[q, a]
+                    px += ph * x[node, 0]
+                    py += ph * x[node, 1]
+                    pz += ph * x[node, 2]
+                    ax += da * x[node, 0]
+                    ay += da * x[node, 1]
+                    az += da * x[node, 2]
+                    bx += db * x[node, 0]
+                    by += db * x[node, 1]
+                    bz += db * x[node, 2]
+                    fx += ph * nodal_density[e, a, 0]
+                    fy += ph * nodal_density[e, a, 1]
+                    fz += ph * nodal_density[e, a, 2]
+                nx, ny, nz = _cross(ax, ay, az, bx, by, bz)
+                wj = fine_w[q] * np.sqrt(nx * nx + ny * ny + nz * nz)
+                dx = px - x0
+                dy = py - y0
+                dz = pz - z0
+                rinv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
+                rg = (dx * fx + dy * fy + dz * fz) * rinv * rinv * rinv
+                sx += wj * (fx * rinv + dx * rg)
+                sy += wj * (fy * rinv + dy * rg)
+                sz += wj * (fz * rinv + dz * rg)
+            for q in range(nq):
+                dx = reg_points[e, q, 0] - x0
+                dy = reg_points[e, q, 1] - y0
+                dz = reg_points[e, q, 2] - z0
+                fx = reg_density[e, q, 0] * reg_weights[e, q]
+                fy = reg_density[e, q, 1] * reg_weights[e, q]
+                fz = reg_density[e, q, 2] * reg_weights[e, q]
+                rinv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
+                rg = (dx * fx + dy * fy + dz * fz) * rinv * rinv * rinv
+                sx -= fx * rinv + dx * rg
+                sy -= fy * rinv + dy * rg
+                sz -= fz * rinv + dz * rg
+        out[it, 0] = sx
+        out[it, 1] = sy
+        out[it, 2] = sz
+    return out
+
+
+@njit(parallel=True, **_JIT)
+def double_layer_near_correction(
+    x, u, u_target, elements, reg_points, reg_normals_w, reg_u,
+    fine_phi, fine_dxi, fine_deta, fine_w, targets, pair_offsets, pair_elem,
+):
+    """As single_layer_near_correction for D[u] = ∫ (u − u0)·T·n dS, T_ijk =
+    −6 r_i r_j r_k / r⁵ (the kernel of double_layer_sum)."""
+    nt = targets.shape[0]
+    nf = fine_w.shape[0]
+    nq = reg_normals_w.shape[1]
+    out = np.zeros((nt, 3))
+    for it in prange(nt):
+        p = targets[it]
+        x0 = x[p, 0]
+        y0 = x[p, 1]
+        z0 = x[p, 2]
+        u0 = u_target[p, 0]
+        v0 = u_target[p, 1]
+        w0 = u_target[p, 2]
+        sx = 0.0
+        sy = 0.0
+        sz = 0.0
+        for k in range(pair_offsets[it], pair_offsets[it + 1]):
+            e = pair_elem[k]
+            for q in range(nf):
+                px = 0.0
+                py = 0.0
+                pz = 0.0
+                ax = 0.0
+                ay = 0.0
+                az = 0.0
+                bx = 0.0
+                by = 0.0
+                bz = 0.0
+                vx = 0.0
+                vy = 0.0
+                vz = 0.0
+                for a in range(6):
+                    node = elements[e, a]
+                    ph = fine_phi[q, a]
+                    da = fine_dxi[q, a]
+                    db = fine_deta[q, a]
+                    px += ph * x[node, 0]
+                    py += ph * x[node, 1]
+                    pz += ph * x[node, 2]
+                    ax += da * x[node, 0]
+                    ay += da * x[node, 1]
+                    az += da * x[node, 2]
+                    bx += db * x[node, 0]
+                    by += db * x[node, 1]
+                    bz += db * x[node, 2]
+                    vx += ph * u[node, 0]
+                    vy += ph * u[node, 1]
+                    vz += ph * u[node, 2]
+                nx, ny, nz = _cross(ax, ay, az, bx, by, bz)  # normal × Jacobian
+                dx = px - x0
+                dy = py - y0
+                dz = pz - z0
+                rinv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
+                rinv2 = rinv * rinv
+                c = -6.0 * fine_w[q] * (dx * nx + dy * ny + dz * nz) * rinv2 * rinv2 * rinv
+                c *= dx * (vx - u0) + dy * (vy - v0) + dz * (vz - w0)
+                sx += c * dx
+                sy += c * dy
+                sz += c * dz
+            for q in range(nq):
+                dx = reg_points[e, q, 0] - x0
+                dy = reg_points[e, q, 1] - y0
+                dz = reg_points[e, q, 2] - z0
+                rinv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
+                rinv2 = rinv * rinv
+                c = -6.0 * (dx * reg_normals_w[e, q, 0] + dy * reg_normals_w[e, q, 1] + dz * reg_normals_w[e, q, 2])
+                c *= rinv2 * rinv2 * rinv
+                c *= dx * (reg_u[e, q, 0] - u0) + dy * (reg_u[e, q, 1] - v0) + dz * (reg_u[e, q, 2] - w0)
+                sx -= c * dx
+                sy -= c * dy
+                sz -= c * dz
+        out[it, 0] = sx
+        out[it, 1] = sy
+        out[it, 2] = sz
+    return out

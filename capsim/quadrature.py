@@ -143,3 +143,26 @@ def singular_rules(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         eta[k] = np.concatenate([a[1], b[1]])
         w[k] = np.concatenate([a[2], b[2]])
     return xi, eta, w
+
+
+@lru_cache(maxsize=None)
+def subdivided_rule(n_points: int, levels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The symmetric rule with ``n_points`` on each of the 4^levels triangles of the
+    reference triangle split ``levels`` times at its edge midpoints: (xi, eta, w),
+    Σw = 1/2. For integrands that vary on a scale smaller than the element (the
+    near field of a source element close to the target)."""
+    xi0, eta0, w0 = triangle_rule(n_points)
+    triangles = [np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])]
+    for _ in range(levels):
+        split = []
+        for a, b, c in triangles:
+            ab, bc, ca = (a + b) / 2, (b + c) / 2, (c + a) / 2
+            split += [np.array([a, ab, ca]), np.array([ab, b, bc]), np.array([ca, bc, c]), np.array([ab, bc, ca])]
+        triangles = split
+    xs, es, ws = [], [], []
+    for a, b, c in triangles:
+        p = a[None, :] + xi0[:, None] * (b - a)[None, :] + eta0[:, None] * (c - a)[None, :]
+        xs.append(p[:, 0])
+        es.append(p[:, 1])
+        ws.append(w0 / 4**levels)
+    return np.concatenate(xs), np.concatenate(es), np.concatenate(ws)

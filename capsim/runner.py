@@ -44,6 +44,8 @@ def build_model(case: Case) -> tuple[CapsuleModel, np.ndarray]:
         mesh.elements, mesh.n_vertices,
         regular_order=case.quadrature.regular_order,
         singular_order=case.quadrature.singular_order,
+        near_field_factor=case.quadrature.near_field_factor,
+        near_field_levels=case.quadrature.near_field_levels,
     )
     positions = mesh.positions
     if case.mesh.symmetry:

@@ -22,7 +22,7 @@ from capsim import kernels
 from capsim.geometry import ElementGeometry, element_geometry, interpolate, shape_functions
 from capsim.membrane import MembraneLaw, VertexStrain, get_law, strain_from_gradient, tension_tensor
 from capsim.mesh import node_element_incidence
-from capsim.quadrature import NODE_XI, NODE_ETA, gauss_legendre_01, singular_rules, triangle_rule
+from capsim.quadrature import NODE_XI, NODE_ETA, gauss_legendre_01, singular_rules, subdivided_rule, triangle_rule
 
 
 def shear_flow(x: np.ndarray) -> np.ndarray:
@@ -42,6 +42,10 @@ class Discretization:
     singular_order: int = 2
     contour_order: int = 4
     membrane_order: int = 6
+    # near field: elements within near_field_factor × their size of a target node
+    # (not holding it) are integrated on 4^near_field_levels sub-triangles; 0 = off
+    near_field_factor: float = 0.0
+    near_field_levels: int = 1
 
     def __post_init__(self):
         n_nodes = int(self.elements.max()) + 1
@@ -68,6 +72,11 @@ class Discretization:
         self._build_mass_pattern()
         self.targets = np.arange(n_nodes, dtype=np.int64)
         self.mirror: np.ndarray | None = None
+        fxi, feta, fw = subdivided_rule(self.regular_order, self.near_field_levels)
+        fphi, fdxi, fdeta = shape_functions(fxi, feta)
+        self.fine_phi, self.fine_dxi, self.fine_deta = (np.ascontiguousarray(a) for a in (fphi, fdxi, fdeta))
+        self.fine_w = np.ascontiguousarray(fw)
+        self._near: tuple | None = None  # (geometry, offsets, elements) of the last configuration
 
     def enable_mirror_symmetry(self, positions: np.ndarray) -> np.ndarray | None:
         """Use the symmetry of the problem about the plane z = 0.
@@ -124,6 +133,19 @@ class Discretization:
     def geometry(self, x: np.ndarray) -> ElementGeometry:
         return element_geometry(x, self.elements, self.regular_order)
 
+    def near_pairs(self, x: np.ndarray, geo: ElementGeometry) -> tuple[np.ndarray, np.ndarray] | None:
+        """(offsets, elements) of the near-field pairs at this configuration, found
+        once per geometry (the λ ≠ 1 solve applies the double layer many times)."""
+        if self.near_field_factor <= 0.0:
+            return None
+        if self._near is None or self._near[0] is not geo:
+            offsets, elems = kernels.near_field_pairs(
+                np.ascontiguousarray(x), self.elements, self.n_vertices, self.inc_offsets, self.inc_elem,
+                self.targets, float(self.near_field_factor),
+            )
+            self._near = (geo, offsets, elems)
+        return self._near[1], self._near[2]
+
     def single_layer(self, x: np.ndarray, geo: ElementGeometry, density: np.ndarray) -> np.ndarray:
         """∫ G·f dS at every node for a density given per element.
 
@@ -143,6 +165,13 @@ class Discretization:
             np.ascontiguousarray(nodal), geo.points, geo.weights, self.reg_phi,
             self.sing_phi, self.sing_dxi, self.sing_deta, self.sing_w, self.targets,
         )
+        near = self.near_pairs(x, geo)
+        if near is not None:
+            u += kernels.single_layer_near_correction(
+                x, self.elements, np.ascontiguousarray(nodal), geo.points, geo.weights,
+                np.ascontiguousarray(point_density), self.fine_phi, self.fine_dxi, self.fine_deta, self.fine_w,
+                self.targets, near[0], near[1],
+            )
         return self.expand(u)
 
 
@@ -175,6 +204,12 @@ class Discretization:
             x, u, u_target, self.elements, self.inc_offsets, self.inc_elem, self.inc_local,
             geo.points, nw, u_pts, self.sing_phi, self.sing_dxi, self.sing_deta, self.sing_w, t,
         )
+        near = self.near_pairs(x, geo)
+        if near is not None:
+            out += kernels.double_layer_near_correction(
+                x, u, u_target, self.elements, geo.points, nw, u_pts,
+                self.fine_phi, self.fine_dxi, self.fine_deta, self.fine_w, t, near[0], near[1],
+            )
         return self.expand(out)
 
 
