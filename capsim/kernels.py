@@ -848,8 +848,28 @@ def _is_incident(node, e, inc_offsets, inc_elem):
     return False
 
 
+@njit(inline="always")
+def _is_near(x, p, e, elements, cen, size, factor, inc_offsets, inc_elem):
+    """Some node of element e lies within factor × size[e] of node p, which e does not hold."""
+    reach = factor * size[e]
+    d2 = 0.0
+    for k in range(3):
+        t = x[p, k] - cen[e, k]
+        d2 += t * t
+    if d2 > (reach + size[e]) ** 2:  # no node of e can be within reach
+        return False
+    for a in range(6):
+        d2 = 0.0
+        for k in range(3):
+            t = x[p, k] - x[elements[e, a], k]
+            d2 += t * t
+        if d2 < reach * reach:
+            return not _is_incident(p, e, inc_offsets, inc_elem)
+    return False
+
+
 @njit(parallel=True, **_JIT)
-def near_field_pairs(x, elements, n_vertices, inc_offsets, inc_elem, targets, factor):
+def near_field_pairs(x, elements, inc_offsets, inc_elem, targets, factor):
     """Elements close to each target node but not holding it: some node of the
     element lies within ``factor`` × its longest vertex-to-vertex edge of the
     target. There the regular rule under-resolves the kernel (a sharp rim, two
@@ -872,25 +892,9 @@ def near_field_pairs(x, elements, n_vertices, inc_offsets, inc_elem, targets, fa
             cen[e, k] = (x[elements[e, 0], k] + x[elements[e, 1], k] + x[elements[e, 2], k]) / 3.0
     counts = np.zeros(nt, dtype=np.int64)
     for it in prange(nt):
-        p = targets[it]
         c = 0
         for e in range(ne):
-            reach = factor * size[e]
-            d2 = 0.0
-            for k in range(3):
-                t = x[p, k] - cen[e, k]
-                d2 += t * t
-            if d2 > (reach + size[e]) ** 2:  # no node of e can be within reach
-                continue
-            near = False
-            for a in range(6):
-                d2 = 0.0
-                for k in range(3):
-                    t = x[p, k] - x[elements[e, a], k]
-                    d2 += t * t
-                if d2 < reach * reach:
-                    near = True
-            if near and not _is_incident(p, e, inc_offsets, inc_elem):
+            if _is_near(x, targets[it], e, elements, cen, size, factor, inc_offsets, inc_elem):
                 c += 1
         counts[it] = c
     offsets = np.zeros(nt + 1, dtype=np.int64)
@@ -898,25 +902,9 @@ def near_field_pairs(x, elements, n_vertices, inc_offsets, inc_elem, targets, fa
         offsets[it + 1] = offsets[it] + counts[it]
     pair_elem = np.empty(offsets[nt], dtype=np.int64)
     for it in prange(nt):
-        p = targets[it]
         j = offsets[it]
         for e in range(ne):
-            reach = factor * size[e]
-            d2 = 0.0
-            for k in range(3):
-                t = x[p, k] - cen[e, k]
-                d2 += t * t
-            if d2 > (reach + size[e]) ** 2:
-                continue
-            near = False
-            for a in range(6):
-                d2 = 0.0
-                for k in range(3):
-                    t = x[p, k] - x[elements[e, a], k]
-                    d2 += t * t
-                if d2 < reach * reach:
-                    near = True
-            if near and not _is_incident(p, e, inc_offsets, inc_elem):
+            if _is_near(x, targets[it], e, elements, cen, size, factor, inc_offsets, inc_elem):
                 pair_elem[j] = e
                 j += 1
     return offsets, pair_elem

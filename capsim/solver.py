@@ -140,7 +140,7 @@ class Discretization:
             return None
         if self._near is None or self._near[0] is not geo:
             offsets, elems = kernels.near_field_pairs(
-                np.ascontiguousarray(x), self.elements, self.n_vertices, self.inc_offsets, self.inc_elem,
+                np.ascontiguousarray(x), self.elements, self.inc_offsets, self.inc_elem,
                 self.targets, float(self.near_field_factor),
             )
             self._near = (geo, offsets, elems)
