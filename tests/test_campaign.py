@@ -210,8 +210,13 @@ def test_dask_local_cluster_gives_the_same_numbers(pool_sweep, tmp_path):
         result = run_campaign(campaign, scheduler=cluster.scheduler_address)
     assert (result["completed"], result["failed"]) == (4, 0)
     pool, dask = summarize_campaign(out), summarize_campaign(tmp_path / "dask")
-    for name in ("D_xy", "theta", "steps"):
-        np.testing.assert_allclose(dask[name].values, pool[name].values, rtol=1e-12, atol=0)
+    np.testing.assert_array_equal(dask["steps"].values, pool["steps"].values)
+    # The pool's and Dask's workers run numba with different thread counts, so the
+    # parallel sums round differently; the λ = 5 GMRES solves (tol 1e-6, warm-started
+    # from the previous velocity and right-hand side) carry that 1e-16 difference
+    # to ~4e-12 in D_xy over a run. The same numbers, to round-off:
+    for name in ("D_xy", "theta"):
+        np.testing.assert_allclose(dask[name].values, pool[name].values, rtol=1e-10, atol=0)
     # (V − V0)/V0 is a difference of nearly equal volumes: it carries ~1e-16
     # absolute precision, and the workers' thread counts differ (λ = 5 solves)
     np.testing.assert_allclose(dask["volume_drift"].values, pool["volume_drift"].values, rtol=0, atol=1e-14)
