@@ -54,17 +54,15 @@ def stokeslet_sum(targets, sources, strengths):
 
 
 @njit(inline="always")
-def _interp6(phi_row, vals, e, d):
-    s = 0.0
-    for k in range(6):
-        s += phi_row[k] * vals[e, k, d]
-    return s
+def _cross(a0, a1, a2, b0, b1, b2):
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
 @njit(inline="always")
-def _duffy_point(xe, fe, e, k, j, sing_phi, sing_dxi, sing_deta):
-    """Position, unnormalised normal ∂x/∂ξ × ∂x/∂η and density at Duffy point j
-    of the rule singular at local node k of element e (xe, fe: (N_e, 6, 3))."""
+def _element_point(xe, fe, e, phi, dxi, deta):
+    """Position, unnormalised normal ∂x/∂ξ × ∂x/∂η and density at one rule point of
+    element e, given the basis values and derivatives there (rows of 6); xe, fe:
+    element-nodal positions and density (N_e, 6, 3)."""
     px = 0.0
     py = 0.0
     pz = 0.0
@@ -78,9 +76,9 @@ def _duffy_point(xe, fe, e, k, j, sing_phi, sing_dxi, sing_deta):
     fy = 0.0
     fz = 0.0
     for a in range(6):
-        ph = sing_phi[k, j, a]
-        d1 = sing_dxi[k, j, a]
-        d2 = sing_deta[k, j, a]
+        ph = phi[a]
+        d1 = dxi[a]
+        d2 = deta[a]
         xa = xe[e, a, 0]
         ya = xe[e, a, 1]
         za = xe[e, a, 2]
@@ -100,6 +98,92 @@ def _duffy_point(xe, fe, e, k, j, sing_phi, sing_dxi, sing_deta):
     return px, py, pz, nx, ny, nz, fx, fy, fz
 
 
+@njit(inline="always")
+def _stokeslet(dx, dy, dz, fx, fy, fz):
+    """G·f = f/r + r (r·f)/r³ for r = (dx, dy, dz) (seed 2.12a)."""
+    rinv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
+    rg = (dx * fx + dy * fy + dz * fz) * rinv * rinv * rinv
+    return fx * rinv + dx * rg, fy * rinv + dy * rg, fz * rinv + dz * rg
+
+
+@njit(inline="always")
+def _stresslet(dx, dy, dz, mx, my, mz, vx, vy, vz):
+    """v·T·m with T_ijk = −6 r_i r_j r_k / r⁵ for r = (dx, dy, dz) (seed 2.12b)."""
+    rinv2 = 1.0 / (dx * dx + dy * dy + dz * dz)
+    rinv = np.sqrt(rinv2)
+    c = -6.0 * (dx * mx + dy * my + dz * mz) * rinv2 * rinv2 * rinv
+    c *= dx * vx + dy * vy + dz * vz
+    return c * dx, c * dy, c * dz
+
+
+@njit(inline="always")
+def _single_layer_element(x0, y0, z0, xe, fe, e, phi, dxi, deta, w):
+    """∫_e G·f dS by the rule (phi, dxi, deta (m, 6), w (m,)) on element e."""
+    ux = 0.0
+    uy = 0.0
+    uz = 0.0
+    for j in range(w.shape[0]):
+        px, py, pz, nx, ny, nz, fx, fy, fz = _element_point(xe, fe, e, phi[j], dxi[j], deta[j])
+        wj = w[j] * np.sqrt(nx * nx + ny * ny + nz * nz)
+        gx, gy, gz = _stokeslet(px - x0, py - y0, pz - z0, fx * wj, fy * wj, fz * wj)
+        ux += gx
+        uy += gy
+        uz += gz
+    return ux, uy, uz
+
+
+@njit(inline="always")
+def _single_layer_element_regular(x0, y0, z0, e, reg_points, reg_weights, reg_density):
+    """The regular rule's share of element e in stokeslet_sum."""
+    ux = 0.0
+    uy = 0.0
+    uz = 0.0
+    for q in range(reg_weights.shape[1]):
+        w = reg_weights[e, q]
+        gx, gy, gz = _stokeslet(
+            reg_points[e, q, 0] - x0, reg_points[e, q, 1] - y0, reg_points[e, q, 2] - z0,
+            reg_density[e, q, 0] * w, reg_density[e, q, 1] * w, reg_density[e, q, 2] * w,
+        )
+        ux += gx
+        uy += gy
+        uz += gz
+    return ux, uy, uz
+
+
+@njit(inline="always")
+def _double_layer_element(x0, y0, z0, u0, v0, w0, xe, ue, e, phi, dxi, deta, w):
+    """∫_e (u − u0)·T·n dS by the rule (phi, dxi, deta (m, 6), w (m,)) on element e."""
+    ax = 0.0
+    ay = 0.0
+    az = 0.0
+    for j in range(w.shape[0]):
+        px, py, pz, nx, ny, nz, ux, uy, uz = _element_point(xe, ue, e, phi[j], dxi[j], deta[j])
+        tx, ty, tz = _stresslet(px - x0, py - y0, pz - z0, nx * w[j], ny * w[j], nz * w[j],
+                                ux - u0, uy - v0, uz - w0)
+        ax += tx
+        ay += ty
+        az += tz
+    return ax, ay, az
+
+
+@njit(inline="always")
+def _double_layer_element_regular(x0, y0, z0, u0, v0, w0, e, reg_points, reg_normals_w, reg_u):
+    """The regular rule's share of element e in double_layer_sum."""
+    ax = 0.0
+    ay = 0.0
+    az = 0.0
+    for q in range(reg_normals_w.shape[1]):
+        tx, ty, tz = _stresslet(
+            reg_points[e, q, 0] - x0, reg_points[e, q, 1] - y0, reg_points[e, q, 2] - z0,
+            reg_normals_w[e, q, 0], reg_normals_w[e, q, 1], reg_normals_w[e, q, 2],
+            reg_u[e, q, 0] - u0, reg_u[e, q, 1] - v0, reg_u[e, q, 2] - w0,
+        )
+        ax += tx
+        ay += ty
+        az += tz
+    return ax, ay, az
+
+
 @njit(**_JIT)
 def _gather(values, elements):
     """Element-nodal copy (N_e, 6, 3) of a nodal field, for contiguous reads."""
@@ -115,76 +199,33 @@ def _gather(values, elements):
 @njit(parallel=True, **_JIT)
 def single_layer_singular_correction(
     x, elements, inc_offsets, inc_elem, inc_local,
-    density, reg_points, reg_weights, reg_phi,
+    density, reg_points, reg_weights, reg_density,
     sing_phi, sing_dxi, sing_deta, sing_w, targets,
 ):
     """Replace the regular-rule contribution of the elements holding each node by
     a Duffy-rule integral singular at that node (seed §3, "polar" treatment).
 
     density (N_e, 6, 3): per-element nodal values of the density (equal values for
-    the element-constant traction of seed 3.7). reg_points (N_e, q, 3), reg_weights
-    (N_e, q): the regular rule; reg_phi (q, 6) its basis values. sing_* (6, m, 6)
-    and sing_w (6, m): the Duffy rule for a singularity at local node k.
-    Returns the correction (len(targets), 3) to add to ``stokeslet_sum``
+    the element-constant traction of seed 3.7); reg_density (N_e, q, 3) the same at
+    the regular points reg_points (N_e, q, 3) with weights reg_weights (N_e, q).
+    sing_* (6, m, 6) and sing_w (6, m): the Duffy rule for a singularity at local
+    node k. Returns the correction (len(targets), 3) to add to ``stokeslet_sum``
     evaluated at x[targets].
     """
-    n_nodes = x.shape[0]
-    nq = reg_points.shape[1]
-    ms = sing_w.shape[1]
     xe = _gather(x, elements)
     out = np.zeros((targets.shape[0], 3))
     for i_t in prange(targets.shape[0]):
         p = targets[i_t]
-        x0 = x[p, 0]
-        y0 = x[p, 1]
-        z0 = x[p, 2]
-        ux = 0.0
-        uy = 0.0
-        uz = 0.0
+        x0, y0, z0 = x[p, 0], x[p, 1], x[p, 2]
         for c in range(inc_offsets[p], inc_offsets[p + 1]):
             e = inc_elem[c]
             k = inc_local[c]
-            # remove the regular-rule contribution
-            for q in range(nq):
-                dx = reg_points[e, q, 0] - x0
-                dy = reg_points[e, q, 1] - y0
-                dz = reg_points[e, q, 2] - z0
-                r2 = dx * dx + dy * dy + dz * dz
-                rinv = 1.0 / np.sqrt(r2)
-                w = reg_weights[e, q]
-                fx = _interp6(reg_phi[q], density, e, 0) * w
-                fy = _interp6(reg_phi[q], density, e, 1) * w
-                fz = _interp6(reg_phi[q], density, e, 2) * w
-                rg = (dx * fx + dy * fy + dz * fz) * rinv * rinv * rinv
-                ux -= fx * rinv + dx * rg
-                uy -= fy * rinv + dy * rg
-                uz -= fz * rinv + dz * rg
-            # add the singular (Duffy) integral
-            for j in range(ms):
-                px, py, pz, nx, ny, nz, fx, fy, fz = _duffy_point(xe, density, e, k, j, sing_phi, sing_dxi, sing_deta)
-                w = sing_w[k, j] * np.sqrt(nx * nx + ny * ny + nz * nz)
-                dx = px - x0
-                dy = py - y0
-                dz = pz - z0
-                rinv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
-                fx *= w
-                fy *= w
-                fz *= w
-                rg = (dx * fx + dy * fy + dz * fz) * rinv * rinv * rinv
-                ux += fx * rinv + dx * rg
-                uy += fy * rinv + dy * rg
-                uz += fz * rinv + dz * rg
-        out[i_t, 0] = ux
-        out[i_t, 1] = uy
-        out[i_t, 2] = uz
+            rx, ry, rz = _single_layer_element_regular(x0, y0, z0, e, reg_points, reg_weights, reg_density)
+            sx, sy, sz = _single_layer_element(x0, y0, z0, xe, density, e, sing_phi[k], sing_dxi[k], sing_deta[k], sing_w[k])
+            out[i_t, 0] += sx - rx
+            out[i_t, 1] += sy - ry
+            out[i_t, 2] += sz - rz
     return out
-
-
-# ---------------------------------------------------------------- membrane
-
-@njit(inline="always")
-def _cross(a0, a1, a2, b0, b1, b2):
-    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
 @njit(**_JIT)
@@ -690,58 +731,23 @@ def double_layer_singular_correction(
     integrand (u − u0)·T·n is bounded but not smooth there. u: nodal values of
     the density; u_target: the value u0 subtracted at each node (normally u).
     Returns (len(targets), 3)."""
-    n_nodes = x.shape[0]
-    nq = reg_points.shape[1]
-    ms = sing_w.shape[1]
     xe = _gather(x, elements)
     ue = _gather(u, elements)
     out = np.zeros((targets.shape[0], 3))
     for i_t in prange(targets.shape[0]):
         p = targets[i_t]
-        x0 = x[p, 0]
-        y0 = x[p, 1]
-        z0 = x[p, 2]
-        u0 = u_target[p, 0]
-        v0 = u_target[p, 1]
-        w0 = u_target[p, 2]
-        ax = 0.0
-        ay = 0.0
-        az = 0.0
-        for c_ in range(inc_offsets[p], inc_offsets[p + 1]):
-            e = inc_elem[c_]
-            k = inc_local[c_]
-            for q in range(nq):
-                dx = reg_points[e, q, 0] - x0
-                dy = reg_points[e, q, 1] - y0
-                dz = reg_points[e, q, 2] - z0
-                r2 = dx * dx + dy * dy + dz * dz
-                rinv2 = 1.0 / r2
-                rinv = np.sqrt(rinv2)
-                c = -6.0 * (dx * reg_normals_w[e, q, 0] + dy * reg_normals_w[e, q, 1] + dz * reg_normals_w[e, q, 2])
-                c *= rinv2 * rinv2 * rinv
-                c *= dx * (reg_u[e, q, 0] - u0) + dy * (reg_u[e, q, 1] - v0) + dz * (reg_u[e, q, 2] - w0)
-                ax -= c * dx
-                ay -= c * dy
-                az -= c * dz
-            for j in range(ms):
-                px, py, pz, nx, ny, nz, ux, uy, uz = _duffy_point(xe, ue, e, k, j, sing_phi, sing_dxi, sing_deta)
-                # unnormalised normal × Duffy weight = n dS
-                mx = nx * sing_w[k, j]
-                my = ny * sing_w[k, j]
-                mz = nz * sing_w[k, j]
-                dx = px - x0
-                dy = py - y0
-                dz = pz - z0
-                rinv2 = 1.0 / (dx * dx + dy * dy + dz * dz)
-                rinv = np.sqrt(rinv2)
-                c = -6.0 * (dx * mx + dy * my + dz * mz) * rinv2 * rinv2 * rinv
-                c *= dx * (ux - u0) + dy * (uy - v0) + dz * (uz - w0)
-                ax += c * dx
-                ay += c * dy
-                az += c * dz
-        out[i_t, 0] = ax
-        out[i_t, 1] = ay
-        out[i_t, 2] = az
+        x0, y0, z0 = x[p, 0], x[p, 1], x[p, 2]
+        u0, v0, w0 = u_target[p, 0], u_target[p, 1], u_target[p, 2]
+        for c in range(inc_offsets[p], inc_offsets[p + 1]):
+            e = inc_elem[c]
+            k = inc_local[c]
+            rx, ry, rz = _double_layer_element_regular(x0, y0, z0, u0, v0, w0, e, reg_points, reg_normals_w, reg_u)
+            sx, sy, sz = _double_layer_element(
+                x0, y0, z0, u0, v0, w0, xe, ue, e, sing_phi[k], sing_dxi[k], sing_deta[k], sing_w[k]
+            )
+            out[i_t, 0] += sx - rx
+            out[i_t, 1] += sy - ry
+            out[i_t, 2] += sz - rz
     return out
 
 
@@ -918,75 +924,18 @@ def single_layer_near_correction(
     """For each (target, near element) pair: the element's ∫ G·f dS by the
     subdivided rule minus its regular-rule share already in the Stokeslet sum.
     nodal_density (N_e, 6, 3); reg_density (N_e, q, 3) at the regular points."""
-    nt = targets.shape[0]
-    nf = fine_w.shape[0]
-    nq = reg_weights.shape[1]
-    out = np.zeros((nt, 3))
-    for it in prange(nt):
+    xe = _gather(x, elements)
+    out = np.zeros((targets.shape[0], 3))
+    for it in prange(targets.shape[0]):
         p = targets[it]
-        x0 = x[p, 0]
-        y0 = x[p, 1]
-        z0 = x[p, 2]
-        sx = 0.0
-        sy = 0.0
-        sz = 0.0
+        x0, y0, z0 = x[p, 0], x[p, 1], x[p, 2]
         for k in range(pair_offsets[it], pair_offsets[it + 1]):
             e = pair_elem[k]
-            for q in range(nf):
-                px = 0.0
-                py = 0.0
-                pz = 0.0
-                ax = 0.0
-                ay = 0.0
-                az = 0.0
-                bx = 0.0
-                by = 0.0
-                bz = 0.0
-                fx = 0.0
-                fy = 0.0
-                fz = 0.0
-                for a in range(6):
-                    node = elements[e, a]
-                    ph = fine_phi[q, a]
-                    da = fine_dxi[q, a]
-                    db = fine_deta[q, a]
-                    px += ph * x[node, 0]
-                    py += ph * x[node, 1]
-                    pz += ph * x[node, 2]
-                    ax += da * x[node, 0]
-                    ay += da * x[node, 1]
-                    az += da * x[node, 2]
-                    bx += db * x[node, 0]
-                    by += db * x[node, 1]
-                    bz += db * x[node, 2]
-                    fx += ph * nodal_density[e, a, 0]
-                    fy += ph * nodal_density[e, a, 1]
-                    fz += ph * nodal_density[e, a, 2]
-                nx, ny, nz = _cross(ax, ay, az, bx, by, bz)
-                wj = fine_w[q] * np.sqrt(nx * nx + ny * ny + nz * nz)
-                dx = px - x0
-                dy = py - y0
-                dz = pz - z0
-                rinv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
-                rg = (dx * fx + dy * fy + dz * fz) * rinv * rinv * rinv
-                sx += wj * (fx * rinv + dx * rg)
-                sy += wj * (fy * rinv + dy * rg)
-                sz += wj * (fz * rinv + dz * rg)
-            for q in range(nq):
-                dx = reg_points[e, q, 0] - x0
-                dy = reg_points[e, q, 1] - y0
-                dz = reg_points[e, q, 2] - z0
-                fx = reg_density[e, q, 0] * reg_weights[e, q]
-                fy = reg_density[e, q, 1] * reg_weights[e, q]
-                fz = reg_density[e, q, 2] * reg_weights[e, q]
-                rinv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
-                rg = (dx * fx + dy * fy + dz * fz) * rinv * rinv * rinv
-                sx -= fx * rinv + dx * rg
-                sy -= fy * rinv + dy * rg
-                sz -= fz * rinv + dz * rg
-        out[it, 0] = sx
-        out[it, 1] = sy
-        out[it, 2] = sz
+            rx, ry, rz = _single_layer_element_regular(x0, y0, z0, e, reg_points, reg_weights, reg_density)
+            sx, sy, sz = _single_layer_element(x0, y0, z0, xe, nodal_density, e, fine_phi, fine_dxi, fine_deta, fine_w)
+            out[it, 0] += sx - rx
+            out[it, 1] += sy - ry
+            out[it, 2] += sz - rz
     return out
 
 
@@ -995,79 +944,21 @@ def double_layer_near_correction(
     x, u, u_target, elements, reg_points, reg_normals_w, reg_u,
     fine_phi, fine_dxi, fine_deta, fine_w, targets, pair_offsets, pair_elem,
 ):
-    """As single_layer_near_correction for D[u] = ∫ (u − u0)·T·n dS, T_ijk =
-    −6 r_i r_j r_k / r⁵ (the kernel of double_layer_sum)."""
-    nt = targets.shape[0]
-    nf = fine_w.shape[0]
-    nq = reg_normals_w.shape[1]
-    out = np.zeros((nt, 3))
-    for it in prange(nt):
+    """As single_layer_near_correction for D[u] = ∫ (u − u0)·T·n dS."""
+    xe = _gather(x, elements)
+    ue = _gather(u, elements)
+    out = np.zeros((targets.shape[0], 3))
+    for it in prange(targets.shape[0]):
         p = targets[it]
-        x0 = x[p, 0]
-        y0 = x[p, 1]
-        z0 = x[p, 2]
-        u0 = u_target[p, 0]
-        v0 = u_target[p, 1]
-        w0 = u_target[p, 2]
-        sx = 0.0
-        sy = 0.0
-        sz = 0.0
+        x0, y0, z0 = x[p, 0], x[p, 1], x[p, 2]
+        u0, v0, w0 = u_target[p, 0], u_target[p, 1], u_target[p, 2]
         for k in range(pair_offsets[it], pair_offsets[it + 1]):
             e = pair_elem[k]
-            for q in range(nf):
-                px = 0.0
-                py = 0.0
-                pz = 0.0
-                ax = 0.0
-                ay = 0.0
-                az = 0.0
-                bx = 0.0
-                by = 0.0
-                bz = 0.0
-                vx = 0.0
-                vy = 0.0
-                vz = 0.0
-                for a in range(6):
-                    node = elements[e, a]
-                    ph = fine_phi[q, a]
-                    da = fine_dxi[q, a]
-                    db = fine_deta[q, a]
-                    px += ph * x[node, 0]
-                    py += ph * x[node, 1]
-                    pz += ph * x[node, 2]
-                    ax += da * x[node, 0]
-                    ay += da * x[node, 1]
-                    az += da * x[node, 2]
-                    bx += db * x[node, 0]
-                    by += db * x[node, 1]
-                    bz += db * x[node, 2]
-                    vx += ph * u[node, 0]
-                    vy += ph * u[node, 1]
-                    vz += ph * u[node, 2]
-                nx, ny, nz = _cross(ax, ay, az, bx, by, bz)  # normal × Jacobian
-                dx = px - x0
-                dy = py - y0
-                dz = pz - z0
-                rinv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
-                rinv2 = rinv * rinv
-                c = -6.0 * fine_w[q] * (dx * nx + dy * ny + dz * nz) * rinv2 * rinv2 * rinv
-                c *= dx * (vx - u0) + dy * (vy - v0) + dz * (vz - w0)
-                sx += c * dx
-                sy += c * dy
-                sz += c * dz
-            for q in range(nq):
-                dx = reg_points[e, q, 0] - x0
-                dy = reg_points[e, q, 1] - y0
-                dz = reg_points[e, q, 2] - z0
-                rinv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
-                rinv2 = rinv * rinv
-                c = -6.0 * (dx * reg_normals_w[e, q, 0] + dy * reg_normals_w[e, q, 1] + dz * reg_normals_w[e, q, 2])
-                c *= rinv2 * rinv2 * rinv
-                c *= dx * (reg_u[e, q, 0] - u0) + dy * (reg_u[e, q, 1] - v0) + dz * (reg_u[e, q, 2] - w0)
-                sx -= c * dx
-                sy -= c * dy
-                sz -= c * dz
-        out[it, 0] = sx
-        out[it, 1] = sy
-        out[it, 2] = sz
+            rx, ry, rz = _double_layer_element_regular(x0, y0, z0, u0, v0, w0, e, reg_points, reg_normals_w, reg_u)
+            sx, sy, sz = _double_layer_element(
+                x0, y0, z0, u0, v0, w0, xe, ue, e, fine_phi, fine_dxi, fine_deta, fine_w
+            )
+            out[it, 0] += sx - rx
+            out[it, 1] += sy - ry
+            out[it, 2] += sz - rz
     return out

@@ -158,19 +158,19 @@ class Discretization:
         else:
             nodal = density
             point_density = interpolate(self.reg_phi, density)
+        nodal, point_density = np.ascontiguousarray(nodal), np.ascontiguousarray(point_density)
         strengths = (point_density * geo.weights[..., None]).reshape(-1, 3)
         u = kernels.stokeslet_sum(x[self.targets], geo.points.reshape(-1, 3), strengths)
         u += kernels.single_layer_singular_correction(
             x, self.elements, self.inc_offsets, self.inc_elem, self.inc_local,
-            np.ascontiguousarray(nodal), geo.points, geo.weights, self.reg_phi,
+            nodal, geo.points, geo.weights, point_density,
             self.sing_phi, self.sing_dxi, self.sing_deta, self.sing_w, self.targets,
         )
         near = self.near_pairs(x, geo)
         if near is not None:
             u += kernels.single_layer_near_correction(
-                x, self.elements, np.ascontiguousarray(nodal), geo.points, geo.weights,
-                np.ascontiguousarray(point_density), self.fine_phi, self.fine_dxi, self.fine_deta, self.fine_w,
-                self.targets, near[0], near[1],
+                x, self.elements, nodal, geo.points, geo.weights, point_density,
+                self.fine_phi, self.fine_dxi, self.fine_deta, self.fine_w, self.targets, near[0], near[1],
             )
         return self.expand(u)
 
