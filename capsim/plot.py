@@ -123,39 +123,48 @@ def _run_label(info: dict[str, Any]) -> str:
     return f"{shape}G = {info['G']:g}, λ = {info['lam']:g}"
 
 
+def _plot_runs(ax, source, name: str, scale: float = 1.0) -> list[tuple[dict, np.ndarray, np.ndarray, str]]:
+    """Series ``name`` (divided by ``scale``) against kt: one run in black under its
+    title, several in colours labelled by their parameters. Returns (case info, t,
+    values, colour for its theory curves) per run."""
+    runs = _sources(source)
+    single = len(runs) == 1
+    drawn = []
+    for i, run in enumerate(runs):
+        data = _load_run(run)
+        info = _case_info(data)
+        t, values = _series(data, "t"), _series(data, name) / scale
+        color = "k" if single else f"C{i % 10}"
+        ax.plot(t, values, "-", color=color, label="capsim" if single else _run_label(info))
+        if single:
+            ax.set_title(_title(info), fontsize="small")
+        drawn.append((info, t, values, "C0" if single else color))
+    return drawn
+
+
 def deformation_figure(source, theory: bool = True):
     """D_xy(t) with the first-order transient D∞(1 − e^{−t/τ}) and D∞.
 
     Several runs (a list) are overlaid in colours, each with its own theory curve
     (seed figs 4–6).
     """
-    runs = _sources(source)
     fig = _figure()
     ax = fig.add_subplot()
-    top = 0.0
-    for i, run in enumerate(runs):
-        data = _load_run(run)
-        info = _case_info(data)
-        t, D = _series(data, "t"), _series(data, "D_xy")
-        single = len(runs) == 1
-        color = "k" if single else f"C{i % 10}"
-        theory_color = "C0" if single else color
-        ax.plot(t, D, "-", color=color, label="capsim" if single else _run_label(info))
-        if theory and _theory_applies(info):
-            D_inf = 25.0 / 4.0 * info["G"]
-            ax.axhline(D_inf, color=theory_color, ls=":", lw=1,
-                       label=r"$D_\infty = 25G/4$" if i == 0 else None)
-            tau = relaxation_time(info["G"], info["lam"])
-            if tau is not None:
-                tt = np.linspace(0.0, max(float(t[-1]), 0.0), 200)
-                label = rf"first order, $k\tau$ = {tau:.3g}" if single else ("first order" if i == 0 else None)
-                ax.plot(tt, D_inf * (1.0 - np.exp(-tt / tau)), "--", color=theory_color, lw=1, label=label)
-        if single:
-            ax.set_title(_title(info), fontsize="small")
-        top = max(top, float(np.nanmax(D)))
-    if len(runs) > 1:
+    drawn = _plot_runs(ax, source, "D_xy")
+    single = len(drawn) == 1
+    for i, (info, t, D, color) in enumerate(drawn):
+        if not (theory and _theory_applies(info)):
+            continue
+        D_inf = 25.0 / 4.0 * info["G"]
+        ax.axhline(D_inf, color=color, ls=":", lw=1, label=r"$D_\infty = 25G/4$" if i == 0 else None)
+        tau = relaxation_time(info["G"], info["lam"])
+        if tau is not None:
+            tt = np.linspace(0.0, max(float(t[-1]), 0.0), 200)
+            label = rf"first order, $k\tau$ = {tau:.3g}" if single else ("first order" if i == 0 else None)
+            ax.plot(tt, D_inf * (1.0 - np.exp(-tt / tau)), "--", color=color, lw=1, label=label)
+    if not single:
         # first-order curves of the larger G run far above the data (D∞ = 25G/4 > 1): keep the data in view
-        ax.set_ylim(0.0, 1.15 * top)
+        ax.set_ylim(0.0, 1.15 * max(float(np.nanmax(D)) for _, _, D, _ in drawn))
     ax.set_xlabel(r"$kt$")
     ax.set_ylabel(r"$D_{xy}$")
     ax.legend(fontsize="small")
@@ -164,20 +173,11 @@ def deformation_figure(source, theory: bool = True):
 
 def inclination_figure(source, theory: bool = True):
     """θ/π against kt with the first-order π/4 (several runs overlaid when given a list)."""
-    runs = _sources(source)
     fig = _figure()
     ax = fig.add_subplot()
-    for i, run in enumerate(runs):
-        data = _load_run(run)
-        info = _case_info(data)
-        t, theta = _series(data, "t"), _series(data, "theta")
-        single = len(runs) == 1
-        ax.plot(t, theta / math.pi, "-", color="k" if single else f"C{i % 10}",
-                label="capsim" if single else _run_label(info))
-        if single:
-            ax.set_title(_title(info), fontsize="small")
+    drawn = _plot_runs(ax, source, "theta", math.pi)
     if theory:
-        ax.axhline(0.25, color="C0" if len(runs) == 1 else "k", ls="--", lw=1,
+        ax.axhline(0.25, color="C0" if len(drawn) == 1 else "k", ls="--", lw=1,
                    label=r"first order, $\theta = \pi/4$")
     ax.set_xlabel(r"$kt$")
     ax.set_ylabel(r"$\theta/\pi$")
