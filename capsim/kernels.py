@@ -790,46 +790,60 @@ def nodal_unit_normals(x, elements, node_dxi, node_deta):
 
 # ---------------------------------------------------------------- bending (hinges)
 
+@njit(inline="always")
+def _dihedral(x, o1, o2, a, b):
+    """Signed angle θ between the outward normals of triangles (a, b, o1) and
+    (b, a, o2) about their edge a→b (positive where convex), with the vectors
+    its gradient needs: |e|, e = b − a, p = o1 − a, q = o2 − a and the normals
+    (twice the areas) N1 = e × p, N2 = q × e."""
+    ex = x[b, 0] - x[a, 0]
+    ey = x[b, 1] - x[a, 1]
+    ez = x[b, 2] - x[a, 2]
+    elen = np.sqrt(ex * ex + ey * ey + ez * ez)
+    px = x[o1, 0] - x[a, 0]
+    py = x[o1, 1] - x[a, 1]
+    pz = x[o1, 2] - x[a, 2]
+    qx = x[o2, 0] - x[a, 0]
+    qy = x[o2, 1] - x[a, 1]
+    qz = x[o2, 2] - x[a, 2]
+    n1x, n1y, n1z = _cross(ex, ey, ez, px, py, pz)
+    n2x, n2y, n2z = _cross(qx, qy, qz, ex, ey, ez)
+    cx, cy, cz = _cross(n1x, n1y, n1z, n2x, n2y, n2z)
+    sin_t = (cx * ex + cy * ey + cz * ez) / elen
+    cos_t = n1x * n2x + n1y * n2y + n1z * n2z
+    theta = np.arctan2(sin_t, cos_t)
+    return theta, elen, ex, ey, ez, px, py, pz, qx, qy, qz, n1x, n1y, n1z, n2x, n2y, n2z
+
+
+@njit(**_JIT)
+def hinge_angles(x, hinges):
+    """Signed dihedral angles θ of the hinges (H, 4) = (o1, o2, a, b)."""
+    out = np.empty(hinges.shape[0])
+    for h in range(hinges.shape[0]):
+        out[h] = _dihedral(x, hinges[h, 0], hinges[h, 1], hinges[h, 2], hinges[h, 3])[0]
+    return out
+
+
 @njit(**_JIT)
 def hinge_bending_gradient(x, hinges, theta0, weight):
     """Energy Σ_h w_h (θ_h − θ0_h)² of dihedral hinges and its gradient (N_p, 3).
 
     hinges (H, 4) = (o1, o2, a, b): the shared edge a→b, o1 opposite it in the
     triangle (a, b, o1), o2 in the triangle (b, a, o2), both oriented outwards.
-    θ is the signed angle between the two outward normals about a→b (positive
-    where the surface is convex). Gradient of θ after Bridson, Marino & Fedkiw
-    (2003): ∂θ/∂o_i = −|e| N_i/|N_i|², the edge ends take the balancing rest.
+    Gradient of θ after Bridson, Marino & Fedkiw (2003): ∂θ/∂o_i = −|e| N_i/|N_i|²,
+    the edge ends take the balancing rest.
     """
-    n = x.shape[0]
-    grad = np.zeros((n, 3))
+    grad = np.zeros((x.shape[0], 3))
     energy = 0.0
     for h in range(hinges.shape[0]):
         o1, o2, a, b = hinges[h, 0], hinges[h, 1], hinges[h, 2], hinges[h, 3]
-        ex = x[b, 0] - x[a, 0]
-        ey = x[b, 1] - x[a, 1]
-        ez = x[b, 2] - x[a, 2]
-        elen = np.sqrt(ex * ex + ey * ey + ez * ez)
-        # outward normals (twice the triangle areas): N1 = e × (o1 − a), N2 = (o2 − a) × e
-        px = x[o1, 0] - x[a, 0]
-        py = x[o1, 1] - x[a, 1]
-        pz = x[o1, 2] - x[a, 2]
-        qx = x[o2, 0] - x[a, 0]
-        qy = x[o2, 1] - x[a, 1]
-        qz = x[o2, 2] - x[a, 2]
-        n1x, n1y, n1z = _cross(ex, ey, ez, px, py, pz)
-        n2x, n2y, n2z = _cross(qx, qy, qz, ex, ey, ez)
-        n1sq = n1x * n1x + n1y * n1y + n1z * n1z
-        n2sq = n2x * n2x + n2y * n2y + n2z * n2z
-        cx, cy, cz = _cross(n1x, n1y, n1z, n2x, n2y, n2z)
-        sin_t = (cx * ex + cy * ey + cz * ez) / elen
-        cos_t = n1x * n2x + n1y * n2y + n1z * n2z
-        theta = np.arctan2(sin_t, cos_t)
+        theta, elen, ex, ey, ez, px, py, pz, qx, qy, qz, n1x, n1y, n1z, n2x, n2y, n2z = _dihedral(x, o1, o2, a, b)
         d = theta - theta0[h]
         energy += weight[h] * d * d
         g = 2.0 * weight[h] * d
         # ∂θ/∂o1 = −|e| N1/|N1|², ∂θ/∂o2 = −|e| N2/|N2|²
-        s1 = -elen / n1sq
-        s2 = -elen / n2sq
+        s1 = -elen / (n1x * n1x + n1y * n1y + n1z * n1z)
+        s2 = -elen / (n2x * n2x + n2y * n2y + n2z * n2z)
         # projections of the opposite vertices on the edge, as fractions of |e|
         t1 = (px * ex + py * ey + pz * ez) / (elen * elen)
         t2 = (qx * ex + qy * ey + qz * ez) / (elen * elen)

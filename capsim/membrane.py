@@ -41,9 +41,12 @@ from __future__ import annotations
 
 import inspect
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Callable
 
 import numpy as np
+
+from capsim import kernels
 
 Array = np.ndarray
 
@@ -170,7 +173,7 @@ class VertexStrain:
     inv1: Array       # Λ1 = ln(λ1 λ2)
     inv2: Array       # Λ2 = (λ1² + λ2²)/2 − 1
 
-    @property
+    @cached_property  # read by the stretch guard and the principal tensions of each recorded step
     def principal_stretches(self) -> tuple[Array, Array]:
         tr = 2.0 * (self.inv2 + 1.0)
         det = np.exp(2.0 * self.inv1)
@@ -281,16 +284,9 @@ class HingeBending:
         return cls(hinges, theta0, np.ascontiguousarray(weight), float(modulus))
 
     def energy_gradient(self, x: Array) -> tuple[float, Array]:
-        from capsim import kernels
-
         return kernels.hinge_bending_gradient(np.ascontiguousarray(x), self.hinges, self.theta0, self.weight)
 
 
 def hinge_angles(x: Array, hinges: Array) -> Array:
     """Signed dihedral angles θ of the hinges (positive where convex)."""
-    o1, o2, a, b = np.asarray(hinges).T
-    e = x[b] - x[a]
-    n1 = np.cross(e, x[o1] - x[a])
-    n2 = np.cross(x[o2] - x[a], e)
-    sin_t = np.einsum("ij,ij->i", np.cross(n1, n2), e) / np.linalg.norm(e, axis=1)
-    return np.arctan2(sin_t, np.einsum("ij,ij->i", n1, n2))
+    return kernels.hinge_angles(np.ascontiguousarray(x, dtype=np.float64), np.asarray(hinges, dtype=np.int64))

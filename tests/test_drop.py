@@ -64,6 +64,15 @@ def _steady_drop(tmp_path, ca: float, level: int, t_end: float = 1.2, lam: float
     return {k: float(np.mean(series[k][window])) for k in ("D_xy", "theta", "Sxy_star", "N1_star", "N2_star")}
 
 
+def _assert_matches(got: dict, want: dict, D_rel: float, theta_deg: float, Sxy_abs: float,
+                    N1_rel: float, N2_rel: float) -> None:
+    assert got["D_xy"] == pytest.approx(want["D_xy"], rel=D_rel)
+    assert got["theta"] == pytest.approx(want["theta"], abs=np.radians(theta_deg))
+    assert got["Sxy_star"] == pytest.approx(want["Sxy_star"], abs=Sxy_abs)
+    assert got["N1_star"] == pytest.approx(want["N1_star"], rel=N1_rel)
+    assert got["N2_star"] == pytest.approx(want["N2_star"], rel=N2_rel)
+
+
 def test_surface_tension_law_has_no_elastic_moduli():
     attrs = law_attributes("surface_tension")
     assert attrs["G_s"] == 0.0 and attrs["ca_over_G"] == 1.0
@@ -73,26 +82,19 @@ def test_surface_tension_law_has_no_elastic_moduli():
 def test_drop_rheology_matches_small_deformation_theory_level2(tmp_path):
     ca = 0.05
     got, want = _steady_drop(tmp_path, ca, 2), drop_theory(ca, 1.0)
-    assert got["D_xy"] == pytest.approx(want["D_xy"], rel=0.02)
-    assert got["theta"] == pytest.approx(want["theta"], abs=np.radians(0.5))
-    assert got["Sxy_star"] == pytest.approx(want["Sxy_star"], abs=0.01)
-    assert got["N1_star"] == pytest.approx(want["N1_star"], rel=0.04)
-    assert got["N2_star"] == pytest.approx(want["N2_star"], rel=0.10)
+    _assert_matches(got, want, D_rel=0.02, theta_deg=0.5, Sxy_abs=0.01, N1_rel=0.04, N2_rel=0.10)
     # the ratio that a corotational estimate would put at −1/2
     assert got["N2_star"] / got["N1_star"] == pytest.approx(-2 / 7, abs=0.03)
 
 
 def test_viscous_drop_rheology_checks_the_double_layer_stresslet_term(tmp_path):
-    """λ = 5, where the stresslet includes its −(1−λ)∫(un + nu) velocity term. Measured (level 2): Ca = 0.05 gives N1*, N2* 9–12 % low (O(Ca²): the O(Ca)
+    """λ = 5, where the stresslet includes its −(1−λ)∫(un + nu) velocity term.
+    Measured (level 2): Ca = 0.05 gives N1*, N2* 9–12 % low (O(Ca²): the O(Ca)
     θ correction is already 8.6°); Ca = 0.02 gives D/Ca 1.152 (1.156), θ 41.57°
     (41.56°), S*_xy 0.8955 (0.9), N1*/Ca 3.317 (3.4225), N2*/Ca −0.769 (−0.793)."""
     ca = 0.02
     got, want = _steady_drop(tmp_path, ca, 2, lam=5.0), drop_theory(ca, 5.0)
-    assert got["D_xy"] == pytest.approx(want["D_xy"], rel=0.02)
-    assert got["theta"] == pytest.approx(want["theta"], abs=np.radians(0.3))
-    assert got["Sxy_star"] == pytest.approx(want["Sxy_star"], abs=0.01)
-    assert got["N1_star"] == pytest.approx(want["N1_star"], rel=0.06)
-    assert got["N2_star"] == pytest.approx(want["N2_star"], rel=0.08)
+    _assert_matches(got, want, D_rel=0.02, theta_deg=0.3, Sxy_abs=0.01, N1_rel=0.06, N2_rel=0.08)
     assert got["N2_star"] / got["N1_star"] == pytest.approx(want["N2_star"] / want["N1_star"], abs=0.02)
 
 
@@ -100,8 +102,4 @@ def test_viscous_drop_rheology_checks_the_double_layer_stresslet_term(tmp_path):
 def test_drop_rheology_matches_small_deformation_theory_level3(tmp_path):
     ca = 0.05
     got, want = _steady_drop(tmp_path, ca, 3), drop_theory(ca, 1.0)
-    assert got["D_xy"] == pytest.approx(want["D_xy"], rel=0.005)
-    assert got["theta"] == pytest.approx(want["theta"], abs=np.radians(0.2))
-    assert got["Sxy_star"] == pytest.approx(want["Sxy_star"], abs=0.006)
-    assert got["N1_star"] == pytest.approx(want["N1_star"], rel=0.01)
-    assert got["N2_star"] == pytest.approx(want["N2_star"], rel=0.02)
+    _assert_matches(got, want, D_rel=0.005, theta_deg=0.2, Sxy_abs=0.006, N1_rel=0.01, N2_rel=0.02)

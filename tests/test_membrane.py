@@ -4,7 +4,7 @@ rigid-body invariance (design.md, 'Checks')."""
 import numpy as np
 import pytest
 
-from capsim.membrane import LAWS, get_law
+from capsim.membrane import LAWS, get_law, principal_tensions
 from capsim.solver import CapsuleModel
 
 
@@ -22,12 +22,16 @@ def isotropic_tension(law, s, **params):
     return float((w1[0] + w2[0] * s * s) / (s * s))
 
 
+def _sphere_model(sphere3, law_name):
+    """The level-3 unit sphere at rest with law ``law_name``: (rest positions, law, model)."""
+    mesh, disc = sphere3
+    law = get_law(law_name)
+    return mesh.positions, law, CapsuleModel(disc, mesh.positions, 0.1, law=law)
+
+
 @pytest.mark.parametrize("law_name", sorted(LAWS))
 def test_uniform_inflation_tension_is_isotropic_and_analytic(sphere3, law_name):
-    mesh, disc = sphere3
-    X = mesh.positions
-    law = get_law(law_name)
-    model = CapsuleModel(disc, X, 0.1, law=law)
+    X, law, model = _sphere_model(sphere3, law_name)
     s = 1.1
     state = model.membrane(s * X)
     tau = isotropic_tension(law, s)
@@ -118,12 +122,7 @@ def test_galerkin_traction_is_the_energy_gradient(sphere2):
 @pytest.mark.parametrize("law_name", sorted(LAWS))
 def test_principal_tensions_are_the_tangent_eigenvalues_of_T(sphere3, law_name):
     """τi = e^{−Λ1}(W_1 + W_2 λi²) against an eigen-decomposition of T (seed 2.7)."""
-    from capsim.membrane import principal_tensions
-
-    mesh, disc = sphere3
-    X = mesh.positions
-    law = get_law(law_name)
-    model = CapsuleModel(disc, X, 0.1, law=law)
+    X, law, model = _sphere_model(sphere3, law_name)
     # an anisotropic stretch with compression along z: both signs of tension for the elastic laws
     x = X @ np.diag([1.25, 1.05, 0.8]) @ rotation(0.3, 0.7).T
     state = model.membrane(x)

@@ -23,6 +23,7 @@ from capsim.cli import app
 from capsim.config import Case, ConfigError, Guards, apply_overrides, case_from_dict
 from capsim.runner import ResumeError, guard_violation, run_case
 from capsim.store import TrajectoryError, checkpoint_path, read_checkpoint, read_trajectory
+from capsim.summary import read_run_status
 
 BAD = Path(__file__).parent / "data" / "bad"
 
@@ -456,7 +457,7 @@ def test_sweep_stops_on_sigterm_to_its_process_group_with_idle_workers(tmp_path)
     while True:
         assert proc.poll() is None, proc.stderr.read()
         assert time.monotonic() < deadline, "the short runs did not finish in 180 s"
-        done = [p for p in out.glob("*.h5") if "level0" in p.name and _status(p) == "completed"]
+        done = [p for p in out.glob("*.h5") if "level0" in p.name and read_run_status(p) == "completed"]
         long_run = [p for p in out.glob("*level2*.ckpt.npz")]
         if len(done) == 2 and long_run:
             break
@@ -467,15 +468,6 @@ def test_sweep_stops_on_sigterm_to_its_process_group_with_idle_workers(tmp_path)
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, signal.SIGKILL)
         pytest.fail("the sweep did not exit within 30 s of SIGTERM")
-    statuses = sorted(_status(p) for p in out.glob("*.h5"))
+    statuses = sorted(read_run_status(p) for p in out.glob("*.h5"))
     assert statuses == ["completed", "completed", "interrupted"]
 
-
-def _status(path: Path) -> str:
-    import h5py
-
-    try:
-        with h5py.File(path, "r", locking=False) as f:
-            return str(f.attrs.get("status", ""))
-    except (OSError, ValueError):
-        return ""
