@@ -15,6 +15,12 @@ _JIT = dict(cache=True, fastmath=True, error_model="numpy", boundscheck=False)
 
 # ---------------------------------------------------------------- Stokeslet sums
 
+@njit(inline="always")
+def _columns(a):
+    """The three columns of an (M, 3) array as contiguous arrays (unit-stride inner loops)."""
+    return np.ascontiguousarray(a[:, 0]), np.ascontiguousarray(a[:, 1]), np.ascontiguousarray(a[:, 2])
+
+
 @njit(parallel=True, **_JIT)
 def stokeslet_sum(targets, sources, strengths):
     """u(x0) = Σ_m G(x_m, x0)·g_m with G = I/r + r r/r³, r = x_m − x0 (seed 2.12a).
@@ -24,12 +30,8 @@ def stokeslet_sum(targets, sources, strengths):
     """
     nt = targets.shape[0]
     m = sources.shape[0]
-    sx = np.ascontiguousarray(sources[:, 0])
-    sy = np.ascontiguousarray(sources[:, 1])
-    sz = np.ascontiguousarray(sources[:, 2])
-    gx = np.ascontiguousarray(strengths[:, 0])
-    gy = np.ascontiguousarray(strengths[:, 1])
-    gz = np.ascontiguousarray(strengths[:, 2])
+    sx, sy, sz = _columns(sources)
+    gx, gy, gz = _columns(strengths)
     out = np.zeros((nt, 3))
     for i in prange(nt):
         x0, y0, z0 = targets[i, 0], targets[i, 1], targets[i, 2]
@@ -682,15 +684,9 @@ def double_layer_sum(targets, u_targets, sources, normals_w, u_sources):
     """
     nt = targets.shape[0]
     m = sources.shape[0]
-    sx = np.ascontiguousarray(sources[:, 0])
-    sy = np.ascontiguousarray(sources[:, 1])
-    sz = np.ascontiguousarray(sources[:, 2])
-    nx = np.ascontiguousarray(normals_w[:, 0])
-    ny = np.ascontiguousarray(normals_w[:, 1])
-    nz = np.ascontiguousarray(normals_w[:, 2])
-    vx = np.ascontiguousarray(u_sources[:, 0])
-    vy = np.ascontiguousarray(u_sources[:, 1])
-    vz = np.ascontiguousarray(u_sources[:, 2])
+    sx, sy, sz = _columns(sources)
+    nx, ny, nz = _columns(normals_w)
+    vx, vy, vz = _columns(u_sources)
     out = np.zeros((nt, 3))
     for i in prange(nt):
         x0 = targets[i, 0]
