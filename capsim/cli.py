@@ -319,7 +319,7 @@ def summarize(
     typer.echo(f"{path}: dims {dict(ds.sizes)}, status {counts}")
 
 
-_OVERLAY_KINDS = ("deformation", "inclination")
+# plot.KINDS, named here so that `capsim --help` need not import the plotting module
 _PLOT_KINDS = ("deformation", "inclination", "contour", "trajectory", "tensions", "rheology", "steady")
 
 
@@ -336,17 +336,22 @@ def plot(
     no_theory: bool = typer.Option(False, "--no-theory", help="leave out the first-order theory"),
 ) -> None:
     """Write a PNG figure of a run (or of a campaign summary for --kind steady)."""
-    if kind not in _PLOT_KINDS:
-        raise _user_error(f"--kind must be one of {', '.join(_PLOT_KINDS)}, got {kind!r}")
-    if len(paths) > 1 and kind not in _OVERLAY_KINDS:
+    from capsim import plot as plotting
+    from capsim.config import ConfigError
+    from capsim.store import TrajectoryError
+
+    if kind not in plotting.KINDS:
+        raise _user_error(f"--kind must be one of {', '.join(plotting.KINDS)}, got {kind!r}")
+    if len(paths) > 1 and kind not in plotting.OVERLAY_KINDS:
         raise _user_error(
-            f"--kind {kind} takes one PATH, got {len(paths)}; several runs overlay only for {', '.join(_OVERLAY_KINDS)}"
+            f"--kind {kind} takes one PATH, got {len(paths)}; "
+            f"several runs overlay only for {', '.join(plotting.OVERLAY_KINDS)}"
         )
     for path in paths:
         if not path.exists():
             raise _user_error(f"{path}: no such file")
     path = paths[0]
-    out = output if output is not None else path.with_name(f"{path.stem}_{kind}.png")
+    out = output if output is not None else plotting.default_output(path, kind)
     _check_writable(out)
     options: dict[str, Any] = {}
     if kind in ("deformation", "inclination", "rheology", "steady"):
@@ -357,10 +362,6 @@ def plot(
         options["t"] = times[-1]
     if kind == "trajectory" and node is not None:
         options["node"] = node
-
-    from capsim import plot as plotting
-    from capsim.config import ConfigError
-    from capsim.store import TrajectoryError
 
     source: Any = [str(p) for p in paths] if len(paths) > 1 else path
     try:

@@ -458,6 +458,9 @@ def _value(ds, dim: str, i: int) -> str:
 
 # ------------------------------------------------------------ dispatcher
 
+# kinds that overlay several runs when given a list of them
+OVERLAY_KINDS = ("deformation", "inclination")
+
 KINDS: dict[str, Callable[..., Any]] = {
     "deformation": deformation_figure,
     "inclination": inclination_figure,

@@ -292,3 +292,9 @@ def test_deformation_overlays_several_runs_each_with_its_theory(tiny_run, tmp_pa
     assert png_size(out) == (WIDTH, HEIGHT)
     result = runner.invoke(app, ["plot", str(tiny_run), str(other), "--kind", "contour"])
     assert result.exit_code == 2 and "takes one PATH" in result.output
+
+
+def test_cli_names_the_plot_kinds_the_plot_module_has():
+    from capsim.cli import _PLOT_KINDS
+
+    assert _PLOT_KINDS == tuple(KINDS)
