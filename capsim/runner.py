@@ -18,7 +18,7 @@ import yaml
 
 from capsim import __version__
 from capsim.config import Case, Guards
-from capsim.integrate import SCHEMES, StepController, attempt_step
+from capsim.timestepping import SCHEMES, StepController, attempt_step
 from capsim.membrane import HingeBending, get_law, law_attributes, principal_tensions
 from capsim.mesh import SurfaceMesh, rest_shape_attributes, rest_shape_mesh
 from capsim.observables import (
