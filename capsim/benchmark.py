@@ -1,9 +1,10 @@
 """Speed benchmarks (not tests): one velocity evaluation against a bare dense
-Stokeslet sum of the same size, with a per-stage breakdown.
+Stokeslet sum of the same size, with a per-stage breakdown, and the layer time
+(single layer + λ ≠ 1 solve) under each symmetry the mesh has.
 
 Timings are medians over ``repeat`` runs with a warm JIT cache; the bare sum and
-the full evaluation are interleaved so that load from other processes on a
-shared machine affects both alike.
+the evaluations are interleaved so that load from other processes on a shared
+machine affects all of them alike.
 """
 
 from __future__ import annotations
@@ -14,54 +15,83 @@ import time
 import numpy as np
 
 from capsim import kernels
-from capsim.membrane import get_law
+from capsim.membrane import MembraneForce, get_law
 from capsim.mesh import unit_sphere_mesh
 from capsim.solver import CapsuleModel, Discretization
 
+# symmetry settings of the benchmark: True is what a run with mesh.symmetry uses
+SYMMETRY_SETTINGS = {"none": False, "mirror_z": "mirror_z", "mirror_z+rotation_z": True}
 
-def bench_velocity(
-    level: int = 3, viscosity_ratio: float = 1.0, repeat: int = 7, base: str = "octahedron", symmetry: bool = True
-) -> dict:
-    """``symmetry`` as the case setting mesh.symmetry (default on): integrals at
-    the z ≥ 0 nodes only. The bare sum is always the full N_p × N_sources sum."""
-    mesh = unit_sphere_mesh(base, level)
+
+def _model(mesh, viscosity_ratio: float, symmetry: bool | str) -> tuple[CapsuleModel, np.ndarray]:
     disc = Discretization(mesh.elements, mesh.n_vertices)
     X = mesh.positions
     if symmetry:
-        X = disc.enable_mirror_symmetry(X)
-    model = CapsuleModel(disc, X, 0.1, viscosity_ratio, get_law("thin_shell"), {})
+        sym = disc.enable_symmetry(X, rotation=symmetry is True)
+        X = X if sym is None else sym
+    forces = MembraneForce(disc, X, get_law("thin_shell"), {})
+    return CapsuleModel(disc=disc, membrane=forces, shear_rate_G=0.1, viscosity_ratio=viscosity_ratio), X
+
+
+def bench_velocity(
+    level: int = 3, viscosity_ratio: float = 1.0, repeat: int = 7, base: str = "octahedron",
+    symmetry: bool | str = True, compare_symmetry: bool = True,
+) -> dict:
+    """``symmetry`` as the case setting mesh.symmetry (default on: the mirror in z
+    and the rotation by π about z, integrals at a quarter of the nodes);
+    "mirror_z" for the mirror only. The bare sum is always the full
+    N_p × N_sources sum. ``compare_symmetry`` adds ``layer_s_by_symmetry``: the
+    median layer time (single layer + solve) without symmetry, with the mirror
+    and with both, measured interleaved, and their ratios to no symmetry."""
+    mesh = unit_sphere_mesh(base, level)
+    variants = {"main": symmetry}
+    if compare_symmetry:
+        variants.update(SYMMETRY_SETTINGS)
+    models = {k: _model(mesh, viscosity_ratio, s) for k, s in variants.items()}
+    model, X = models["main"]
     # a deformed, tilted configuration: a realistic membrane state
     c, s = np.cos(0.6), np.sin(0.6)
     Q = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
-    x = X @ np.diag([1.15, 0.88, 1.0 / (1.15 * 0.88)]) @ Q.T
-    model.velocity(x)  # JIT warm-up (and solver warm start, as in a run)
-    geo = disc.geometry(x)
+    F = np.diag([1.15, 0.88, 1.0 / (1.15 * 0.88)]) @ Q.T
+    configs = {k: Xk @ F for k, (_, Xk) in models.items()}
+    for k, (m, _) in models.items():
+        m.velocity(configs[k])  # JIT warm-up (and solver warm start, as in a run)
+    x = configs["main"]
+    geo = model.disc.geometry(x)
     sources = geo.points.reshape(-1, 3)
     strengths = np.ones_like(sources)
     kernels.stokeslet_sum(x, sources, strengths)
 
     bare, full, stages, iters = [], [], [], []
+    layer: dict[str, list[float]] = {k: [] for k in models}
+    noise = np.random.default_rng(0).standard_normal(x.shape)
     for _ in range(repeat):
         t0 = time.perf_counter()
         kernels.stokeslet_sum(x, sources, strengths)
         bare.append(time.perf_counter() - t0)
-        for k in model.stage_times:
-            model.stage_times[k] = 0.0
-        xp = x * (1.0 + 1e-4 * np.random.default_rng(0).standard_normal(x.shape))
-        t0 = time.perf_counter()
-        model.velocity(xp)
-        full.append(time.perf_counter() - t0)
-        stages.append(dict(model.stage_times))
-        iters.append(model.last_solve_info["iterations"])
+        for k, (m, _) in models.items():
+            m.reset_stage_times()
+            # a perturbation with the configuration's symmetry (expand makes it exact)
+            xp = configs[k] + 1e-4 * m.disc.expand(noise[m.disc.targets])
+            t0 = time.perf_counter()
+            m.velocity(xp)
+            elapsed = time.perf_counter() - t0
+            times = m.stage_times
+            layer[k].append(times["single_layer"] + times["solve"])
+            if k == "main":
+                full.append(elapsed)
+                stages.append(times)
+                iters.append(m.last_solve_info["iterations"])
     med_stage = {k: float(np.median([s[k] for s in stages])) for k in stages[0]}
     bare_s = float(np.median(bare))
     full_s = float(np.median(full))
-    return {
+    out = {
         "level": level,
         "base": base,
-        "symmetry": symmetry,
+        "symmetry": model.disc.symmetry,
         "viscosity_ratio": viscosity_ratio,
         "n_nodes": int(X.shape[0]),
+        "n_targets": int(model.disc.targets.size),
         "n_elements": int(mesh.elements.shape[0]),
         "n_sources": int(sources.shape[0]),
         "repeat": repeat,
@@ -70,5 +100,11 @@ def bench_velocity(
         "bare_stokeslet_sum_s": bare_s,
         "ratio_to_bare": full_s / bare_s,
         "stages_s": med_stage,
+        "layer_s": float(np.median(layer["main"])),
         "solver_iterations_median": float(np.median(iters)),
     }
+    if compare_symmetry:
+        by = {models[k][0].disc.symmetry: float(np.median(layer[k])) for k in SYMMETRY_SETTINGS}
+        out["layer_s_by_symmetry"] = by
+        out["layer_ratio_to_none"] = {k: v / by["none"] for k, v in by.items()}
+    return out

@@ -40,9 +40,10 @@ docs/laws.md gives the derivations.
 from __future__ import annotations
 
 import inspect
+import time
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -290,3 +291,146 @@ class HingeBending:
 def hinge_angles(x: Array, hinges: Array) -> Array:
     """Signed dihedral angles θ of the hinges (positive where convex)."""
     return kernels.hinge_angles(np.ascontiguousarray(x, dtype=np.float64), np.asarray(hinges, dtype=np.int64))
+
+
+# ---------------------------------------------------------------- membrane force
+
+TRACTION_METHODS = ("galerkin", "contour")
+
+
+@dataclass
+class MembraneState:
+    """Everything the membrane step produced at one configuration.
+
+    The vertex strain and tension are computed on first use: the Galerkin
+    traction does not need them, so the three evaluations of an RKF23 step skip
+    them and only the recorded (accepted) states pay for them.
+    """
+
+    traction: Array    # Δf: (N_p, 3) nodal (galerkin) or (N_e, 3) element-averaged (contour)
+    geometry: Any      # geometry.ElementGeometry of the configuration
+    density: Array     # Δf as the single layer takes it: (N_e, 6, 3) or (N_e, 3)
+    vertex_state: Callable[[], tuple[VertexStrain, Array]] = field(repr=False)
+    mass_iterations: int = 0
+
+    @cached_property
+    def _vertex(self) -> tuple[VertexStrain, Array]:
+        return self.vertex_state()
+
+    @property
+    def strain(self) -> VertexStrain:
+        return self._vertex[0]
+
+    @property
+    def tension(self) -> Array:
+        """(N_v, 3, 3) Cauchy tension at the vertex nodes (seed 2.7)."""
+        return self._vertex[1]
+
+
+class MembraneForce:
+    """Positions → membrane state with the traction jump Δf (bending included).
+
+    Built once per run from the discretisation (``solver.Discretization``: the
+    mesh, its quadrature tables and the mass-matrix pattern), the rest positions,
+    the law and its parameters, the bending modulus κ (0: none) and the traction
+    method:
+
+    galerkin: Δf is the quadratic field whose moments against every basis
+    function equal the energy gradient, M·Δf = ∂E/∂x with E = ∫ W dA_0 (+ the
+    hinge bending energy; principle of virtual work; every node, mid-edge nodes
+    included, is elastically restrained). The block-CG solve of M·Δf = ∂E/∂x
+    starts from the previous Δf (warm start, part of ``state()``).
+    contour: the seed's element average (3.6), −(1/S_e)∮ T·b dl from vertex
+    tensions, used element-constant (3.7).
+
+    ``stage_times`` accumulates the seconds spent on the geometry and on the
+    membrane mechanics; ``evaluations`` counts the calls.
+    """
+
+    def __init__(
+        self,
+        disc,
+        rest_positions: Array,
+        law: MembraneLaw | None = None,
+        law_params: dict | None = None,
+        *,
+        bending_modulus: float = 0.0,
+        bending: HingeBending | None = None,
+        traction_method: str = "galerkin",
+        mass_tol: float = 1e-8,
+        mass_max_iter: int = 500,
+    ):
+        if traction_method not in TRACTION_METHODS:
+            raise ValueError(f"unknown traction method {traction_method!r} (allowed: {TRACTION_METHODS})")
+        self.disc = disc
+        self.rest_positions = rest_positions
+        self.law = law if law is not None else get_law("thin_shell")
+        self.law_params = dict(law_params or {})
+        if bending is None and bending_modulus > 0.0:
+            bending = HingeBending.from_rest(rest_positions, disc.elements, bending_modulus)
+        if bending is not None and traction_method != "galerkin":
+            raise ValueError("bending needs the galerkin traction method")
+        self.bending = bending
+        self.traction_method = traction_method
+        self.mass_tol = mass_tol
+        self.mass_max_iter = mass_max_iter
+        self.stage_times = {"geometry": 0.0, "membrane": 0.0}
+        self.evaluations = 0
+        self._last_traction: Array | None = None
+
+    def state(self) -> dict[str, Array | None]:
+        """Warm-start memory (the last Δf of the mass-matrix solve) and the counter."""
+        return {
+            "traction": None if self._last_traction is None else self._last_traction.copy(),
+            "evaluations": np.array(self.evaluations, dtype=np.int64),
+        }
+
+    def restore(self, state: dict) -> None:
+        t = state.get("traction")
+        self._last_traction = None if t is None else np.array(t, dtype=np.float64, copy=True)
+        self.evaluations = int(state.get("evaluations", 0))
+
+    def _vertex_state(self, x: Array) -> tuple[VertexStrain, Array]:
+        disc = self.disc
+        A, n_cur, _ = kernels.vertex_deformation_gradient(
+            x, self.rest_positions, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta,
+        )
+        strain = strain_from_gradient(A, n_cur)
+        return strain, tension_tensor(strain, self.law, self.law_params)
+
+    def __call__(self, x: Array) -> MembraneState:
+        """Tensions and the traction jump Δf at configuration x."""
+        self.evaluations += 1
+        t0 = time.perf_counter()
+        disc = self.disc
+        geo = disc.geometry(x)
+        t1 = time.perf_counter()
+        self.stage_times["geometry"] += t1 - t0
+        vertex_state = lambda: self._vertex_state(x)  # noqa: E731
+        if self.traction_method == "contour":
+            state = MembraneState(np.empty(0), geo, np.empty(0), vertex_state)
+            traction = kernels.element_tractions(
+                x, disc.elements, np.ascontiguousarray(state.tension), disc.contour_s, disc.contour_w, geo.element_areas,
+            )
+            state.traction = state.density = traction
+            self.stage_times["membrane"] += time.perf_counter() - t1
+            return state
+        inv1, inv2, dual_cur, dual_ref, jac0 = kernels.gauss_point_strain(
+            x, self.rest_positions, disc.elements, disc.mem_dxi, disc.mem_deta,
+        )
+        w1, w2 = self.law.derivatives(inv1, inv2, **self.law_params)
+        rhs = kernels.galerkin_energy_gradient(
+            disc.elements, disc.n_nodes, disc.mem_dxi, disc.mem_deta, disc.mem_w,
+            jac0, np.ascontiguousarray(w1), np.ascontiguousarray(w2), dual_cur, dual_ref,
+        )
+        if self.bending is not None:
+            rhs = rhs + self.bending.energy_gradient(x)[1]
+        data = disc.mass_matrix_data(geo)
+        guess = self._last_traction if self._last_traction is not None else np.zeros_like(rhs)
+        traction, iterations = kernels.block_cg(
+            disc.mass_indptr, disc.mass_indices, data, rhs, guess, self.mass_tol, self.mass_max_iter,
+        )
+        self._last_traction = traction
+        density = np.ascontiguousarray(traction[disc.elements])
+        self.stage_times["membrane"] += time.perf_counter() - t1
+        return MembraneState(traction, geo, density, vertex_state, iterations)

@@ -19,52 +19,19 @@ import yaml
 from capsim import __version__
 from capsim.config import Case, Guards
 from capsim.timestepping import SCHEMES, StepController, attempt_step
-from capsim.membrane import HingeBending, get_law, law_attributes, principal_tensions
-from capsim.mesh import SurfaceMesh, rest_shape_attributes, rest_shape_mesh
+from capsim.membrane import law_attributes, principal_tensions
+from capsim.mesh import SurfaceMesh, rest_shape_attributes
 from capsim.observables import (
     SUMMARY_QUANTITIES, TankTreadingTracker, is_steady, particle_stresslet, run_summary,
     step_observables, stresslet_observables,
 )
-from capsim.solver import CapsuleModel, Discretization
+from capsim.solver import CapsuleModel, build_model
 from capsim.store import (
     CheckpointError, TrajectoryError, TrajectoryWriter, checkpoint_path, read_checkpoint, remove_checkpoint,
     write_checkpoint,
 )
 
 ProgressCallback = Callable[[dict], None]
-
-
-def build_model(case: Case) -> tuple[CapsuleModel, np.ndarray]:
-    """Rest mesh and right-hand side of a case; returns (model, rest positions)."""
-    mesh = rest_shape_mesh(
-        case.shape.kind, case.mesh.base, case.mesh.level, case.initial_tilt_deg,
-        aspect_ratio=case.shape.aspect_ratio, c0=case.shape.c0, c2=case.shape.c2, c4=case.shape.c4,
-    )
-    disc = Discretization(
-        mesh.elements, mesh.n_vertices,
-        regular_order=case.quadrature.regular_order,
-        singular_order=case.quadrature.singular_order,
-        near_field_factor=case.quadrature.near_field_factor,
-        near_field_levels=case.quadrature.near_field_levels,
-    )
-    positions = mesh.positions
-    if case.mesh.symmetry:
-        symmetric = disc.enable_mirror_symmetry(positions)
-        if symmetric is not None:
-            positions = symmetric
-    law = get_law(case.membrane.law)
-    params = {p: getattr(case.membrane, p) for p in law.parameters}
-    model = CapsuleModel(
-        disc, positions, case.flow.shear_rate_G, case.flow.viscosity_ratio, law, params,
-        traction_method=case.membrane.traction,
-        volume_correction=case.solver.volume_correction,
-        solver_method=case.solver.method,
-        solver_tol=case.solver.tol,
-        solver_max_iter=case.solver.max_iter,
-    )
-    if case.membrane.bending_modulus > 0:
-        model.bending = HingeBending.from_rest(positions, mesh.elements, case.membrane.bending_modulus)
-    return model, positions
 
 
 class ResumeError(Exception):

@@ -7,10 +7,10 @@ import pytest
 
 from capsim import kernels
 from capsim.config import case_from_dict
-from capsim.membrane import LAWS, get_law, law_attributes, strain_from_gradient, tension_tensor
+from capsim.membrane import LAWS, MembraneForce, get_law, law_attributes, strain_from_gradient, tension_tensor
 from capsim.mesh import unit_sphere_mesh
 from capsim.runner import run_case
-from capsim.solver import CapsuleModel, Discretization
+from capsim.solver import Discretization
 
 # every law with a non-trivial parameter, and the documented moduli (units of E_s)
 CASES = [
@@ -97,7 +97,7 @@ def inflation_tension(name, params, s):
 def test_uniform_inflation_gives_the_analytic_tension(sphere2, name, params, g_s, k_s, s):
     mesh, disc = sphere2
     X = mesh.positions
-    state = CapsuleModel(disc, X, 0.1, law=get_law(name), law_params=params).membrane(s * X)
+    state = MembraneForce(disc, X, get_law(name), params)(s * X)
     tau = inflation_tension(name, params, s)
     n = state.strain.normals
     P = np.eye(3)[None] - n[:, :, None] * n[:, None, :]
@@ -112,9 +112,9 @@ def test_sphere_pole_under_uniaxial_stretch(sphere2, name, params, g_s, k_s):
     mesh, disc = sphere2
     X = mesh.positions
     pole = int(np.argmin(np.linalg.norm(X - [0, 0, 1], axis=1)))
-    model = CapsuleModel(disc, X, 0.1, law=get_law(name), law_params=params)
+    forces = MembraneForce(disc, X, get_law(name), params)
     eps = 1e-4
-    T = [model.membrane(X @ np.diag([1, 1 + e, 1])).tension[pole] for e in (eps, -eps)]
+    T = [forces(X @ np.diag([1, 1 + e, 1])).tension[pole] for e in (eps, -eps)]
     dT = (T[0] - T[1]) / (2 * eps)
     assert 0.5 * (dT[1, 1] - dT[0, 0]) == pytest.approx(g_s, rel=1e-3)
     assert 0.5 * (dT[1, 1] + dT[0, 0]) == pytest.approx(k_s, rel=1e-3)
@@ -131,14 +131,14 @@ def _energy_and_virtual_work(disc, X, law, params, method):
     # no symmetry of the ellipsoid may cancel the first-order change
     dx = 1e-6 * np.c_[np.sin(2 * x[:, 1] + 0.3) + x[:, 0] ** 2, np.cos(x[:, 2]) + x[:, 0], x[:, 0] * x[:, 1] + x[:, 2]]
     dE = 0.5 * (energy(x + dx) - energy(x - dx))
-    state = CapsuleModel(disc, X, 0.1, law=law, law_params=params, traction_method=method).membrane(x)
+    state = MembraneForce(disc, X, law, params, traction_method=method)(x)
     geo = state.geometry
     dxq = np.einsum("qk,ekd->eqd", disc.reg_phi, dx[disc.elements])
     if state.density.ndim == 3:
         fq = np.einsum("qk,ekd->eqd", disc.reg_phi, state.density)
     else:
         fq = np.repeat(state.density[:, None, :], geo.weights.shape[1], axis=1)
-    # Δf = −∇ˢ·T (design.md), so the virtual work is δE = +∫ Δf·δx dS
+    # Δf = −∇ˢ·T (docs/conventions.md), so the virtual work is δE = +∫ Δf·δx dS
     return dE, float(np.einsum("eqd,eqd,eq->", fq, dxq, geo.weights))
 
 

@@ -1,11 +1,10 @@
 """Membrane mechanics: tensions and traction jumps against Laplace's law and
-rigid-body invariance (design.md, 'Checks')."""
+rigid-body invariance (docs/conventions.md, 'Checks')."""
 
 import numpy as np
 import pytest
 
-from capsim.membrane import LAWS, get_law, principal_tensions
-from capsim.solver import CapsuleModel
+from capsim.membrane import LAWS, MembraneForce, get_law, principal_tensions
 
 
 def rotation(a, b):
@@ -23,17 +22,17 @@ def isotropic_tension(law, s, **params):
 
 
 def _sphere_model(sphere3, law_name):
-    """The level-3 unit sphere at rest with law ``law_name``: (rest positions, law, model)."""
+    """The level-3 unit sphere at rest with law ``law_name``: (rest positions, law, membrane force)."""
     mesh, disc = sphere3
     law = get_law(law_name)
-    return mesh.positions, law, CapsuleModel(disc, mesh.positions, 0.1, law=law)
+    return mesh.positions, law, MembraneForce(disc, mesh.positions, law)
 
 
 @pytest.mark.parametrize("law_name", sorted(LAWS))
 def test_uniform_inflation_tension_is_isotropic_and_analytic(sphere3, law_name):
-    X, law, model = _sphere_model(sphere3, law_name)
+    X, law, forces = _sphere_model(sphere3, law_name)
     s = 1.1
-    state = model.membrane(s * X)
+    state = forces(s * X)
     tau = isotropic_tension(law, s)
     n = state.strain.normals
     P = np.eye(3)[None] - n[:, :, None] * n[:, None, :]
@@ -45,9 +44,9 @@ def test_inflation_traction_is_laplace(sphere3, method):
     """Δf = (2τ/R) n for an isotropic tension τ on a sphere of radius R."""
     mesh, disc = sphere3
     X = mesh.positions
-    model = CapsuleModel(disc, X, 0.1, traction_method=method)
+    forces = MembraneForce(disc, X, traction_method=method)
     s = 1.1
-    state = model.membrane(s * X)
+    state = forces(s * X)
     laplace = 2 * isotropic_tension(get_law("thin_shell"), s) / s
     if method == "galerkin":
         normal = X  # nodal traction at the nodes of the unit sphere
@@ -67,9 +66,9 @@ def test_inflation_traction_is_laplace(sphere3, method):
 def test_rest_shape_and_rigid_motion_give_zero_traction(sphere3, method):
     mesh, disc = sphere3
     X = mesh.positions
-    model = CapsuleModel(disc, X, 0.1, traction_method=method)
+    forces = MembraneForce(disc, X, traction_method=method)
     for x in (X, X @ rotation(0.7, 0.3).T + np.array([0.3, -0.1, 0.2])):
-        state = model.membrane(x)
+        state = forces(x)
         assert np.abs(state.tension).max() < 1e-12
         assert np.abs(state.traction).max() < 1e-10
 
@@ -82,7 +81,7 @@ def test_galerkin_and_contour_tractions_have_the_same_first_moment(sphere3):
     x = X @ np.diag([1.05, 1 / 1.05, 1.0])
     moments = []
     for method in ("galerkin", "contour"):
-        st = CapsuleModel(disc, X, 0.1, traction_method=method).membrane(x)
+        st = MembraneForce(disc, X, traction_method=method)(x)
         geo = st.geometry
         if st.density.ndim == 3:
             fq = np.einsum("qk,ekd->eqd", disc.reg_phi, st.density)
@@ -98,7 +97,7 @@ def test_galerkin_traction_is_the_energy_gradient(sphere2):
     mesh, disc = sphere2
     X = mesh.positions
     law = get_law("neo_hookean")
-    model = CapsuleModel(disc, X, 0.1, law=law)
+    forces = MembraneForce(disc, X, law)
     from capsim import kernels
 
     def energy(x):
@@ -109,7 +108,7 @@ def test_galerkin_traction_is_the_energy_gradient(sphere2):
     # no symmetry of the ellipsoid may cancel the first-order change
     dx = 1e-6 * np.c_[np.sin(2 * x[:, 1] + 0.3) + x[:, 0] ** 2, np.cos(x[:, 2]) + x[:, 0], x[:, 0] * x[:, 1] + x[:, 2]]
     dE = energy(x + dx) - energy(x - dx)
-    state = model.membrane(x)
+    state = forces(x)
     # M Δf = b  ⇒  b·δx = (M Δf)·δx
     data = disc.mass_matrix_data(state.geometry)
     from scipy.sparse import csr_matrix
@@ -122,10 +121,10 @@ def test_galerkin_traction_is_the_energy_gradient(sphere2):
 @pytest.mark.parametrize("law_name", sorted(LAWS))
 def test_principal_tensions_are_the_tangent_eigenvalues_of_T(sphere3, law_name):
     """τi = e^{−Λ1}(W_1 + W_2 λi²) against an eigen-decomposition of T (seed 2.7)."""
-    X, law, model = _sphere_model(sphere3, law_name)
+    X, law, forces = _sphere_model(sphere3, law_name)
     # an anisotropic stretch with compression along z: both signs of tension for the elastic laws
     x = X @ np.diag([1.25, 1.05, 0.8]) @ rotation(0.3, 0.7).T
-    state = model.membrane(x)
+    state = forces(x)
     t1, t2 = principal_tensions(state.strain, law, {})
     eig = np.linalg.eigvalsh(state.tension)  # (N_v, 3): the normal direction carries 0
     n = state.strain.normals
