@@ -1,0 +1,154 @@
+"""The documentation lives in the repository and says what the repository holds.
+
+* No file points to notes outside the repository: the design, theory and
+  stepping notes are docs/conventions.md, docs/theory.md and
+  docs/time_stepping.md (a bare ``theory.md`` is fine only inside docs/).
+* Every relative markdown link in README.md, REPRODUCTION.md and docs/*.md
+  points to a file that exists, and every README section cited as
+  ``README, "Section"`` exists.
+* The README's layout section names every module of the package.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCANNED_DIRS = ("capsim", "tests", "docs", "configs", "campaigns", "benchmarks")
+SCANNED_FILES = ("README.md", "REPRODUCTION.md", "Makefile", "pyproject.toml")
+TEXT_SUFFIXES = {".py", ".md", ".yaml", ".yml", ".toml", ".txt", ".cfg", ".ini", ".json"}
+MARKDOWN = ("README.md", "REPRODUCTION.md", "docs/*.md")
+
+# a path-like token ending in one of the note names (the names are assembled so
+# that this file does not match itself)
+_NOTES = ("design", "stepping", "theory")
+_TOKEN = re.compile(r"[\w./-]*\b(?:" + "|".join(_NOTES) + r")\.md\b")
+_OUTSIDE = re.compile(r"/work/|\bshared/(?:seed|design|theory|stepping|style)")
+_LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
+_README_SECTION = re.compile(r"README,\s+\"([^\"]+)\"")
+
+
+def _scanned_files() -> list[Path]:
+    files = [ROOT / name for name in SCANNED_FILES if (ROOT / name).is_file()]
+    for d in SCANNED_DIRS:
+        for p in sorted((ROOT / d).rglob("*")):
+            if p.is_file() and p.suffix in TEXT_SUFFIXES and "__pycache__" not in p.parts:
+                files.append(p)
+    return [p for p in files if p.resolve() != Path(__file__).resolve()]
+
+
+def _read(p: Path) -> str:
+    try:
+        return p.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        return ""
+
+
+def _bad_note_reference(token: str, in_docs: bool) -> bool:
+    name = token.rsplit("/", 1)[-1]
+    if name not in {n + ".md" for n in _NOTES}:
+        return False  # e.g. time_stepping.md
+    if name != "theory.md":
+        return True  # design.md and stepping.md exist only outside the repository
+    if token in {"docs/theory.md", "./docs/theory.md", "../docs/theory.md"}:
+        return False
+    return not (in_docs and token in {"theory.md", "./theory.md"})
+
+
+def _markdown_files() -> list[Path]:
+    out: list[Path] = []
+    for pattern in MARKDOWN:
+        out.extend(sorted(ROOT.glob(pattern)))
+    return out
+
+
+def _prose(text: str) -> str:
+    """Markdown without its code: fenced blocks, indented blocks, inline spans."""
+    text = re.sub(r"^(```|~~~).*?^\1[^\n]*$", "", text, flags=re.M | re.S)
+    out, prev_indent, code_indent, blank = [], 0, None, True
+    for line in text.splitlines():
+        indent = len(line) - len(line.lstrip(" "))
+        if not line.strip():
+            blank = True
+            continue
+        if code_indent is not None and indent >= code_indent:
+            continue
+        code_indent = None
+        if blank and indent >= prev_indent + 4:
+            code_indent = indent
+            continue
+        out.append(line)
+        prev_indent, blank = indent, False
+    return re.sub(r"`[^`]*`", "", "\n".join(out))
+
+
+def _section(text: str, heading: str) -> str:
+    m = re.search(rf"^## {re.escape(heading)}\s*$(.*?)(?=^## |\Z)", text, re.M | re.S)
+    return m.group(1) if m else ""
+
+
+def test_no_reference_to_notes_outside_the_repository():
+    bad = []
+    for p in _scanned_files():
+        text = _read(p)
+        rel = p.relative_to(ROOT)
+        in_docs = rel.parts[0] == "docs"
+        for lineno, line in enumerate(text.splitlines(), 1):
+            for token in _TOKEN.findall(line):
+                if _bad_note_reference(token, in_docs):
+                    bad.append(f"{rel}:{lineno}: {token}")
+            if _OUTSIDE.search(line):
+                bad.append(f"{rel}:{lineno}: {line.strip()}")
+    assert not bad, "references to files outside the repository (use docs/):\n" + "\n".join(bad)
+
+
+@pytest.mark.parametrize("token,in_docs,bad", [
+    ("docs/theory.md", False, False),
+    ("theory.md", True, False),
+    ("theory.md", False, True),
+    ("shared/theory.md", False, True),
+    ("design.md", True, True),
+    ("stepping.md", False, True),
+    ("docs/time_stepping.md", False, False),
+])
+def test_note_reference_rule(token, in_docs, bad):
+    assert _bad_note_reference(token, in_docs) is bad
+
+
+def test_relative_markdown_links_resolve():
+    broken = []
+    for md in _markdown_files():
+        for target in _LINK.findall(_prose(_read(md))):
+            if re.match(r"^[a-z][a-z0-9+.-]*:", target) or target.startswith("#"):
+                continue  # URLs, mailto:, in-page anchors
+            path = target.split("#", 1)[0]
+            if not (md.parent / path).exists():
+                broken.append(f"{md.relative_to(ROOT)}: {target}")
+    assert not broken, "broken relative links:\n" + "\n".join(broken)
+
+
+def test_cited_readme_sections_exist():
+    headings = {
+        m.group(1).strip()
+        for m in re.finditer(r"^#{2,4} (.+)$", _read(ROOT / "README.md"), re.M)
+    }
+    missing = []
+    for p in _scanned_files() + [ROOT / "README.md"]:
+        text = re.sub(r"\s+", " ", _read(p))
+        for name in _README_SECTION.findall(text):
+            if name not in headings:
+                missing.append(f"{p.relative_to(ROOT)}: README, \"{name}\"")
+    assert not missing, "cited README sections that do not exist:\n" + "\n".join(missing)
+
+
+def test_readme_layout_names_every_module():
+    layout = _section(_read(ROOT / "README.md"), "Layout")
+    assert layout, "README.md has no '## Layout' section"
+    modules = sorted(p.name for p in (ROOT / "capsim").glob("*.py"))
+    unlisted = [m for m in modules if not re.search(rf"(?<![\w.]){re.escape(m)}(?!\w)", layout)]
+    assert not unlisted, f"README layout does not list: {unlisted}"
+    for folder in ("capsim", "configs", "campaigns", "tests", "benchmarks", "docs"):
+        assert re.search(rf"^\s*{folder}/", layout, re.M), f"README layout does not list {folder}/"
