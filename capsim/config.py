@@ -9,7 +9,9 @@ the dotted field, the bad value and what is allowed, e.g.::
 
 from __future__ import annotations
 
+import math
 import os
+import stat
 from collections.abc import Mapping
 from typing import Any, Literal
 
@@ -23,6 +25,8 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+
+from capsim.errors import bounded_repr, first_line
 
 __all__ = [
     "Case",
@@ -39,6 +43,7 @@ __all__ = [
     "apply_overrides",
     "case_from_dict",
     "load_case",
+    "read_yaml",
 ]
 
 
@@ -46,25 +51,95 @@ class ConfigError(Exception):
     """A user mistake in a case: the message is one line, fit to print as is."""
 
 
+# ---------------------------------------------------------------- limits
+
+#: longest case name: it becomes a file name (``<name>.h5``, ``<name>.h5.ckpt.npz`` and
+#: temporary siblings), and file names are limited to 255 bytes; names are ASCII.
+NAME_MAX = 200
+#: most bytes read from a case or campaign file (a real one is a few kB)
+MAX_FILE_BYTES = 1 << 20
+#: most YAML nodes after expanding aliases (a case has ~60 leaves, a campaign a few thousand)
+MAX_YAML_NODES = 100_000
+#: deepest nesting of YAML mappings and sequences (a campaign needs 4)
+MAX_YAML_DEPTH = 32
+#: most snapshots a run may write: each is the (N_p, 3) positions, 1.5 MB at level 6
+MAX_SNAPSHOTS = 10_000
+#: the membrane-law parameters and their defaults (the law functions of capsim.membrane
+#: take the same defaults; tests/test_registries.py checks that they agree)
+LAW_PARAMETER_DEFAULTS = {"mooney_rivlin": {"psi": 0.0}, "skalak": {"skalak_c": 10.0}}
+#: the λ ≠ 1 velocity-solve methods (capsim.solver)
+SOLVER_METHODS = ("gmres", "substitution")
+
+
+class _FieldProblem(ValueError):
+    """A cross-field check that names the field it is about (below a section's location)."""
+
+    def __init__(self, field: str, value: Any, what: str) -> None:
+        super().__init__(what)
+        self.field, self.value, self.what = field, value, what
+
+
+def _strict_scalar(v: Any, annotation: Any) -> Any:
+    # YAML 1.1 reads yes/no/on/off as booleans: never let one become 1.0 or 0 for a
+    # number (bool is an int subclass, so pydantic's lax float would take it).
+    if isinstance(v, bool) and annotation is not bool:
+        raise ValueError(
+            f"must be a number, not {str(v).lower()} (YAML reads yes/no/on/off as booleans)"
+        )
+    if annotation is float and isinstance(v, str):
+        # PyYAML (YAML 1.1) reads `1e-4` (no dot) as the string "1e-4": a string that
+        # is a plain decimal number is taken; 'nan', 'inf', '0x10', '1_0' are not.
+        text = v.strip()
+        try:
+            ok = len(text) <= 40 and text.lstrip("+-")[:1] in tuple("0123456789.") and "_" not in text
+            number = float(text) if ok else None
+        except ValueError:
+            number = None
+        if number is None:
+            raise ValueError("must be a number")
+        return number
+    return v
+
+
 class _Model(BaseModel):
     # Typos are errors, NaN/inf are never a sane parameter, and a resolved case
     # is an immutable description: change it with apply_overrides.
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
 
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_coercion(cls, v: Any, info: ValidationInfo) -> Any:
+        return _strict_scalar(v, cls.model_fields[info.field_name].annotation)
+
+
+def _in_range(v: float, lo: float, hi: float, why: str) -> float:
+    if not lo <= v <= hi:
+        raise ValueError(f"must be in [{lo:g}, {hi:g}] ({why})")
+    return v
+
 
 # Integers and booleans are strict so that `level: 2.5`, `level: "3"` or
-# `stop_when_steady: 1` are refused rather than coerced. Floats stay lax:
-# PyYAML (YAML 1.1) reads `1e-4` (no dot) as the string "1e-4".
+# `stop_when_steady: 1` are refused rather than coerced. Floats take ints and
+# decimal strings (PyYAML reads `1e-4` as a string) but never booleans.
 
 
 class Shape(_Model):
     """Rest shape of the capsule; lengths are scaled by the equal-volume radius a."""
 
     kind: Literal["sphere", "oblate", "prolate", "biconcave"] = "sphere"
-    aspect_ratio: float = Field(1.0, gt=0, description="polar / equatorial axis of the spheroid")
-    c0: float = Field(0.207, description="Evans-Fung biconcave coefficient")
-    c2: float = Field(2.003, description="Evans-Fung biconcave coefficient")
-    c4: float = Field(-1.123, description="Evans-Fung biconcave coefficient")
+    aspect_ratio: float = Field(
+        1.0, gt=0,
+        description="polar / equatorial axis of the spheroid, in [0.05, 20]: the rim of a flatter "
+        "(or the tip of a longer) spheroid has a radius of curvature below a level-6 element "
+        "(~0.025 a), so no mesh resolves it; spheroids only",
+    )
+    c0: float = Field(
+        0.207, ge=-10, le=10,
+        description="Evans-Fung biconcave coefficient; c0 + c2 s + c4 s² (s = r²/R0²) is the thickness "
+        "profile and must stay positive on [0, 1] (else the disk has no inside); biconcave only",
+    )
+    c2: float = Field(2.003, ge=-10, le=10, description="Evans-Fung biconcave coefficient (see c0)")
+    c4: float = Field(-1.123, ge=-10, le=10, description="Evans-Fung biconcave coefficient (see c0)")
 
     @field_validator("aspect_ratio")
     @classmethod
@@ -76,15 +151,47 @@ class Shape(_Model):
             raise ValueError("must be > 1 for a prolate spheroid")
         if kind == "sphere" and v != 1:
             raise ValueError("must be 1 for a sphere (use kind: oblate or prolate)")
-        return v
+        return _in_range(v, 0.05, 20.0, "a rim flatter than 1:20 is below the finest mesh")
+
+    @model_validator(mode="after")
+    def _fields_of_the_kind(self) -> Shape:
+        spheroid = self.kind in ("oblate", "prolate", "sphere")
+        unused = ("c0", "c2", "c4") if spheroid else ("aspect_ratio",)
+        for name in unused:
+            value = getattr(self, name)
+            if name in self.model_fields_set and value != type(self).model_fields[name].default:
+                used = "biconcave shapes" if spheroid else "spheroids (oblate, prolate)"
+                raise _FieldProblem(name, value, f"applies only to {used}, not to kind: {self.kind}; remove it")
+        if self.kind == "biconcave":
+            c0, c2, c4 = self.c0, self.c2, self.c4
+            # minimum of the thickness profile h(s) = c0 + c2 s + c4 s² on 0 <= s <= 1
+            candidates = [0.0, 1.0] + ([-c2 / (2 * c4)] if c4 > 0 and 0 < -c2 / (2 * c4) < 1 else [])
+            s_min = min(candidates, key=lambda s: c0 + c2 * s + c4 * s * s)
+            h_min = c0 + c2 * s_min + c4 * s_min * s_min
+            if not h_min > 0:
+                name = "c0" if s_min == 0.0 else "c4" if "c4" in self.model_fields_set else "c2"
+                raise _FieldProblem(
+                    name, getattr(self, name),
+                    f"the Evans-Fung thickness c0 + c2 s + c4 s² = {h_min:.3g} <= 0 at s = r²/R0² = {s_min:.3g}: "
+                    f"(c0, c2, c4) = ({c0:g}, {c2:g}, {c4:g}) give no surface; it must be > 0 on [0, 1]",
+                )
+        return self
 
 
 class Membrane(_Model):
-    """Constitutive law of the membrane (design.md, 'Laws')."""
+    """Constitutive law of the membrane (docs/laws.md)."""
 
     law: Literal["thin_shell", "neo_hookean", "mooney_rivlin", "skalak", "surface_tension"] = "thin_shell"
-    psi: float = Field(0.0, ge=0, le=1, description="Mooney-Rivlin parameter psi'")
-    skalak_c: float = Field(10.0, gt=0, description="Skalak area-dilation parameter C")
+    psi: float = Field(
+        LAW_PARAMETER_DEFAULTS["mooney_rivlin"]["psi"], ge=0, le=1,
+        description="Mooney-Rivlin parameter psi'; law: mooney_rivlin only",
+    )
+    skalak_c: float = Field(
+        LAW_PARAMETER_DEFAULTS["skalak"]["skalak_c"], gt=0, le=1e4,
+        description="Skalak area-dilation parameter C (at most 1e4: the area modulus 1 + 2C "
+        "then makes the membrane force stiff beyond what the explicit stepping can follow); "
+        "law: skalak only",
+    )
     traction: Literal["galerkin", "contour"] = Field(
         "galerkin",
         description="galerkin: Δf from the energy gradient and the consistent mass matrix "
@@ -95,6 +202,15 @@ class Membrane(_Model):
         description="bending modulus κ/(E_s a²) of a dihedral-hinge energy relative to the rest shape "
         "(0: none, the seed's membrane); needs traction: galerkin",
     )
+
+    @model_validator(mode="after")
+    def _parameters_of_the_law(self) -> Membrane:
+        for law, params in LAW_PARAMETER_DEFAULTS.items():
+            for name, default in params.items():
+                value = getattr(self, name)
+                if self.law != law and name in self.model_fields_set and value != default:
+                    raise _FieldProblem(name, value, f"applies only to law: {law}, not to law: {self.law}; remove it")
+        return self
 
     @model_validator(mode="after")
     def _bending_needs_galerkin(self):
@@ -110,7 +226,17 @@ class Flow(_Model):
     """Simple shear v = (k y, 0, 0); G = mu k a / E_s, viscosity ratio lambda."""
 
     shear_rate_G: float = Field(0.1, gt=0)
-    viscosity_ratio: float = Field(1.0, gt=0)
+    viscosity_ratio: float = Field(
+        1.0, gt=0,
+        description="internal / external viscosity λ, in [1e-3, 1e3]: the λ ≠ 1 double-layer operator "
+        "has its spectrum in [min(1, λ), max(1, λ)], so its condition number is max(λ, 1/λ) and the "
+        "solve's iterations grow like its square root; beyond 1e3 the capsule is a rigid particle",
+    )
+
+    @field_validator("viscosity_ratio")
+    @classmethod
+    def _lambda_conditioning(cls, v: float) -> float:
+        return _in_range(v, 1e-3, 1e3, "the double-layer solve's condition number is max(λ, 1/λ)")
 
 
 class Mesh(_Model):
@@ -149,14 +275,36 @@ class Quadrature(_Model):
 class Time(_Model):
     """Adaptive RKF23 stepping; times in units of 1/k."""
 
-    t_end: float = Field(10.0, gt=0)
-    rtol: float = Field(1.0e-4, gt=0, lt=1)
+    t_end: float = Field(
+        10.0, gt=0, description="end time, at least 1e-6 and at least dt_min (else no step is taken)"
+    )
+    rtol: float = Field(
+        1.0e-4, gt=0, lt=1,
+        description="local error tolerance of the step, at least 1e-10: the velocities it compares are "
+        "accurate to ~1e-12 (quadrature round-off, solver.tol), so a smaller one chases noise",
+    )
     # dt_min and dt_max come before dt_initial so that its check can see both.
     dt_min: float = Field(1.0e-8, gt=0)
     dt_max: float = Field(0.5, gt=0)
     dt_initial: float = Field(1.0e-3, gt=0)
     max_steps: int = Field(1_000_000, ge=1, strict=True)
     stop_when_steady: bool = Field(False, strict=True)
+
+    @field_validator("rtol")
+    @classmethod
+    def _rtol_above_round_off(cls, v: float) -> float:
+        if v < 1e-10:
+            raise ValueError("must be >= 1e-10 (the velocities are accurate to ~1e-12)")
+        return v
+
+    @model_validator(mode="after")
+    def _at_least_one_step(self):
+        if self.t_end < max(1e-6, self.dt_min):
+            raise _FieldProblem(
+                "t_end", self.t_end,
+                f"must be >= max(1e-6, dt_min = {self.dt_min:g}): a shorter run takes no step",
+            )
+        return self
 
     @field_validator("dt_max")
     @classmethod
@@ -181,16 +329,38 @@ class Solver(_Model):
     method: Literal["gmres", "substitution"] = Field(
         "gmres", description="GMRES (scipy, matrix-free) or the seed's successive substitution"
     )
-    tol: float = Field(1.0e-6, gt=0, lt=1, description="relative residual of the velocity solve")
-    max_iter: int = Field(200, ge=1, strict=True)
-    volume_correction: bool = Field(
-        True, description="remove the discrete net flux of the nodal velocities (volume conservation)"
+    tol: float = Field(
+        1.0e-6, gt=0, lt=1,
+        description="relative residual of the velocity solve, at least 1e-14: below, the residual is the "
+        "round-off of the double-layer sums (N_p terms of ~1e-16 each) and is never reached",
     )
+    max_iter: int = Field(
+        200, ge=20, le=1000, strict=True,
+        description="most iterations (gmres: restart cycles of min(60, max_iter) steps) of the λ ≠ 1 "
+        "solve, in [20, 1000]: the operator's spectrum lies in [min(1, λ), max(1, λ)], so fewer than 20 "
+        "cannot reach the tolerance at a realistic λ such as 5, and more than 1000 is a solve that does "
+        "not converge (a hang, not a result); substitution needs ln(tol) / ln(|1-λ|/(1+λ))",
+    )
+    volume_correction: bool = Field(
+        True, strict=True,
+        description="remove the discrete net flux of the nodal velocities (volume conservation)",
+    )
+
+    @field_validator("tol")
+    @classmethod
+    def _tol_above_round_off(cls, v: float) -> float:
+        if v < 1e-14:
+            raise ValueError("must be >= 1e-14 (the double-layer sums are exact only to round-off)")
+        return v
 
 
 class Output(_Model):
     path: str = Field("runs/{name}.h5", min_length=1, description="'{name}' is the case name")
-    snapshot_every: float = Field(0.5, gt=0, description="time between full snapshots, 1/k")
+    snapshot_every: float = Field(
+        0.5, gt=0,
+        description="time between full snapshots, 1/k; at least time.dt_min (the steps are clipped to "
+        "the snapshot times) and at least time.t_end / 10000 (each snapshot holds every node)",
+    )
     checkpoint_every_steps: int = Field(
         50, ge=1, strict=True, description="write the restart checkpoint <path>.ckpt.npz every N accepted steps"
     )
@@ -218,7 +388,10 @@ class Guards(_Model):
 class Case(_Model):
     """One simulation: every knob that changes the result, nothing else."""
 
-    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9._-]+$")
+    name: str = Field(
+        min_length=1, max_length=NAME_MAX, pattern=r"^[A-Za-z0-9._-]+$",
+        description=f"at most {NAME_MAX} characters: it becomes a file name (255-byte limit, less suffixes)",
+    )
     shape: Shape = Shape()
     membrane: Membrane = Membrane()
     flow: Flow = Flow()
@@ -229,6 +402,36 @@ class Case(_Model):
     solver: Solver = Solver()
     guards: Guards = Guards()
     output: Output = Field(default_factory=Output, validate_default=True)
+
+    @field_validator("solver")
+    @classmethod
+    def _solver_can_converge(cls, v: Solver, info: ValidationInfo) -> Solver:
+        flow = info.data.get("flow")
+        lam = flow.viscosity_ratio if flow is not None else 1.0
+        if v.method == "substitution" and lam != 1.0:
+            # Richardson iteration with the optimal step: the error falls by |1-λ|/(1+λ) per iteration
+            needed = math.ceil(math.log(v.tol) / math.log(abs(1.0 - lam) / (1.0 + lam)))
+            if v.max_iter < needed:
+                raise _FieldProblem(
+                    "max_iter", v.max_iter,
+                    f"substitution at viscosity_ratio = {lam:g} needs >= {needed} iterations to reach "
+                    f"tol = {v.tol:g} (rate |1-λ|/(1+λ)); raise max_iter (<= 1000) or use method: gmres",
+                )
+        return v
+
+    @field_validator("output")
+    @classmethod
+    def _snapshots_bounded(cls, v: Output, info: ValidationInfo) -> Output:
+        time = info.data.get("time")
+        if time is not None:
+            lo = max(time.dt_min, time.t_end / MAX_SNAPSHOTS)
+            if v.snapshot_every < lo:
+                raise _FieldProblem(
+                    "snapshot_every", v.snapshot_every,
+                    f"must be >= max(time.dt_min, time.t_end / {MAX_SNAPSHOTS}) = {lo:g} "
+                    "(steps are clipped to snapshot times; each snapshot holds every node)",
+                )
+        return v
 
     @field_validator("output")
     @classmethod
@@ -247,16 +450,86 @@ class Case(_Model):
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):
-    """SafeLoader that refuses duplicate keys (PyYAML silently keeps the last)."""
+    """SafeLoader for untrusted files: refuses duplicate keys (PyYAML silently keeps
+    the last), keys that are lists or mappings, nesting deeper than MAX_YAML_DEPTH
+    and documents whose aliases expand to more than MAX_YAML_NODES nodes (an alias
+    bomb), all on the node graph, before any Python object is built."""
+
+    _depth = 0
+
+    def compose_node(self, parent, index):
+        # the composer recurses once per level: stop long before Python's recursion limit
+        self._depth += 1
+        try:
+            if self._depth > MAX_YAML_DEPTH:
+                raise yaml.composer.ComposerError(
+                    None, None, f"nested deeper than {MAX_YAML_DEPTH} levels", self.peek_event().start_mark
+                )
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+    def get_single_data(self):
+        node = self.get_single_node()
+        if node is None:
+            return None
+        _check_expanded_size(node)
+        return self.construct_document(node)
+
+
+def _node_children(node: yaml.Node) -> list:
+    if isinstance(node, yaml.SequenceNode):
+        return list(node.value)
+    if isinstance(node, yaml.MappingNode):
+        return [n for pair in node.value for n in pair]
+    return []
+
+
+def _check_expanded_size(root: yaml.Node) -> None:
+    """Count the nodes of the document with every alias expanded (linear in the
+    distinct nodes: shared ones are counted once and multiplied), refusing cycles."""
+    sizes: dict[int, int] = {}
+    on_path: set[int] = set()
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    while stack:
+        node, finished = stack.pop()
+        key = id(node)
+        if finished:
+            on_path.discard(key)
+            size = 1 + sum(sizes[id(c)] for c in _node_children(node))
+            if size > MAX_YAML_NODES:
+                raise yaml.composer.ComposerError(
+                    None, None,
+                    f"aliases expand to more than {MAX_YAML_NODES} values (an alias bomb?)", node.start_mark,
+                )
+            sizes[key] = size
+            continue
+        if key in sizes:
+            continue
+        if key in on_path:
+            raise yaml.composer.ComposerError(None, None, "an alias refers to itself", node.start_mark)
+        on_path.add(key)
+        stack.append((node, True))
+        for child in _node_children(node):
+            if id(child) in on_path:
+                raise yaml.composer.ComposerError(None, None, "an alias refers to itself", child.start_mark)
+            if id(child) not in sizes:
+                stack.append((child, False))
 
 
 def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False):
+    loader.flatten_mapping(node)  # merge keys (<<) first, so that their keys are checked too
     seen: set = set()
     for key_node, _ in node.value:
+        if not isinstance(key_node, yaml.ScalarNode):
+            kind = "list" if isinstance(key_node, yaml.SequenceNode) else "mapping"
+            raise yaml.constructor.ConstructorError(
+                None, None, f"a key must be a plain name, not a {kind}", key_node.start_mark
+            )
         key = loader.construct_object(key_node, deep=deep)
         if key in seen:
             raise yaml.constructor.ConstructorError(
-                None, None, f"duplicate key {key!r}", key_node.start_mark
+                None, None, f"duplicate key {bounded_repr(key)}", key_node.start_mark
             )
         seen.add(key)
     return loader.construct_mapping(node, deep=deep)
@@ -267,22 +540,52 @@ _UniqueKeyLoader.add_constructor(
 )
 
 
-def load_case(path: str | os.PathLike) -> Case:
-    """Read and validate a case file; any mistake raises a one-line ConfigError."""
+def read_yaml(path: str | os.PathLike) -> Any:
+    """The data of a case or campaign file, read with every limit; mistakes raise a one-line ConfigError.
+
+    Only a regular file is read (a FIFO or a device such as /dev/zero is refused
+    without blocking), at most MAX_FILE_BYTES of it.
+    """
     source = os.fspath(path)
     try:
-        with open(source, encoding="utf-8") as fh:
-            text = fh.read()
+        # O_NONBLOCK: opening a FIFO must not wait for a writer; fstat then refuses it
+        fd = os.open(source, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except FileNotFoundError:
         raise ConfigError(f"{source}: no such file") from None
-    except UnicodeDecodeError:
-        raise ConfigError(f"{source}: not a text file (expected YAML)") from None
     except OSError as exc:
         raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
     try:
-        data = yaml.load(text, Loader=_UniqueKeyLoader)
+        info = os.fstat(fd)
+        if stat.S_ISDIR(info.st_mode):
+            raise ConfigError(f"{source}: is a directory, not a YAML file")
+        if not stat.S_ISREG(info.st_mode):
+            raise ConfigError(f"{source}: not a regular file (a pipe, device or socket); give a YAML file")
+        if info.st_size > MAX_FILE_BYTES:
+            raise ConfigError(f"{source}: {info.st_size} bytes; a YAML input is at most {MAX_FILE_BYTES} bytes")
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            raw = fh.read(MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
+    finally:
+        os.close(fd)
+    if len(raw) > MAX_FILE_BYTES:
+        raise ConfigError(f"{source}: more than {MAX_FILE_BYTES} bytes; a YAML input is at most that")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ConfigError(f"{source}: not a text file (expected YAML)") from None
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)
     except yaml.YAMLError as exc:
         raise ConfigError(f"{source}: not valid YAML: {_yaml_problem(exc)}") from None
+    except RecursionError:
+        raise ConfigError(f"{source}: not valid YAML: nested too deeply") from None
+
+
+def load_case(path: str | os.PathLike) -> Case:
+    """Read and validate a case file; any mistake raises a one-line ConfigError."""
+    source = os.fspath(path)
+    data = read_yaml(source)
     if data is None:
         raise ConfigError(f"{source}: file is empty (expected a mapping with at least 'name')")
     return case_from_dict(data, source=source)
@@ -328,7 +631,8 @@ def apply_overrides(case: Case, **dotted: Any) -> Case:
 
 
 def _yaml_problem(exc: yaml.YAMLError) -> str:
-    problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    problem = getattr(exc, "problem", None) or first_line(exc)
+    problem = bounded_repr(problem, 200)[1:-1] if len(problem) > 200 else problem
     mark = getattr(exc, "problem_mark", None)
     if mark is not None:
         return f"{problem} (line {mark.line + 1}, column {mark.column + 1})"
@@ -348,8 +652,8 @@ def _model_at(loc: tuple) -> type[BaseModel] | None:
 
 
 def _show(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
+    # bounded: never the repr of a whole (possibly huge) value
+    return bounded_repr(value)
 
 
 _MESSAGES = {
@@ -367,6 +671,7 @@ _MESSAGES = {
     "bool_parsing": "must be true or false",
     "string_type": "must be a string",
     "string_too_short": "must not be empty",
+    "string_too_long": "must have at most {max_length} characters",
     "string_pattern_mismatch": "must contain only letters, digits, '.', '_' or '-'",
     "literal_error": "must be one of {expected}",
     "model_type": "must be a mapping of fields",
@@ -375,14 +680,23 @@ _MESSAGES = {
 }
 
 
+def _dotted(parts) -> str:
+    # a location part can be a user's (huge) key
+    return ".".join(p if isinstance(p, str) and len(p) <= 40 else bounded_repr(p, 40) for p in map(str, parts))
+
+
 def _describe(err: dict) -> str:
     loc = tuple(err["loc"])
-    dotted = ".".join(str(p) for p in loc)
+    dotted = _dotted(loc)
     kind = err["type"]
+    problem = err.get("ctx", {}).get("error")
+    if isinstance(problem, _FieldProblem):
+        dotted = _dotted([*loc, problem.field])
+        return f"{dotted} = {_show(problem.value)}: {problem.what}"
     if kind == "extra_forbidden":
         owner = _model_at(loc[:-1])
         allowed = ", ".join(owner.model_fields) if owner is not None else "?"
-        return f"{dotted}: unknown field {str(loc[-1])!r} (allowed: {allowed})"
+        return f"{dotted}: unknown field {bounded_repr(str(loc[-1]))} (allowed: {allowed})"
     if kind == "missing":
         return f"{dotted}: required field is missing"
     template = _MESSAGES.get(kind)
