@@ -20,6 +20,7 @@ from capsim.geometry import (
     vertex_triangle_quality,
     volume_area,
 )
+from capsim.membrane import principal_tensions
 
 
 def ellipsoid_axes(geo: ElementGeometry) -> dict:
@@ -156,6 +157,17 @@ class TankTreadingTracker:
             "ttf_ratio": abs(omega) / RIGID_SPHERE_ROTATION_RATE,
             "tt_angle": float(np.mean(self._unwrapped)),
         }
+
+    def state(self) -> dict[str, np.ndarray]:
+        """The angles of the last update (the unwrapping carries them on)."""
+        if self._raw is None:
+            return {}
+        return {"raw": self._raw.copy(), "unwrapped": self._unwrapped.copy()}
+
+    def restore(self, state: dict[str, np.ndarray]) -> None:
+        if "raw" in state:
+            self._raw = np.array(state["raw"], dtype=float, copy=True)
+            self._unwrapped = np.array(state["unwrapped"], dtype=float, copy=True)
 
 
 def revolution_rate(t: np.ndarray, angle: np.ndarray, t_from: float) -> float | None:
@@ -407,3 +419,73 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
     for key in ("period", "D_xy_mean", "D_xy_amplitude", "theta_mean", "theta_amplitude"):
         out[key] = motion[key]
     return out
+
+
+# ---------------------------------------------------------------- the per-step row
+
+COMPRESSION_TOL = 1e-10  # in E_s: below round-off of the tension at the rest shape
+
+#: time-series columns that the summary and the stopping rules read back
+HISTORY_COLUMNS = ("t", "dt", "tt_angle", *SUMMARY_QUANTITIES)
+
+
+class StepObserver:
+    """Turns an accepted state into the row of the time series.
+
+    Owns the tank-treading tracker and the history of the columns in
+    :data:`HISTORY_COLUMNS` (for the run summary and the stopping rules); its
+    ``state()`` / ``restore()`` carry the tracker across a checkpoint, and
+    ``resume(rows)`` rebuilds the history from the rows already on disk.
+    """
+
+    def __init__(self, model, rest_positions: np.ndarray) -> None:
+        self.model = model
+        self.tracker = TankTreadingTracker(rest_positions)
+        self.history: dict[str, list[float]] = {key: [] for key in HISTORY_COLUMNS}
+        self.first: dict | None = None
+        self.last: dict | None = None
+
+    def observe(self, t: float, y: np.ndarray, u: np.ndarray, state, dt: float, error: float,
+                work: dict[str, float]) -> dict:
+        """The row at an accepted state: ``state`` is the membrane state at y,
+        ``work`` the cumulative cost counters and the stages of the step."""
+        model = self.model
+        elements = model.disc.elements
+        smax = float(np.max(state.strain.principal_stretches[0]))
+        row = {"t": t, "dt": dt, "error_estimate": error}
+        row.update(step_observables(y, elements, state.geometry, smax))
+        # compressive tensions: where a membrane without bending stiffness would wrinkle
+        _, tau2 = principal_tensions(state.strain, model.law, model.law_params)
+        row["min_tension"] = float(tau2.min()) / model.shear_rate_G
+        row["compressed_fraction"] = float(np.mean(tau2 < -COMPRESSION_TOL))
+        center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
+        S_star = particle_stresslet(
+            state.geometry, state.density, u, elements, model.disc.reg_phi, center, row["volume"],
+            model.shear_rate_G, model.viscosity_ratio,
+        )
+        row.update(stresslet_observables(S_star))
+        row.update(self.tracker.update(y, u, center))
+        row["solver_iterations"] = float(model.last_solve_info.get("iterations", 0))
+        row["solver_residual"] = float(model.last_solve_info.get("residual", 0.0))
+        row.update({key: float(value) for key, value in work.items()})
+        self._remember(row)
+        return row
+
+    def _remember(self, row: dict) -> None:
+        if self.first is None:
+            self.first = row
+        self.last = row
+        for key in HISTORY_COLUMNS:
+            self.history[key].append(row[key])
+
+    def resume(self, rows: dict[str, np.ndarray]) -> None:
+        """Continue after the rows already written (a resumed run)."""
+        self.history = {key: [float(v) for v in rows[key]] for key in HISTORY_COLUMNS}
+        self.first = {key: float(v[0]) for key, v in rows.items()}
+        self.last = {key: float(v[-1]) for key, v in rows.items()}
+
+    def state(self) -> dict[str, np.ndarray]:
+        return {f"tracker.{k}": v for k, v in self.tracker.state().items()}
+
+    def restore(self, state: dict[str, np.ndarray]) -> None:
+        self.tracker.restore({k.removeprefix("tracker."): v for k, v in state.items() if k.startswith("tracker.")})

@@ -1,56 +1,52 @@
-"""Explicit embedded Runge–Kutta stepping with local error control.
+"""Time integrators of dx/dt = u(x): a registry of schemes, each owning its step policy.
 
-Schemes are data (a Butcher tableau registered by name). The default is the
-Runge–Kutta–Fehlberg 2(3) pair used by the seed (§3; Stoer & Bulirsch): three
-velocity evaluations per step,
+A scheme is a class registered by name (dedalus style; adding one is adding an
+entry). An integrator owns everything that carries over from one step to the
+next — positions, the velocity there, t, the step size, the step-size
+controller's memory and any scheme state (RKC's spectral radius) — and
+exposes it as :meth:`Integrator.state` / :meth:`Integrator.restore` for
+checkpoints. Every velocity evaluation goes through the integrator, which
+counts them: rejected attempts and spectral-radius probes included.
 
-    k1 = f(y), k2 = f(y + h k1), k3 = f(y + h/4 (k1 + k2)),
-    y2 = y + h/2 (k1 + k2)            (second order, Heun)
-    y3 = y + h/6 (k1 + k2 + 4 k3)     (third order, Simpson)
+Step policy common to all schemes: a step is clipped so as not to pass
+``t_stop`` (the end of the run or the next snapshot time); a clipped step that
+is accepted does not shrink the step size of the next one (it was clipped, not
+limited by accuracy). Stopping rules are kept apart (``stopping.py``).
 
-The step is accepted when max_i |y3 − y2|_i ≤ rtol · max(1, |y|_∞) and advanced
-with y3 (local extrapolation). The step-size policy (safety factor, growth
-limits, dt bounds) is kept apart from the stopping rules (``runner.py``).
+Schemes:
+
+``rkf23``  Runge–Kutta–Fehlberg 2(3), the seed's (§3; Stoer & Bulirsch 1976).
+           Three velocity evaluations per step,
+
+               k1 = f(y), k2 = f(y + h k1), k3 = f(y + h/4 (k1 + k2)),
+               y2 = y + h/2 (k1 + k2)            (second order, Heun)
+               y3 = y + h/6 (k1 + k2 + 4 k3)     (third order, Simpson)
+
+           accepted when max_i |y3 − y2|_i ≤ rtol · max(1, |y|_∞) and advanced
+           with y3 (local extrapolation). Its real stability interval is about
+           [−2.5, 0]: the membrane's stiffness pins dt at ≈ 2.5/ρ ∝ G h.
+
+``rkc``    Second-order Runge–Kutta–Chebyshev with damping ε = 2/13 and the
+           embedded error estimate of Sommeijer, Shampine & Verwer, J. Comput.
+           Appl. Math. 88 (1998) 315–326 (eqs. 2.4–2.6 and §3; Verwer,
+           Hundsdorfer & Sommeijer 1990). s stages are stable on [−β(s), 0],
+           β(s) = (1 + w0)/w1 ≈ 0.653 s², for s velocity evaluations, so the
+           number of stages of a step follows from h·ρ, ρ an estimate of the
+           spectral radius of ∂u/∂x from a nonlinear power iteration with
+           finite-difference Jacobian–vector products (as in the RKC code).
+           The step size comes from the error estimate alone.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Callable
+import math
+from dataclasses import dataclass, fields
+from typing import Any, Callable, ClassVar
 
 import numpy as np
 
-
-@dataclass(frozen=True)
-class EmbeddedScheme:
-    name: str
-    c: tuple[float, ...]
-    a: tuple[tuple[float, ...], ...]
-    b_high: tuple[float, ...]
-    b_low: tuple[float, ...]
-    order_low: int  # order of the error estimate (step-size exponent 1/(order_low+1))
-    reference: str
-
-
-SCHEMES: dict[str, EmbeddedScheme] = {}
-
-
-def register(scheme: EmbeddedScheme) -> EmbeddedScheme:
-    SCHEMES[scheme.name] = scheme
-    return scheme
-
-
-register(
-    EmbeddedScheme(
-        name="rkf23",
-        c=(0.0, 1.0, 0.5),
-        a=((), (1.0,), (0.25, 0.25)),
-        b_high=(1 / 6, 1 / 6, 4 / 6),
-        b_low=(0.5, 0.5, 0.0),
-        order_low=2,
-        reference="Fehlberg RK2(3); Stoer & Bulirsch (1976); seed §3",
-    )
-)
+#: rhs(y) -> (velocity, auxiliary state of that evaluation, e.g. the membrane state)
+RightHandSide = Callable[[np.ndarray], tuple[np.ndarray, Any]]
 
 
 @dataclass
@@ -86,6 +82,30 @@ class StepController:
             factor = self.safety * err ** (-1.0 / k)
         factor = min(self.max_growth, max(self.max_shrink, factor))
         return min(self.dt_max, dt * factor)
+
+    def state(self) -> dict[str, float]:
+        """The controller's memory (its private fields)."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name.startswith("_")}
+
+    def restore(self, state: dict[str, float]) -> None:
+        for name, value in state.items():
+            setattr(self, name, float(value))
+
+
+# ---------------------------------------------------------------- embedded Runge–Kutta pairs
+
+
+@dataclass(frozen=True)
+class EmbeddedScheme:
+    """Butcher tableau of an explicit embedded pair."""
+
+    name: str
+    c: tuple[float, ...]
+    a: tuple[tuple[float, ...], ...]
+    b_high: tuple[float, ...]
+    b_low: tuple[float, ...]
+    order_low: int  # order of the error estimate (step-size exponent 1/(order_low+1))
+    reference: str
 
 
 @dataclass
@@ -123,3 +143,305 @@ def attempt_step(
     scale = rtol * max(1.0, float(np.abs(y).max()))
     err = float(np.abs(dt * (dy_high - dy_low)).max()) / scale
     return StepResult(y_new, err, stages[0])
+
+
+RKF23 = EmbeddedScheme(
+    name="rkf23",
+    c=(0.0, 1.0, 0.5),
+    a=((), (1.0,), (0.25, 0.25)),
+    b_high=(1 / 6, 1 / 6, 4 / 6),
+    b_low=(0.5, 0.5, 0.0),
+    order_low=2,
+    reference="Fehlberg RK2(3); Stoer & Bulirsch (1976); seed §3",
+)
+
+
+# ---------------------------------------------------------------- integrators
+
+
+@dataclass
+class Trial:
+    """What one attempted step did."""
+
+    accepted: bool
+    finite: bool      # False: the trial produced non-finite positions or error (nothing was changed)
+    h: float          # the step size tried
+    error: float      # scaled local error estimate (≤ 1: accepted)
+    stages: int       # velocity evaluations of this attempt
+    aux: Any = None   # auxiliary state of the velocity at the accepted positions (membrane state)
+
+
+SCHEMES: dict[str, type[Integrator]] = {}
+
+
+def register_scheme(cls: type[Integrator]) -> type[Integrator]:
+    SCHEMES[cls.name] = cls
+    return cls
+
+
+def make_integrator(name: str, rhs: RightHandSide, y0: np.ndarray, **options: Any) -> Integrator:
+    """An integrator of the registered scheme ``name`` starting at ``y0`` (t = 0)."""
+    try:
+        cls = SCHEMES[name]
+    except KeyError:
+        raise ValueError(f"unknown time scheme {name!r} (allowed: {', '.join(SCHEMES)})") from None
+    return cls(rhs, y0, **options)
+
+
+class Integrator:
+    """Base of the registered schemes: positions, velocity there, time and step size.
+
+    ``start()`` evaluates the velocity at the initial positions and returns its
+    auxiliary state; ``attempt(t_stop)`` tries one step that does not pass
+    ``t_stop`` and, when it is accepted, advances and evaluates the velocity at
+    the new positions (the first stage of the next step).
+    """
+
+    name: ClassVar[str]
+    order_low: ClassVar[int]
+    reference: ClassVar[str]
+
+    def __init__(self, rhs: RightHandSide, y0: np.ndarray, *, rtol: float, dt_initial: float,
+                 dt_min: float, dt_max: float, **scheme_options: Any) -> None:
+        if scheme_options:
+            raise TypeError(f"{self.name}: unknown options {sorted(scheme_options)}")
+        self._rhs = rhs
+        self.rtol = rtol
+        self.controller = StepController(rtol=rtol, dt_min=dt_min, dt_max=dt_max)
+        self.y = np.array(y0, dtype=float)
+        self.u: np.ndarray | None = None
+        self.t = 0.0
+        self.dt = dt_initial
+        self.steps = 0
+        self.rejected = 0
+        self.evaluations = 0  # every velocity evaluation: stages, rejected attempts, probes
+        self.last_stages = 0
+
+    # -- evaluations -----------------------------------------------------
+    def evaluate(self, y: np.ndarray) -> tuple[np.ndarray, Any]:
+        self.evaluations += 1
+        return self._rhs(y)
+
+    def velocity(self, y: np.ndarray) -> np.ndarray:
+        return self.evaluate(y)[0]
+
+    def start(self) -> Any:
+        self.u, aux = self.evaluate(self.y)
+        return aux
+
+    # -- one step ---------------------------------------------------------
+    def attempt(self, t_stop: float) -> Trial:
+        h = min(self.dt, t_stop - self.t)
+        trial, y_new, cap = self._try(h)
+        if not trial.finite:
+            return trial
+        clipped = h < self.dt or cap
+        dt_next = self.controller.next_dt(trial.h, trial.error, self.order_low)
+        if trial.accepted:
+            self.y = y_new
+            self.t += trial.h
+            self.steps += 1
+            self.last_stages = trial.stages
+            if trial.aux is None:  # the scheme did not need the velocity at the new positions
+                self.u, trial.aux = self.evaluate(y_new)
+                trial.stages += 1
+                self.last_stages += 1
+            if clipped:
+                dt_next = max(dt_next, self.dt)
+        else:
+            self.rejected += 1
+        self.dt = dt_next
+        return trial
+
+    def _try(self, h: float) -> tuple[Trial, np.ndarray, bool]:
+        """(trial, new positions, whether h was cut below the step size by the scheme)."""
+        raise NotImplementedError
+
+    # -- checkpoints -------------------------------------------------------
+    _STATE_ARRAYS: ClassVar[tuple[str, ...]] = ("y", "u")
+    _STATE_SCALARS: ClassVar[tuple[str, ...]] = ("t", "dt", "steps", "rejected", "evaluations", "last_stages")
+
+    def state(self) -> dict[str, Any]:
+        """Everything the next step depends on, as arrays and scalars."""
+        out: dict[str, Any] = {k: np.array(getattr(self, k), copy=True) for k in self._STATE_ARRAYS
+                               if getattr(self, k) is not None}
+        out.update({k: getattr(self, k) for k in self._STATE_SCALARS})
+        out.update({f"controller.{k}": v for k, v in self.controller.state().items()})
+        return out
+
+    def restore(self, state: dict[str, Any]) -> None:
+        for key in self._STATE_ARRAYS:
+            if key in state:
+                setattr(self, key, np.array(state[key], dtype=float, copy=True))
+        for key in self._STATE_SCALARS:
+            kind = type(getattr(self, key))
+            setattr(self, key, kind(state[key]))
+        self.controller.restore({k.removeprefix("controller."): v for k, v in state.items()
+                                 if k.startswith("controller.")})
+
+
+@register_scheme
+class EmbeddedRungeKutta(Integrator):
+    """The seed's RKF2(3) pair (module docstring); local extrapolation."""
+
+    name = "rkf23"
+    tableau: ClassVar[EmbeddedScheme] = RKF23
+    order_low = RKF23.order_low
+    reference = RKF23.reference
+
+    def _try(self, h: float) -> tuple[Trial, np.ndarray, bool]:
+        res = attempt_step(self.velocity, self.y, h, self.tableau, self.rtol, k1=self.u)
+        finite = bool(np.isfinite(res.error) and np.all(np.isfinite(res.y)))
+        trial = Trial(accepted=finite and res.error <= 1.0, finite=finite, h=h, error=res.error,
+                      stages=len(self.tableau.c) - 1)
+        return trial, res.y, False
+
+
+# ---------------------------------------------------------------- Runge–Kutta–Chebyshev
+
+
+@dataclass(frozen=True)
+class ChebyshevCoefficients:
+    """Coefficients of the s-stage second-order RKC method (SSV 1998, eq. 2.4–2.6)."""
+
+    s: int
+    mu: np.ndarray        # μ_j
+    nu: np.ndarray        # ν_j
+    mu_tilde: np.ndarray  # μ̃_j
+    gamma_tilde: np.ndarray  # γ̃_j
+    beta: float           # stability interval [−β, 0]
+
+
+def rkc_coefficients(s: int, damping: float = 2.0 / 13.0) -> ChebyshevCoefficients:
+    """b_j = T_j''(w0)/T_j'(w0)², a_j = 1 − b_j T_j(w0), w0 = 1 + ε/s²,
+    w1 = T_s'(w0)/T_s''(w0); b_0 = b_1 = b_2 (SSV 1998, §2)."""
+    if s < 2:
+        raise ValueError(f"RKC needs at least 2 stages, got {s}")
+    w0 = 1.0 + damping / s**2
+    T, dT, d2T = np.zeros(s + 1), np.zeros(s + 1), np.zeros(s + 1)
+    T[0], T[1], dT[1] = 1.0, w0, 1.0
+    for j in range(2, s + 1):
+        T[j] = 2 * w0 * T[j - 1] - T[j - 2]
+        dT[j] = 2 * T[j - 1] + 2 * w0 * dT[j - 1] - dT[j - 2]
+        d2T[j] = 4 * dT[j - 1] + 2 * w0 * d2T[j - 1] - d2T[j - 2]
+    w1 = dT[s] / d2T[s]
+    b = np.empty(s + 1)
+    b[2:] = d2T[2:] / dT[2:] ** 2
+    b[0] = b[1] = b[2]
+    a = 1.0 - b * T
+    mu, nu, mu_t, gamma_t = (np.zeros(s + 1) for _ in range(4))
+    mu_t[1] = b[1] * w1
+    for j in range(2, s + 1):
+        mu[j] = 2 * b[j] * w0 / b[j - 1]
+        nu[j] = -b[j] / b[j - 2]
+        mu_t[j] = 2 * b[j] * w1 / b[j - 1]
+        gamma_t[j] = -a[j - 1] * mu_t[j]
+    return ChebyshevCoefficients(s, mu, nu, mu_t, gamma_t, beta=(1.0 + w0) / w1)
+
+
+def rkc_stages_for(h_rho: float, max_stages: int) -> int:
+    """Fewest stages (≥ 2) whose stability interval covers h·ρ, capped at ``max_stages``."""
+    s = max(2, int(math.ceil(math.sqrt(max(h_rho, 0.0) / 0.65))))
+    while s > 2 and rkc_coefficients(s - 1).beta >= h_rho:
+        s -= 1
+    while s < max_stages and rkc_coefficients(s).beta < h_rho:
+        s += 1
+    return min(s, max_stages)
+
+
+@register_scheme
+class RungeKuttaChebyshev(Integrator):
+    """Second-order RKC (module docstring). Options:
+
+    ``max_stages``: bound of the stage count. A step that would need more is
+    shortened to the stability interval of ``max_stages`` stages (counted in
+    ``stage_bound_hits``); the run goes on at that step, as the RKC code does.
+    ``rho_refresh_steps``: accepted steps between spectral-radius estimates
+    (the estimate is also redone after a rejection, RKC code).
+    ``probe_scale``: size of the finite-difference perturbation, relative to
+    max(1, |y|₂): √ε_machine for an exact velocity; larger when the velocity is
+    a GMRES solve (λ ≠ 1), whose residual would otherwise swamp the difference.
+    """
+
+    name = "rkc"
+    order_low = 2  # the SSV estimate is O(h³): step-size exponent 1/3
+    reference = "Sommeijer, Shampine & Verwer, J. Comput. Appl. Math. 88 (1998) 315-326"
+    RHO_SAFETY = 1.2      # the power iteration approaches ρ from below (RKC code)
+    RHO_MAX_ITER = 30
+    RHO_RTOL = 0.01
+
+    def __init__(self, rhs: RightHandSide, y0: np.ndarray, *, max_stages: int = 200, rho_refresh_steps: int = 25,
+                 probe_scale: float = 1.5e-8, **common: Any) -> None:
+        super().__init__(rhs, y0, **common)
+        self.max_stages = int(max_stages)
+        self.rho_refresh_steps = int(rho_refresh_steps)
+        self.probe_scale = float(probe_scale)
+        self.rho = 0.0                          # spectral radius estimate (with safety)
+        self.rho_vector: np.ndarray | None = None  # warm start of the power iteration
+        self.rho_age = -1                       # accepted steps since the estimate; −1 = none
+        self.rho_evaluations = 0
+        self.stage_bound_hits = 0
+
+    _STATE_ARRAYS = Integrator._STATE_ARRAYS + ("rho_vector",)
+    _STATE_SCALARS = Integrator._STATE_SCALARS + ("rho", "rho_age", "rho_evaluations", "stage_bound_hits")
+
+    def spectral_radius(self) -> float:
+        """Nonlinear power iteration on v ↦ u(y + v) − u(y), warm-started from
+        the last vector; each iteration costs one velocity evaluation."""
+        y, u0 = self.y, self.u
+        delta = self.probe_scale * max(1.0, float(np.linalg.norm(y)))
+        v = self.rho_vector if self.rho_vector is not None else u0
+        norm = float(np.linalg.norm(v))
+        if not norm > 0.0:
+            v = np.random.default_rng(0).standard_normal(y.shape)
+            norm = float(np.linalg.norm(v))
+        v = v * (delta / norm)
+        sigma = 0.0
+        for it in range(self.RHO_MAX_ITER):
+            dv = self.velocity(y + v) - u0
+            self.rho_evaluations += 1
+            dnorm = float(np.linalg.norm(dv))
+            if not dnorm > 0.0:
+                break
+            sigma_new = dnorm / delta
+            v = dv * (delta / dnorm)
+            if it > 0 and abs(sigma_new - sigma) <= self.RHO_RTOL * sigma_new:
+                sigma = sigma_new
+                break
+            sigma = sigma_new
+        self.rho_vector = v / delta
+        self.rho = self.RHO_SAFETY * sigma
+        self.rho_age = 0
+        return self.rho
+
+    def _try(self, h: float) -> tuple[Trial, np.ndarray, bool]:
+        if self.rho_age < 0 or self.rho_age >= self.rho_refresh_steps:
+            self.spectral_radius()
+        cut = False
+        s = rkc_stages_for(h * self.rho, self.max_stages)
+        coef = rkc_coefficients(s)
+        if h * self.rho > coef.beta:  # at the bound: the longest step s_max stages keep stable
+            h, cut = coef.beta / self.rho, True
+            self.stage_bound_hits += 1
+        y0, f0 = self.y, self.u
+        y_prev2, y_prev = y0, y0 + (coef.mu_tilde[1] * h) * f0
+        for j in range(2, s + 1):
+            f = self.velocity(y_prev)
+            y_j = ((1.0 - coef.mu[j] - coef.nu[j]) * y0 + coef.mu[j] * y_prev + coef.nu[j] * y_prev2
+                   + (coef.mu_tilde[j] * h) * f + (coef.gamma_tilde[j] * h) * f0)
+            y_prev2, y_prev = y_prev, y_j
+        y_new = y_prev
+        if not np.all(np.isfinite(y_new)):
+            return Trial(False, False, h, math.inf, s - 1), y_new, cut
+        u_new, aux = self.evaluate(y_new)
+        # SSV 1998 (3.1): local error estimate of the second-order solution
+        est = (12.0 * (y0 - y_new) + 6.0 * h * (f0 + u_new)) / 15.0
+        err = float(np.abs(est).max()) / (self.rtol * max(1.0, float(np.abs(y0).max())))
+        finite = bool(np.isfinite(err) and np.all(np.isfinite(u_new)))
+        accepted = finite and err <= 1.0
+        if accepted:
+            self.u = u_new
+            self.rho_age += 1
+        elif self.rho_age > 0:  # re-estimate before the retry unless it was made at these positions
+            self.rho_age = self.rho_refresh_steps
+        return Trial(accepted, finite, h, err, s, aux=aux if accepted else None), y_new, cut

@@ -21,7 +21,8 @@ from typer.testing import CliRunner
 
 from capsim.cli import app
 from capsim.config import Case, ConfigError, Guards, apply_overrides, case_from_dict
-from capsim.runner import ResumeError, guard_violation, run_case
+from capsim.runner import ResumeError, run_case
+from capsim.stopping import guard_violation
 from capsim.store import TrajectoryError, checkpoint_path, read_checkpoint, read_trajectory
 from capsim.summary import read_run_status
 
@@ -424,7 +425,7 @@ def test_fuzzed_case_dicts_validate_or_fail_in_one_line(name, sections):
 
 
 def test_step_collapse_guard_names_the_stall():
-    from capsim.runner import step_collapse
+    from capsim.stopping import step_collapse
 
     steady = [0.05] * 300
     assert step_collapse(steady, 1e-3) is None

@@ -1,0 +1,105 @@
+"""Every rule that ends a run, in one place.
+
+:func:`stop_reason` is asked before every attempted step; it returns ``None``
+(go on) or a :class:`Stop` with the run's final status and a one-line reason.
+Rules, in the order they are checked:
+
+1. a stop signal (SIGINT/SIGTERM) → ``interrupted``;
+2. the last attempt produced non-finite positions or error → ``unstable``;
+3. after an accepted step: a stability guard (non-finite observables,
+   element quality, volume drift, area change, stretch) or a step-size
+   collapse → ``unstable``; the steady state, when asked for → ``completed``;
+4. the step size below ``time.dt_min`` → ``unstable``;
+5. ``t_end`` reached → ``completed``;
+6. ``time.max_steps`` accepted steps → ``unstable``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from capsim.config import Guards, Time
+from capsim.observables import is_steady
+
+
+@dataclass(frozen=True)
+class Stop:
+    status: str   # completed, unstable or interrupted
+    reason: str
+
+
+def step_collapse(dts: Sequence[float], min_fraction: float, window: int = 200, recent: int = 20) -> str | None:
+    """Stepping that has stalled: the median of the last ``recent`` accepted steps
+    below ``min_fraction`` × the median of the last ``window`` (e.g. a rim
+    folding onto itself makes the near-singular velocity erratic and the error
+    control shrinks dt by orders of magnitude while kt stands still)."""
+    if len(dts) < window:
+        return None
+    typical = float(np.median(dts[-window:]))
+    now = float(np.median(dts[-recent:]))
+    if now < min_fraction * typical:
+        return f"guard min_dt_fraction: median dt of the last {recent} steps = {now:.3g} < {min_fraction:g} x {typical:.3g}"
+    return None
+
+
+def guard_violation(row: dict, row0: dict, guards: Guards) -> str | None:
+    """The first stability guard an accepted step crosses, as 'guard NAME: value', or None."""
+    bad = [key for key, value in row.items() if not np.isfinite(value)]
+    if bad:
+        return f"guard non_finite: {bad[0]} = {row[bad[0]]}"
+    checks = (
+        ("min_element_quality", "worst element quality", row["min_element_quality"], "<", guards.min_element_quality),
+        ("max_volume_drift", "|V/V0 - 1|", abs(row["volume"] / row0["volume"] - 1.0), ">", guards.max_volume_drift),
+        ("max_area_change", "|A/A0 - 1|", abs(row["area"] / row0["area"] - 1.0), ">", guards.max_area_change),
+        ("max_principal_stretch", "largest principal stretch", row["max_principal_stretch"], ">",
+         guards.max_principal_stretch),
+    )
+    for name, label, value, op, limit in checks:
+        if (value < limit) if op == "<" else (value > limit):
+            return f"guard {name}: {label} = {value:.4g} {op} {limit:g}"
+    return None
+
+
+@dataclass(frozen=True)
+class LoopState:
+    """What the rules look at: the integrator's position and the last attempt."""
+
+    t: float
+    dt: float
+    steps: int
+    signal: str | None = None         # name of a pending stop signal
+    attempted: bool = False           # an attempt was made since the last check
+    finite: bool = True               # ... and it produced finite values
+    accepted: bool = False            # ... and it was accepted
+    h: float = 0.0                    # its step size
+
+
+def stop_reason(state: LoopState, time: Time, guards: Guards, row: dict | None, row0: dict | None,
+                history: dict[str, list[float]]) -> Stop | None:
+    """The first rule (module docstring) that ends the run, or None."""
+    if state.signal is not None:
+        return Stop("interrupted", f"interrupted by {state.signal}")
+    at = f"at kt = {state.t:.6g}"
+    if state.attempted and not state.finite:
+        return Stop("unstable", f"guard non_finite: positions {at} (dt = {state.h:.3g})")
+    if state.attempted and state.accepted:
+        violation = guard_violation(row, row0, guards) or step_collapse(history["dt"], guards.min_dt_fraction)
+        if violation is not None:
+            return Stop("unstable", f"{violation} {at}")
+        if time.stop_when_steady and is_steady(history["t"], history["D_xy"], history["theta"]):
+            return Stop("completed", f"steady state reached {at}")
+    if state.attempted and state.dt < time.dt_min:
+        return Stop("unstable", f"guard dt_min: step size collapsed to dt = {state.dt:.3g} < {time.dt_min:g} {at}")
+    if state.t >= time.t_end - end_tolerance(time.t_end):
+        return Stop("completed", "")
+    if state.steps >= time.max_steps:
+        return Stop("unstable", f"max_steps = {time.max_steps} reached {at}")
+    return None
+
+
+def end_tolerance(t_end: float) -> float:
+    """Round-off in the sum of step sizes: t within this of t_end is the end."""
+    return 1e-12 * max(1.0, t_end)
