@@ -6,7 +6,7 @@ every kind but ``steady``, which takes a campaign summary (netCDF from
 :class:`matplotlib.figure.Figure` (no pyplot, no global state);
 :func:`plot` draws one and saves it.
 
-First-order small-deformation theory (docs: shared theory.md), drawn for
+First-order small-deformation theory (docs/theory.md), drawn for
 initially spherical capsules: D_xy → D∞ = (25/4) G (ν_s = 1/2: thin shell and
 neo-Hookean), D(t) ≈ D∞ (1 − e^{−t/τ}) with kτ = τ̂(λ)·3G, τ̂ = 4.03 (λ = 1),
 2.63 (λ = 0.2), 11.0 (λ = 5) (interpolated in log λ between these, not drawn
@@ -33,7 +33,7 @@ __all__ = [
 FIGSIZE = (6.4, 4.8)  # inches
 DPI = 100             # → 640 × 480 pixels
 
-# τ̂ = kτ / Ca of the impulsive-start relaxation (theory.md), Ca = 3G.
+# τ̂ = kτ / Ca of the impulsive-start relaxation (docs/theory.md), Ca = 3G.
 _TAU_HAT = {0.2: 2.63, 1.0: 4.03, 5.0: 11.0}
 _SPHERICAL_LAWS_NU_HALF = {"thin_shell", "neo_hookean", "mooney_rivlin"}
 
@@ -194,7 +194,7 @@ def rheology_figure(source, theory: bool = True):
     ax = fig.add_subplot()
     first = {}
     if theory and _theory_applies(info):
-        # no N2* line: theory.md's derived −N1*/2 is not borne out (REPRODUCTION.md, "N2*")
+        # no N2* line: the old derived −N1*/2 was not borne out (REPRODUCTION.md, "N2*"); docs/theory.md now gives −(29/7)G
         first = {"Sxy_star": 1.0, "N1_star": 19.0 * info["G"]}
     labels = {"Sxy_star": r"$S^*_{xy}$", "N1_star": r"$N_1^*$", "N2_star": r"$N_2^*$"}
     for i, (name, label) in enumerate(labels.items()):

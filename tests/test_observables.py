@@ -1,6 +1,6 @@
 """Tank-treading, particle stresslet, run summary and motion classifier.
 
-Known answers (theory.md, seed §4): as G → 0 a capsule is a rigid sphere that
+Known answers (docs/theory.md, seed §4): as G → 0 a capsule is a rigid sphere that
 turns at k/2 (TTF/f_s → 1) with S*_xy → 1; N1* ≈ (19/3) Ca = 19 G at small G;
 TTF/f_s and S*_xy fall as G grows (shear thinning, seed figs 11 and 13).
 The fast tests run level-1 meshes; the level-2 versions are marked slow.
@@ -266,7 +266,7 @@ def test_rigid_sphere_limit_level2(root):
 def test_first_order_stresslet_depends_only_on_the_linear_moduli(tmp_path):
     """Thin shell and neo-Hookean share G_s = 1/3, K_s = 1: their N1*, N2* agree at small G.
 
-    (theory.md's derived N2* ≈ −N1*/2 is not asserted: the drop check in
+    (the superseded N2* ≈ −N1*/2, docs/theory.md, is not asserted: the drop check in
     test_drop.py shows the machinery reproduces the exact classical N2*, and the
     same kind of derivation would give −1/2 for a drop, where the exact ratio is
     −2/7. See REPRODUCTION.md, "N2*".)
