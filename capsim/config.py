@@ -273,7 +273,23 @@ class Quadrature(_Model):
 
 
 class Time(_Model):
-    """Adaptive RKF23 stepping; times in units of 1/k."""
+    """Adaptive time stepping (capsim.timestepping); times in units of 1/k."""
+
+    scheme: Literal["rkf23", "rkc"] = Field(
+        "rkf23",
+        description="rkf23: the seed's Runge-Kutta-Fehlberg 2(3), pinned at the membrane's stability limit "
+        "dt ~ G h; rkc: second-order Runge-Kutta-Chebyshev (Sommeijer, Shampine & Verwer 1998), as many "
+        "stages per step as the stiffness needs, step size from the error estimate alone",
+    )
+    max_stages: int = Field(
+        200, ge=2, le=1000, strict=True,
+        description="rkc: bound of the stages per step; a step that needs more is shortened to what this "
+        "many stages keep stable (the stability interval grows like 0.65 s^2)",
+    )
+    rho_refresh_steps: int = Field(
+        25, ge=1, le=10000, strict=True,
+        description="rkc: accepted steps between estimates of the spectral radius (also redone after a rejection)",
+    )
 
     t_end: float = Field(
         10.0, gt=0, description="end time, at least 1e-6 and at least dt_min (else no step is taken)"
