@@ -15,6 +15,7 @@ import time
 import numpy as np
 
 from capsim import kernels
+from capsim.config import Case, ConfigError, case_from_dict
 from capsim.membrane import MembraneForce, get_law
 from capsim.mesh import unit_sphere_mesh
 from capsim.solver import CapsuleModel, Discretization
@@ -33,6 +34,28 @@ def _model(mesh, viscosity_ratio: float, symmetry: bool | str) -> tuple[CapsuleM
     return CapsuleModel(disc=disc, membrane=forces, shear_rate_G=0.1, viscosity_ratio=viscosity_ratio), X
 
 
+#: most timed repetitions (each is one velocity evaluation: up to minutes at level 6)
+MAX_REPEAT = 1000
+
+
+def bench_case(
+    level: int, viscosity_ratio: float = 1.0, base: str = "octahedron", symmetry: bool | str = True, repeat: int = 1
+) -> Case:
+    """The benchmark's options checked by the case schema, as `capsim run` checks a case's.
+
+    Raises a one-line ConfigError naming the option, its value and what is allowed.
+    """
+    if isinstance(repeat, bool) or not isinstance(repeat, int) or not 1 <= repeat <= MAX_REPEAT:
+        raise ConfigError(f"bench options: --repeat = {repeat!r}: must be an integer in [1, {MAX_REPEAT}]")
+    if isinstance(symmetry, str) and symmetry not in SYMMETRY_SETTINGS.values():
+        raise ConfigError(f"bench options: symmetry = {symmetry!r}: must be true, false or 'mirror_z'")
+    return case_from_dict(
+        {"name": "bench", "flow": {"viscosity_ratio": viscosity_ratio},
+         "mesh": {"level": level, "base": base, "symmetry": symmetry if isinstance(symmetry, bool) else True}},
+        source="bench options",
+    )
+
+
 def bench_velocity(
     level: int = 3, viscosity_ratio: float = 1.0, repeat: int = 7, base: str = "octahedron",
     symmetry: bool | str = True, compare_symmetry: bool = True,
@@ -42,7 +65,11 @@ def bench_velocity(
     "mirror_z" for the mirror only. The bare sum is always the full
     N_p × N_sources sum. ``compare_symmetry`` adds ``layer_s_by_symmetry``: the
     median layer time (single layer + solve) without symmetry, with the mirror
-    and with both, measured interleaved, and their ratios to no symmetry."""
+    and with both, measured interleaved, and their ratios to no symmetry.
+
+    The options are checked first by :func:`bench_case` (one-line ConfigError)."""
+    case = bench_case(level, viscosity_ratio, base, symmetry, repeat)
+    level, base, viscosity_ratio = case.mesh.level, case.mesh.base, case.flow.viscosity_ratio
     mesh = unit_sphere_mesh(base, level)
     variants = {"main": symmetry}
     if compare_symmetry:

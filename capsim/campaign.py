@@ -65,7 +65,8 @@ from typing import Annotated, Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from capsim.config import Case, ConfigError, _UniqueKeyLoader, case_from_dict
+from capsim.config import NAME_MAX, Case, ConfigError, case_from_dict, read_yaml
+from capsim.errors import bounded_repr
 
 __all__ = [
     "Campaign",
@@ -79,6 +80,11 @@ __all__ = [
 
 INDEX_FILE = "runs.json"
 CAMPAIGN_FILE = "campaign.yaml"
+#: default most runs of a campaign (``capsim sweep --max-runs``): every run is validated
+#: before the first starts (~3 ms each), and a grid this large is nearly always a mistake
+MAX_RUNS = 10_000
+#: longest campaign name (it names the directory's campaign; run ids carry their own limit)
+CAMPAIGN_NAME_MAX = 100
 
 
 class _Model(BaseModel):
@@ -95,7 +101,10 @@ _Values = Annotated[list[Any], Field(min_length=1)]
 class Campaign(_Model):
     """A sweep over dotted case fields; see the module docstring."""
 
-    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9._-]+$")
+    name: str = Field(
+        min_length=1, max_length=CAMPAIGN_NAME_MAX, pattern=r"^[A-Za-z0-9._-]+$",
+        description=f"at most {CAMPAIGN_NAME_MAX} characters",
+    )
     base: dict[str, Any] = Field(default_factory=dict, description="partial case, shared by every run")
     sweep: dict[str, _Values] = Field(default_factory=dict, description="full grid over these fields")
     zip: dict[str, _Values] = Field(default_factory=dict, description="fields that vary together")
@@ -146,30 +155,34 @@ class RunSpec(BaseModel):
 # ---------------------------------------------------------------- loading
 
 
-def load_campaign(path: str | os.PathLike) -> Campaign:
-    """Read a campaign file; any mistake raises a one-line ConfigError."""
+def load_campaign(path: str | os.PathLike, max_runs: int = MAX_RUNS) -> Campaign:
+    """Read a campaign file (with the case loader's limits); any mistake raises a one-line ConfigError."""
     source = os.fspath(path)
-    try:
-        with open(source, encoding="utf-8") as fh:
-            data = yaml.load(fh.read(), Loader=_UniqueKeyLoader)
-    except FileNotFoundError:
-        raise ConfigError(f"{source}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{source}: cannot read: {exc}") from None
-    except yaml.YAMLError as exc:
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise ConfigError(f"{source}: not valid YAML: {first}") from None
-    return campaign_from_dict(data, source=source)
+    return campaign_from_dict(read_yaml(source), source=source, max_runs=max_runs)
 
 
-def campaign_from_dict(d: Any, source: str = "<campaign>") -> Campaign:
-    """Validate a campaign and every case it expands to (before any run starts)."""
+def campaign_from_dict(d: Any, source: str = "<campaign>", max_runs: int = MAX_RUNS) -> Campaign:
+    """Validate a campaign and every case it expands to (before any run starts).
+
+    A campaign of more than ``max_runs`` runs is refused from its size alone,
+    before any case is built.
+    """
     if not isinstance(d, Mapping):
         raise ConfigError(f"{source}: top level must be a mapping of fields, got {type(d).__name__}")
     try:
         campaign = Campaign.model_validate(dict(d))
     except ValidationError as exc:
         raise ConfigError(_format_error(exc, source)) from None
+    n_runs = count_runs(campaign)
+    if n_runs > max_runs:
+        sizes = " x ".join(
+            [f"{short_name(k)} {len(v)}" for k, v in campaign.sweep.items()]
+            + ([f"zip {len(next(iter(campaign.zip.values())))}"] if campaign.zip else [])
+        )
+        raise ConfigError(
+            f"{source}: sweep/zip: the campaign has {n_runs} runs ({bounded_repr(sizes, 120)[1:-1]}), more than "
+            f"--max-runs {max_runs}; split it into smaller campaigns or raise --max-runs"
+        )
     case_from_dict({**campaign.base, "name": "base"}, source=f"{source}: base")
     for section in ("sweep", "zip"):
         for key in getattr(campaign, section):
@@ -178,17 +191,26 @@ def campaign_from_dict(d: Any, source: str = "<campaign>") -> Campaign:
     return campaign
 
 
+def count_runs(campaign: Campaign) -> int:
+    """Number of runs of the campaign (grid size times zip length), without expanding it."""
+    zip_len = len(next(iter(campaign.zip.values()))) if campaign.zip else 1
+    return math.prod(len(v) for v in campaign.sweep.values()) * zip_len
+
+
 def _format_error(exc: ValidationError, source: str) -> str:
     parts = []
     for err in exc.errors(include_url=False)[:3]:
-        loc = ".".join(str(p) for p in err["loc"])
+        loc = ".".join(p if isinstance(p, str) and len(p) <= 40 else bounded_repr(p, 40) for p in map(str, err["loc"]))
         if err["type"] == "extra_forbidden":
             owner = Campaign if len(err["loc"]) == 1 else CampaignOutput
-            what = f"unknown field {str(err['loc'][-1])!r} (allowed: {', '.join(owner.model_fields)})"
+            what = f"unknown field {bounded_repr(str(err['loc'][-1]))} (allowed: {', '.join(owner.model_fields)})"
         elif err["type"] == "missing":
             what = "required field is missing"
         else:
             what = err["msg"].removeprefix("Value error, ")
+            value = err.get("input")
+            if err["loc"] and not isinstance(value, (dict, BaseModel)):
+                what += f" (got {bounded_repr(value)})"
         parts.append(f"{loc}: {what}" if loc else what)
     return " ".join(f"{source}: {'; '.join(parts)}".split())
 
@@ -251,7 +273,7 @@ def expand_campaign(campaign: Campaign, source: str = "<campaign>") -> list[RunS
             data = json.loads(json.dumps(campaign.base))
             for key, value in params.items():
                 _set_dotted(data, key, value)
-            label = ", ".join(f"{k}={v!r}" for k, v in params.items()) or "the only run"
+            label = ", ".join(f"{k}={bounded_repr(v)}" for k, v in params.items()) or "the only run"
             data["name"] = "run"
             case = case_from_dict(data, source=f"{source}: run {label}")
             # Only what the campaign sets (coerced by the schema, so 1 and 1.0 agree): a default
@@ -260,8 +282,16 @@ def expand_campaign(campaign: Campaign, source: str = "<campaign>") -> list[RunS
             digest = hashlib.sha1(json.dumps(physics, sort_keys=True).encode()).hexdigest()[:8]
             readable = "-".join(f"{short_name(k)}{_show_value(v)}" for k, v in params.items())
             run_id = f"{readable}-{digest}" if readable else digest
+            if len(run_id) > NAME_MAX:
+                raise ConfigError(
+                    f"{source}: sweep/zip: run {label} has an id of {len(run_id)} characters "
+                    f"({bounded_repr(run_id, 50)}), more than {NAME_MAX}: it names the run's files and "
+                    "a file name is at most 255 bytes; sweep fewer fields or shorter values"
+                )
             if run_id in seen:
-                raise ConfigError(f"{source}: runs {seen[run_id]} and {params} are the same case")
+                raise ConfigError(
+                    f"{source}: runs {bounded_repr(seen[run_id], 120)} and {bounded_repr(params, 120)} are the same case"
+                )
             seen[run_id] = params
             path = out_dir / f"{run_id}.h5"
             data["name"] = run_id

@@ -197,12 +197,17 @@ def run(
 def bench(
     level: int = typer.Option(..., "--level", help="mesh subdivision level"),
     viscosity_ratio: float = typer.Option(1.0, "--viscosity-ratio", help="lambda"),
-    repeat: int = typer.Option(3, "--repeat", min=1, help="timed repetitions"),
+    repeat: int = typer.Option(3, "--repeat", help="timed repetitions (1 to 1000)"),
     as_json: bool = typer.Option(False, "--json", help="print JSON"),
 ) -> None:
-    """Time one velocity evaluation on a sphere mesh."""
-    from capsim.benchmark import bench_velocity
+    """Time one velocity evaluation on a sphere mesh (options checked like a case's)."""
+    from capsim.benchmark import bench_case, bench_velocity
+    from capsim.config import ConfigError
 
+    try:
+        bench_case(level, viscosity_ratio, repeat=repeat)
+    except ConfigError as exc:
+        raise _user_error(str(exc)) from None
     result = bench_velocity(level=level, viscosity_ratio=viscosity_ratio, repeat=repeat)
     if as_json:
         typer.echo(json.dumps(result, indent=2, default=str))
@@ -269,13 +274,18 @@ def sweep(
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Dask scheduler address, tcp://host:port"),
     no_resume: bool = typer.Option(False, "--no-resume", help="redo runs that already completed"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress line"),
+    max_runs: int = typer.Option(
+        10_000, "--max-runs", help="refuse a campaign of more runs than this (checked before any case is built)"
+    ),
 ) -> None:
     """Run every case of a campaign (skipping completed runs) into its output directory."""
     from capsim.campaign import load_campaign, run_campaign
     from capsim.config import ConfigError
 
+    if max_runs < 1:
+        raise _user_error(f"--max-runs = {max_runs}: must be >= 1")
     try:
-        campaign = load_campaign(campaign_path)
+        campaign = load_campaign(campaign_path, max_runs=max_runs)
     except ConfigError as exc:
         raise _user_error(str(exc)) from None
     progress = None if quiet else _SweepProgress()
