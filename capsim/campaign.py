@@ -20,14 +20,16 @@ index of runs: id, file, swept values, grid position, last known status).
 
 Executors
 ---------
-Local (default): a ``ProcessPoolExecutor`` (spawn context) with N worker
-processes; each worker sets ``NUMBA_NUM_THREADS = cores // N`` in its
-initializer, before numba is imported, so processes x threads = cores. The
-numba kernels are compiled (and cached on disk) once in the parent, by a
-one-step level-0 run, before the workers start.
+Local (default): :func:`capsim.executor.run_batch`, N spawned worker
+processes with ``cores // N`` numba threads each (processes x threads = cores,
+set before numba is imported, :mod:`capsim.threads`); the kernels of every
+kind of case in the campaign are compiled (and cached on disk) once in the
+parent before the workers start.
 Dask: with ``scheduler="tcp://host:port"`` the runs are submitted to an
 existing ``dask.distributed`` cluster (``pip install 'capsim[cluster]'``).
-One run per worker process, numba threads filling the node's cores::
+Each run applies capsim's thread policy in its worker process before numba is
+imported (a user's ``NUMBA_NUM_THREADS`` wins); one run per worker process,
+numba threads filling the node's cores::
 
     dask scheduler                                   # prints tcp://HOST:8786
     NUMBA_NUM_THREADS=4 dask worker tcp://HOST:8786 --nworkers 4 --nthreads 1   # 16-core node
@@ -45,18 +47,12 @@ are closed with status ``interrupted`` (redone on the next sweep).
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import hashlib
 import itertools
 import json
 import math
-import multiprocessing
 import os
-import queue
 import re
-import signal
-import tempfile
-import threading
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -67,6 +63,9 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from capsim.config import NAME_MAX, Case, ConfigError, case_from_dict, read_yaml
 from capsim.errors import bounded_repr
+from capsim.executor import SigtermAsInterrupt, one_line, run_batch
+from capsim.threads import apply_policy as apply_thread_policy
+from capsim.threads import usable_cores  # noqa: F401  (processes x threads = these cores)
 
 __all__ = [
     "Campaign",
@@ -312,137 +311,45 @@ def _record(spec: RunSpec, status: str, reason: str, **extra: Any) -> dict[str, 
     return {"run_id": spec.run_id, "status": status, "status_reason": reason, **extra}
 
 
-def execute_run(spec: RunSpec, progress_queue: Any = None) -> dict[str, Any]:
+def execute_run(spec: RunSpec, progress: Any = None) -> dict[str, Any]:
     """Run one case in this process; never raises for a failing case.
 
     Returns the run summary (or a ``failed`` record with the exception text).
-    A run interrupted earlier continues from its checkpoint (same step
-    sequence as an uninterrupted run); otherwise a stale file of an earlier
-    attempt is removed first so that the file on disk belongs to this attempt.
+    `progress` is run_case's progress callback. A run interrupted earlier
+    continues from its checkpoint (same step sequence as an uninterrupted run);
+    otherwise a stale file of an earlier attempt is removed first so that the
+    file on disk belongs to this attempt.
     """
     try:
+        # A Dask worker (or any fresh process) gets capsim's thread policy before numba loads;
+        # in a pool worker or once numba is imported this changes nothing.
+        apply_thread_policy()
         import numba
 
-        from capsim.runner import ResumeError, run_case  # numba is first imported here, in the worker
+        from capsim.runner import ResumeError, run_case
         from capsim.store import checkpoint_path
 
         case = spec.case()
-        callback = None
-        if progress_queue is not None:
-            progress_queue.put((spec.run_id, 0.0))  # started: the parent counts it as running
-            callback = _QueueProgress(spec.run_id, progress_queue)
         summary = None
         if checkpoint_path(spec.path).exists() and Path(spec.path).exists():
             try:
-                summary = run_case(case, progress=callback, resume=True)
+                summary = run_case(case, progress=progress, resume=True)
             except ResumeError:
                 summary = None  # damaged or foreign checkpoint: start over
         if summary is None:
             Path(spec.path).unlink(missing_ok=True)
-            summary = run_case(case, progress=callback)
+            summary = run_case(case, progress=progress)
         return _record(spec, summary["status"], summary["status_reason"], summary=summary,
                        numba_threads=numba.get_num_threads())
     except Exception as exc:  # one bad case must not stop the campaign
-        first = str(exc).splitlines()[0] if str(exc) else ""
-        return _record(spec, "failed", f"{type(exc).__name__}: {first}".rstrip(": "))
-
-
-class _QueueProgress:
-    """Forward a run's kt to the parent at most once a second."""
-
-    def __init__(self, run_id: str, q: Any) -> None:
-        self.run_id, self.q, self._last = run_id, q, -math.inf
-
-    def __call__(self, state: dict) -> None:
-        now = time.monotonic()
-        if now - self._last >= 1.0:
-            self._last = now
-            self.q.put((self.run_id, float(state.get("t", math.nan))))
-
-
-# Set once per worker process by its initializer (the pool's way to hand over
-# objects that cannot travel with each task).
-_WORKER_QUEUE: Any = None
-_WORKER_STOP: Any = None
-
-
-_WORKER_BUSY = threading.Event()
-
-
-def _init_worker(numba_threads: int, progress_queue: Any, stop: Any) -> None:
-    # Must run before numba is imported: NUMBA_NUM_THREADS is read once, at import.
-    os.environ["NUMBA_NUM_THREADS"] = str(numba_threads)
-    # Ctrl-C goes to the whole process group; the parent decides what stops.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    # So does a batch system's SIGTERM. An idle worker must not die of it: it waits
-    # for work holding the task queue's lock, and dying there would leave every other
-    # worker, and the pool's shutdown, waiting for that lock for ever. A running case
-    # replaces this handler with run_case's, which closes the run as 'interrupted'.
-    signal.signal(signal.SIGTERM, _ignore_while_idle)
-    global _WORKER_QUEUE, _WORKER_STOP
-    _WORKER_QUEUE, _WORKER_STOP = progress_queue, stop
-    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()
-
-
-def _ignore_while_idle(signum, frame) -> None:
-    """SIGTERM between runs: nothing to stop; the parent shuts the pool down."""
-
-
-def _exit_with_parent(parent: int) -> None:
-    # A killed parent must not leave workers computing for nobody: SIGTERM closes
-    # the running run's file as 'interrupted' (run_case's guard); then the worker ends.
-    while os.getppid() == parent:
-        time.sleep(2.0)
-    if _WORKER_BUSY.is_set():
-        os.kill(os.getpid(), signal.SIGTERM)
-        while _WORKER_BUSY.is_set():
-            time.sleep(0.2)
-    os._exit(0)
-
-
-def _pool_run(spec: RunSpec) -> dict[str, Any]:
-    if _WORKER_STOP is not None and _WORKER_STOP.is_set():
-        return _record(spec, "interrupted", "campaign stopped before this run started")
-    _WORKER_BUSY.set()
-    try:
-        return execute_run(spec, _WORKER_QUEUE)
-    finally:
-        _WORKER_BUSY.clear()
-
-
-def warm_numba(specs: list[RunSpec]) -> None:
-    """Compile and cache the kernels once: one step of a level-0 copy of each distinct kind of case."""
-    from capsim.config import apply_overrides
-    from capsim.runner import run_case
-
-    kinds: dict[tuple, Case] = {}
-    for spec in specs:
-        case = spec.case()
-        kinds.setdefault((case.membrane.law, case.membrane.traction, case.flow.viscosity_ratio != 1.0), case)
-    with tempfile.TemporaryDirectory() as tmp:
-        for case in kinds.values():
-            tiny = apply_overrides(case, **{
-                "mesh.level": 0, "time.t_end": case.time.dt_initial, "time.max_steps": 2,
-                "output.path": os.path.join(tmp, "warm.h5"),
-            })
-            try:
-                run_case(tiny)
-            except Exception:  # the real run reports its own failure
-                pass
+        return _record(spec, "failed", one_line(exc))
 
 
 # ---------------------------------------------------------------- campaign
 
 
-def usable_cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:
-        return os.cpu_count() or 1
-
-
 def _file_status(path: str) -> str | None:
-    from capsim.summary import read_run_status
+    from capsim.store import read_run_status
 
     return read_run_status(path)
 
@@ -522,7 +429,7 @@ def run_campaign(
     interrupted = False
     if todo:
         runner = _run_dask if scheduler else _run_local
-        with _SigtermAsInterrupt():
+        with SigtermAsInterrupt():
             interrupted = runner(todo, index, state, records, progress, workers=workers, scheduler=scheduler)
     return {
         "total": len(specs),
@@ -532,25 +439,6 @@ def run_campaign(
         "interrupted": interrupted,
         "records": records,
     }
-
-
-class _SigtermAsInterrupt:
-    """A batch system's SIGTERM stops the campaign the way Ctrl-C does."""
-
-    def __enter__(self):
-        self._old = None
-        if threading.current_thread() is threading.main_thread():
-            self._old = signal.signal(signal.SIGTERM, self._handle)
-        return self
-
-    @staticmethod
-    def _handle(signum, frame):
-        raise KeyboardInterrupt(f"signal {signum}")
-
-    def __exit__(self, *exc):
-        if self._old is not None:
-            signal.signal(signal.SIGTERM, self._old)
-        return False
 
 
 def _finish(record: dict, index: _Index, state: dict, records: list, progress) -> None:
@@ -563,68 +451,21 @@ def _finish(record: dict, index: _Index, state: dict, records: list, progress) -
 
 
 def _run_local(todo, index, state, records, progress, *, workers, scheduler) -> bool:
-    cores = usable_cores()
-    n = max(1, min(workers or cores, len(todo)))
-    threads = max(1, cores // n)
-    warm_numba(todo)
-    ctx = multiprocessing.get_context("spawn")
-    kt_queue, stop = ctx.Queue(), ctx.Event()
-    pool = cf.ProcessPoolExecutor(n, mp_context=ctx, initializer=_init_worker, initargs=(threads, kt_queue, stop))
-    futures = {pool.submit(_pool_run, spec): spec for spec in todo}
-    pending = set(futures)
-    finished_ids: set[str] = set()
-    try:
-        while pending:
-            finished, pending = cf.wait(pending, timeout=0.5, return_when=cf.FIRST_COMPLETED)
-            _drain(kt_queue, state, finished_ids)
-            for fut in finished:
-                spec = futures[fut]
-                try:
-                    record = fut.result()
-                except Exception as exc:  # a worker process died (killed, out of memory)
-                    record = _record(spec, "failed", f"worker died: {type(exc).__name__}: {exc}")
-                finished_ids.add(spec.run_id)
-                _finish(record, index, state, records, progress)
-            state["running"] = len(state["kt"])
-            if progress is not None:
-                progress(state)
-        pool.shutdown(wait=True)
-        return False
-    except KeyboardInterrupt:
-        # Runs already handed to a worker cannot be cancelled here: the event makes them return at once.
-        stop.set()
-        for fut in pending:
-            fut.cancel()
-        # SIGTERM reaches run_case's guard: the run closes its file as 'interrupted'.
-        for proc in list(getattr(pool, "_processes", {}).values()):
-            if proc.is_alive():
-                os.kill(proc.pid, signal.SIGTERM)
-        pool.shutdown(wait=True, cancel_futures=True)
-        recorded = {r["run_id"] for r in records}
-        for fut, spec in futures.items():
-            if not fut.done() or fut.cancelled() or spec.run_id in recorded:
-                continue
-            try:
-                record = fut.result()
-            except Exception as exc:  # the worker ended between runs
-                record = _record(spec, "interrupted", f"campaign stopped: {type(exc).__name__}")
-            if record["status"] == "failed":
-                # The stop signal can surface as any exception (e.g. from inside a numba call).
-                record = dict(record, status="interrupted", status_reason=f"campaign stopped: {record['status_reason']}")
-            _finish(record, index, state, records, None)
-        return True
-    finally:
-        kt_queue.close()
+    def done(i: int, record: dict) -> None:
+        _finish(record, index, state, records, progress)
 
+    def running(kt: dict[str, float]) -> None:
+        state["kt"] = kt
+        state["running"] = len(kt)
+        if progress is not None:
+            progress(state)
 
-def _drain(q: Any, state: dict, finished_ids: set[str]) -> None:
-    while True:
-        try:
-            run_id, t = q.get_nowait()
-        except (queue.Empty, OSError, ValueError):
-            return
-        if run_id not in finished_ids:  # a late message must not revive a finished run
-            state["kt"][run_id] = t
+    outcome = run_batch(
+        todo, execute_run, keys=[s.run_id for s in todo], workers=workers, warm=[s.case() for s in todo],
+        failure=lambda i, status, reason: _record(todo[i], status, reason),
+        on_done=done, on_progress=running, name="campaign",
+    )
+    return outcome.interrupted
 
 
 def _run_dask(todo, index, state, records, progress, *, workers, scheduler) -> bool:

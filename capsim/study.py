@@ -31,11 +31,9 @@ one level coarser and with a ten times looser tolerance and stores
 from __future__ import annotations
 
 import math
-import multiprocessing
 import os
 import shutil
 import tempfile
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -43,6 +41,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from capsim.config import Case, apply_overrides
+from capsim.quantities import attrs_for
 
 __all__ = [
     "QUANTITIES",
@@ -60,7 +59,10 @@ __all__ = [
 #: Observables whose error the study reports.
 QUANTITIES = ("D_xy", "theta", "ttf_ratio", "Sxy_star")
 
-_UNITS = {"D_xy": "1", "theta": "rad", "ttf_ratio": "1", "Sxy_star": "1"}
+
+def _attrs(name: str, **extra: Any) -> dict[str, Any]:
+    """Attributes of a study variable, from the one table (capsim.quantities)."""
+    return dict(attrs_for(name, "study"), **extra)
 
 
 # ---------------------------------------------------------------- one run
@@ -76,30 +78,6 @@ def _window_mean(t: np.ndarray, s: np.ndarray, t0: float, t1: float) -> float:
     return float(np.trapezoid(ss, tt) / (t1 - t0)) if hasattr(np, "trapezoid") else float(
         np.trapz(ss, tt) / (t1 - t0)
     )
-
-
-_WARM = False
-
-
-def _warm_up() -> None:
-    """Compile/load the JIT kernels once per process, so that wall times measure the run."""
-    global _WARM
-    if _WARM:
-        return
-    from capsim.config import case_from_dict
-    from capsim.runner import run_case
-
-    tmp = tempfile.mkdtemp(prefix="capsim-warm-")
-    try:
-        for lam in (1.0, 2.0):
-            run_case(case_from_dict({
-                "name": "warm", "mesh": {"level": 0}, "flow": {"viscosity_ratio": lam},
-                "time": {"t_end": 0.002, "dt_initial": 0.001},
-                "output": {"path": str(Path(tmp) / f"warm{lam:g}.h5")},
-            }))
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    _WARM = True
 
 
 def _failed_record(reason: str) -> dict[str, Any]:
@@ -122,7 +100,6 @@ def _run_one(case: Case, window: tuple[float, float] | None = None) -> dict[str,
 
     record = _failed_record("")
     try:
-        _warm_up()
         summary = run_case(case)
     except Exception as exc:  # one failed setting must not sink the study
         record["status_reason"] = f"{type(exc).__name__}: {exc}"
@@ -151,37 +128,42 @@ def _run_one(case: Case, window: tuple[float, float] | None = None) -> dict[str,
     return record
 
 
+def _job(job: tuple[Case, tuple[float, float] | None], progress: Any = None) -> dict[str, Any]:
+    """The executor's task: one setting of the ladder (looked up at call time, so tests can replace _run_one)."""
+    case, window = job
+    return _run_one(case, window)
+
+
 def _run_jobs(jobs: list[tuple[Case, Any]], workers: int, progress: Callable[[str], None] | None,
               window: tuple[float, float] | None = None) -> list[dict[str, Any]]:
-    """Run the cases (in a process pool when workers > 1); records in job order."""
-    records: list[dict[str, Any] | None] = [None] * len(jobs)
+    """Run the cases (on the batch executor's process pool when workers > 1); records in job order.
+
+    The kernels of every kind of case are warmed up first (in each worker), so that
+    wall times measure the runs; an interrupted run (Ctrl-C, SIGTERM) stops the
+    ladder with KeyboardInterrupt.
+    """
+    from capsim.executor import run_batch
+
+    cases = [case for case, _ in jobs]
     # Biggest first, so that the pool is not left waiting on one long run at the end.
-    order = sorted(range(len(jobs)), key=lambda i: (-jobs[i][0].mesh.level, jobs[i][0].time.rtol))
-    if workers <= 1 or len(jobs) == 1:
-        for i in order:
-            records[i] = _run_one(jobs[i][0], window)
-            if progress is not None:
-                progress(_describe_done(jobs[i][0], records[i]))
-            if records[i]["status"] == "interrupted":  # Ctrl-C or SIGTERM stops the ladder, not one run
-                raise KeyboardInterrupt(records[i]["status_reason"])
-        return records  # type: ignore[return-value]
-    # spawn, not fork: the numba kernels run on OpenMP threads, and forking a
-    # process that has used them kills the child.
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx) as pool:
-        futures = {pool.submit(_run_one, jobs[i][0], window): i for i in order}
-        for fut in as_completed(futures):
-            i = futures[fut]
-            try:
-                records[i] = fut.result()
-            except Exception as exc:  # a worker that died (BrokenProcessPool, MemoryError …)
-                records[i] = _failed_record(f"{type(exc).__name__}: {exc}")
-            if progress is not None:
-                progress(_describe_done(jobs[i][0], records[i]))
-            if records[i]["status"] == "interrupted":
-                pool.shutdown(wait=False, cancel_futures=True)
-                raise KeyboardInterrupt(records[i]["status_reason"])
-    return records  # type: ignore[return-value]
+    order = sorted(range(len(jobs)), key=lambda i: (-cases[i].mesh.level, cases[i].time.rtol))
+
+    def done(i: int, record: dict[str, Any]) -> None:
+        if progress is not None:
+            progress(_describe_done(cases[i], record))
+
+    def failure(i: int, status: str, reason: str) -> dict[str, Any]:
+        return dict(_failed_record(reason), status=status)
+
+    outcome = run_batch(
+        [(case, window) for case in cases], _job, keys=[case.output.path for case in cases],
+        failure=failure, workers=workers, warm=cases, in_process=workers <= 1 or len(jobs) == 1,
+        order=order, on_done=done, stop_on_interrupted=True, name="study",
+    )
+    if outcome.interrupted:
+        reasons = [r["status_reason"] for r in outcome.records if r is not None and r["status"] == "interrupted"]
+        raise KeyboardInterrupt(reasons[0] if reasons else "study stopped")
+    return outcome.records  # type: ignore[return-value]
 
 
 def _describe_done(case: Case, record: dict[str, Any]) -> str:
@@ -301,20 +283,21 @@ def run_study(
     completed = status == "completed"
     data_vars: dict[str, Any] = {}
     for q in QUANTITIES:
-        data_vars[q] = (dims, np.where(completed, grid(q), np.nan), {"long_name": f"{q} at t_end", "units": _UNITS[q]})
-    data_vars["wall_time_s"] = (dims, grid("wall_time_s"), {
-        "long_name": "wall-clock time of the run (mesh set-up included, JIT warmed up)", "units": "s"})
-    data_vars["steps"] = (dims, grid("steps", dtype=np.int64, fill=-1), {"long_name": "accepted RKF23 steps"})
-    data_vars["volume_drift"] = (dims, grid("volume_drift"), {"long_name": "(V - V0)/V0 at t_end", "units": "1"})
-    data_vars["n_nodes"] = (dims, grid("n_nodes", dtype=np.int64, fill=-1), {"long_name": "mesh nodes"})
-    data_vars["status"] = (dims, status.astype(str), {"long_name": "final status of the run"})
-    data_vars["status_reason"] = (dims, grid("status_reason", dtype=object, fill="").astype(str), {})
+        data_vars[q] = (dims, np.where(completed, grid(q), np.nan), _attrs(q))
+    data_vars["wall_time_s"] = (dims, grid("wall_time_s"), _attrs("wall_time_s"))
+    data_vars["steps"] = (dims, grid("steps", dtype=np.int64, fill=-1), _attrs("steps"))
+    data_vars["volume_drift"] = (dims, grid("volume_drift"), _attrs("volume_drift"))
+    data_vars["n_nodes"] = (dims, grid("n_nodes", dtype=np.int64, fill=-1), _attrs("n_nodes"))
+    data_vars["status"] = (dims, status.astype(str), _attrs("status"))
+    data_vars["status_reason"] = (dims, grid("status_reason", dtype=object, fill="").astype(str),
+                                  _attrs("status_reason"))
 
     from capsim import __version__
 
     ds = xr.Dataset(
         data_vars,
-        coords={"regular_order": quads, "rtol": rtols, "level": levels},
+        coords={name: (name, values, _attrs(name))
+                for name, values in (("regular_order", quads), ("rtol", rtols), ("level", levels))},
         attrs={
             "title": f"capsim accuracy study of case {case.name}",
             "case_yaml": base.to_yaml(),
@@ -358,16 +341,13 @@ def analyse_study(ds, reference: str = "finest"):
         else:
             ref, ref_order = _richardson(raw[-1, -1, :], levels)
         err = raw - ref
-        out[f"{q}_error"] = (dims, err, {
-            "long_name": f"error of {q} at t_end against the {reference} reference", "units": _UNITS[q]})
+        out[f"{q}_error"] = (dims, err, _attrs(f"{q}_error", reference=reference))
         rel = np.abs(err) / abs(ref) if ref else np.full(shape, np.nan)
-        out[f"{q}_relative_error"] = (dims, rel, {"long_name": f"|error| / |reference| of {q}", "units": "1"})
-        out[f"{q}_order"] = (dims, _order_from_errors(err), {
-            "long_name": f"observed order of {q} in h: log2(|e_l|/|e_(l+1)|)", "units": "1"})
-        out[f"{q}_order3"] = (dims, _order_three_level(raw), {
-            "long_name": f"observed order of {q} in h: log2(|f_l - f_(l+1)|/|f_(l+1) - f_(l+2)|)", "units": "1"})
-        out[f"{q}_reference"] = ((), ref, {"long_name": f"reference value of {q}", "units": _UNITS[q],
-                                           "richardson_order": ref_order})
+        out[f"{q}_relative_error"] = (dims, rel, _attrs(f"{q}_relative_error"))
+        out[f"{q}_order"] = (dims, _order_from_errors(err), _attrs(f"{q}_order"))
+        out[f"{q}_order3"] = (dims, _order_three_level(raw), _attrs(f"{q}_order3"))
+        out[f"{q}_reference"] = ((), ref, _attrs(f"{q}_reference", reference=reference,
+                                                 richardson_order=ref_order))
     out.attrs["reference"] = reference
     out.attrs["error_definition"] = "value at t_end minus the reference value"
     # Wall time against the number of nodes at the finest tolerance: measured exponents.
@@ -557,17 +537,9 @@ def error_estimate(case: Case, summary: dict[str, Any], workers: int = 2,
 
 def write_error_estimate(path: str | os.PathLike, estimate: dict[str, Any]) -> None:
     """Store the estimate as the run file's ``error_estimate`` group (replacing any)."""
-    import h5py
+    from capsim import store
 
-    with h5py.File(path, "a") as f:
-        if "error_estimate" in f:
-            del f["error_estimate"]
-        g = f.create_group("error_estimate")
-        g.attrs["definition"] = (
-            "q: |q(run) - q(one level coarser)| + |q(run) - q(rtol x 10)| at t_end; q_mean: the same for the "
-            "time mean over the run's averaging window; q_mesh, q_time: the signed differences")
-        for key, value in estimate.items():
-            g.create_dataset(key, data=value)
+    store.write_error_estimate(path, estimate)
 
 
 def format_error_estimate(summary: dict[str, Any], estimate: dict[str, Any]) -> str:

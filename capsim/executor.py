@@ -1,0 +1,353 @@
+"""One batch executor for campaigns (``capsim sweep``) and studies (``capsim study``).
+
+:func:`run_batch` runs a list of items through a task on a process pool (spawn
+context: the numba kernels run on OpenMP threads, and forking a process that has
+used them kills the child), or in this process for a study with one worker:
+
+- **threads**: N worker processes, each with ``cores // N`` numba threads, set by
+  the worker's initializer through :func:`capsim.threads.apply_policy` before
+  numba is imported (processes x threads = cores; a user's ``NUMBA_NUM_THREADS``
+  wins).
+- **one warm-up**: :func:`warm_up` compiles (and caches on disk) every kernel
+  the batch will use, from a level-0, two-step copy of one case of each kernel
+  kind (:func:`kernel_kind`: law, traction, λ ≠ 1, bending, near field, mirror
+  symmetry, solver). It runs once in the parent before the workers start (so
+  that they do not all compile the same kernels at once), and once in each
+  worker before its first task (loading the cached kernels), so that a run's
+  wall time measures the run, not the JIT.
+- **failures as records**: a task that raises, or a worker that dies, gives a
+  record built by the caller's ``failure(index, status, reason)``; the batch goes on.
+- **signals**: Ctrl-C or SIGTERM (a batch system) in the parent cancels the
+  pending items and sends SIGTERM to the running ones, whose runs close their
+  files as ``interrupted``; idle workers ignore SIGTERM (they wait for work
+  holding the task queue's lock; dying there would hang the pool's shutdown).
+  A worker whose parent was killed stops its run and exits.
+- **progress**: a task gets a callback ``progress(state)`` (run_case's progress
+  protocol); the worker forwards ``state["t"]`` to the parent at most once a
+  second, and the parent calls ``on_progress({key: t})`` of the running items.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import math
+import multiprocessing
+import os
+import queue
+import signal
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from capsim import threads
+
+__all__ = ["BatchOutcome", "SigtermAsInterrupt", "kernel_kind", "one_line", "run_batch", "warm_up"]
+
+#: task(item, progress) -> record (a dict with at least "status" and "status_reason")
+Task = Callable[[Any, Any], dict]
+#: failure(index, status, reason) -> the record of an item that has no record of its own
+Failure = Callable[[int, str, str], dict]
+
+
+def one_line(exc: BaseException) -> str:
+    """'Type: first line of the message' (the type alone when the message is empty)."""
+    text = str(exc).strip()
+    first = text.splitlines()[0] if text else ""
+    return f"{type(exc).__name__}: {first}" if first else type(exc).__name__
+
+
+# ---------------------------------------------------------------- warm-up
+
+
+def kernel_kind(case) -> tuple:
+    """What decides which numba kernels a case compiles (and with which signatures)."""
+    m, q = case.membrane, case.quadrature
+    return (
+        m.law, m.traction, case.flow.viscosity_ratio != 1.0, m.bending_modulus > 0,
+        q.near_field_factor > 0, case.mesh.symmetry,
+        case.solver.method if case.flow.viscosity_ratio != 1.0 else None,
+    )
+
+
+def distinct_kinds(cases: Sequence) -> list:
+    """One case of each kernel kind, in first-seen order."""
+    kinds: dict[tuple, Any] = {}
+    for case in cases:
+        kinds.setdefault(kernel_kind(case), case)
+    return list(kinds.values())
+
+
+_WARMED: set[tuple] = set()
+
+
+def warm_up(cases: Sequence) -> None:
+    """Compile/load every kernel the cases use, once per process: a level-0, two-step copy of each kind."""
+    todo = [c for c in distinct_kinds(cases) if kernel_kind(c) not in _WARMED]
+    if not todo:
+        return
+    from capsim.config import apply_overrides
+    from capsim.runner import run_case
+
+    with tempfile.TemporaryDirectory(prefix="capsim-warm-") as tmp:
+        for case in todo:
+            tiny = apply_overrides(case, **{
+                "mesh.level": 0, "time.t_end": 2.0 * case.time.dt_initial, "time.max_steps": 2,
+                "time.stop_when_steady": False, "output.path": os.path.join(tmp, "warm.h5"),
+            })
+            try:
+                run_case(tiny)
+            except Exception:  # the real run reports its own failure
+                pass
+            _WARMED.add(kernel_kind(case))
+
+
+# ---------------------------------------------------------------- signals
+
+
+class SigtermAsInterrupt:
+    """A batch system's SIGTERM stops the batch the way Ctrl-C does (main thread only)."""
+
+    def __enter__(self):
+        self._old = None
+        if threading.current_thread() is threading.main_thread():
+            self._old = signal.signal(signal.SIGTERM, self._handle)
+        return self
+
+    @staticmethod
+    def _handle(signum, frame):
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    def __exit__(self, *exc):
+        if self._old is not None:
+            signal.signal(signal.SIGTERM, self._old)
+        return False
+
+
+# ---------------------------------------------------------------- worker side
+
+
+class _QueueProgress:
+    """Forward a run's kt to the parent at most once a second."""
+
+    def __init__(self, key: str, q: Any) -> None:
+        self.key, self.q, self._last = key, q, -math.inf
+
+    def __call__(self, state: dict) -> None:
+        now = time.monotonic()
+        if now - self._last >= 1.0:
+            self._last = now
+            self.q.put((self.key, float(state.get("t", math.nan))))
+
+
+# Set once per worker process by its initializer (the pool's way to hand over
+# objects that cannot travel with each task).
+_WORKER_QUEUE: Any = None
+_WORKER_STOP: Any = None
+_WORKER_WARM: list = []
+_WORKER_BUSY = threading.Event()
+_NOT_STARTED = "capsim-executor: not started"
+
+
+def _init_worker(numba_threads: int, progress_queue: Any, stop: Any, warm: list) -> None:
+    # Before numba is imported: the thread count, layer and wait policy are read once, at import.
+    threads.apply_policy(numba_threads)
+    # Ctrl-C goes to the whole process group; the parent decides what stops.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # So does a batch system's SIGTERM. An idle worker must not die of it: it waits
+    # for work holding the task queue's lock, and dying there would leave every other
+    # worker, and the pool's shutdown, waiting for that lock for ever. A running case
+    # replaces this handler with run_case's, which closes the run as 'interrupted'.
+    signal.signal(signal.SIGTERM, _ignore_while_idle)
+    global _WORKER_QUEUE, _WORKER_STOP, _WORKER_WARM
+    _WORKER_QUEUE, _WORKER_STOP, _WORKER_WARM = progress_queue, stop, warm
+    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()
+
+
+def _ignore_while_idle(signum, frame) -> None:
+    """SIGTERM between runs: nothing to stop; the parent shuts the pool down."""
+
+
+def _exit_with_parent(parent: int) -> None:
+    # A killed parent must not leave workers computing for nobody: SIGTERM closes
+    # the running run's file as 'interrupted' (run_case's guard); then the worker ends.
+    while os.getppid() == parent:
+        time.sleep(2.0)
+    if _WORKER_BUSY.is_set():
+        os.kill(os.getpid(), signal.SIGTERM)
+        while _WORKER_BUSY.is_set():
+            time.sleep(0.2)
+    os._exit(0)
+
+
+def _stopped() -> bool:
+    return _WORKER_STOP is not None and _WORKER_STOP.is_set()
+
+
+def _pool_task(task: Task, key: str, item: Any) -> Any:
+    if _stopped():
+        return _NOT_STARTED
+    _WORKER_BUSY.set()
+    try:
+        warm_up(_WORKER_WARM)
+        if _stopped():
+            return _NOT_STARTED
+        progress = None
+        if _WORKER_QUEUE is not None:
+            _WORKER_QUEUE.put((key, 0.0))  # started: the parent counts it as running
+            progress = _QueueProgress(key, _WORKER_QUEUE)
+        return task(item, progress)
+    finally:
+        _WORKER_BUSY.clear()
+
+
+# ---------------------------------------------------------------- the batch
+
+
+@dataclass
+class BatchOutcome:
+    """Records in item order (None: never started) and whether the batch was stopped."""
+
+    records: list[dict | None]
+    interrupted: bool
+
+
+def run_batch(
+    items: Sequence[Any],
+    task: Task,
+    *,
+    keys: Sequence[str],
+    failure: Failure,
+    workers: int | None = None,
+    warm: Sequence = (),
+    in_process: bool = False,
+    order: Sequence[int] | None = None,
+    on_done: Callable[[int, dict], None] | None = None,
+    on_progress: Callable[[dict[str, float]], None] | None = None,
+    stop_on_interrupted: bool = False,
+    name: str = "batch",
+) -> BatchOutcome:
+    """Run ``task(item, progress)`` for every item; see the module docstring.
+
+    `workers` processes (default: the usable cores; never more than the items),
+    or this process when `in_process`. `warm`: the cases whose kernels to warm
+    up. `order`: submission order (default: item order). `on_done(index,
+    record)` is called in this process as each item finishes. With
+    `stop_on_interrupted`, an item whose record says ``interrupted`` (its run
+    caught Ctrl-C or SIGTERM) stops the batch like Ctrl-C does. `name` is used
+    in the reasons of items that the stop cut off.
+    """
+    if len(keys) != len(items):
+        raise ValueError(f"{len(keys)} keys for {len(items)} items")
+    order = list(range(len(items))) if order is None else list(order)
+    outcome = BatchOutcome([None] * len(items), interrupted=False)
+
+    def done(i: int, record: dict) -> None:
+        outcome.records[i] = record
+        if on_done is not None:
+            on_done(i, record)
+
+    with SigtermAsInterrupt():
+        if in_process:
+            _run_here(items, task, order, warm, failure, done, stop_on_interrupted, outcome)
+        elif items:
+            _run_pool(items, task, keys, order, warm, failure, done, on_progress, workers,
+                      stop_on_interrupted, name, outcome)
+    return outcome
+
+
+def _run_here(items, task, order, warm, failure, done, stop_on_interrupted, outcome) -> None:
+    try:
+        warm_up(warm)
+        for i in order:
+            try:
+                record = task(items[i], None)
+            except Exception as exc:  # one bad item must not sink the batch
+                record = failure(i, "failed", one_line(exc))
+            done(i, record)
+            if stop_on_interrupted and record.get("status") == "interrupted":
+                outcome.interrupted = True
+                return
+    except KeyboardInterrupt:
+        outcome.interrupted = True
+
+
+def _run_pool(items, task, keys, order, warm, failure, done, on_progress, workers,
+              stop_on_interrupted, name, outcome) -> None:
+    cores = threads.usable_cores()
+    n = max(1, min(workers or cores, len(items)))
+    n_threads = threads.threads_per_worker(n, cores)
+    kinds = distinct_kinds(list(warm))
+    warm_up(kinds)  # compile into the on-disk cache once, before n workers would each compile
+    ctx = multiprocessing.get_context("spawn")
+    kt_queue, stop = ctx.Queue(), ctx.Event()
+    pool = cf.ProcessPoolExecutor(n, mp_context=ctx, initializer=_init_worker,
+                                  initargs=(n_threads, kt_queue, stop, kinds))
+    futures = {pool.submit(_pool_task, task, keys[i], items[i]): i for i in order}
+    pending = set(futures)
+    finished: set[str] = set()
+    running: dict[str, float] = {}
+
+    def collect(fut) -> dict:
+        i = futures[fut]
+        try:
+            record = fut.result()
+        except Exception as exc:  # a worker process died (killed, out of memory)
+            return failure(i, "failed", f"worker died: {one_line(exc)}")
+        if isinstance(record, str) and record == _NOT_STARTED:
+            return failure(i, "interrupted", f"{name} stopped before this run started")
+        return record
+
+    try:
+        while pending:
+            ready, pending = cf.wait(pending, timeout=0.5, return_when=cf.FIRST_COMPLETED)
+            _drain(kt_queue, running, finished)
+            for fut in ready:
+                i = futures[fut]
+                record = collect(fut)
+                finished.add(keys[i])
+                running.pop(keys[i], None)
+                done(i, record)
+                if stop_on_interrupted and record.get("status") == "interrupted":
+                    raise KeyboardInterrupt(record.get("status_reason", ""))
+            if on_progress is not None:
+                on_progress(dict(running))
+        pool.shutdown(wait=True)
+    except KeyboardInterrupt:
+        outcome.interrupted = True
+        # Items already handed to a worker cannot be cancelled here: the event makes them return at once.
+        stop.set()
+        for fut in pending:
+            fut.cancel()
+        # SIGTERM reaches run_case's guard: the run closes its file as 'interrupted'.
+        for proc in list(getattr(pool, "_processes", {}).values()):
+            if proc.is_alive():
+                os.kill(proc.pid, signal.SIGTERM)
+        pool.shutdown(wait=True, cancel_futures=True)
+        for fut, i in futures.items():
+            if not fut.done() or fut.cancelled() or outcome.records[i] is not None:
+                continue
+            try:
+                record = fut.result()
+            except Exception as exc:  # the worker ended between runs
+                record = failure(i, "interrupted", f"{name} stopped: {type(exc).__name__}")
+            if isinstance(record, str) and record == _NOT_STARTED:
+                record = failure(i, "interrupted", f"{name} stopped before this run started")
+            elif record["status"] == "failed":
+                # The stop signal can surface as any exception (e.g. from inside a numba call).
+                record = dict(record, status="interrupted", status_reason=f"{name} stopped: {record['status_reason']}")
+            done(i, record)
+    finally:
+        kt_queue.close()
+
+
+def _drain(q: Any, running: dict[str, float], finished: set[str]) -> None:
+    while True:
+        try:
+            key, t = q.get_nowait()
+        except (queue.Empty, OSError, ValueError):
+            return
+        if key not in finished:  # a late message must not revive a finished item
+            running[key] = t

@@ -1,0 +1,232 @@
+"""Thread policy for the numba kernels, chosen and applied before numba is imported.
+
+numba reads ``NUMBA_NUM_THREADS`` and ``NUMBA_THREADING_LAYER`` once, when it is
+imported, and libgomp (numba's OpenMP layer) reads ``OMP_WAIT_POLICY`` once,
+when it is loaded. So the policy is applied by whoever starts a computing
+process, before the first ``import numba``: the CLI's callback, the pool
+workers' initializer (:mod:`capsim.executor`), and :func:`capsim.campaign.execute_run`
+(a Dask worker). This module imports nothing from numba or numpy.
+
+The policy (benchmark: ``make bench-threads``, README section "Threads"):
+
+- **threading layer**: the first of :data:`LAYERS` that loads, ``omp`` (libgomp)
+  with ``OMP_WAIT_POLICY=PASSIVE``, then ``tbb`` (only when the TBB library is
+  installed), then ``workqueue`` (always there). With libgomp's default wait
+  policy an idle thread spins at every barrier; a velocity evaluation crosses
+  about ten of them, and when one of the threads is descheduled (another busy
+  process, a campaign's own workers) the others spin for its whole time slice:
+  2 threads ran 7x slower than 1 on a shared 2-core machine. PASSIVE threads
+  sleep at once and cost nothing measurable on a quiet machine.
+- **thread count**: ``auto`` = the cores this process may run on
+  (``os.sched_getaffinity``), divided between the worker processes of a batch
+  so that processes x threads = cores.
+
+A variable the user set (``NUMBA_NUM_THREADS``, ``NUMBA_THREADING_LAYER``,
+``OMP_WAIT_POLICY``) wins and is reported (:attr:`ThreadPolicy.user`,
+:func:`policy_attrs`). The variables capsim set itself are listed, with their
+values, in ``CAPSIM_THREAD_POLICY``, so that a child process (a pool worker) may
+set them again for its share of the cores while a value the user changed since
+still counts as the user's.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import importlib.util
+import os
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+__all__ = [
+    "ENV_LAYER", "ENV_THREADS", "ENV_WAIT", "LAYERS", "ThreadPolicy", "apply_policy", "available_layers",
+    "choose_policy", "policy_attrs", "threads_per_worker", "usable_cores",
+]
+
+ENV_THREADS = "NUMBA_NUM_THREADS"
+ENV_LAYER = "NUMBA_THREADING_LAYER"
+ENV_WAIT = "OMP_WAIT_POLICY"
+_VARIABLES = (ENV_THREADS, ENV_LAYER, ENV_WAIT)
+#: the variables capsim set in this environment, as NAME=VALUE;... (not the user's)
+_MARK = "CAPSIM_THREAD_POLICY"
+
+#: threading layers in order of preference (the first that loads is used)
+LAYERS = ("omp", "tbb", "workqueue")
+#: the OpenMP wait policy capsim sets: idle threads sleep instead of spinning
+WAIT_POLICY = "PASSIVE"
+
+# The numba extension module behind each layer (workqueue has no dependency).
+_LAYER_MODULES = {"omp": "omppool", "tbb": "tbbpool", "workqueue": "workqueue"}
+
+
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity), at least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def threads_per_worker(workers: int, cores: int | None = None) -> int:
+    """numba threads for each of `workers` processes so that processes x threads = cores."""
+    return max(1, (usable_cores() if cores is None else cores) // max(1, workers))
+
+
+def _layer_loads(layer: str) -> bool:
+    """True when numba's extension for `layer` and the library it links (libgomp, libtbb) load."""
+    spec = importlib.util.find_spec("numba")
+    if spec is None or not spec.submodule_search_locations:
+        return False
+    folder = Path(next(iter(spec.submodule_search_locations))) / "np" / "ufunc"
+    for path in sorted(folder.glob(f"{_LAYER_MODULES[layer]}.*")):
+        if path.suffix in (".so", ".pyd", ".dylib"):
+            try:
+                ctypes.CDLL(str(path))  # loads libgomp / libtbb with it: OMP_* must be set before
+            except OSError:
+                return False
+            return True
+    return False
+
+
+def available_layers() -> tuple[str, ...]:
+    """The threading layers of :data:`LAYERS` that load in this environment."""
+    return tuple(layer for layer in LAYERS if layer == "workqueue" or _layer_loads(layer))
+
+
+def _ours(env) -> dict[str, str]:
+    """The variables capsim set (name -> value), as recorded in the environment."""
+    pairs = (item.partition("=") for item in env.get(_MARK, "").split(";") if item)
+    return {name: value for name, _, value in pairs if name in _VARIABLES}
+
+
+def _user_value(name: str, env) -> str | None:
+    """The user's value of `name`: set, not empty, and not the value capsim put there."""
+    value = env.get(name)
+    if value is None or value.strip() == "":
+        return None
+    return None if _ours(env).get(name) == value else value
+
+
+@dataclass(frozen=True)
+class ThreadPolicy:
+    """The three settings and which of them came from the user's environment."""
+
+    num_threads: int
+    layer: str
+    wait_policy: str
+    user: dict[str, str] = field(default_factory=dict)
+    applied: bool = False  # False: numba was already imported, nothing could change
+
+    def describe(self) -> str:
+        """One line: what is used and what came from the user."""
+        text = f"{self.num_threads} numba threads, layer {self.layer}, OMP_WAIT_POLICY={self.wait_policy}"
+        if self.user:
+            text += " (from your environment: " + ", ".join(f"{k}={v}" for k, v in self.user.items()) + ")"
+        return text
+
+
+def choose_policy(threads: int | str = "auto", *, workers: int = 1, env=None) -> ThreadPolicy:
+    """The policy for a process that will run `threads` numba threads (``auto``: its share of the cores).
+
+    `workers` is the number of processes sharing the cores (a pool); a value
+    in `env` (default ``os.environ``) that the user set wins.
+    """
+    env = os.environ if env is None else env
+    user = {name: value for name in _VARIABLES if (value := _user_value(name, env)) is not None}
+    if threads == "auto":
+        n = threads_per_worker(workers)
+    else:
+        n = int(threads)
+        if n < 1:
+            raise ValueError(f"threads must be >= 1 or 'auto', got {threads!r}")
+    wait = user.get(ENV_WAIT, WAIT_POLICY)
+    layer = user.get(ENV_LAYER)
+    if layer is None:
+        layer = "workqueue"
+        for candidate in LAYERS:
+            if candidate == "workqueue" or _layer_loads(candidate):
+                layer = candidate
+                break
+    return ThreadPolicy(num_threads=int(user.get(ENV_THREADS, n)), layer=layer, wait_policy=wait, user=user)
+
+
+def apply_policy(threads: int | str = "auto", *, workers: int = 1) -> ThreadPolicy:
+    """Choose the policy and put it in ``os.environ`` (before numba is imported).
+
+    A variable the user set is left as it is. The first call in a process
+    decides (a later one returns the same policy), and once numba is imported
+    nothing can change any more: the policy in effect is returned with
+    ``applied=False``.
+    """
+    global _APPLIED
+    env = os.environ
+    if _APPLIED is not None:
+        return _APPLIED
+    if "numba" in sys.modules:
+        return _in_effect()
+    user = {name: value for name in _VARIABLES if (value := _user_value(name, env)) is not None}
+    # The wait policy first: probing the omp layer loads libgomp, which reads it once.
+    if ENV_WAIT not in user:
+        env[ENV_WAIT] = WAIT_POLICY
+    if ENV_LAYER not in user:
+        env.pop(ENV_LAYER, None)
+    policy = choose_policy(threads, workers=workers, env=env)
+    ours = {}
+    for name, value in ((ENV_THREADS, str(policy.num_threads)), (ENV_LAYER, policy.layer),
+                        (ENV_WAIT, policy.wait_policy)):
+        if name not in user:
+            env[name] = value
+            ours[name] = value
+    env[_MARK] = ";".join(f"{k}={v}" for k, v in ours.items())
+    _APPLIED = ThreadPolicy(policy.num_threads, policy.layer, policy.wait_policy, user=user, applied=True)
+    return _APPLIED
+
+
+_APPLIED: ThreadPolicy | None = None
+
+
+def _in_effect() -> ThreadPolicy:
+    attrs = policy_attrs()
+    user = {name: value for name in _VARIABLES if (value := _user_value(name, os.environ)) is not None}
+    return ThreadPolicy(int(attrs["numba_num_threads"]), str(attrs["numba_threading_layer"]),
+                        str(attrs["omp_wait_policy"]), user=user, applied=False)
+
+
+def policy_attrs() -> dict[str, str | int]:
+    """The settings in effect in this process, for a run file's root attributes.
+
+    - ``numba_threading_layer``: the layer numba runs its parallel kernels on
+      (``numba.threading_layer()``) once one has run in this process; before
+      that, the configured one (a named layer is the one numba will load, or
+      fail; ``default`` lets numba pick tbb, omp, workqueue in that order).
+      ``numba_threading_layer_source`` says which: ``running`` or ``configured``.
+    - ``numba_num_threads``: the threads a parallel kernel uses
+      (``numba.get_num_threads()`` once numba is imported, else the configured count).
+    - ``omp_wait_policy``: ``OMP_WAIT_POLICY`` (``unset``: libgomp's default,
+      spinning for a while at every barrier; only the omp layer reads it).
+    - ``thread_policy_user_env``: the variables that came from the user's
+      environment instead of capsim's policy (``NAME=value``, comma-separated; "" if none).
+    """
+    env = os.environ
+    numba = sys.modules.get("numba")
+    source = "configured"
+    if numba is not None:
+        configured = str(getattr(numba.config, "THREADING_LAYER", env.get(ENV_LAYER, "default")))
+        try:
+            layer = str(numba.threading_layer())
+            source = "running"
+        except ValueError:  # no parallel kernel has run in this process yet
+            layer = configured
+        n = int(numba.get_num_threads())
+    else:
+        layer = env.get(ENV_LAYER) or "default"
+        text = env.get(ENV_THREADS, "").strip()
+        n = int(text) if text.isdigit() else usable_cores()
+    user = [f"{name}={value}" for name in _VARIABLES if (value := _user_value(name, env)) is not None]
+    return {
+        "numba_threading_layer": layer,
+        "numba_threading_layer_source": source,
+        "numba_num_threads": n,
+        "omp_wait_policy": env.get(ENV_WAIT) or "unset",
+        "thread_policy_user_env": ", ".join(user),
+    }
