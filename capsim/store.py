@@ -1,4 +1,6 @@
-"""HDF5 trajectory of one run, written incrementally so that a killed run
+"""The run file: every read and write of it (and of its restart checkpoint).
+
+An HDF5 trajectory of one run, written incrementally so that a killed run
 leaves a readable file.
 
 Layout::
@@ -10,9 +12,17 @@ Layout::
     /mesh/positions      (n_snap, Np, 3) snapshots, one per chunk
     /mesh/snapshot_t     (n_snap,)      time of each snapshot (dimension scale)
     /timeseries/<name>   (n_steps,)     one value per accepted step, t as scale
-    /<group>             e.g. summary: scalars, arrays and strings
+    /membrane_law        the law, its parameters and moduli   (write_membrane_law)
+    /rest_shape          measures of the rest shape           (write_rest_shape)
+    /run                 the state at the end and the cost    (write_run_record)
+    /summary             motion and window statistics         (write_summary)
+    /error_estimate      capsim run --error-estimate          (write_error_estimate)
 
-Units and long names come from the one table :data:`VARIABLE_ATTRS`.
+Every dataset takes units, long_name and definition from the one table
+:mod:`capsim.quantities`; every group its ``definition`` from
+:data:`capsim.quantities.GROUPS`. Readers: :func:`read_trajectory` (all of it),
+:func:`read_run_record` (the scalars a summary needs), :func:`read_run_status`,
+:func:`read_case`.
 """
 
 from __future__ import annotations
@@ -24,41 +34,18 @@ from typing import Any
 
 import h5py
 import numpy as np
+import yaml
+
+from capsim.config import Case, case_from_dict
+from capsim.quantities import GROUPS, attrs_for
 
 __all__ = [
-    "STATUSES", "CheckpointError", "TrajectoryError", "TrajectoryWriter", "VARIABLE_ATTRS",
-    "checkpoint_path", "read_checkpoint", "read_trajectory", "remove_checkpoint", "write_checkpoint",
+    "STATUSES", "CheckpointError", "TrajectoryError", "TrajectoryWriter",
+    "case_from_trajectory", "checkpoint_path", "read_case", "read_checkpoint", "read_run_record",
+    "read_run_status", "read_trajectory", "remove_checkpoint", "write_checkpoint", "write_error_estimate",
 ]
 
 STATUSES = frozenset({"completed", "unstable", "interrupted", "failed"})
-
-# Scaling (design.md): lengths by a, time by 1/k, tension by E_s.
-VARIABLE_ATTRS: dict[str, dict[str, str]] = {
-    "t": {"units": "k^-1", "long_name": "time kt"},
-    "dt": {"units": "k^-1", "long_name": "accepted time step"},
-    "step": {"units": "1", "long_name": "step index"},
-    "D_xy": {"units": "1", "long_name": "Taylor deformation (L-B)/(L+B) in the xy-plane"},
-    "theta": {"units": "rad", "long_name": "inclination of the long axis from the x-axis"},
-    "volume": {"units": "a^3", "long_name": "enclosed volume"},
-    "area": {"units": "a^2", "long_name": "surface area"},
-    "volume_drift": {"units": "1", "long_name": "relative volume change (V - V0)/V0"},
-    "L": {"units": "a", "long_name": "longest semi-axis of the equivalent ellipsoid in xy"},
-    "B": {"units": "a", "long_name": "shortest semi-axis of the equivalent ellipsoid in xy"},
-    "ttf_ratio": {"units": "1", "long_name": "tank-treading frequency / rigid-sphere value k/(4 pi)"},
-    "tt_angle": {"units": "rad", "long_name": "unwrapped mean angle about the centroid of the nodes starting in z = 0"},
-    "Sxy_star": {"units": "1", "long_name": "particle stresslet S_xy / (5/2 mu k V)"},
-    "N1_star": {"units": "1", "long_name": "first normal stress difference S_xx - S_yy, same scale"},
-    "N2_star": {"units": "1", "long_name": "second normal stress difference S_yy - S_zz, same scale"},
-    "motion": {"units": "", "long_name": "steady, oscillating, tumbling, transient or unstable"},
-    "period": {"units": "k^-1", "long_name": "oscillation period, or rotation period (theta turning by 2 pi)"},
-    "min_tension": {"units": "mu k a", "long_name": "smallest principal membrane tension over the vertices, tension / G"},
-    "compressed_fraction": {"units": "1", "long_name": "fraction of vertices whose smaller principal tension is negative"},
-    "error_estimate": {"units": "1", "long_name": "RKF23 local error estimate / rtol"},
-    "solver_iterations": {"units": "1", "long_name": "iterations of the velocity solve"},
-    "solver_residual": {"units": "1", "long_name": "relative residual of the velocity solve"},
-    "positions": {"units": "a", "long_name": "node positions"},
-    "snapshot_t": {"units": "k^-1", "long_name": "time of the snapshot"},
-}
 
 _STEP_FLUSH_EVERY = 20
 
@@ -75,9 +62,23 @@ def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
-def _label(ds: h5py.Dataset, name: str) -> None:
-    for key, value in VARIABLE_ATTRS.get(name, {}).items():
+def _label(ds: h5py.Dataset, name: str, where: str | None = None) -> None:
+    """Units, long_name, definition (and scale) of `name` from the quantity table.
+
+    A name without an entry is written unlabelled rather than failing a run;
+    tests/test_quantities.py catches it.
+    """
+    try:
+        attrs = attrs_for(name, where)
+    except KeyError:
+        return
+    for key, value in attrs.items():
         ds.attrs[key] = value
+
+
+def _describe(group: h5py.Group, name: str) -> None:
+    if name in GROUPS:
+        group.attrs["definition"] = GROUPS[name]
 
 
 class TrajectoryWriter:
@@ -126,12 +127,16 @@ class TrajectoryWriter:
         f.attrs["status"] = "running"
         f.attrs["status_reason"] = ""
         f.attrs["created"] = _now()
+        from capsim.threads import policy_attrs  # numba-free: the threads this run computes with
+
+        f.attrs.update(policy_attrs())
         for key, value in (attrs or {}).items():
             f.attrs[key] = value
 
         mesh = f.create_group("mesh")
-        mesh.create_dataset("elements", data=elements.astype(np.int64))
-        _label(mesh.create_dataset("rest_positions", data=rest_positions), "positions")
+        _describe(mesh, "mesh")
+        _label(mesh.create_dataset("elements", data=elements.astype(np.int64)), "elements")
+        _label(mesh.create_dataset("rest_positions", data=rest_positions), "rest_positions")
         self._positions = mesh.create_dataset(
             "positions",
             shape=(0, self._n_nodes, 3),
@@ -147,6 +152,7 @@ class TrajectoryWriter:
         self._snapshot_t.make_scale("snapshot_t")
         self._positions.dims[0].attach_scale(self._snapshot_t)
         self._timeseries = f.create_group("timeseries")
+        _describe(self._timeseries, "timeseries")
         f.flush()
 
     @classmethod
@@ -282,10 +288,48 @@ class TrajectoryWriter:
         self._file.flush()
 
     def write_group(self, name: str, data: dict[str, Any]) -> None:
-        """Write (or replace) group `name` with scalars, arrays, strings or nested dicts."""
+        """Write (or replace) group `name` with scalars, arrays, strings or nested dicts.
+
+        The groups of the layout go through their named writers
+        (``write_group("summary", d)`` is ``write_summary(d)``).
+        """
+        named = {"membrane_law": self.write_membrane_law, "rest_shape": self.write_rest_shape,
+                 "run": self.write_run_record, "summary": self.write_summary}
+        if name in named:
+            named[name](data)
+        else:
+            self._write_group(name, data)
+
+    def write_membrane_law(self, law: dict[str, Any]) -> None:
+        """The ``membrane_law`` group from :func:`capsim.membrane.law_attributes`:
+        name, G_s, K_s, poisson_ratio, ca_over_G and ``parameters/<p>`` (empty
+        group for a law without parameters). The moduli's scale (``units: E_s``
+        in the dict) is stated by the table's attributes, not as a dataset."""
+        data = {k: v for k, v in law.items() if k not in ("units", "parameters")}
+        # {"none": 0.0} is the placeholder older callers pass for "no parameters"
+        data["parameters"] = {k: v for k, v in (law.get("parameters") or {}).items() if k != "none"}
+        self._write_group("membrane_law", data)
+
+    def write_rest_shape(self, shape: dict[str, Any]) -> None:
+        """The ``rest_shape`` group from :func:`capsim.mesh.rest_shape_attributes`."""
+        self._write_group("rest_shape", shape)
+
+    def write_run_record(self, record: dict[str, Any]) -> None:
+        """The ``run`` group: the state at the end of the run and its cost
+        (t, steps, rejected_steps, wall_time_s, D_xy, …); rewritten on resume."""
+        self._write_group("run", record)
+
+    def write_summary(self, summary: dict[str, Any]) -> None:
+        """The ``summary`` group from :func:`capsim.observables.run_summary`
+        (motion, window means and standard deviations); rewritten on resume."""
+        self._write_group("summary", summary)
+
+    def _write_group(self, name: str, data: dict[str, Any]) -> None:
         if name in self._file:
             del self._file[name]
-        _write_dict(self._file.create_group(name), data)
+        group = self._file.create_group(name)
+        _describe(group, name)
+        _write_dict(group, data, name)
         self.flush()
 
     def flush(self) -> None:
@@ -307,14 +351,26 @@ class TrajectoryWriter:
         self._file.close()
 
 
-def _write_dict(group: h5py.Group, data: dict[str, Any]) -> None:
+def _write_dict(group: h5py.Group, data: dict[str, Any], where: str | None = None) -> None:
+    """Datasets for `data` (nested dicts as subgroups), labelled as names in group `where`."""
     for key, value in data.items():
         if isinstance(value, dict):
-            _write_dict(group.create_group(key), value)
+            _write_dict(group.create_group(key), value, where)
         elif value is None:
             raise TypeError(f"cannot store None for '{group.name}/{key}'")
         else:
-            group.create_dataset(key, data=value)
+            _label(group.create_dataset(key, data=value), key, where)
+
+
+def write_error_estimate(path: str | os.PathLike, estimate: dict[str, Any]) -> None:
+    """Store an error estimate (:func:`capsim.study.error_estimate`) as the run
+    file's ``error_estimate`` group, replacing any."""
+    with h5py.File(path, "a") as f:
+        if "error_estimate" in f:
+            del f["error_estimate"]
+        group = f.create_group("error_estimate")
+        _describe(group, "error_estimate")
+        _write_dict(group, estimate, "error_estimate")
 
 
 # ---------------------------------------------------------------- checkpoints
@@ -425,3 +481,72 @@ def _read_open(f: h5py.File) -> dict[str, Any]:
         "snapshot_t": snapshot_t[:n_snap],
         "summary": _read_group(f["summary"]) if "summary" in f else {},
     }
+
+
+def _scalar(value: Any) -> Any:
+    """A plain Python value for an attribute or a scalar dataset's value."""
+    if isinstance(value, bytes):
+        return value.decode("utf-8")
+    if isinstance(value, np.ndarray) and value.shape == ():
+        value = value[()]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _scalars(f: h5py.File, name: str) -> dict[str, Any]:
+    """The scalar datasets of group `name` (strings decoded); {} without the group."""
+    if name not in f or not isinstance(f[name], h5py.Group):
+        return {}
+    out = {}
+    for key, ds in f[name].items():
+        if isinstance(ds, h5py.Dataset) and ds.shape == ():
+            out[key] = ds.asstr()[()] if h5py.check_string_dtype(ds.dtype) else _scalar(ds[()])
+    return out
+
+
+def read_run_status(path: str | os.PathLike) -> str | None:
+    """The status attribute of a run file; None when there is no readable file."""
+    try:
+        with h5py.File(path, "r", locking=False) as f:
+            return str(_scalar(f.attrs.get("status", "")))
+    except (OSError, ValueError):
+        return None
+
+
+def read_run_record(path: str | os.PathLike) -> dict[str, Any] | None:
+    """The scalars of a run file, without its arrays: ``{"attrs", "summary", "run",
+    "first", "last", "n_steps"}`` (root attributes, the scalar datasets of the
+    ``summary`` and ``run`` groups, the first and last rows of the time series and
+    their number). None when there is no readable file. Cheap on a large file,
+    and safe on one a running or killed writer holds (no lock)."""
+    try:
+        with h5py.File(path, "r", locking=False) as f:
+            attrs = {k: _scalar(v) for k, v in f.attrs.items()}
+            summary, run = _scalars(f, "summary"), _scalars(f, "run")
+            ts = f["timeseries"] if "timeseries" in f else {}
+            n = min((len(ds) for ds in ts.values()), default=0)
+            first = {k: float(ds[0]) for k, ds in ts.items()} if n else {}
+            last = {k: float(ds[n - 1]) for k, ds in ts.items()} if n else {}
+    except (OSError, ValueError, KeyError):
+        return None
+    return {"attrs": attrs, "summary": summary, "run": run, "first": first, "last": last, "n_steps": n}
+
+
+def case_from_trajectory(data: dict[str, Any]) -> Case:
+    """The Case a trajectory was run with, from :func:`read_trajectory`'s ``attrs``."""
+    return case_from_dict(yaml.safe_load(data["attrs"]["config_yaml"]), source="config_yaml")
+
+
+def read_case(path: str | os.PathLike) -> Case:
+    """The Case a run file was run with (its stored ``config_yaml``), without reading its arrays."""
+    source = os.fspath(path)
+    try:
+        with h5py.File(source, "r", locking=False) as f:
+            text = _scalar(f.attrs["config_yaml"])
+    except KeyError:
+        raise TrajectoryError(f"{source}: not a capsim trajectory (no config_yaml)") from None
+    except (OSError, ValueError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise TrajectoryError(f"{source}: cannot read: {first}") from None
+    return case_from_trajectory({"attrs": {"config_yaml": text}})

@@ -54,7 +54,8 @@ def test_round_trip(tmp_path):
     np.testing.assert_array_equal(d["summary"]["history"], np.arange(4.0))
 
     with h5py.File(path, "r") as f:
-        assert f["timeseries/t"].attrs["units"] == "k^-1"
+        # UDUNITS units, the capsim scale apart (issue 13: was units "k^-1")
+        assert f["timeseries/t"].attrs["units"] == "1" and f["timeseries/t"].attrs["scale"] == "1/k"
         assert f["timeseries/D_xy"].attrs["units"] == "1"
         assert "units" not in f["timeseries/custom"].attrs
         assert f["mesh/positions"].chunks == (1, 18, 3)

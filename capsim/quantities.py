@@ -1,0 +1,309 @@
+"""The one table of the quantities capsim writes: units, long name, definition.
+
+Every dataset of a run file (``mesh/``, ``timeseries/`` and the groups
+``membrane_law``, ``rest_shape``, ``run``, ``summary``, ``error_estimate``),
+every variable and coordinate of a campaign summary (netCDF, :mod:`capsim.summary`)
+and of a study file (:mod:`capsim.study`) takes its attributes from :data:`TABLE`
+through :func:`attrs_for`. ``tests/test_quantities.py`` checks that everything a
+short run, a summary and a study write has an entry, and that every entry is used
+(or listed in :data:`PLANNED`).
+
+Scaling: capsim computes in the scales a (equal-volume radius), 1/k (inverse
+shear rate), E_s (membrane elastic modulus) and μ (outer viscosity), so most
+values are dimensionless. ``units`` is a UDUNITS string ("1" for a
+dimensionless number, "rad", "degree", "s"); ``scale`` names the capsim scale the
+dimensionless value is measured in ("a", "1/k", "E_s", "mu k a" …; "" for a pure
+number), so that kt = 2 is ``units: "1", scale: "1/k"``. String-valued entries
+(status, motion, names) have ``units: ""``.
+
+A name means one thing in every file. Where the same name means something else
+in one place (the ``error_estimate`` group holds error bars named after the
+quantity; a campaign summary's ``D_xy`` is a window mean when the run reports
+one, a study's its value at t_end), the table has a qualified entry
+``"<where>/<name>"`` that :func:`attrs_for` prefers when given ``where``.
+
+Root attributes of the run file and global attributes of the netCDF files are
+metadata (status, versions, the resolved case, dates, thread settings), not
+quantities: HDF5 attributes carry no attributes of their own, and CF maps
+global attributes by its own conventions. They are not in this table.
+
+This module imports nothing from capsim (and no numba): writers and readers of
+any kind may use it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["GROUPS", "PLANNED", "Quantity", "TABLE", "attrs_for", "case_field_attrs", "key_for"]
+
+
+@dataclass(frozen=True)
+class Quantity:
+    """One entry of the table."""
+
+    long_name: str
+    units: str  # UDUNITS: "1", "rad", "degree", "s"; "" for strings
+    definition: str
+    scale: str = ""  # capsim scale of the dimensionless value: "a", "1/k", "E_s", "mu k a" …
+
+    def attrs(self) -> dict[str, str]:
+        out = {"long_name": self.long_name, "units": self.units, "definition": self.definition}
+        if self.scale:
+            out["scale"] = self.scale
+        return out
+
+
+TABLE: dict[str, Quantity] = {}
+
+
+def _add(key: str, long_name: str, units: str, definition: str, scale: str = "") -> Quantity:
+    if key in TABLE:
+        raise ValueError(f"quantity {key!r} defined twice")
+    TABLE[key] = q = Quantity(long_name, units, definition, scale)
+    return q
+
+
+_STRESSLET = ("particle stresslet S = ∫ [Δf x − μ(1−λ)(u n + n u)] dS about the centroid, divided by "
+              "its rigid-sphere value (5/2) μ k V")
+
+# ---------------------------------------------------------------- mesh/
+
+_add("elements", "node indices of the 6-node triangles", "1",
+     "(Ne, 6) zero-based indices into the node arrays: the 3 vertices, then the 3 mid-side nodes")
+_add("rest_positions", "node positions of the rest shape", "1",
+     "(Np, 3) positions of the nodes at rest (the reference of the membrane strain), in units of a", "a")
+_add("positions", "node positions", "1",
+     "(n_snap, Np, 3) node positions at the snapshot times, in units of a", "a")
+_add("snapshot_t", "time of the snapshot", "1", "kt at which the snapshot was taken (time in units of 1/k)", "1/k")
+
+# ---------------------------------------------------------------- timeseries/ (one row per accepted step)
+
+_add("t", "time", "1", "kt, the time in units of the inverse shear rate 1/k", "1/k")
+_add("dt", "accepted time step", "1",
+     "k Δt of the step that led to this row (0 on the initial row), in units of 1/k", "1/k")
+_add("error_estimate", "local error estimate of the accepted step", "1",
+     "local error estimate of the time scheme's embedded pair divided by rtol (≤ 1 for an accepted step; "
+     "0 on the initial row)")
+_add("D_xy", "Taylor deformation parameter in the xy-plane", "1",
+     "(L − l)/(L + l), L and l the longest and shortest semi-axes in the xy-plane (axis_L, axis_l) of the "
+     "equivalent ellipsoid (same second moment of volume)")
+_add("theta", "inclination of the long axis", "rad",
+     "angle from the x-axis (flow direction) to the long axis in the xy-plane, in (−π/2, π/2]")
+_add("volume", "enclosed volume", "1", "volume V enclosed by the membrane, in units of a³", "a^3")
+_add("area", "surface area", "1", "area S of the membrane, in units of a²", "a^2")
+_add("volume_drift", "relative volume change", "1", "(V − V0)/V0, V0 the volume at t = 0")
+for _c in "xyz":
+    _add(f"centroid_{_c}", f"{_c} coordinate of the centroid", "1",
+         f"{_c} coordinate of the volume centroid of the capsule, in units of a", "a")
+_add("axis_L", "longest in-plane semi-axis", "1",
+     "longer of the two semi-axes in the xy-plane of the equivalent ellipsoid (same second moment of volume), "
+     "in units of a", "a")
+_add("axis_l", "shortest in-plane semi-axis", "1",
+     "shorter of the two semi-axes in the xy-plane of the equivalent ellipsoid, in units of a", "a")
+_add("axis_W", "out-of-plane semi-axis", "1",
+     "semi-axis of the equivalent ellipsoid closest to the z-axis (vorticity direction), in units of a", "a")
+_add("min_element_quality", "smallest element quality", "1",
+     "minimum over the elements of 4√3·area / Σ edge² of the vertex triangle (1 equilateral, 0 degenerate)")
+_add("max_principal_stretch", "largest principal stretch", "1",
+     "maximum over the vertices of the larger principal stretch of the membrane against the rest shape")
+_add("min_tension", "smallest principal membrane tension", "1",
+     "minimum over the vertices of the smaller principal tension divided by G = μka/E_s: the tension in "
+     "units of μ k a", "mu k a")
+_add("compressed_fraction", "fraction of the membrane in compression", "1",
+     "share of vertices whose smaller principal tension is negative; a membrane without bending "
+     "stiffness would wrinkle there")
+_add("Sxy_star", "normalised particle shear stress", "1", f"S_xy / ((5/2) μ k V), {_STRESSLET}", "5/2 mu k V")
+_add("N1_star", "normalised first normal stress difference", "1",
+     f"(S_xx − S_yy) / ((5/2) μ k V), {_STRESSLET}", "5/2 mu k V")
+_add("N2_star", "normalised second normal stress difference", "1",
+     f"(S_yy − S_zz) / ((5/2) μ k V), {_STRESSLET}", "5/2 mu k V")
+_add("ttf_ratio", "normalised tank-treading frequency", "1",
+     "f / f_s, f the frequency at which the material nodes starting in z = 0 circle the centroid in the "
+     "xy-plane and f_s = k/(4π) that of a rigid sphere: per step from their mean angular velocity; in a "
+     "summary from their whole revolutions (tt_angle) when there is at least one")
+_add("tt_angle", "tank-treading angle", "rad",
+     "unwrapped mean angle about the centroid, in the xy-plane, of the nodes starting in z = 0")
+_add("solver_iterations", "iterations of the velocity solve", "1",
+     "iterations of the λ ≠ 1 linear solve (GMRES or substitution) at this state; 0 when λ = 1")
+_add("solver_residual", "relative residual of the velocity solve", "1",
+     "relative residual of the λ ≠ 1 linear solve at this state; 0 when λ = 1")
+# cost counters of the time stepping and the solver (linear_iterations: see PLANNED)
+_add("velocity_evaluations", "velocity evaluations", "1",
+     "cumulative number of velocity evaluations since t = 0, rejected attempts and spectral-radius probes "
+     "included")
+_add("stages", "stages of the step", "1", "velocity evaluations (stages) of the accepted step")
+_add("layer_applications", "single- and double-layer applications", "1",
+     "cumulative number of single- and double-layer operator applications since t = 0, every iteration of "
+     "the linear solve included")
+_add("linear_iterations", "iterations of the linear solve", "1",
+     "cumulative iterations of the λ ≠ 1 linear solve since t = 0, every velocity evaluation included")
+
+# ---------------------------------------------------------------- run/ (the state at the end) and records
+
+_add("steps", "accepted time steps", "1",
+     "number of accepted time steps; -1 in a summary or study record of a run that left no readable file")
+_add("rejected_steps", "rejected time steps", "1", "number of step attempts rejected by the error control")
+_add("wall_time_s", "wall-clock time of the run", "s",
+     "elapsed time of run_case, mesh set-up included (a resumed run adds the time before its interruption); "
+     "the study warms the JIT kernels up first")
+_add("area_change", "relative area change", "1", "(S − S0)/S0, S0 the area at t = 0")
+_add("status", "final status of the run", "",
+     "completed, unstable, interrupted or failed as recorded in the run file; missing when the run has no "
+     "readable file")
+_add("status_reason", "why the run stopped", "", "one line from the run")
+_add("n_nodes", "mesh nodes", "1", "number of nodes (vertices and mid-side nodes) of the mesh")
+
+# ---------------------------------------------------------------- summary/ (statistics over the averaging window)
+
+_add("motion", "class of steady motion", "",
+     "as classified by the run: steady, oscillating, tumbling, transient or unstable; empty when the run did "
+     "not classify it")
+_add("period", "period of the motion", "1",
+     "oscillation period, or the time for theta to turn by 2π when tumbling, in units of 1/k; NaN otherwise",
+     "1/k")
+_add("averaging_t_from", "start of the averaging window", "1",
+     "kt at which the averaging window of the summary starts (whole cycles when oscillating or tumbling, "
+     "else the last quarter of the run)", "1/k")
+_add("averaging_t_to", "end of the averaging window", "1", "kt at which the averaging window ends", "1/k")
+for _name, _what in (("D_xy", "Taylor deformation parameter"), ("theta", "inclination")):
+    _add(f"{_name}_mean", f"cycle mean of the {_what}", TABLE[_name].units,
+         f"mean of {_name} over the motion classifier's window (whole cycles when oscillating, the steady "
+         f"window when steady); NaN for other motions")
+    _add(f"{_name}_amplitude", f"oscillation amplitude of the {_what}", TABLE[_name].units,
+         f"half the peak-to-peak of {_name} over the last cycle; NaN unless oscillating")
+for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star"):
+    _base = TABLE[_name]
+    _add(f"{_name}_std", f"standard deviation of the {_base.long_name}", _base.units,
+         f"standard deviation of {_name} over the averaging window; NaN when not reported", _base.scale)
+
+# ---------------------------------------------------------------- membrane_law/ and rest_shape/
+
+_add("membrane_law/name", "membrane constitutive law", "",
+     "thin_shell, neo_hookean, mooney_rivlin, skalak or surface_tension (docs/laws.md)")
+_add("G_s", "small-strain shear modulus of the law", "1", "G_s in units of E_s", "E_s")
+_add("K_s", "small-strain area-dilation modulus of the law", "1", "K_s in units of E_s", "E_s")
+_add("poisson_ratio", "surface Poisson ratio", "1", "(K_s − G_s)/(K_s + G_s); NaN for a drop")
+_add("ca_over_G", "capillary number over G", "1",
+     "E_s/G_s: converts G = μka/E_s to the capillary number Ca = μka/G_s; 1 for a drop")
+_add("equal_volume_radius", "equal-volume radius", "1",
+     "(3V/4π)^(1/3) of the discretised shape, in units of a (1 up to the discretisation)", "a")
+_add("sphericity", "sphericity", "1", "(36πV²)^(1/3)/S: area of the equal-volume sphere over the area, ≤ 1")
+
+# ---------------------------------------------------------------- case fields (coordinates, parameters)
+
+_add("shear_rate_G", "dimensionless shear rate G", "1",
+     "G = μ k a / E_s, μ the outer viscosity, k the shear rate, a the equal-volume radius, E_s the membrane "
+     "elastic modulus (the capillary number when the law is surface_tension)")
+_add("viscosity_ratio", "viscosity ratio λ", "1", "λ = μ_inside / μ_outside")
+_add("initial_tilt_deg", "initial tilt of the rest shape", "degree",
+     "rotation of the rest shape about the z-axis at t = 0")
+_add("aspect_ratio", "rest-shape aspect ratio", "1", "polar / equatorial axis of the rest spheroid")
+_add("level", "mesh subdivision level", "1", "subdivisions of the base polyhedron")
+_add("law", "membrane constitutive law", "", TABLE["membrane_law/name"].definition)
+_add("skalak_c", "Skalak area-dilation parameter C", "1", "C of the Skalak law; K_s/G_s = 1 + 2C")
+_add("psi", "Mooney-Rivlin parameter ψ'", "1", "weight of the second invariant in the Mooney-Rivlin law")
+_add("bending_modulus", "bending modulus", "1",
+     "κ/(E_s a²) of the dihedral-hinge bending energy relative to the rest shape (0: none)", "E_s a^2")
+_add("rtol", "relative tolerance of the time step control", "1",
+     "rtol of the embedded error estimate of the time scheme")
+_add("regular_order", "regular Gauss rule", "1", "points of the Gauss rule on triangles away from the singularity")
+_add("run_id", "run identifier", "",
+     "readable swept values and a hash of the resolved case; the run file is <run_id>.h5")
+
+# ---------------------------------------------------------------- campaign summary (netCDF)
+
+_STEADY = "at the end of the run (mean over the averaging window when the run reports one)"
+for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star"):
+    _base = TABLE[_name]
+    _add(f"campaign/{_name}", _base.long_name, _base.units, f"{_base.definition}; {_STEADY}", _base.scale)
+
+# ---------------------------------------------------------------- study file (netCDF)
+
+#: observables of the study and of the error estimate (capsim.study.QUANTITIES)
+_STUDIED = ("D_xy", "theta", "ttf_ratio", "Sxy_star")
+for _name in _STUDIED:
+    _base = TABLE[_name]
+    _add(f"study/{_name}", f"{_base.long_name} at t_end", _base.units,
+         f"{_base.definition}; at t = t_end (last row of the trajectory, theta unwrapped)", _base.scale)
+    _add(f"{_name}_error", f"error of the {_base.long_name}", _base.units,
+         f"{_name} at t_end minus its reference value", _base.scale)
+    _add(f"{_name}_relative_error", f"relative error of the {_base.long_name}", "1",
+         f"|{_name}_error| / |{_name}_reference|")
+    _add(f"{_name}_order", f"observed order of the {_base.long_name} in h", "1",
+         "log2(|e_l| / |e_(l+1)|), e the error against the reference; the mesh spacing h halves with every level")
+    _add(f"{_name}_order3", f"three-level observed order of the {_base.long_name} in h", "1",
+         "log2(|f_l − f_(l+1)| / |f_(l+1) − f_(l+2)|), independent of the reference")
+    _add(f"{_name}_reference", f"reference value of the {_base.long_name}", _base.units,
+         f"{_name} of the finest run, or its Richardson extrapolation in the mesh level", _base.scale)
+
+# ---------------------------------------------------------------- error_estimate/ (capsim run --error-estimate)
+
+_add("coarse_level", "mesh level of the coarser rerun", "1", "level − 1; -1 at level 0 (no coarser mesh)")
+_add("loose_rtol", "rtol of the looser rerun", "1", "min(10 rtol, 0.5)")
+_add("error_estimate/wall_time_s", "wall-clock time of the reruns", "s", "sum of the reruns' wall times")
+for _name in _STUDIED:
+    _base = TABLE[_name]
+    for _sfx, _of in (("", "at t_end"), ("_mean", "time mean over the run's averaging window")):
+        _key = f"{_name}{_sfx}"
+        _add(f"error_estimate/{_key}", f"error estimate of the {_base.long_name} ({_of})", _base.units,
+             f"|Δ_mesh| + |Δ_time| of {_name} {_of}: the sum of the two differences {_key}_mesh and "
+             f"{_key}_time that are finite", _base.scale)
+        _add(f"error_estimate/{_key}_value", f"{_base.long_name} ({_of})", _base.units,
+             f"{_name} of the run {_of}, the value the estimate is for", _base.scale)
+        _add(f"error_estimate/{_key}_mesh", f"mesh part of the error estimate of the {_base.long_name}",
+             _base.units, f"{_name} {_of} of the run minus that of the run one level coarser; NaN at level 0",
+             _base.scale)
+        _add(f"error_estimate/{_key}_time", f"time-step part of the error estimate of the {_base.long_name}",
+             _base.units, f"{_name} {_of} of the run minus that of the run at loose_rtol", _base.scale)
+
+# ---------------------------------------------------------------- groups
+
+#: What each group of a run file holds (written as the group's ``definition`` attribute).
+GROUPS: dict[str, str] = {
+    "mesh": "the mesh: 6-node triangles, rest shape and position snapshots",
+    "timeseries": "one row per accepted step (and the initial row at t = 0), t as dimension scale",
+    "membrane_law": "the membrane law, its parameters and its small-strain moduli",
+    "rest_shape": "measures of the discretised rest shape",
+    "run": "the state at the end of the run (last accepted step) and the run's cost",
+    "summary": "the motion and, for each observable q, q (time mean) and q_std over the averaging window "
+               "[averaging_t_from, averaging_t_to]",
+    "error_estimate": "q: |q(run) − q(one level coarser)| + |q(run) − q(rtol × 10)| at t_end; q_mean: the same "
+                      "for the time mean over the run's averaging window; q_mesh, q_time: the signed differences",
+}
+
+#: Entries for columns that other work is adding now: no writer writes them yet.
+#: Remove a name here once a writer writes it (tests/test_quantities.py checks
+#: that every entry outside this set is used and that nothing written is in it).
+PLANNED = frozenset({"linear_iterations"})
+
+del _add, _base, _c, _key, _name, _of, _sfx, _what
+
+
+# ---------------------------------------------------------------- look-up
+
+
+def key_for(name: str, where: str | None = None) -> str:
+    """The table key of `name` written in `where` (a run-file group, ``"campaign"``
+    or ``"study"``): ``"<where>/<name>"`` when the table has it, else `name`.
+    Raises KeyError when neither is in the table."""
+    if where is not None and f"{where}/{name}" in TABLE:
+        return f"{where}/{name}"
+    if name in TABLE:
+        return name
+    raise KeyError(f"{name!r}{f' (in {where})' if where else ''} has no entry in capsim.quantities.TABLE")
+
+
+def attrs_for(name: str, where: str | None = None) -> dict[str, str]:
+    """The attributes (long_name, units, definition and scale when there is one) of `name`."""
+    return TABLE[key_for(name, where)].attrs()
+
+
+def case_field_attrs(dotted: str) -> dict[str, str]:
+    """Attributes of a swept case field (``flow.shear_rate_G``) used as a coordinate:
+    the entry of its last component, plus ``case_field``; a field without an entry
+    gets its dotted name as long_name and no units (tell the table about it)."""
+    short = dotted.rsplit(".", 1)[-1]
+    if short in TABLE:
+        return dict(TABLE[short].attrs(), case_field=dotted)
+    return {"long_name": dotted, "definition": f"case field {dotted} (capsim/config.py)", "case_field": dotted}
