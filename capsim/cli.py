@@ -239,13 +239,25 @@ def _version(value: bool) -> None:
         raise typer.Exit()
 
 
+# Commands that run numba kernels: they report a thread setting taken from the user's environment.
+_COMPUTING = ("run", "sweep", "study", "bench")
+
+
 @app.callback()
 def main(
+    ctx: typer.Context,
     version: bool = typer.Option(
         False, "--version", callback=_version, is_eager=True, help="print the version"
     ),
 ) -> None:
     """Boundary-integral simulation of elastic capsules in simple shear flow."""
+    # Before any command imports numba: threading layer, wait policy and thread count
+    # (capsim.threads; NUMBA_NUM_THREADS, NUMBA_THREADING_LAYER, OMP_WAIT_POLICY of the user win).
+    from capsim.threads import apply_policy
+
+    policy = apply_policy()
+    if policy.user and ctx.invoked_subcommand in _COMPUTING:
+        typer.echo(f"threads: {policy.describe()}", err=True)
 
 
 class _SweepProgress(_Progress):
@@ -270,7 +282,10 @@ class _SweepProgress(_Progress):
 @app.command()
 def sweep(
     campaign_path: Path = typer.Argument(..., metavar="CAMPAIGN.yaml", help="campaign file"),
-    workers: Optional[int] = typer.Option(None, "--workers", min=1, help="local worker processes (default: cores)"),
+    workers: Optional[int] = typer.Option(
+        None, "--workers", min=1,
+        help="local worker processes, each with cores // workers numba threads (default: one per core)",
+    ),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Dask scheduler address, tcp://host:port"),
     no_resume: bool = typer.Option(False, "--no-resume", help="redo runs that already completed"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress line"),
@@ -427,7 +442,9 @@ def study(
     quad: Optional[str] = typer.Option(None, "--quad", help="regular Gauss orders (points per element), comma-separated"),
     reference: str = typer.Option("finest", "--reference", help="finest (run) or richardson (extrapolated in the level)"),
     t_end: Optional[float] = typer.Option(None, "--t-end", help="override time.t_end"),
-    workers: int = typer.Option(1, "--workers", min=1, help="runs side by side (the kernels already use every core)"),
+    workers: int = typer.Option(
+        1, "--workers", min=1, help="runs side by side, in worker processes with cores // workers numba threads each"
+    ),
     output: Path = typer.Option(Path("study.nc"), "-o", "--output", help="netCDF path; the Pareto plot goes next to it (.png)"),
     runs_dir: Optional[Path] = typer.Option(None, "--runs-dir", help="keep the run files here (default: discarded)"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no line per finished run"),
