@@ -339,6 +339,23 @@ def rkc_coefficients(s: int, damping: float = 2.0 / 13.0) -> ChebyshevCoefficien
     return ChebyshevCoefficients(s, mu, nu, mu_t, gamma_t, beta=(1.0 + w0) / w1)
 
 
+def rkc_step(f: Callable[[np.ndarray], np.ndarray], y0: np.ndarray, f0: np.ndarray, h: float,
+             coef: ChebyshevCoefficients) -> np.ndarray:
+    """One RKC step of size h from y0 (f0 = f(y0)): the three-term recursion
+    (SSV 1998, eq. 2.4), s − 1 evaluations of f, a few vectors of memory.
+
+        Y_1 = Y_0 + μ̃_1 h F_0
+        Y_j = (1 − μ_j − ν_j) Y_0 + μ_j Y_{j−1} + ν_j Y_{j−2} + μ̃_j h F(Y_{j−1}) + γ̃_j h F_0
+    """
+    y_prev2, y_prev = y0, y0 + (coef.mu_tilde[1] * h) * f0
+    for j in range(2, coef.s + 1):
+        fj = f(y_prev)
+        y_j = ((1.0 - coef.mu[j] - coef.nu[j]) * y0 + coef.mu[j] * y_prev + coef.nu[j] * y_prev2
+               + (coef.mu_tilde[j] * h) * fj + (coef.gamma_tilde[j] * h) * f0)
+        y_prev2, y_prev = y_prev, y_j
+    return y_prev
+
+
 def rkc_stages_for(h_rho: float, max_stages: int) -> int:
     """Fewest stages (≥ 2) whose stability interval covers h·ρ, capped at ``max_stages``."""
     s = max(2, int(math.ceil(math.sqrt(max(h_rho, 0.0) / 0.65))))
@@ -424,13 +441,7 @@ class RungeKuttaChebyshev(Integrator):
             h, cut = coef.beta / self.rho, True
             self.stage_bound_hits += 1
         y0, f0 = self.y, self.u
-        y_prev2, y_prev = y0, y0 + (coef.mu_tilde[1] * h) * f0
-        for j in range(2, s + 1):
-            f = self.velocity(y_prev)
-            y_j = ((1.0 - coef.mu[j] - coef.nu[j]) * y0 + coef.mu[j] * y_prev + coef.nu[j] * y_prev2
-                   + (coef.mu_tilde[j] * h) * f + (coef.gamma_tilde[j] * h) * f0)
-            y_prev2, y_prev = y_prev, y_j
-        y_new = y_prev
+        y_new = rkc_step(self.velocity, y0, f0, h, coef)
         if not np.all(np.isfinite(y_new)):
             return Trial(False, False, h, math.inf, s - 1), y_new, cut
         u_new, aux = self.evaluate(y_new)

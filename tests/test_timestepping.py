@@ -1,0 +1,175 @@
+"""Time integrators: every registered scheme against an exact solution; RKC's
+order, stability interval and stage count; a capsule run against a tight
+RKF2(3) reference; an interrupted RKC run resumed."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from capsim.config import apply_overrides, case_from_dict
+from capsim.runner import run_case
+from capsim.store import read_trajectory
+from capsim.timestepping import (
+    SCHEMES, attempt_step, make_integrator, rkc_coefficients, rkc_stages_for, rkc_step, RKF23,
+)
+
+# y' = A y + b with A = Q diag(λ) Qᵀ, eigenvalues spread over [−1e4, −1]: exact
+# solution known. The start lies on the slow manifold (the stiff modes at their
+# equilibrium), as a smooth solution of a stiff problem does; Q mixes the modes so
+# that every component sees the stiff ones (an unstable step amplifies their round-off).
+EIGENVALUES = -np.logspace(0, 4, 40)
+Q = np.linalg.qr(np.random.default_rng(1).standard_normal((40, 40)))[0]
+A = Q @ np.diag(EIGENVALUES) @ Q.T
+FORCING = Q @ np.linspace(1.0, 2.0, 40)
+Y_STAR = -np.linalg.solve(A, FORCING)
+Y0 = Y_STAR + Q @ np.where(-EIGENVALUES <= 10.0, 1.0, 0.0)
+RHO = 1e4
+RKF23_LIMIT = 2.5 / RHO  # RKF2(3)'s real stability interval is about [−2.5, 0]
+
+
+def linear(y: np.ndarray) -> np.ndarray:
+    return A @ y + FORCING
+
+
+def exact(t: float) -> np.ndarray:
+    return Y_STAR + Q @ (np.exp(EIGENVALUES * t) * (Q.T @ (Y0 - Y_STAR)))
+
+
+def _rkc_fixed(h: float, t_end: float) -> np.ndarray:
+    coef = rkc_coefficients(rkc_stages_for(h * RHO, 1000))
+    y = Y0.copy()
+    for _ in range(int(round(t_end / h))):
+        y = rkc_step(linear, y, linear(y), h, coef)
+    return y
+
+
+def test_rkc_coefficients_integrate_y_prime_equals_y_to_second_order():
+    """The stability polynomial R(z) = 1 + z + z²/2 + O(z³) (second order) for any s."""
+    for s in (2, 3, 7, 20):
+        coef = rkc_coefficients(s)
+        for z in (1e-2, 2e-2):
+            r = rkc_step(lambda y: y, np.ones(1), np.ones(1), z, coef)[0]
+            assert abs(r - (1 + z + z * z / 2)) < 0.2 * z**3, (s, z)
+
+
+def test_rkc_stability_interval_grows_like_s_squared():
+    for s in (2, 5, 10, 40):
+        beta = rkc_coefficients(s).beta
+        assert 0.6 * s * s <= beta + 1.0 <= 0.7 * s * s + 2.0, (s, beta)
+        # |R(−β)| ≤ 1 at the end of the interval, > 1 just beyond (damping ε = 2/13: |R| ≤ 1 − ε/3 inside)
+        coef = rkc_coefficients(s)
+        inside = rkc_step(lambda y: -y, np.ones(1), -np.ones(1), 0.999 * beta, coef)[0]
+        beyond = rkc_step(lambda y: -y, np.ones(1), -np.ones(1), 1.1 * beta, coef)[0]
+        assert abs(inside) <= 1.0 and abs(beyond) > 1.0, (s, inside, beyond)
+
+
+def test_rkc_stage_count_is_the_fewest_that_cover_h_rho():
+    for h_rho in (0.5, 10.0, 250.0, 3000.0):
+        s = rkc_stages_for(h_rho, 1000)
+        assert rkc_coefficients(s).beta >= h_rho
+        assert s == 2 or rkc_coefficients(s - 1).beta < h_rho
+    assert rkc_stages_for(1e6, 50) == 50
+
+
+def test_rkc_converges_at_second_order_on_a_stiff_linear_problem():
+    t_end = 1.0
+    errors = [float(np.abs(_rkc_fixed(h, t_end) - exact(t_end)).max()) for h in (0.04, 0.02, 0.01)]
+    orders = [math.log2(errors[i] / errors[i + 1]) for i in range(2)]
+    assert all(1.8 <= p <= 2.3 for p in orders), (errors, orders)
+
+
+def test_rkc_is_stable_at_100_times_the_rkf23_limit():
+    h = 100 * RKF23_LIMIT
+    y = _rkc_fixed(h, 2.0)
+    assert np.abs(y - exact(2.0)).max() < 1e-3
+    # the same step blows RKF2(3) up: the assertion above is not trivially met
+    z = Y0.copy()
+    for _ in range(20):
+        z = attempt_step(linear, z, h, RKF23, 1.0).y
+    assert np.abs(z).max() > 1e6
+
+
+@pytest.mark.parametrize("name", sorted(SCHEMES))
+def test_every_scheme_follows_the_exact_solution(name):
+    integ = make_integrator(name, lambda y: (linear(y), None), Y0, rtol=1e-5, dt_initial=1e-5,
+                            dt_min=1e-12, dt_max=1.0)
+    integ.start()
+    t_end = 3.0
+    while integ.t < t_end - 1e-12:
+        trial = integ.attempt(t_end)
+        assert trial.finite
+    assert abs(integ.t - t_end) < 1e-12
+    assert np.abs(integ.y - exact(t_end)).max() < 1e-3
+
+
+def test_rkc_spends_fewer_evaluations_than_rkf23_on_the_stiff_problem():
+    counts = {}
+    for name in ("rkf23", "rkc"):
+        integ = make_integrator(name, lambda y: (linear(y), None), Y0, rtol=1e-4, dt_initial=1e-5,
+                                dt_min=1e-12, dt_max=1.0)
+        integ.start()
+        while integ.t < 3.0 - 1e-12:
+            integ.attempt(3.0)
+        counts[name] = integ.evaluations
+        assert np.abs(integ.y - exact(3.0)).max() < 1e-2
+    assert counts["rkf23"] > 10 * counts["rkc"], counts
+
+
+def test_spectral_radius_estimate_bounds_the_largest_eigenvalue():
+    integ = make_integrator("rkc", lambda y: (linear(y), None), Y0, rtol=1e-4, dt_initial=1e-3,
+                            dt_min=1e-12, dt_max=1.0)
+    integ.start()
+    rho = integ.spectral_radius()
+    assert RHO <= rho <= 1.3 * RHO
+    assert integ.rho_evaluations <= integ.RHO_MAX_ITER
+
+
+def _capsule(tmp_path, name, **dotted):
+    case = case_from_dict({
+        "name": name, "mesh": {"level": 2}, "flow": {"shear_rate_G": 0.05},
+        "time": {"t_end": 2.0}, "output": {"path": str(tmp_path / f"{name}.h5")},
+    })
+    return apply_overrides(case, **dotted)
+
+
+def test_rkc_capsule_matches_a_tight_rkf23_reference(tmp_path):
+    """Sphere, level 2, G = 0.05, kt 2: RKC at rtol 1e-3 against RKF2(3) at rtol 1e-6,
+    max over t of |ΔD_xy| ≤ 1e-4, with fewer velocity evaluations."""
+    ref = run_case(_capsule(tmp_path, "ref", **{"time.rtol": 1e-6}))
+    rkc = run_case(_capsule(tmp_path, "rkc", **{"time.rtol": 1e-3, "time.scheme": "rkc"}))
+    assert ref["status"] == rkc["status"] == "completed"
+    want, got = read_trajectory(ref["path"])["timeseries"], read_trajectory(rkc["path"])["timeseries"]
+    d_ref = np.interp(got["t"], want["t"], want["D_xy"])
+    assert np.abs(got["D_xy"] - d_ref).max() <= 1e-4
+    assert rkc["velocity_evaluations"] < ref["velocity_evaluations"] / 2
+    assert got["velocity_evaluations"][-1] == rkc["velocity_evaluations"]
+    assert np.all(got["stages"][1:] >= 2)
+
+
+class _InterruptAfter:
+    def __init__(self, steps: int) -> None:
+        self.steps = steps
+
+    def __call__(self, state: dict) -> None:
+        if state["step"] >= self.steps:
+            raise KeyboardInterrupt
+
+
+@pytest.mark.parametrize("lam", [1.0, 5.0])
+def test_resumed_rkc_run_repeats_the_uninterrupted_one(tmp_path, lam):
+    """The spectral radius, its vector and age, the stage count and the
+    controller's memory are in the checkpoint: the step sequence is the same."""
+    case = _capsule(tmp_path, f"rkc{lam:g}", **{"time.scheme": "rkc", "mesh.level": 1, "time.t_end": 1.5,
+                                                "time.rho_refresh_steps": 3, "flow.viscosity_ratio": lam})
+    assert run_case(case, progress=_InterruptAfter(5))["status"] == "interrupted"
+    resumed = run_case(case, resume=True)
+    reference = run_case(apply_overrides(case, **{"output.path": str(tmp_path / "reference.h5")}))
+    assert resumed["status"] == reference["status"] == "completed"
+    assert resumed["steps"] == reference["steps"]
+    assert resumed["velocity_evaluations"] == reference["velocity_evaluations"]
+    got, want = read_trajectory(case.output.path), read_trajectory(reference["path"])
+    for key in ("t", "D_xy", "theta", "stages", "velocity_evaluations", "layer_applications"):
+        np.testing.assert_allclose(got["timeseries"][key], want["timeseries"][key], rtol=0, atol=1e-10, err_msg=key)
