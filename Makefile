@@ -4,7 +4,7 @@ BIN    := $(VENV)/bin
 # Reinstall only when the package metadata changes.
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv test test-all demo bench
+.PHONY: venv test test-all demo bench bench-threads
 
 venv: $(STAMP)
 
@@ -24,3 +24,8 @@ demo: venv
 
 bench: venv
 	$(BIN)/python benchmarks/run_bench.py
+
+# numba threading layers x OpenMP wait policies, 1 and 2 threads, quiet and with a busy competitor
+# (several minutes): writes benchmarks/threads.md and benchmarks/threads.json
+bench-threads: venv
+	$(BIN)/python benchmarks/threads.py
