@@ -23,6 +23,7 @@ import yaml
 
 from capsim import __version__
 from capsim.config import Case
+from capsim.errors import first_line
 from capsim.membrane import law_attributes
 from capsim.mesh import SurfaceMesh, rest_shape_attributes
 from capsim.observables import StepObserver, run_summary
@@ -282,10 +283,8 @@ class _Run:
             attrs={"n_nodes": X.shape[0], "n_elements": elements.shape[0], "time_scheme": case.time.scheme,
                    "symmetry": model.disc.symmetry},
         )
-        law = law_attributes(case.membrane.law, model.law_params)
-        self.writer.write_group("membrane_law", {k: v for k, v in law.items() if k != "parameters"}
-                                | {"parameters": law["parameters"] or {"none": 0.0}})
-        self.writer.write_group("rest_shape", rest_shape_attributes(SurfaceMesh(X, elements, model.disc.n_vertices)))
+        self.writer.write_membrane_law(law_attributes(case.membrane.law, model.law_params))
+        self.writer.write_rest_shape(rest_shape_attributes(SurfaceMesh(X, elements, model.disc.n_vertices)))
 
     def _reopen(self, saved: dict[str, dict[str, Any]]) -> None:
         try:
@@ -388,11 +387,11 @@ class _Run:
             min_tension=last["min_tension"], compressed_fraction=last["compressed_fraction"],
             bending_modulus=float(self.case.membrane.bending_modulus),
         )
-        self.writer.write_group("run", {k: v for k, v in result.record().items() if k != "scheme"})
+        self.writer.write_run_record({k: v for k, v in result.record().items() if k != "scheme"})
         motion = run_summary({k: np.asarray(v) for k, v in self.observer.history.items()})
         if status == "unstable":
             motion["motion"] = "unstable"
-        self.writer.write_group("summary", motion)
+        self.writer.write_summary(motion)
         self.writer.set_attrs(motion=motion["motion"])
         self.writer.close(status, reason)
         return RunResult(**{**{f.name: getattr(result, f.name) for f in fields(result)}, "summary": motion})
@@ -400,6 +399,6 @@ class _Run:
     def _fail(self, exc: BaseException) -> None:
         if self.committed is not None:
             self._save_checkpoint(self.committed)
-        first = str(exc).splitlines()[0] if str(exc) else ""
+        first = first_line(exc, default="")
         t = float(self.committed["integrator"]["t"]) if self.committed is not None else 0.0
         self.writer.close("failed", f"{type(exc).__name__}: {first} at kt = {t:.6g}")
