@@ -103,8 +103,8 @@ def _compression(summary: dict[str, Any]) -> str | None:
 
     A membrane without bending stiffness cannot carry compression: where the smaller
     principal tension is negative a real capsule wrinkles, and where the compression
-    persists the computed solution comes to depend on the mesh (README, "Known
-    limitation").
+    persists the computed solution comes to depend on the mesh (README, "Compressed
+    membranes and bending stiffness").
     """
     frac, low = summary.get("compressed_fraction"), summary.get("min_tension")
     if not isinstance(frac, float):
@@ -134,7 +134,10 @@ def _summary_table(summary: dict[str, Any]) -> str:
         ("S*_xy", _mean_std(summary, "Sxy_star")),
         ("N1*", _mean_std(summary, "N1_star")),
         ("N2*", _mean_std(summary, "N2_star")),
+        ("scheme", summary.get("scheme")),
         ("steps", _fmt(summary.get("steps"), "d")),
+        ("velocity evaluations", _fmt(summary.get("velocity_evaluations"), "d")),
+        ("layer applications", _fmt(summary.get("layer_applications"), "d")),
         ("wall time (s)", _fmt(summary.get("wall_time_s"), ".1f")),
         ("volume drift", _fmt(summary.get("volume_drift"), ".3e")),
         ("compressed vertices", _compression(summary)),

@@ -371,6 +371,7 @@ class _Run:
             self._save_checkpoint(self.committed)
         else:
             remove_checkpoint(self.ckpt_path)
+        reason = "; ".join(part for part in (reason, ig.note()) if part)
         if self.snapshots.last_time < ig.t:
             self.writer.append_snapshot(ig.t, ig.y)
         first, last = self.observer.first, self.observer.last

@@ -257,6 +257,10 @@ class Integrator:
         """(trial, new positions, whether h was cut below the step size by the scheme)."""
         raise NotImplementedError
 
+    def note(self) -> str:
+        """What the run's status should say about the scheme ('' if nothing)."""
+        return ""
+
     # -- checkpoints -------------------------------------------------------
     _STATE_ARRAYS: ClassVar[tuple[str, ...]] = ("y", "u")
     _STATE_SCALARS: ClassVar[tuple[str, ...]] = ("t", "dt", "steps", "rejected", "evaluations", "last_stages")
@@ -401,6 +405,12 @@ class RungeKuttaChebyshev(Integrator):
 
     _STATE_ARRAYS = Integrator._STATE_ARRAYS + ("rho_vector",)
     _STATE_SCALARS = Integrator._STATE_SCALARS + ("rho", "rho_age", "rho_evaluations", "stage_bound_hits")
+
+    def note(self) -> str:
+        if not self.stage_bound_hits:
+            return ""
+        return (f"rkc: {self.stage_bound_hits} steps shortened to the stability limit of "
+                f"time.max_stages = {self.max_stages} stages")
 
     def spectral_radius(self) -> float:
         """Nonlinear power iteration on v ↦ u(y + v) − u(y), warm-started from

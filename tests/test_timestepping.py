@@ -173,3 +173,12 @@ def test_resumed_rkc_run_repeats_the_uninterrupted_one(tmp_path, lam):
     got, want = read_trajectory(case.output.path), read_trajectory(reference["path"])
     for key in ("t", "D_xy", "theta", "stages", "velocity_evaluations", "layer_applications"):
         np.testing.assert_allclose(got["timeseries"][key], want["timeseries"][key], rtol=0, atol=1e-10, err_msg=key)
+
+
+def test_rkc_at_its_stage_bound_shortens_steps_and_says_so(tmp_path):
+    case = _capsule(tmp_path, "bound", **{"time.scheme": "rkc", "mesh.level": 1, "time.t_end": 0.5,
+                                          "time.max_stages": 2, "time.dt_initial": 0.1})
+    result = run_case(case)
+    assert result["status"] == "completed"
+    assert "steps shortened to the stability limit of time.max_stages = 2" in result["status_reason"]
+    assert read_trajectory(result["path"])["timeseries"]["stages"].max() == 2
