@@ -198,9 +198,19 @@ def _pool_task(task: Task, key: str, item: Any) -> Any:
         if _WORKER_QUEUE is not None:
             _WORKER_QUEUE.put((key, 0.0))  # started: the parent counts it as running
             progress = _QueueProgress(key, _WORKER_QUEUE)
-        return task(item, progress)
+        try:
+            return task(item, progress)
+        except Exception as exc:  # the task's own failure, not the worker's: a record in the parent
+            return _Failed(one_line(exc))
     finally:
         _WORKER_BUSY.clear()
+
+
+@dataclass(frozen=True)
+class _Failed:
+    """A task that raised in a worker (turned into the caller's failure record in the parent)."""
+
+    reason: str
 
 
 # ---------------------------------------------------------------- the batch
@@ -298,6 +308,8 @@ def _run_pool(items, task, keys, order, warm, failure, done, on_progress, worker
             return failure(i, "failed", f"worker died: {one_line(exc)}")
         if isinstance(record, str) and record == _NOT_STARTED:
             return failure(i, "interrupted", f"{name} stopped before this run started")
+        if isinstance(record, _Failed):
+            return failure(i, "failed", record.reason)
         return record
 
     try:
@@ -335,6 +347,8 @@ def _run_pool(items, task, keys, order, warm, failure, done, on_progress, worker
                 record = failure(i, "interrupted", f"{name} stopped: {type(exc).__name__}")
             if isinstance(record, str) and record == _NOT_STARTED:
                 record = failure(i, "interrupted", f"{name} stopped before this run started")
+            elif isinstance(record, _Failed):
+                record = failure(i, "interrupted", f"{name} stopped: {record.reason}")
             elif record["status"] == "failed":
                 # The stop signal can surface as any exception (e.g. from inside a numba call).
                 record = dict(record, status="interrupted", status_reason=f"{name} stopped: {record['status_reason']}")

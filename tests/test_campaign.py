@@ -100,6 +100,50 @@ def test_a_raising_case_is_recorded_not_raised(tmp_path, monkeypatch):
     assert record == {"run_id": spec.run_id, "status": "failed", "status_reason": "RuntimeError: solver exploded"}
 
 
+# ---------------------------------------------------------------- the batch executor
+
+
+def _task(item, progress):  # module level: the spawned workers import it by name
+    if item == "bad":
+        raise ValueError("no good\nsecond line")
+    return {"status": "completed", "status_reason": "", "item": item}
+
+
+@pytest.mark.parametrize("in_process", [True, False], ids=["in-process", "pool"])
+def test_executor_turns_a_raising_task_into_a_record(in_process):
+    from capsim.executor import run_batch
+
+    items = ["a", "bad", "c"]
+    done = []
+    out = run_batch(
+        items, _task, keys=items, workers=2, in_process=in_process, order=[2, 1, 0],
+        failure=lambda i, status, reason: {"status": status, "status_reason": reason, "item": items[i]},
+        on_done=lambda i, record: done.append(i),
+    )
+    assert not out.interrupted
+    assert [r["item"] for r in out.records] == items  # item order, whatever the finishing order
+    assert out.records[1] == {"status": "failed", "status_reason": "ValueError: no good", "item": "bad"}
+    assert sorted(done) == [0, 1, 2]
+
+
+def test_warm_up_covers_each_kind_of_kernel_once():
+    from capsim.config import case_from_dict
+    from capsim.executor import distinct_kinds
+
+    def case(**sections):
+        return case_from_dict({"name": "k", **sections})
+
+    cases = [
+        case(), case(flow={"shear_rate_G": 0.2}),  # the same kernels
+        case(flow={"viscosity_ratio": 5.0}), case(flow={"viscosity_ratio": 0.2}),  # λ ≠ 1: one kind
+        case(membrane={"law": "skalak"}), case(membrane={"law": "neo_hookean", "bending_modulus": 0.01}),
+        case(membrane={"traction": "contour"}), case(quadrature={"near_field_factor": 0.5}),
+        case(mesh={"symmetry": False}),
+    ]
+    kinds = distinct_kinds(cases)
+    assert [cases.index(c) for c in kinds] == [0, 2, 4, 5, 6, 7, 8]
+
+
 # ---------------------------------------------------------------- sweeps
 
 
