@@ -223,7 +223,8 @@ def _check_dotted(key: str, where: str) -> None:
         if field is None:
             owner = ".".join(parts[:i]) or "a case"
             raise ConfigError(
-                f"{where}: {key!r} is not a case field ({owner} has: {', '.join(model.model_fields)})"
+                f"{where}: {bounded_repr(key)} is not a case field ({bounded_repr(owner)[1:-1]} has: "
+                f"{', '.join(model.model_fields)})"
             )
         ann = field.annotation
         is_section = isinstance(ann, type) and issubclass(ann, BaseModel)
@@ -231,7 +232,7 @@ def _check_dotted(key: str, where: str) -> None:
         if is_section and last:
             raise ConfigError(f"{where}: {key!r} is a section; sweep one of its fields ({', '.join(ann.model_fields)})")
         if not is_section and not last:
-            raise ConfigError(f"{where}: {key!r}: {'.'.join(parts[: i + 1])} is not a section")
+            raise ConfigError(f"{where}: {bounded_repr(key)}: {'.'.join(parts[: i + 1])} is not a section")
         if is_section:
             model = ann
 
@@ -273,6 +274,7 @@ def expand_campaign(campaign: Campaign, source: str = "<campaign>") -> list[RunS
             for key, value in params.items():
                 _set_dotted(data, key, value)
             label = ", ".join(f"{k}={bounded_repr(v)}" for k, v in params.items()) or "the only run"
+            label = label if len(label) <= 160 else label[:157] + "..."
             data["name"] = "run"
             case = case_from_dict(data, source=f"{source}: run {label}")
             # Only what the campaign sets (coerced by the schema, so 1 and 1.0 agree): a default

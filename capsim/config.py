@@ -13,7 +13,7 @@ import math
 import os
 import stat
 from collections.abc import Mapping
-from typing import Any, Literal
+from typing import Any, Literal, get_args, get_origin
 
 import yaml
 from pydantic import (
@@ -67,8 +67,6 @@ MAX_SNAPSHOTS = 10_000
 #: the membrane-law parameters and their defaults (the law functions of capsim.membrane
 #: take the same defaults; tests/test_registries.py checks that they agree)
 LAW_PARAMETER_DEFAULTS = {"mooney_rivlin": {"psi": 0.0}, "skalak": {"skalak_c": 10.0}}
-#: the λ ≠ 1 velocity-solve methods (capsim.solver)
-SOLVER_METHODS = ("gmres", "substitution")
 
 
 class _FieldProblem(ValueError):
@@ -83,9 +81,11 @@ def _strict_scalar(v: Any, annotation: Any) -> Any:
     # YAML 1.1 reads yes/no/on/off as booleans: never let one become 1.0 or 0 for a
     # number (bool is an int subclass, so pydantic's lax float would take it).
     if isinstance(v, bool) and annotation is not bool:
-        raise ValueError(
-            f"must be a number, not {str(v).lower()} (YAML reads yes/no/on/off as booleans)"
+        choices = get_args(annotation) if get_origin(annotation) is Literal else ()
+        kind = {int: "an integer", float: "a number", str: "a string"}.get(
+            annotation, "one of " + ", ".join(map(str, choices)) if choices else "a value of the field's kind"
         )
+        raise ValueError(f"must be {kind}, not {str(v).lower()} (YAML reads yes/no/on/off as booleans)")
     if annotation is float and isinstance(v, str):
         # PyYAML (YAML 1.1) reads `1e-4` (no dot) as the string "1e-4": a string that
         # is a plain decimal number is taken; 'nan', 'inf', '0x10', '1_0' are not.

@@ -1,0 +1,87 @@
+"""The schema's and the CLI's choices are the registries' (issue 13, item 6).
+
+capsim.config stays free of numba and numpy (the CLI imports it to check a case
+before any kernel loads), so its ``Literal`` choices are written out there and
+checked here against the registries of the modules that implement them.
+"""
+
+from __future__ import annotations
+
+import inspect
+from typing import get_args
+
+import pytest
+
+from capsim import cli, config
+from capsim.config import Case, Membrane, Mesh, Quadrature, Shape, Solver, Time
+
+
+def _choices(model, field: str) -> tuple:
+    return get_args(model.model_fields[field].annotation)
+
+
+def test_membrane_laws_are_the_registry():
+    from capsim.membrane import LAWS
+
+    assert set(_choices(Membrane, "law")) == set(LAWS)
+
+
+def test_rest_shapes_and_bases_are_the_registries():
+    from capsim.mesh import BASE_POLYHEDRA, REST_SHAPES
+
+    assert set(_choices(Shape, "kind")) == set(REST_SHAPES)
+    assert set(_choices(Mesh, "base")) == set(BASE_POLYHEDRA)
+
+
+def test_traction_and_solver_methods_are_the_registries():
+    from capsim import membrane, solver
+
+    traction = getattr(membrane, "TRACTION_METHODS", None) or solver.TRACTION_METHODS
+    assert set(_choices(Membrane, "traction")) == set(traction)
+    assert set(_choices(Solver, "method")) == set(solver.SOLVER_METHODS)
+
+
+def test_regular_orders_are_the_quadrature_rules():
+    from capsim.quadrature import REGULAR_ORDERS
+
+    assert set(_choices(Quadrature, "regular_order")) == set(REGULAR_ORDERS)
+
+
+def test_time_schemes_are_the_registry():
+    if "scheme" not in Time.model_fields:
+        pytest.skip("the case has no time.scheme field yet")
+    from capsim.timestepping import SCHEMES
+
+    assert set(_choices(Time, "scheme")) == set(SCHEMES)
+
+
+def test_law_parameters_and_defaults_are_defined_once():
+    """Every law parameter is a Membrane field whose default is the law functions' default."""
+    from capsim.membrane import LAWS
+
+    with_params = {name: law for name, law in LAWS.items() if law.parameters}
+    assert set(config.LAW_PARAMETER_DEFAULTS) == set(with_params)
+    for name, law in with_params.items():
+        assert set(config.LAW_PARAMETER_DEFAULTS[name]) == set(law.parameters)
+        for func in (law.energy, law.derivatives):
+            signature = inspect.signature(func).parameters
+            for param, default in config.LAW_PARAMETER_DEFAULTS[name].items():
+                assert signature[param].default == default, (name, func.__name__, param)
+        for param, default in config.LAW_PARAMETER_DEFAULTS[name].items():
+            assert Membrane.model_fields[param].default == default
+
+
+def test_cli_choices_are_the_registries():
+    from capsim import plot
+    from capsim.campaign import MAX_RUNS
+
+    assert tuple(cli._PLOT_KINDS) == tuple(plot.KINDS)
+    sweep_max_runs = inspect.signature(cli.sweep).parameters["max_runs"].default
+    assert sweep_max_runs.default == MAX_RUNS
+
+
+def test_every_case_section_is_a_schema_model():
+    # _check_dotted and the error messages walk Case.model_fields: every section is a model
+    sections = {name for name, f in Case.model_fields.items() if isinstance(f.annotation, type)
+                and issubclass(f.annotation, config.BaseModel)}
+    assert sections == {"shape", "membrane", "flow", "mesh", "quadrature", "time", "solver", "guards", "output"}
