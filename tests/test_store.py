@@ -147,3 +147,59 @@ def test_sigkilled_writer_leaves_readable_file(tmp_path):
     assert 40 <= n <= 47
     np.testing.assert_allclose(d["timeseries"]["D_xy"], 0.01 * np.arange(n))
     np.testing.assert_array_equal(d["positions"], np.ones((1, 18, 3)))
+
+
+def test_named_group_writers_label_from_the_table(tmp_path):
+    from capsim.quantities import GROUPS, attrs_for
+
+    path = tmp_path / "g.h5"
+    law = {"name": "skalak", "parameters": {"skalak_c": 5.0}, "G_s": 1 / 3, "K_s": 11 / 3,
+           "poisson_ratio": 0.83, "ca_over_G": 3.0, "units": "E_s"}
+    with _writer(path) as w:
+        w.write_membrane_law(law)
+        w.write_rest_shape({"volume": 4.18, "area": 12.5, "equal_volume_radius": 1.0, "sphericity": 1.0})
+        w.write_run_record({"t": 1.0, "steps": 3, "D_xy": 0.1})
+        w.write_group("summary", {"D_xy": 0.1, "motion": "steady", "note": "x"})  # goes to write_summary
+        w.write_group("membrane_law", dict(law, name="thin_shell", parameters={"none": 0.0}))  # older callers
+    with h5py.File(path, "r") as f:
+        for name in ("membrane_law", "rest_shape", "run", "summary", "mesh", "timeseries"):
+            assert f[name].attrs["definition"] == GROUPS[name]
+        assert f["membrane_law/name"].asstr()[()] == "thin_shell"
+        assert len(f["membrane_law/parameters"]) == 0 and "units" not in f["membrane_law"]
+        assert f["membrane_law/K_s"].attrs["scale"] == "E_s"
+        assert f["run/t"].attrs["long_name"] == attrs_for("t")["long_name"]
+        assert f["summary/motion"].attrs["units"] == ""
+        assert "units" not in f["summary/note"].attrs  # no entry: written unlabelled
+        assert f["mesh/elements"].attrs["long_name"] == attrs_for("elements")["long_name"]
+
+
+def test_error_estimate_group_and_scalar_readers(tmp_path):
+    from capsim.store import read_run_record, read_run_status, write_error_estimate
+
+    path = tmp_path / "e.h5"
+    with _writer(path) as w:
+        for i in range(3):
+            w.append_step({"t": float(i), "volume": 4.0 + i})
+        w.write_run_record({"steps": 2})
+    write_error_estimate(path, {"D_xy": 1.0, "coarse_level": 0})
+    write_error_estimate(path, {"D_xy": 2e-3, "coarse_level": 1})  # replaces the group
+    with h5py.File(path, "r") as f:
+        assert set(f["error_estimate"]) == {"D_xy", "coarse_level"} and f["error_estimate/D_xy"][()] == 2e-3
+        assert f["error_estimate/D_xy"].attrs["long_name"].startswith("error estimate of")
+    record = read_run_record(path)
+    assert record["n_steps"] == 3 and record["first"]["volume"] == 4.0 and record["last"]["t"] == 2.0
+    assert record["run"] == {"steps": 2} and record["summary"] == {} and record["attrs"]["status"] == "completed"
+    assert read_run_status(path) == "completed"
+    (tmp_path / "junk.h5").write_bytes(b"not hdf5")
+    assert read_run_record(tmp_path / "junk.h5") is None and read_run_status(tmp_path / "junk.h5") is None
+
+
+def test_read_case_errors_are_one_line(tmp_path):
+    from capsim.store import read_case
+
+    with pytest.raises(TrajectoryError, match="cannot read"):
+        read_case(tmp_path / "none.h5")
+    with h5py.File(tmp_path / "bare.h5", "w"):
+        pass
+    with pytest.raises(TrajectoryError, match="no config_yaml"):
+        read_case(tmp_path / "bare.h5")
