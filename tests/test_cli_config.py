@@ -52,3 +52,20 @@ def test_run_refuses_a_directory_as_output(tmp_path):
     result = runner.invoke(app, ["run", str(good), "-o", str(tmp_path)])
     assert result.exit_code == 2
     assert "is a directory" in result.stderr and result.stderr.count("\n") == 1
+
+
+def test_validate_never_blocks_on_a_fifo_or_reads_dev_zero(tmp_path):
+    """In a real process (a hang would hit the timeout): one line, exit 2."""
+    import os
+
+    fifo = tmp_path / "case.yaml"
+    os.mkfifo(fifo)
+    zero = tmp_path / "zero.yaml"
+    zero.symlink_to("/dev/zero")
+    for path in (fifo, zero):
+        proc = subprocess.run(
+            [sys.executable, "-m", "capsim.cli", "validate", str(path)], capture_output=True, text=True, timeout=60
+        )
+        assert proc.returncode == 2
+        assert proc.stdout == ""
+        assert proc.stderr == f"error: {path}: not a regular file (a pipe, device or socket); give a YAML file\n"

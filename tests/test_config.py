@@ -181,3 +181,86 @@ def test_fuzzed_dicts_give_case_or_config_error(d):
     assert isinstance(case, Case)
     assert math.isfinite(case.flow.shear_rate_G)
     assert yaml.safe_load(case.to_yaml())["name"] == case.name
+
+
+# ---------------------------------------------------------------- hostile inputs (issue 19)
+
+
+@pytest.mark.parametrize(
+    "data",
+    [
+        {"shape": {"kind": "biconcave"}},
+        {"shape": {"kind": "oblate", "aspect_ratio": 0.3}},
+        {"shape": {"kind": "prolate", "aspect_ratio": 3.0}},
+        {"membrane": {"law": "mooney_rivlin", "psi": 0.3}},
+        {"membrane": {"law": "skalak", "skalak_c": 2.5}},
+        {"membrane": {"law": "surface_tension"}},
+        {"flow": {"viscosity_ratio": 5.0}, "solver": {"method": "substitution"}},
+    ],
+)
+def test_every_kind_and_law_round_trips_and_takes_overrides(tmp_path, data):
+    """to_yaml writes every field, those the shape or law ignores at their defaults: still valid."""
+    case = case_from_dict({"name": "x", **data})
+    assert load_case(_write(tmp_path, case.to_yaml())) == case
+    assert apply_overrides(case, **{"mesh.level": 1}).mesh.level == 1
+
+
+def test_foreign_fields_at_their_default_are_harmless():
+    case = case_from_dict({"name": "x", "shape": {"kind": "biconcave", "aspect_ratio": 1.0},
+                           "membrane": {"law": "thin_shell", "psi": 0.0, "skalak_c": 10.0}})
+    assert case.shape.kind == "biconcave"
+
+
+def test_numbers_take_decimal_strings_but_never_booleans():
+    assert case_from_dict({"name": "x", "time": {"rtol": "1e-5"}}).time.rtol == 1e-5  # PyYAML's "1e-5"
+    assert case_from_dict({"name": "x", "flow": {"shear_rate_G": 1}}).flow.shear_rate_G == 1.0
+    for value in (True, False, "yes", "nan", "1_0", "0x10", " "):
+        message = _one_line_error(case_from_dict, {"name": "x", "flow": {"shear_rate_G": value}}, source="s")
+        assert "flow.shear_rate_G" in message and "must be a number" in message
+
+
+def test_substitution_needs_enough_iterations_for_its_rate():
+    # rate |1 - 5| / (1 + 5) = 2/3: ln(1e-6) / ln(2/3) = 34.07 -> 35
+    ok = {"name": "x", "flow": {"viscosity_ratio": 5.0}, "solver": {"method": "substitution", "max_iter": 35}}
+    assert case_from_dict(ok).solver.max_iter == 35
+    ok["solver"]["max_iter"] = 34
+    assert "needs >= 35 iterations" in _one_line_error(case_from_dict, ok, source="s")
+    # at lambda = 1 there is no solve: any max_iter in range is fine
+    assert case_from_dict({"name": "x", "solver": {"method": "substitution", "max_iter": 20}})
+
+
+def test_alias_bomb_is_refused_before_it_is_built(tmp_path):
+    lines = ["name: x", "a0: &a0 [" + ", ".join(["0.1"] * 10) + "]"]
+    lines += [f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 10) + "]" for i in range(1, 12)]  # 10^12 values
+    import time
+
+    t0 = time.monotonic()
+    message = _one_line_error(load_case, _write(tmp_path, "\n".join(lines) + "\n"))
+    assert time.monotonic() - t0 < 2.0
+    assert "aliases expand to more than" in message
+
+
+def test_shared_aliases_within_the_limit_still_load(tmp_path):
+    text = "name: x\nflow: &f {shear_rate_G: 0.2}\nmesh: {level: 2}\n"
+    assert load_case(_write(tmp_path, text)).flow.shear_rate_G == 0.2
+    merged = "name: x\nmesh: {<<: &m {level: 2}, base: icosahedron}\n"
+    assert load_case(_write(tmp_path, merged)).mesh.level == 2
+
+
+def test_huge_values_are_shown_as_a_bounded_prefix():
+    import time
+
+    huge = {"flow": [list(range(1000))] * 1000, "name": "x" * 1_000_000}
+    t0 = time.monotonic()
+    message = _one_line_error(case_from_dict, huge, source="s")
+    assert time.monotonic() - t0 < 1.0
+    assert len(message) < 600
+    assert "name = 'xxx" in message and "must have at most 200 characters" in message
+
+
+def test_first_line_helper():
+    from capsim.errors import first_line
+
+    assert first_line(ValueError("a\nb")) == "a"
+    assert first_line(ValueError()) == "ValueError"
+    assert first_line(ValueError(), default="") == ""
