@@ -21,3 +21,14 @@ def test_campaign_expands(path):
     specs = expand_campaign(load_campaign(path))
     assert len(specs) >= 3
     assert len({s.run_id for s in specs}) == len(specs)
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "campaigns").glob("*.yaml")), ids=lambda p: p.name)
+def test_campaign_within_the_input_limits(path):
+    from capsim.campaign import MAX_RUNS, count_runs
+    from capsim.config import NAME_MAX
+
+    campaign = load_campaign(path)
+    specs = expand_campaign(campaign)
+    assert count_runs(campaign) == len(specs) <= MAX_RUNS
+    assert max(len(s.run_id) for s in specs) <= NAME_MAX
