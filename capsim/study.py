@@ -562,6 +562,5 @@ def format_error_estimate(summary: dict[str, Any], estimate: dict[str, Any]) -> 
 def run_error_estimate(case: Case, summary: dict[str, Any], workers: int = 2) -> str:
     """`capsim run --error-estimate`: estimate, store in the run file, return the lines to print."""
     estimate = error_estimate(case, summary, workers=workers)
-    write_error_estimate(case.output.path, estimate)
-    summary["error_estimate"] = estimate
+    write_error_estimate(case.output.path, estimate)  # the run's result itself is read-only (RunResult)
     return format_error_estimate(summary, estimate)
