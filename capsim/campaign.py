@@ -28,8 +28,9 @@ parent before the workers start.
 Dask: with ``scheduler="tcp://host:port"`` the runs are submitted to an
 existing ``dask.distributed`` cluster (``pip install 'capsim[cluster]'``).
 Each run applies capsim's thread policy in its worker process before numba is
-imported (a user's ``NUMBA_NUM_THREADS`` wins); one run per worker process,
-numba threads filling the node's cores::
+imported: ``cores // (the cluster's worker threads on that host)`` numba threads,
+unless the worker's environment sets ``NUMBA_NUM_THREADS`` (which wins); one run
+per worker process, numba threads filling the node's cores::
 
     dask scheduler                                   # prints tcp://HOST:8786
     NUMBA_NUM_THREADS=4 dask worker tcp://HOST:8786 --nworkers 4 --nthreads 1   # 16-core node
@@ -53,6 +54,7 @@ import json
 import math
 import os
 import re
+import sys
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -325,7 +327,8 @@ def execute_run(spec: RunSpec, progress: Any = None) -> dict[str, Any]:
     try:
         # A Dask worker (or any fresh process) gets capsim's thread policy before numba loads;
         # in a pool worker or once numba is imported this changes nothing.
-        apply_thread_policy()
+        if "numba" not in sys.modules:
+            apply_thread_policy(workers=_dask_slots_on_this_host())
         import numba
 
         from capsim.runner import ResumeError, run_case
@@ -345,6 +348,26 @@ def execute_run(spec: RunSpec, progress: Any = None) -> dict[str, Any]:
                        numba_threads=numba.get_num_threads())
     except Exception as exc:  # one bad case must not stop the campaign
         return _record(spec, "failed", one_line(exc))
+
+
+def _dask_slots_on_this_host() -> int:
+    """Runs a Dask cluster may run at once on this host (its workers' threads); 1 off Dask.
+
+    Each run then gets cores // slots numba threads, as the local pool's workers do.
+    """
+    try:
+        from distributed import get_worker
+
+        worker = get_worker()
+    except (ImportError, ValueError):  # not inside a Dask task
+        return 1
+    try:
+        host = worker.address.rsplit(":", 1)[0]
+        workers = worker.client.scheduler_info(n_workers=-1)["workers"]
+        slots = sum(int(w.get("nthreads", 1)) for a, w in workers.items() if a.rsplit(":", 1)[0] == host)
+        return max(1, slots)
+    except Exception:  # an older distributed, a lost scheduler: all cores
+        return 1
 
 
 # ---------------------------------------------------------------- campaign
