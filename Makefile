@@ -4,7 +4,7 @@ BIN    := $(VENV)/bin
 # Reinstall only when the package metadata changes.
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv test test-all demo bench bench-threads
+.PHONY: venv test test-all demo bench bench-threads bench-stepping
 
 venv: $(STAMP)
 
@@ -29,3 +29,8 @@ bench: venv
 # (several minutes): writes benchmarks/threads.md and benchmarks/threads.json
 bench-threads: venv
 	$(BIN)/python benchmarks/threads.py
+
+# time schemes at equal accuracy (about an hour on 2 cores; CASES=a c to run some):
+# writes benchmarks/stepping.md and benchmarks/stepping.json
+bench-stepping: venv
+	$(BIN)/python benchmarks/stepping.py $(CASES)
