@@ -451,6 +451,10 @@ class CapsuleModel:
             u = u_explicit
         else:
             u = self._solve_double_layer(x, state.geometry, u_explicit, normals)
+            if self.disc.symmetry != "none":
+                # GMRES's dense products (BLAS) need not treat mirror rows alike:
+                # keep the solution, and so the positions, exactly symmetric
+                u = self.disc.expand(u[self.disc.targets])
             self.solver_times["solve"] += time.perf_counter() - t1
         if self.volume_correction:
             # The exact velocity conserves volume; the discretised single layer

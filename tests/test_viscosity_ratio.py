@@ -143,3 +143,56 @@ def test_extreme_viscosity_ratios_run_with_converged_solves(tmp_path, lam):
     assert (ts["solver_residual"] <= 1e-6).all()
     assert (ts["solver_iterations"][1:] >= 1).all() and ts["solver_iterations"].max() <= 30
     assert abs(summary["volume_drift"]) < 1e-4
+
+
+def test_work_counters_and_state_restore_repeat_the_evaluation_to_the_bit(sphere2):
+    """Every velocity evaluation, single-layer and double-layer application (each
+    GMRES iteration included) is counted; state()/restore() carries the warm
+    starts (membrane CG, GMRES solution and right-hand side) and the counters."""
+    mesh, disc = sphere2
+    X = mesh.positions
+    a = _model(disc, X, viscosity_ratio=5.0)
+    xs = [X @ np.diag([1.0 + 0.02 * k, 1.0 - 0.01 * k, 1.0]) for k in range(1, 4)]
+    a.velocity(xs[0])
+    assert a.counts["velocity_evaluations"] == 1 and a.counts["single_layer_applications"] == 1
+    assert a.counts["double_layer_applications"] >= a.last_solve_info["iterations"] + 1 >= 2
+    a.velocity(xs[1])
+    saved = a.state()
+    assert saved["warm_traction"] is not None and saved["warm_velocity"] is not None
+    u_a = a.velocity(xs[2])
+    b = _model(disc, X, viscosity_ratio=5.0)
+    b.restore(saved)
+    u_b = b.velocity(xs[2])
+    assert np.array_equal(u_a, u_b)
+    assert b.counts == a.counts and b.counts["velocity_evaluations"] == 3
+    # the private warm-start fields stay readable (old checkpoint code)
+    assert np.array_equal(b._last_traction, a._last_traction) and np.array_equal(b._last_rhs, a._last_rhs)
+    # a fresh state: no warm starts, counters at 0
+    b.restore({})
+    assert b._last_velocity is None and b._last_traction is None and b.counts["velocity_evaluations"] == 0
+    with pytest.raises(ValueError, match="unknown model state"):
+        b.restore({"nonsense": np.zeros(1)})
+    # λ = 1: no double layer
+    c = _model(disc, X)
+    c.velocity(xs[0])
+    assert c.counts == {"velocity_evaluations": 1, "single_layer_applications": 1, "double_layer_applications": 0}
+    assert set(c.stage_times) == {"geometry", "membrane", "single_layer", "solve"}
+
+
+def test_the_model_is_built_complete_from_a_case():
+    from capsim.config import case_from_dict
+    from capsim.solver import build_model
+
+    case = case_from_dict({
+        "name": "x", "flow": {"shear_rate_G": 0.05, "viscosity_ratio": 3.0}, "mesh": {"level": 1},
+        "membrane": {"law": "skalak", "skalak_c": 2.0, "bending_modulus": 1e-3},
+        "solver": {"tol": 1e-7, "max_iter": 50},
+    })
+    model, X = build_model(case)
+    assert model.membrane.rest_positions is X and model.rest_positions is X
+    assert model.law.name == "skalak" and model.law_params == {"skalak_c": 2.0}
+    assert model.bending is not None and model.bending.modulus == 1e-3
+    assert (model.shear_rate_G, model.viscosity_ratio, model.solver_tol, model.solver_max_iter) == (0.05, 3.0, 1e-7, 50)
+    assert model.disc.symmetry == "mirror_z+rotation_z"
+    with pytest.raises(TypeError):
+        CapsuleModel(model.disc, model.membrane, 0.1)  # keyword-only
