@@ -31,6 +31,6 @@ bench-threads: venv
 	$(BIN)/python benchmarks/threads.py
 
 # time schemes at equal accuracy (about an hour on 2 cores; CASES=a c to run some):
-# writes benchmarks/stepping.md and benchmarks/stepping.json
+# writes benchmarks/time_schemes.md and benchmarks/time_schemes.json
 bench-stepping: venv
 	$(BIN)/python benchmarks/stepping.py $(CASES)

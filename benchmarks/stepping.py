@@ -8,7 +8,7 @@ interpolated at the run's own times (its steps are far shorter). Reported per
 scheme: rtol, steps, velocity evaluations (stages, rejected attempts and
 spectral-radius probes included), layer applications (each GMRES iteration
 included), wall time, the two errors; and the ratios rkf23 / rkc of evaluations
-and of wall time, measured in one run. Writes benchmarks/stepping.md and .json.
+and of wall time, measured in one run. Writes benchmarks/time_schemes.md and .json.
 
     python benchmarks/stepping.py            # every case (about an hour on 2 cores)
     python benchmarks/stepping.py a c f      # some of them
@@ -131,15 +131,15 @@ def main(keys: list[str]) -> None:
     with tempfile.TemporaryDirectory(prefix="capsim-stepping-") as tmp:
         rows = [bench_case(key, Path(tmp)) for key in keys]
     here = Path(__file__).parent
-    previous = here / "stepping.json"
+    previous = here / "time_schemes.json"
     if previous.exists():  # a run of some cases keeps the others' rows
         kept = [r for r in json.loads(previous.read_text())["results"] if r["case"] not in keys]
         rows = sorted(kept + rows, key=lambda r: r["case"])
     out = {"capsim_version": __version__, "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
            "machine": platform.platform(), "python": sys.version.split()[0],
            "targets": {"D_xy": D_TOL, "theta_rad": THETA_TOL, "reference_rtol": REFERENCE_RTOL}, "results": rows}
-    (here / "stepping.json").write_text(json.dumps(out, indent=2))
-    (here / "stepping.md").write_text(markdown(rows))
+    (here / "time_schemes.json").write_text(json.dumps(out, indent=2))
+    (here / "time_schemes.md").write_text(markdown(rows))
     print(markdown(rows))
 
 
