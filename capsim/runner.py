@@ -23,7 +23,7 @@ import yaml
 
 from capsim import __version__
 from capsim.config import Case
-from capsim.errors import first_line
+from capsim.errors import bounded_repr, first_line
 from capsim.membrane import law_attributes
 from capsim.mesh import SurfaceMesh, rest_shape_attributes
 from capsim.observables import StepObserver, run_summary
@@ -31,8 +31,8 @@ from capsim.schedules import CheckpointSchedule, SnapshotSchedule
 from capsim.solver import CapsuleModel, build_model
 from capsim.stopping import LoopState, Stop, end_tolerance, stop_reason
 from capsim.store import (
-    CheckpointError, TrajectoryError, TrajectoryWriter, checkpoint_path, read_checkpoint, remove_checkpoint,
-    write_checkpoint,
+    CheckpointError, FileLock, StorageError, TrajectoryError, TrajectoryWriter, checkpoint_path, read_checkpoint,
+    remove_checkpoint, write_checkpoint,
 )
 from capsim.timestepping import Integrator, make_integrator
 
@@ -154,8 +154,14 @@ def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool 
     uninterrupted run. The checkpoint is written every
     ``output.checkpoint_every_steps`` steps or ``checkpoint_every_s`` seconds,
     kept when the run is interrupted or fails, removed when it ends otherwise.
+
+    The run file's lock (:class:`capsim.store.FileLock`) is taken before any file
+    is read, truncated or removed: a second writer of the same path gets
+    :class:`capsim.store.LockedError` and changes nothing. A failure to write (a
+    full disk) raises :class:`capsim.store.StorageError` with one line, after
+    recording 'failed' and the reason in the file where that can still be written.
     """
-    with _StopSignals() as stop:
+    with _StopSignals() as stop, FileLock(case.output.path):
         return _Run(case, progress, resume, stop).execute()
 
 
@@ -187,31 +193,121 @@ def _step_defining(case: dict) -> dict:
     return out
 
 
-def _first_difference(a: dict, b: dict, prefix: str = "") -> str | None:
+def _first_difference(a: dict, b: dict, prefix: str = "", where: str = "the checkpoint") -> str | None:
     for key in sorted(set(a) | set(b), key=str):
         va, vb = a.get(key), b.get(key)
         if isinstance(va, dict) and isinstance(vb, dict):
-            found = _first_difference(va, vb, f"{prefix}{key}.")
+            found = _first_difference(va, vb, f"{prefix}{key}.", where)
             if found:
                 return found
         elif va != vb:
-            return f"{prefix}{key} = {vb!r} in the checkpoint, {va!r} now"
+            return f"{prefix}{key} = {bounded_repr(vb)} in {where}, {bounded_repr(va)} now"
     return None
 
 
+def _stored_case(text: Any) -> dict | None:
+    """A stored config_yaml as a mapping; None when it is not one (garbage, not YAML)."""
+    if isinstance(text, np.ndarray):
+        text = text.item() if text.ndim == 0 else None
+    if isinstance(text, bytes):
+        text = text.decode("utf-8", "replace")
+    if not isinstance(text, str) or len(text) > 1_000_000:
+        return None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def _header_number(saved: dict[str, Any], key: str, path: Path, *, integer: bool = False) -> float:
+    """A scalar of the checkpoint's header, refused unless a finite number >= 0 (whole with `integer`)."""
+    if key not in saved:
+        raise ResumeError(f"{path}: bad checkpoint: {key} is missing")
+    value = np.asarray(saved[key])
+    if value.shape != () or value.dtype.kind not in "iuf":
+        shown = bounded_repr(value.item() if value.shape == () else value)
+        raise ResumeError(f"{path}: bad checkpoint: {key} = {shown}: must be a number")
+    x = float(value)
+    if not (np.isfinite(x) and x >= 0) or (integer and not x.is_integer()):
+        kind = "a whole number >= 0" if integer else "a finite number >= 0"
+        raise ResumeError(f"{path}: bad checkpoint: {key} = {x!r}: must be {kind}")
+    return x
+
+
 def _load_checkpoint(path: Path, case: Case) -> tuple[dict[str, dict[str, Any]], float]:
-    """The parts of a checkpoint of this case and the wall time spent before it."""
+    """The parts of a checkpoint of this case and the wall time spent before it
+    (the header checked here, the parts against the run in :meth:`_Run._reopen`)."""
     try:
         saved = read_checkpoint(path)
     except CheckpointError as exc:
         raise ResumeError(str(exc)) from None
-    if int(saved.get("format", -1)) != _CHECKPOINT_FORMAT or "config_yaml" not in saved:
+    fmt = np.asarray(saved.get("format", -1))
+    if fmt.shape != () or fmt.dtype.kind not in "iu" or int(fmt) != _CHECKPOINT_FORMAT or "config_yaml" not in saved:
         raise ResumeError(f"{path}: not a capsim checkpoint of format {_CHECKPOINT_FORMAT}")
-    saved_case = yaml.safe_load(str(saved["config_yaml"]))
+    saved_case = _stored_case(saved["config_yaml"])
+    if saved_case is None:
+        raise ResumeError(f"{path}: bad checkpoint: config_yaml is not a case (not a YAML mapping)")
     diff = _first_difference(_step_defining(case.model_dump(mode="json")), _step_defining(saved_case))
     if diff is not None:
         raise ResumeError(f"{path}: belongs to another case: {diff}")
-    return _unflatten(saved), float(saved["wall_s"])
+    wall = _header_number(saved, "wall_s", path)
+    for key in ("steps", "t"):
+        _header_number(saved, key, path, integer=key == "steps")
+    parts = _unflatten(saved)
+    for key in ("steps", "t"):
+        if key in parts["integrator"] and np.asarray(parts["integrator"][key]).shape == () and \
+                parts["integrator"][key] != np.asarray(saved[key]).item():
+            raise ResumeError(f"{path}: bad checkpoint: {key} = {np.asarray(saved[key]).item()!r} in the header, "
+                              f"{parts['integrator'][key]!r} in the integrator's state")
+    return parts, wall
+
+
+def _check_parts(path: Path, parts: dict[str, dict[str, Any]], fresh: dict[str, dict[str, Any]],
+                 t_end: float) -> None:
+    """Refuse a checkpoint whose state cannot be this run's: every entry a fresh run
+    has must be there, numeric and finite, of the fresh run's shape (nodal arrays of
+    this mesh's node count), counters whole numbers >= 0, t within [0, t_end], dt > 0."""
+    def bad(name: str, what: str) -> ResumeError:
+        return ResumeError(f"{path}: bad checkpoint: {name} {what}")
+
+    nodal = np.shape(fresh["integrator"]["y"])
+    for part in _PARTS:
+        have, want_part = parts[part], fresh[part]
+        for key, want in want_part.items():
+            if want is not None and key not in have:
+                raise bad(f"{part}.{key}", "is missing")
+        for key, value in have.items():
+            name, want = f"{part}.{key}", want_part.get(key)
+            arr = np.asarray(value)
+            if arr.dtype.kind not in "biuf":
+                raise bad(name, f"= {bounded_repr(value)}: must be numbers (dtype {arr.dtype})")
+            if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+                raise bad(name, f"holds {int(np.count_nonzero(~np.isfinite(arr)))} non-finite values")
+            if part == "integrator" and (arr.ndim or (want is not None and np.ndim(want))):
+                if arr.shape != nodal:
+                    raise bad(name, f"has shape {arr.shape}, this mesh needs {nodal}")
+            elif part == "model" and key.startswith("warm_"):
+                if arr.ndim != 2 or arr.shape[1] != 3:
+                    raise bad(name, f"has shape {arr.shape}, expected (n, 3)")
+            elif want is not None and arr.ndim != np.ndim(want):
+                raise bad(name, f"has shape {arr.shape}, expected {np.shape(want)}")
+            elif want is None and part == "observer" and arr.ndim != 1:
+                raise bad(name, f"has shape {arr.shape}, expected (n,)")
+            if want is not None and np.ndim(want) == 0 and np.asarray(want).dtype.kind in "iub":
+                x = float(arr) if arr.ndim == 0 else -1.0
+                if not (x >= 0 and x.is_integer()):
+                    raise bad(name, f"= {bounded_repr(value)}: must be a whole number >= 0")
+    ig, snaps = parts["integrator"], parts["snapshots"]
+    t, dt = float(ig["t"]), float(ig["dt"])
+    if not 0.0 <= t <= t_end + end_tolerance(t_end):
+        raise bad("integrator.t", f"= {t!r}: must be in [0, time.t_end = {t_end!r}]")
+    if not dt > 0.0:
+        raise bad("integrator.dt", f"= {dt!r}: must be > 0")
+    if not 1 <= int(snaps["count"]) <= int(ig["steps"]) + 1:
+        raise bad("snapshots.count", f"= {int(snaps['count'])}: must be in [1, steps + 1 = {int(ig['steps']) + 1}]")
+    if not 0.0 <= float(snaps["last_time"]) <= t:
+        raise bad("snapshots.last_time", f"= {float(snaps['last_time'])!r}: must be in [0, t = {t!r}]")
 
 
 # ---------------------------------------------------------------- one run
@@ -240,6 +336,7 @@ class _Run:
         self.config_yaml = case.to_yaml()
         saved, self.wall_before = _load_checkpoint(self.ckpt_path, case) if resume else (None, 0.0)
         self.model, X = build_model(case)
+        self.model.interrupt_check = stop.check  # SIGTERM honoured between GMRES iterations too
         self.integrator: Integrator = make_integrator(case.time.scheme, self._rhs, X, **_integrator_options(case))
         self.observer = StepObserver(self.model, X)
         self.snapshots = SnapshotSchedule(case.output.snapshot_every)
@@ -275,7 +372,6 @@ class _Run:
         self.snapshots.restore(parts["snapshots"])
 
     def _create(self, X: np.ndarray) -> None:
-        remove_checkpoint(self.ckpt_path)  # a stale one belongs to the run this one overwrites
         model, case = self.model, self.case
         elements = model.disc.elements
         self.writer = TrajectoryWriter(
@@ -283,21 +379,51 @@ class _Run:
             attrs={"n_nodes": X.shape[0], "n_elements": elements.shape[0], "time_scheme": case.time.scheme,
                    "symmetry": model.disc.symmetry},
         )
-        self.writer.write_membrane_law(law_attributes(case.membrane.law, model.law_params))
-        self.writer.write_rest_shape(rest_shape_attributes(SurfaceMesh(X, elements, model.disc.n_vertices)))
+        # only now that the new file is in place: a stale one belongs to the run this one replaced
+        remove_checkpoint(self.ckpt_path)
+        try:
+            self.writer.write_membrane_law(law_attributes(case.membrane.law, model.law_params))
+            self.writer.write_rest_shape(rest_shape_attributes(SurfaceMesh(X, elements, model.disc.n_vertices)))
+        except (OSError, StorageError) as exc:
+            raise self._write_failed(exc) from None
 
     def _reopen(self, saved: dict[str, dict[str, Any]]) -> None:
+        _check_parts(self.ckpt_path, saved, self._parts(), self.case.time.t_end)
         try:
             self._restore(saved)
-        except (KeyError, TypeError, ValueError, AttributeError) as exc:
-            raise ResumeError(f"{self.ckpt_path}: incomplete checkpoint: {type(exc).__name__}: {exc}") from None
+        except Exception as exc:  # noqa: BLE001 - whatever a damaged state raises, one line
+            raise ResumeError(f"{self.ckpt_path}: incomplete checkpoint: {type(exc).__name__}: "
+                              f"{first_line(exc, default='')}") from None
         try:
-            self.writer = TrajectoryWriter.reopen(self.path, self.integrator.steps + 1, self.snapshots.count)
-        except TrajectoryError as exc:
+            self.writer = TrajectoryWriter.reopen(self.path, self.integrator.steps + 1, self.snapshots.count,
+                                                  verify=self._belongs_to_checkpoint)
+        except (TrajectoryError, StorageError) as exc:
             raise ResumeError(str(exc)) from None
         self.writer.set_attrs(config_yaml=self.config_yaml)
         self.observer.resume(self.writer.steps())
         self.committed = saved
+
+    def _belongs_to_checkpoint(self, data: dict[str, Any]) -> None:
+        """Refuse a run file that is not the checkpoint's: another case, or rows that
+        are not the ones the checkpoint continues (row `steps` at the checkpoint's t,
+        the last snapshot at its time, and at its positions when taken at t)."""
+        ig, snaps, path = self.integrator, self.snapshots, self.path
+        stored = _stored_case(data["attrs"].get("config_yaml"))
+        if stored is None:
+            raise ResumeError(f"{path}: not the checkpoint's run file: no readable config_yaml")
+        diff = _first_difference(_step_defining(self.case.model_dump(mode="json")), _step_defining(stored),
+                                 where="the run file")
+        if diff is not None:
+            raise ResumeError(f"{path}: not the checkpoint's run file (another case): {diff}")
+        t_rows = data["timeseries"]["t"]
+        if t_rows[ig.steps] != ig.t:
+            raise ResumeError(f"{path}: not the checkpoint's run file: row {ig.steps} is at kt = {t_rows[ig.steps]!r}, "
+                              f"the checkpoint at kt = {ig.t!r}")
+        n = snaps.count - 1
+        snap_t = data["snapshot_t"][n]
+        if snap_t != snaps.last_time or (snap_t == ig.t and not np.array_equal(data["positions"][n], ig.y)):
+            raise ResumeError(f"{path}: not the checkpoint's run file: snapshot {n} (kt = {snap_t!r}) is not "
+                              f"the checkpoint's (kt = {snaps.last_time!r})")
 
     def _save_checkpoint(self, parts: dict[str, dict[str, Any]]) -> None:
         self.writer.flush()  # the rows the checkpoint counts on must be on disk first
@@ -346,20 +472,33 @@ class _Run:
 
     def execute(self) -> RunResult:
         try:
-            outcome = self._loop()
-        except (KeyboardInterrupt, _StopRequested, SystemError) as exc:
-            if isinstance(exc, SystemError) and self.stop.signum is None:
+            try:
+                outcome = self._loop()
+            except (KeyboardInterrupt, _StopRequested, SystemError) as exc:
+                if isinstance(exc, SystemError) and self.stop.signum is None:
+                    self._fail(exc)
+                    raise
+                suffix = f" ({type(exc).__name__})" if isinstance(exc, SystemError) else ""
+                outcome = Stop("interrupted", f"interrupted by {self.stop.name or 'SIGINT'}{suffix}")
+            except Exception as exc:  # keep what was computed, say why it stopped
                 self._fail(exc)
                 raise
-            suffix = f" ({type(exc).__name__})" if isinstance(exc, SystemError) else ""
-            outcome = Stop("interrupted", f"interrupted by {self.stop.name or 'SIGINT'}{suffix}")
-        except Exception as exc:  # keep what was computed, say why it stopped
+            if self.committed is None:  # stopped before the first row: nothing to summarise
+                self.writer.close(outcome.status, outcome.reason)
+                return RunResult(outcome.status, outcome.reason, str(self.path))
+            return self._finish(outcome)
+        except (OSError, StorageError) as exc:  # a full disk, an I/O error: one line, the file left readable
+            raise self._write_failed(exc) from None
+
+    def _write_failed(self, exc: BaseException) -> StorageError:
+        if not self.writer.closed:
             self._fail(exc)
-            raise
-        if self.committed is None:  # stopped before the first row: nothing to summarise
-            self.writer.close(outcome.status, outcome.reason)
-            return RunResult(outcome.status, outcome.reason, str(self.path))
-        return self._finish(outcome)
+        text = str(exc) if isinstance(exc, StorageError) else f"{self.path}: cannot write: {getattr(exc, 'strerror', None) or first_line(exc)}"
+        t = float(self.committed["integrator"]["t"]) if self.committed is not None else 0.0
+        kept = ("status 'failed' and the reason are in the file" if self._status_kept
+                else "the file keeps its last flushed rows")
+        return StorageError(f"{first_line(StorageError(text))}; the run stopped at kt = {t:.6g} ({kept}; "
+                            "--resume continues from the last checkpoint once there is room)")
 
     def _finish(self, outcome: Stop) -> RunResult:
         status, reason = outcome.status, outcome.reason
@@ -397,9 +536,21 @@ class _Run:
         self.writer.close(status, reason)
         return RunResult(**{**{f.name: getattr(result, f.name) for f in fields(result)}, "summary": motion})
 
+    _status_kept = False
+
     def _fail(self, exc: BaseException) -> None:
+        """Keep what can be kept: a checkpoint of the last accepted step (where the
+        disk takes it; else the previous one stays), and 'failed' with the reason in
+        the file (where that can still be written; else its last flushed state)."""
         if self.committed is not None:
-            self._save_checkpoint(self.committed)
+            try:
+                self._save_checkpoint(self.committed)
+            except (OSError, StorageError):
+                pass
         first = first_line(exc, default="")
         t = float(self.committed["integrator"]["t"]) if self.committed is not None else 0.0
-        self.writer.close("failed", f"{type(exc).__name__}: {first} at kt = {t:.6g}")
+        try:
+            self.writer.close("failed", f"{type(exc).__name__}: {first} at kt = {t:.6g}")
+            self._status_kept = True
+        except Exception:  # noqa: BLE001 - the disk is full: drop the handle, keep the last flush
+            self.writer.abandon()

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -325,6 +325,9 @@ class CapsuleModel:
     solver_method: str = "gmres"
     solver_tol: float = 1e-8
     solver_max_iter: int = 200
+    # called between the iterations of a velocity solve; raises to stop a long one
+    # (the runner passes its SIGINT/SIGTERM flag's check); no signal handling here
+    interrupt_check: Callable[[], None] | None = field(default=None, repr=False, compare=False)
     # iterations and relative residual of the last velocity solve (0 at λ = 1)
     last_solve_info: dict = field(default_factory=lambda: {"iterations": 0, "residual": 0.0}, init=False)
     # cumulative work: velocity evaluations and layer applications (each GMRES or
@@ -494,6 +497,7 @@ class CapsuleModel:
         r = rhs - apply(u)
         residual = float(np.linalg.norm(r)) / bnorm
         iterations = 0
+        check = self.interrupt_check or (lambda: None)
         if residual > self.solver_tol and self.solver_method == "gmres":
             from scipy.sparse.linalg import LinearOperator, gmres
 
@@ -506,7 +510,7 @@ class CapsuleModel:
             delta, _ = gmres(
                 op, r.ravel(), rtol=self.solver_tol * bnorm / rnorm, atol=0.0,
                 restart=min(60, self.solver_max_iter), maxiter=self.solver_max_iter,
-                callback=lambda pr: history.append(float(pr)), callback_type="pr_norm",
+                callback=lambda pr: (history.append(float(pr)), check()), callback_type="pr_norm",
             )
             u = u + delta.reshape(-1, 3)
             iterations = len(history)
@@ -521,6 +525,7 @@ class CapsuleModel:
                 r = rhs - apply(u)
                 residual = float(np.linalg.norm(r)) / bnorm
                 iterations += 1
+                check()
         self.last_solve_info = {"iterations": int(iterations), "residual": residual}
         if not residual <= 10.0 * self.solver_tol:
             raise SolverDivergence(

@@ -27,10 +27,14 @@ Every dataset takes units, long_name and definition from the one table
 
 from __future__ import annotations
 
+import errno
+import fcntl
 import os
+import resource
+import shutil
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import h5py
 import numpy as np
@@ -40,7 +44,8 @@ from capsim.config import Case, case_from_dict
 from capsim.quantities import GROUPS, attrs_for
 
 __all__ = [
-    "STATUSES", "CheckpointError", "TrajectoryError", "TrajectoryWriter",
+    "STATUSES", "CheckpointError", "FileLock", "LockedError", "StorageError", "TrajectoryError", "TrajectoryWriter",
+    "free_bytes", "is_run_file", "lock_path",
     "case_from_trajectory", "checkpoint_path", "read_case", "read_checkpoint", "read_run_record",
     "read_run_status", "read_trajectory", "remove_checkpoint", "write_checkpoint", "write_error_estimate",
 ]
@@ -48,6 +53,8 @@ __all__ = [
 STATUSES = frozenset({"completed", "unstable", "interrupted", "failed"})
 
 _STEP_FLUSH_EVERY = 20
+#: free space ``--resume`` asks for beyond a copy of the run file (the cut is made on the copy)
+RESUME_HEADROOM_BYTES = 16 * 2**20
 
 
 class TrajectoryError(Exception):
@@ -56,6 +63,128 @@ class TrajectoryError(Exception):
 
 class CheckpointError(Exception):
     """A restart checkpoint that is missing or cannot be read; one line naming it."""
+
+
+class LockedError(Exception):
+    """Another process holds the file (a run file, a campaign directory); one line naming it."""
+
+
+class StorageError(Exception):
+    """Writing failed (a full disk, a file-size limit, an I/O error); one line naming the file."""
+
+
+def _write_failure(path: str | os.PathLike, exc: BaseException) -> str:
+    """'<path>: cannot write: <reason>' in one line (strerror of an OSError, else its first line)."""
+    reason = getattr(exc, "strerror", None) or (str(exc)[:400].splitlines() or [type(exc).__name__])[0]
+    return f"{os.fspath(path)}: cannot write: {reason}"
+
+
+def lock_path(path: str | os.PathLike) -> Path:
+    """The lock file of a run file or directory: ``<path>.lock`` (``<dir>/.capsim.lock`` for a directory)."""
+    path = Path(path)
+    return path / ".capsim.lock" if path.is_dir() else path.with_name(path.name + ".lock")
+
+
+class FileLock:
+    """An exclusive, non-blocking ``flock`` on ``lock_path(path)``, taken before the
+    guarded file is touched and held until release (the kernel drops it when the
+    process dies, SIGKILL included). A second holder gets :class:`LockedError`.
+
+    The lock file is removed on release; a process that opened it just before
+    it was removed notices (its file is no longer the one at the path) and retries.
+    """
+
+    def __init__(self, path: str | os.PathLike, what: str = "run file") -> None:
+        self.target, self.what = Path(path), what
+        self.path = lock_path(path)
+        self._fd: int | None = None
+
+    def acquire(self) -> FileLock:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        for _ in range(100):
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as exc:
+                os.close(fd)
+                if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                    holder = ""
+                    try:
+                        holder = self.path.read_text(encoding="ascii", errors="replace").strip()[:20]
+                    except OSError:
+                        pass
+                    by = f" (process {holder})" if holder.isdigit() else ""
+                    raise LockedError(
+                        f"{self.target}: {self.what} in use by another capsim process{by}; "
+                        "nothing was changed (wait for it to end, or stop it)"
+                    ) from None
+                raise
+            try:
+                same = os.fstat(fd).st_ino == os.stat(self.path).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                self._fd = fd
+                try:
+                    os.ftruncate(fd, 0)
+                    os.write(fd, str(os.getpid()).encode())
+                except OSError:  # a full disk: the lock holds without the pid in it
+                    pass
+                return self
+            os.close(fd)  # removed by its last holder between our open and our lock: retry
+        raise LockedError(f"{self.target}: could not take the lock {self.path}")
+
+    def release(self) -> None:
+        if self._fd is None:
+            return
+        try:
+            self.path.unlink(missing_ok=True)
+        except OSError:
+            pass
+        os.close(self._fd)
+        self._fd = None
+
+    def __enter__(self) -> FileLock:
+        return self.acquire()
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+
+#: room a writer keeps free beyond the largest flush (a snapshot and a chunk of every column),
+#: so that a run stopped by a full disk can still close its file with its status
+WRITE_MARGIN_BYTES = 256 * 2**10
+
+
+def _needed_bytes(n_nodes: int, columns: tuple[str, ...] | None) -> int:
+    n_columns = len(columns or ())  # no columns yet: no chunk of them to allocate
+    return WRITE_MARGIN_BYTES + 2 * (24 * n_nodes + 8 * 1024 * n_columns)
+
+
+def _mb(n: float) -> str:
+    return f"{max(n, 0) / 1e6:.2f} MB"
+
+
+def room_bytes(path: str | os.PathLike, size: int = 0) -> float:
+    """Bytes a file of `size` bytes in directory `path` may still grow by: the file
+    system's free space, capped by this process's RLIMIT_FSIZE."""
+    soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+    limit = float("inf") if soft == resource.RLIM_INFINITY else float(soft)
+    return min(float(free_bytes(path)), limit - size)
+
+
+def free_bytes(path: str | os.PathLike) -> int:
+    """Free bytes for an unprivileged writer on the file system holding `path` (or its nearest existing parent)."""
+    p = Path(path)
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return shutil.disk_usage(p).free
+
+
+def _tmp_name(path: Path) -> Path:
+    """A temporary name next to `path`, private to this process."""
+    return path.with_name(f".{path.name}.tmp-{os.getpid()}")
+
 
 
 def _now() -> str:
@@ -93,7 +222,52 @@ class TrajectoryWriter:
     'interrupted' for Ctrl-C) with the exception text, then propagates.
     """
 
-    def __init__(
+    def __init__(self, path: str | os.PathLike, **header: Any) -> None:
+        """Create the file under a temporary name next to `path` and move it into
+        place once its header is on disk: a failure (a full disk) leaves whatever
+        was at `path` as it was, and no half-written file. Write failures raise
+        :class:`StorageError`. The caller holds the run file's :class:`FileLock`."""
+        target = Path(path)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        self._creating = _tmp_name(target)
+        need = _needed_bytes(np.size(header.get("rest_positions", ())) // 3, ())  # the mesh, no columns yet
+        room = room_bytes(target.parent)
+        if room < need:
+            raise StorageError(f"{target}: cannot write: {_mb(room)} of room on its file system (or under the "
+                               f"file-size limit), a new run file needs {_mb(need)}; nothing was changed")
+        try:
+            self._build(target, **header)
+            os.replace(self._creating, target)
+        except BaseException as exc:
+            file = getattr(self, "_file", None)
+            if file is not None:
+                try:
+                    file.close()
+                except Exception:
+                    pass
+            self._creating.unlink(missing_ok=True)
+            if isinstance(exc, (OSError, RuntimeError)):  # h5py: RuntimeError "Can't write image to file"
+                raise StorageError(_write_failure(target, exc) + "; nothing was changed") from None
+            raise
+
+    def _check_room(self) -> None:
+        """Refuse a write that could leave the file system (or the file-size limit)
+        without room for the metadata that keeps the file readable: HDF5 cannot
+        undo half a flush. What is left is enough to close the file with its status."""
+        need = _needed_bytes(self._n_nodes, self._keys)
+        room = room_bytes(self.path.parent, self._file.id.get_filesize())
+        if room < need:
+            raise StorageError(f"{self.path}: cannot write: disk full ({_mb(room)} of room on its file system or "
+                               f"under the file-size limit, a flush needs {_mb(need)})")
+
+    def _guarded(self, write: Callable[[], None]) -> None:
+        self._check_room()
+        try:
+            write()
+        except (OSError, RuntimeError) as exc:  # h5py reports a failed write as either
+            raise StorageError(_write_failure(self.path, exc)) from None
+
+    def _build(
         self,
         path: str | os.PathLike,
         *,
@@ -120,7 +294,7 @@ class TrajectoryWriter:
 
         # Default libver on purpose: libver="latest" writes a superblock whose
         # "open for write" flag survives a SIGKILL and then refuses every reader.
-        self._file = h5py.File(self.path, "w")
+        self._file = h5py.File(self._creating, "w")
         f = self._file
         f.attrs["config_yaml"] = config_yaml
         f.attrs["capsim_version"] = version
@@ -156,12 +330,19 @@ class TrajectoryWriter:
         f.flush()
 
     @classmethod
-    def reopen(cls, path: str | os.PathLike, n_steps: int, n_snapshots: int) -> TrajectoryWriter:
+    def reopen(
+        cls, path: str | os.PathLike, n_steps: int, n_snapshots: int,
+        verify: Callable[[dict[str, Any]], None] | None = None,
+    ) -> TrajectoryWriter:
         """Reopen a trajectory to append to it, cut back to its first ``n_steps`` rows
         and ``n_snapshots`` snapshots (those of a checkpoint); status back to 'running'.
 
-        The file is checked read-only first, so that a file too short or unreadable
-        raises :class:`TrajectoryError` without being touched.
+        The file is checked read-only first (and handed to ``verify``, which raises
+        to refuse it), so that a file too short, unreadable or foreign raises
+        without being touched. Then the free space is checked (:data:`RESUME_HEADROOM_BYTES`
+        beyond a copy of the file), and the cut is made on a copy moved into place:
+        a write failure (a full disk) leaves the file as it was and raises
+        :class:`StorageError`. The caller holds the run file's :class:`FileLock`.
         """
         data = read_trajectory(path)
         have_steps = len(data["timeseries"].get("t", ()))
@@ -171,13 +352,34 @@ class TrajectoryWriter:
                 f"{os.fspath(path)}: holds {have_steps} steps and {have_snaps} snapshots, "
                 f"the checkpoint needs {n_steps} and {n_snapshots}"
             )
+        if verify is not None:
+            verify(data)
         self = cls.__new__(cls)
         self.path = Path(path)
+        size = os.path.getsize(self.path)
+        room = room_bytes(self.path.parent) - size  # the copy takes `size` of it, then grows
+        if room < RESUME_HEADROOM_BYTES:
+            raise StorageError(
+                f"{self.path}: {_mb(room)} of room beyond a copy of the file on its file system (or under the "
+                f"file-size limit), resuming needs {_mb(RESUME_HEADROOM_BYTES)}; nothing was changed"
+            )
+        tmp = _tmp_name(self.path)
         try:
-            self._file = h5py.File(self.path, "a")
+            shutil.copyfile(self.path, tmp)
+            self._file = h5py.File(tmp, "a")
+            self._cut_back(n_steps, n_snapshots)
+            os.replace(tmp, self.path)
         except OSError as exc:
-            first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise TrajectoryError(f"{self.path}: cannot reopen for appending: {first}") from None
+            if getattr(self, "_file", None) is not None:
+                try:
+                    self._file.close()
+                except Exception:
+                    pass
+            tmp.unlink(missing_ok=True)
+            raise StorageError(_write_failure(self.path, exc) + "; the run file is unchanged") from None
+        return self
+
+    def _cut_back(self, n_steps: int, n_snapshots: int) -> None:
         f = self._file
         mesh = f["mesh"]
         self._positions, self._snapshot_t = mesh["positions"], mesh["snapshot_t"]
@@ -197,7 +399,6 @@ class TrajectoryWriter:
         f.attrs["status_reason"] = ""
         f.attrs["resumed"] = _now()
         f.flush()
-        return self
 
     def steps(self) -> dict[str, np.ndarray]:
         """Every time series written so far, one array per column."""
@@ -274,18 +475,25 @@ class TrajectoryWriter:
                 f"positions must have shape ({self._n_nodes}, 3), got {positions.shape}"
             )
         n = self._n_snapshots + 1
-        self._positions.resize((n, self._n_nodes, 3))
-        self._positions[n - 1] = positions
-        self._snapshot_t.resize((n,))
-        self._snapshot_t[n - 1] = float(t)
+
+        def write() -> None:
+            self._positions.resize((n, self._n_nodes, 3))
+            self._positions[n - 1] = positions
+            self._snapshot_t.resize((n,))
+            self._snapshot_t[n - 1] = float(t)
+
+        self._guarded(write)
         self._n_snapshots = n
         self.flush()
 
     def set_attrs(self, **attrs: Any) -> None:
         """Set root attributes (scalars, strings, small arrays)."""
-        for key, value in attrs.items():
-            self._file.attrs[key] = value
-        self._file.flush()
+        def write() -> None:
+            for key, value in attrs.items():
+                self._file.attrs[key] = value
+            self._file.flush()
+
+        self._guarded(write)
 
     def write_group(self, name: str, data: dict[str, Any]) -> None:
         """Write (or replace) group `name` with scalars, arrays, strings or nested dicts.
@@ -325,6 +533,7 @@ class TrajectoryWriter:
         self._write_group("summary", summary)
 
     def _write_group(self, name: str, data: dict[str, Any]) -> None:
+        self._check_room()
         if name in self._file:
             del self._file[name]
         group = self._file.create_group(name)
@@ -333,9 +542,20 @@ class TrajectoryWriter:
         self.flush()
 
     def flush(self) -> None:
-        self._write_pending()
-        self._file.flush()
+        """Write the buffered rows and flush; refused (:class:`StorageError`) where the room is short."""
+        def write() -> None:
+            self._write_pending()
+            self._file.flush()
+
+        self._guarded(write)
         self._unflushed_steps = 0
+
+    def abandon(self) -> None:
+        """Close the handle without writing more (after a write failure): the file keeps its last flush."""
+        try:
+            self._file.close()
+        except Exception:  # noqa: BLE001 - a full disk may refuse even the close's metadata
+            pass
 
     def close(self, status: str, reason: str = "") -> None:
         """Record the final status and close; a second call does nothing."""
@@ -364,8 +584,8 @@ def _write_dict(group: h5py.Group, data: dict[str, Any], where: str | None = Non
 
 def write_error_estimate(path: str | os.PathLike, estimate: dict[str, Any]) -> None:
     """Store an error estimate (:func:`capsim.study.error_estimate`) as the run
-    file's ``error_estimate`` group, replacing any."""
-    with h5py.File(path, "a") as f:
+    file's ``error_estimate`` group, replacing any (holding the run file's lock)."""
+    with FileLock(path), h5py.File(path, "a") as f:
         if "error_estimate" in f:
             del f["error_estimate"]
         group = f.create_group("error_estimate")
@@ -386,9 +606,15 @@ def write_checkpoint(path: str | os.PathLike, arrays: dict[str, Any]) -> None:
     previous checkpoint in place, never half of a new one."""
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as fh:
-        np.savez(fh, **{key: np.asarray(value) for key, value in arrays.items()})
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **{key: np.asarray(value) for key, value in arrays.items()})
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:  # a full disk: the previous checkpoint stays
+        tmp.unlink(missing_ok=True)
+        raise StorageError(_write_failure(path, exc) + "; the previous checkpoint is kept") from None
 
 
 def read_checkpoint(path: str | os.PathLike) -> dict[str, np.ndarray]:
@@ -503,6 +729,17 @@ def _scalars(f: h5py.File, name: str) -> dict[str, Any]:
         if isinstance(ds, h5py.Dataset) and ds.shape == ():
             out[key] = ds.asstr()[()] if h5py.check_string_dtype(ds.dtype) else _scalar(ds[()])
     return out
+
+
+def is_run_file(path: str | os.PathLike) -> bool:
+    """Whether `path` is a capsim run file (an HDF5 file with a stored case), however damaged its arrays."""
+    try:
+        if not os.path.isfile(path) or not h5py.is_hdf5(path):
+            return False
+        with h5py.File(path, "r", locking=False) as f:
+            return "config_yaml" in f.attrs
+    except (OSError, ValueError):
+        return False
 
 
 def read_run_status(path: str | os.PathLike) -> str | None:
