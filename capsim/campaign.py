@@ -64,8 +64,9 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from capsim.config import NAME_MAX, Case, ConfigError, case_from_dict, read_yaml
-from capsim.errors import bounded_repr
+from capsim.errors import bounded_repr, first_line
 from capsim.executor import SigtermAsInterrupt, one_line, run_batch
+from capsim.store import FileLock, StorageError, _tmp_name
 from capsim.threads import apply_policy as apply_thread_policy
 from capsim.threads import usable_cores  # noqa: F401  (processes x threads = these cores)
 
@@ -341,8 +342,7 @@ def execute_run(spec: RunSpec, progress: Any = None) -> dict[str, Any]:
                 summary = run_case(case, progress=progress, resume=True)
             except ResumeError:
                 summary = None  # damaged or foreign checkpoint: start over
-        if summary is None:
-            Path(spec.path).unlink(missing_ok=True)
+        if summary is None:  # the new file replaces a stale one atomically, under the run file's lock
             summary = run_case(case, progress=progress)
         return _record(spec, summary["status"], summary["status_reason"], summary=summary,
                        numba_threads=numba.get_num_threads())
@@ -379,36 +379,88 @@ def _file_status(path: str) -> str | None:
     return read_run_status(path)
 
 
-class _Index:
-    """runs.json: every run's id, file, swept values and last known status."""
+def campaign_digest(campaign: Campaign) -> str:
+    """The identity of a campaign: a hash of its name, base, sweep and zip (not of
+    its output.dir, so that a copied or moved directory stays the campaign's)."""
+    data = campaign.model_dump(mode="json", exclude={"output"})
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
 
-    def __init__(self, out_dir: Path, specs: list[RunSpec]) -> None:
+
+def _index_entries(specs: list[RunSpec], old: dict[str, Any]) -> dict[str, dict]:
+    """runs.json's entries, statuses from the run files (runs.json itself is never trusted for them)."""
+    runs = {}
+    for s in specs:
+        status = _file_status(s.path) or "pending"
+        before = old.get(s.run_id) if isinstance(old.get(s.run_id), dict) else {}
+        reason = before.get("status_reason", "") if before.get("status") == status else ""
+        runs[s.run_id] = {"file": Path(s.path).name, "params": s.params, "grid_index": list(s.grid_index),
+                          "status": status, "status_reason": reason if isinstance(reason, str) else ""}
+    return runs
+
+
+class _Index:
+    """runs.json: every run's id, file, swept values and last known status (from the
+    run files; a damaged runs.json is rebuilt). Written atomically (temporary file,
+    fsync, rename); a write that fails is remembered, not raised, once the runs are
+    under way (:attr:`write_error`): the run files keep every status."""
+
+    def __init__(self, out_dir: Path, specs: list[RunSpec], digest: str) -> None:
         self.path = out_dir / INDEX_FILE
-        old = load_index(out_dir) if self.path.exists() else {}
-        self.runs = {
-            s.run_id: {
-                "file": Path(s.path).name, "params": s.params, "grid_index": list(s.grid_index),
-                "status": old.get(s.run_id, {}).get("status", "pending"),
-                "status_reason": old.get(s.run_id, {}).get("status_reason", ""),
-            }
-            for s in specs
-        }
+        self.digest = digest
+        self.write_error: str | None = None
+        try:
+            old = _read_index(out_dir)[0] if self.path.exists() else {}
+        except ConfigError:  # damaged: rebuilt from the run files
+            old = {}
+        self.runs = _index_entries(specs, old)
 
     def update(self, record: dict[str, Any]) -> None:
         entry = self.runs[record["run_id"]]
         entry["status"] = record["status"]
         entry["status_reason"] = record["status_reason"]
-        self.write()
+        try:
+            self.write()
+        except StorageError as exc:
+            self.write_error = str(exc)
 
     def write(self) -> None:
-        tmp = self.path.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps({"runs": self.runs}, indent=1, default=str))
-        os.replace(tmp, self.path)  # atomic: a reader never sees half a file
+        tmp = _tmp_name(self.path)
+        try:
+            with open(tmp, "w", encoding="utf-8") as fh:
+                fh.write(json.dumps({"campaign": self.digest, "runs": self.runs}, indent=1, default=str))
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, self.path)  # atomic: a reader never sees half a file
+        except OSError as exc:  # a full disk: the previous runs.json stays
+            tmp.unlink(missing_ok=True)
+            raise StorageError(f"{self.path}: cannot write: {exc.strerror or first_line(exc)}; "
+                               "the previous runs.json is kept") from None
 
 
-def load_index(out_dir: str | os.PathLike) -> dict[str, dict]:
-    with open(Path(out_dir) / INDEX_FILE, encoding="utf-8") as fh:
-        return json.load(fh)["runs"]
+def _read_index(out_dir: str | os.PathLike) -> tuple[dict[str, dict], str | None]:
+    """(runs, campaign digest) of runs.json; ConfigError (one line) for a damaged one."""
+    path = Path(out_dir) / INDEX_FILE
+    try:
+        with open(path, encoding="utf-8") as fh:
+            data = json.loads(fh.read(64 * 2**20 + 1))
+        runs = data["runs"]
+        if not isinstance(runs, dict) or not all(isinstance(v, dict) for v in runs.values()):
+            raise TypeError("runs is not a mapping of entries")
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ConfigError(f"{path}: damaged index ({type(exc).__name__}: {bounded_repr(first_line(exc), 80)[1:-1]})") from None
+    digest = data.get("campaign")
+    return runs, digest if isinstance(digest, str) else None
+
+
+def load_index(out_dir: str | os.PathLike, campaign: Campaign | None = None) -> dict[str, dict]:
+    """The runs of runs.json. A damaged runs.json is rebuilt from the run files when
+    the campaign is given (``campaign.yaml``), else a one-line ConfigError."""
+    try:
+        return _read_index(out_dir)[0]
+    except ConfigError:
+        if campaign is None:
+            raise
+        return _index_entries(expand_campaign(campaign), {})
 
 
 ProgressCallback = Callable[[dict[str, Any]], None]
@@ -421,6 +473,7 @@ def run_campaign(
     scheduler: str | None = None,
     resume: bool = True,
     progress: ProgressCallback | None = None,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
     """Run every run of the campaign that is not already completed.
 
@@ -428,22 +481,85 @@ def run_campaign(
     "records"}``; ``failed`` counts every run that did not complete.
     ``progress`` is called with ``{"total", "skipped", "done", "failed",
     "running", "kt": {run_id: t}}`` whenever something changes.
+
+    The directory belongs to one campaign (:func:`campaign_digest`): another one is
+    refused (ConfigError) unless ``overwrite``; a second sweep on it while this one
+    runs is refused by the directory's lock (:class:`capsim.store.LockedError`).
+    A failure to write ``campaign.yaml`` or ``runs.json`` raises
+    :class:`capsim.store.StorageError` (at the end, once the runs are under way).
     """
     specs = expand_campaign(campaign)
     out_dir = Path(campaign.output.dir)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / CAMPAIGN_FILE).write_text(campaign.to_yaml(), encoding="utf-8")
     except OSError as exc:
         raise ConfigError(
             f"output.dir = {str(out_dir)!r}: cannot create or write the campaign directory "
             f"({exc.strerror or type(exc).__name__})"
         ) from None
-    index = _Index(out_dir, specs)
+    with FileLock(out_dir, what="campaign directory (another sweep is running on it)"):
+        return _run_locked(campaign, specs, out_dir, workers=workers, scheduler=scheduler, resume=resume,
+                           progress=progress, overwrite=overwrite)
+
+
+def _owner(out_dir: Path) -> tuple[str | None, str]:
+    """(digest, name) of the campaign a directory holds; (None, "") for none."""
+    path = out_dir / CAMPAIGN_FILE
+    if path.exists():
+        try:
+            held = Campaign.model_validate(read_yaml(os.fspath(path)))
+            return campaign_digest(held), held.name
+        except (ConfigError, ValidationError, TypeError, ValueError):
+            pass
+    if (out_dir / INDEX_FILE).exists():
+        try:
+            digest = _read_index(out_dir)[1]
+        except ConfigError:
+            digest = None
+        if digest is not None:
+            return digest, "?"
+    if path.exists():
+        return "unreadable", "?"
+    return None, ""
+
+
+def _claim(campaign: Campaign, out_dir: Path, overwrite: bool) -> str:
+    """This campaign's digest, once the directory is its own; campaign.yaml written atomically."""
+    digest = campaign_digest(campaign)
+    held, name = _owner(out_dir)
+    if held is not None and held != digest and not overwrite:
+        what = ("a campaign.yaml that is not a readable campaign" if held == "unreadable"
+                else f"another campaign ({bounded_repr(name)}, {held})")
+        raise ConfigError(
+            f"output.dir = {bounded_repr(str(out_dir))}: holds {what}, not {bounded_repr(campaign.name)} "
+            f"({digest}); nothing was changed: use another output.dir, or --overwrite to take the directory over"
+        )
+    path = out_dir / CAMPAIGN_FILE
+    text = campaign.to_yaml()
+    try:
+        current = path.read_text(encoding="utf-8") if path.exists() else None
+    except (OSError, UnicodeDecodeError):
+        current = None
+    if current != text:
+        tmp = _tmp_name(path)
+        try:
+            with open(tmp, "w", encoding="utf-8") as fh:
+                fh.write(text)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        except OSError as exc:
+            tmp.unlink(missing_ok=True)
+            raise StorageError(f"{path}: cannot write: {exc.strerror or first_line(exc)}; nothing was changed") from None
+    return digest
+
+
+def _run_locked(campaign, specs, out_dir, *, workers, scheduler, resume, progress, overwrite) -> dict[str, Any]:
+    digest = _claim(campaign, out_dir, overwrite)
+    index = _Index(out_dir, specs, digest)
     todo = []
     for spec in specs:
-        status = _file_status(spec.path) if resume else None
-        if status == "completed":
+        if resume and index.runs[spec.run_id]["status"] == "completed":
             index.runs[spec.run_id].update(status="completed", status_reason="")
         else:
             todo.append(spec)
@@ -456,6 +572,9 @@ def run_campaign(
         runner = _run_dask if scheduler else _run_local
         with SigtermAsInterrupt():
             interrupted = runner(todo, index, state, records, progress, workers=workers, scheduler=scheduler)
+    if index.write_error is not None:
+        raise StorageError(f"{index.write_error} (the run files keep each run's status; the next sweep rebuilds "
+                           "runs.json from them)")
     return {
         "total": len(specs),
         "skipped": state["skipped"],

@@ -148,6 +148,7 @@ _WORKER_QUEUE: Any = None
 _WORKER_STOP: Any = None
 _WORKER_WARM: list = []
 _WORKER_BUSY = threading.Event()
+_WORKER_PARENT: int | None = None  # the pool's process; another parent means it died
 _NOT_STARTED = "capsim-executor: not started"
 
 
@@ -161,8 +162,9 @@ def _init_worker(numba_threads: int, progress_queue: Any, stop: Any, warm: list)
     # worker, and the pool's shutdown, waiting for that lock for ever. A running case
     # replaces this handler with run_case's, which closes the run as 'interrupted'.
     signal.signal(signal.SIGTERM, _ignore_while_idle)
-    global _WORKER_QUEUE, _WORKER_STOP, _WORKER_WARM
+    global _WORKER_QUEUE, _WORKER_STOP, _WORKER_WARM, _WORKER_PARENT
     _WORKER_QUEUE, _WORKER_STOP, _WORKER_WARM = progress_queue, stop, warm
+    _WORKER_PARENT = os.getppid()
     threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()
 
 
@@ -182,8 +184,13 @@ def _exit_with_parent(parent: int) -> None:
     os._exit(0)
 
 
+def _orphaned() -> bool:
+    """The pool's process died: the task queue may still hand out items, none may start."""
+    return _WORKER_PARENT is not None and os.getppid() != _WORKER_PARENT
+
+
 def _stopped() -> bool:
-    return _WORKER_STOP is not None and _WORKER_STOP.is_set()
+    return _orphaned() or (_WORKER_STOP is not None and _WORKER_STOP.is_set())
 
 
 def _pool_task(task: Task, key: str, item: Any) -> Any:

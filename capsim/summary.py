@@ -93,7 +93,7 @@ def summarize_campaign(directory: str | os.PathLike) -> xr.Dataset:
     if not (directory / CAMPAIGN_FILE).exists() or not (directory / INDEX_FILE).exists():
         raise FileNotFoundError(f"{directory}: not a campaign directory (no {CAMPAIGN_FILE} or {INDEX_FILE})")
     campaign = load_campaign(directory / CAMPAIGN_FILE)
-    index = load_index(directory)
+    index = load_index(directory, campaign)  # a damaged runs.json: rebuilt from the run files
     if campaign.is_grid and campaign.sweep:
         keys = list(campaign.sweep)
         names = _dim_names(keys)
