@@ -53,6 +53,80 @@ def _check_writable(path: Path) -> None:
         raise _user_error(f"output path {path} is not writable")
 
 
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _protected(path: Path) -> str | None:
+    """What an existing file is that no command replaces unless told to (--overwrite); None if not one."""
+    from capsim.campaign import CAMPAIGN_FILE, INDEX_FILE
+    from capsim.store import is_run_file
+
+    if path.name in (CAMPAIGN_FILE, INDEX_FILE):
+        return "a campaign's own file"
+    if path.name.endswith(".ckpt.npz"):
+        return "a restart checkpoint"
+    if is_run_file(path):
+        return "a capsim run file"
+    return None
+
+
+def _guard_output(out: Path, inputs: list[Path], overwrite: bool, *, ours=lambda p: False,
+                  option: str = "--overwrite") -> None:
+    """Refuse (exit 2, one line) to write over one of the command's inputs (never), or
+    over an existing file it does not write itself (``ours``) or that is a run file,
+    a checkpoint or a campaign file, unless `overwrite`."""
+    for source in inputs:
+        if _same_file(out, source):
+            raise _user_error(f"output path {out} is this command's input {source}; choose another output")
+    if out.exists() and not out.is_dir() and not overwrite:
+        kind = _protected(out)
+        if kind is not None or not ours(out):
+            raise _user_error(f"output path {out} exists ({kind or 'a file this command did not write'}); "
+                              f"nothing was changed: choose another output, or pass {option} to replace it")
+
+
+def _starts_with(magic: bytes):
+    def check(path: Path) -> bool:
+        try:
+            with open(path, "rb") as fh:
+                return fh.read(len(magic)) == magic
+        except OSError:
+            return False
+    return check
+
+
+def _is_summary(path: Path) -> bool:
+    """A netCDF file written by `capsim summarize` (its campaign_yaml attribute)."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r", locking=False) as f:
+            return "campaign_yaml" in f.attrs and "config_yaml" not in f.attrs
+    except (OSError, ValueError):
+        return False
+
+
+def _replace_atomically(out: Path, write) -> None:
+    """``write(tmp)`` to a temporary name next to `out`, then move it into place:
+    a failure (a full disk) leaves `out` as it was; exit 2 with one line."""
+    tmp = out.with_name(f".{out.stem}.tmp-{os.getpid()}{out.suffix}")
+    try:
+        write(tmp)
+        os.replace(tmp, out)
+    except (OSError, RuntimeError) as exc:
+        tmp.unlink(missing_ok=True)
+        from capsim.errors import first_line
+
+        raise _user_error(f"cannot write {out}: {getattr(exc, 'strerror', None) or first_line(exc)}; "
+                          "nothing was changed") from None
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 class _Progress:
     """One-line progress display on stderr, redrawn at most ~10 times a second."""
 
@@ -161,6 +235,7 @@ def run(
     resume: bool = typer.Option(
         False, "--resume", help="continue an interrupted run from its checkpoint <output>.ckpt.npz"
     ),
+    overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing file at the output path"),
 ) -> None:
     """Run one case and write its trajectory (or, with --resume, finish an interrupted one)."""
     case = _load(
@@ -171,15 +246,22 @@ def run(
             "mesh.level": level,
         },
     )
-    _check_writable(Path(case.output.path))
+    out = Path(case.output.path)
+    _check_writable(out)
+    _guard_output(out, [case_path], overwrite or resume, option="--overwrite (or --resume to continue it)")
+    for derived in (Path(f"{out}.ckpt.npz"), Path(f"{out}.lock")):
+        _guard_output(derived, [case_path], True)
 
     from capsim.runner import ResumeError, run_case
+    from capsim.store import LockedError, StorageError
 
     progress = None if quiet else _Progress()
     try:
         summary = run_case(case, progress=progress, resume=resume)
     except ResumeError as exc:
         raise _user_error(f"cannot resume: {exc}") from None
+    except (LockedError, StorageError) as exc:
+        raise _user_error(str(exc)) from None
     except OSError as exc:
         raise _user_error(f"cannot write {case.output.path}: {exc.strerror or exc}") from None
     except KeyboardInterrupt:
@@ -291,6 +373,9 @@ def sweep(
     ),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Dask scheduler address, tcp://host:port"),
     no_resume: bool = typer.Option(False, "--no-resume", help="redo runs that already completed"),
+    overwrite: bool = typer.Option(
+        False, "--overwrite", help="take over an output directory that holds another campaign"
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress line"),
     max_runs: int = typer.Option(
         10_000, "--max-runs", help="refuse a campaign of more runs than this (checked before any case is built)"
@@ -299,6 +384,7 @@ def sweep(
     """Run every case of a campaign (skipping completed runs) into its output directory."""
     from capsim.campaign import load_campaign, run_campaign
     from capsim.config import ConfigError
+    from capsim.store import LockedError, StorageError
 
     if max_runs < 1:
         raise _user_error(f"--max-runs = {max_runs}: must be >= 1")
@@ -308,8 +394,9 @@ def sweep(
         raise _user_error(str(exc)) from None
     progress = None if quiet else _SweepProgress()
     try:
-        result = run_campaign(campaign, workers=workers, scheduler=scheduler, resume=not no_resume, progress=progress)
-    except ConfigError as exc:
+        result = run_campaign(campaign, workers=workers, scheduler=scheduler, resume=not no_resume, progress=progress,
+                              overwrite=overwrite)
+    except (ConfigError, LockedError, StorageError) as exc:
         raise _user_error(str(exc)) from None
     finally:
         if progress is not None:
@@ -331,6 +418,7 @@ def sweep(
 def summarize(
     directory: Path = typer.Argument(..., metavar="DIR", help="campaign output directory"),
     output: Optional[Path] = typer.Option(None, "-o", "--output", help="netCDF path (default DIR/summary.nc)"),
+    overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing file that is not a summary"),
 ) -> None:
     """Collect a campaign's runs into one xarray Dataset written as netCDF."""
     from capsim.config import ConfigError
@@ -342,7 +430,14 @@ def summarize(
         raise _user_error(str(exc)) from None
     path = output if output is not None else directory / "summary.nc"
     _check_writable(path)
-    write_summary(ds, path)
+    from capsim.campaign import CAMPAIGN_FILE, INDEX_FILE
+    from capsim.store import is_run_file
+
+    inputs = [directory / CAMPAIGN_FILE, directory / INDEX_FILE]
+    if path.exists() and path.resolve().parent == directory.resolve() and is_run_file(path):
+        inputs.append(path)  # one of the campaign's runs
+    _guard_output(path, inputs, overwrite, ours=_is_summary)
+    _replace_atomically(path, lambda tmp: write_summary(ds, tmp))
     counts = {s: int((ds["status"] == s).sum()) for s in sorted(set(ds["status"].values.ravel()))}
     typer.echo(f"{path}: dims {dict(ds.sizes)}, status {counts}")
 
@@ -362,6 +457,7 @@ def plot(
     times: Optional[list[float]] = typer.Option(None, "--time", "-t", help="snapshot time kt (contour: repeatable; tensions: one)"),
     node: Optional[int] = typer.Option(None, "--node", help="trajectory: node index (default: the rest node at +x in z = 0)"),
     no_theory: bool = typer.Option(False, "--no-theory", help="leave out the first-order theory"),
+    overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing file that is not a PNG"),
 ) -> None:
     """Write a PNG figure of a run (or of a campaign summary for --kind steady)."""
     from capsim import plot as plotting
@@ -381,6 +477,7 @@ def plot(
     path = paths[0]
     out = output if output is not None else plotting.default_output(path, kind)
     _check_writable(out)
+    _guard_output(out, list(paths), overwrite, ours=_starts_with(b"\x89PNG\r\n\x1a\n"))
     options: dict[str, Any] = {}
     if kind in ("deformation", "inclination", "rheology", "steady"):
         options["theory"] = not no_theory
@@ -393,7 +490,7 @@ def plot(
 
     source: Any = [str(p) for p in paths] if len(paths) > 1 else path
     try:
-        plotting.plot(source, kind, out, **options)
+        _replace_atomically(out, lambda tmp: plotting.plot(source, kind, tmp, **options))
     except (TrajectoryError, ConfigError, ValueError, KeyError) as exc:
         raise _user_error(str(exc)) from None
     except OSError as exc:
@@ -407,6 +504,7 @@ def export(
     fmt: str = typer.Option("xdmf", "--format", "-f", help="xdmf (one .xdmf + .h5) or vtu (.vtu per snapshot + .pvd)"),
     output: Optional[Path] = typer.Option(None, "-o", "--output", help="output directory (default RUN_<format>/)"),
     no_fields: bool = typer.Option(False, "--no-fields", help="geometry and displacement only (no recomputed fields)"),
+    overwrite: bool = typer.Option(False, "--overwrite", help="replace run files or checkpoints in the output directory"),
 ) -> None:
     """Write the surface mesh over time with membrane fields for ParaView."""
     from capsim.config import ConfigError
@@ -418,6 +516,11 @@ def export(
     out_dir = output if output is not None else path.with_name(f"{path.stem}_{fmt}")
     if out_dir.exists() and not out_dir.is_dir():
         raise _user_error(f"output path {out_dir} is not a directory")
+    if out_dir.is_dir():  # the files it will write: <stem>.xdmf, <stem>_data.h5 | <stem>_NNNN.vtu, <stem>.pvd
+        planned = [out_dir / f"{path.stem}.xdmf", out_dir / f"{path.stem}_data.h5", out_dir / f"{path.stem}.pvd"]
+        planned += sorted(out_dir.glob(f"{path.stem}_[0-9][0-9][0-9][0-9].vtu"))
+        for target in planned:
+            _guard_output(target, [path], overwrite, ours=lambda p: _protected(p) is None)
     try:
         files = export_run(path, out_dir, fmt, fields=not no_fields)
     except (TrajectoryError, ConfigError, ValueError) as exc:
