@@ -6,3 +6,12 @@ try:
     __version__ = version("capsim")
 except PackageNotFoundError:  # running from a source tree that is not installed
     __version__ = "0.1.0"
+
+__all__ = ["__version__", "open_run"]
+
+
+def open_run(path):
+    """A run file as an ``xarray.DataTree`` (one node per group); see :func:`capsim.store.open_run`."""
+    from capsim.store import open_run as _open_run  # h5py and xarray only when asked for
+
+    return _open_run(path)

@@ -35,7 +35,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["GROUPS", "PLANNED", "Quantity", "TABLE", "attrs_for", "case_field_attrs", "key_for"]
+__all__ = ["CONVENTIONS", "FLAGS", "GROUPS", "PLANNED", "Quantity", "SCALES", "TABLE", "attrs_for",
+           "case_field_attrs", "global_attrs", "key_for"]
 
 
 @dataclass(frozen=True)
@@ -76,6 +77,13 @@ _add("rest_positions", "node positions of the rest shape", "1",
 _add("positions", "node positions", "1",
      "(n_snap, Np, 3) node positions at the snapshot times, in units of a", "a")
 _add("snapshot_t", "time of the snapshot", "1", "kt at which the snapshot was taken (time in units of 1/k)", "1/k")
+# index coordinates of the netCDF-4 dimensions of mesh/ (issue 16: xarray opens the group as it is)
+_add("node", "node index", "1", "zero-based index of a mesh node (vertices first, then mid-side nodes)")
+_add("element", "element index", "1", "zero-based index of a 6-node triangle")
+_add("element_node", "node of the element", "1",
+     "0, 1, 2: the vertices of the 6-node triangle; 3, 4, 5: its mid-side nodes")
+_add("xyz", "Cartesian component", "1",
+     "0: x (flow direction), 1: y (velocity gradient), 2: z (vorticity axis)")
 
 # ---------------------------------------------------------------- timeseries/ (one row per accepted step)
 
@@ -213,10 +221,31 @@ _add("run_id", "run identifier", "",
 
 # ---------------------------------------------------------------- campaign summary (netCDF)
 
+_add("intrinsic_viscosity", "intrinsic viscosity of a dilute suspension", "1",
+     "[μ] = (5/2) Sxy_star: the effective viscosity of a dilute suspension of volume fraction φ is "
+     "μ_eff = μ (1 + φ [μ]) (2.5 for rigid spheres, Einstein); from the window mean of Sxy_star")
+_add("intrinsic_viscosity_std", "standard deviation of the intrinsic viscosity", "1",
+     "(5/2) Sxy_star_std over the averaging window")
+_add("mesh_base", "base polyhedron of the mesh", "1",
+     "flag: 0 octahedron, 1 icosahedron (flag_values, flag_meanings); the mesh is the base subdivided "
+     "`level` times")
+_add("time_scheme", "time-stepping scheme", "1",
+     "flag: 0 rkf23 (Runge-Kutta-Fehlberg 2(3)), 1 rkc (Runge-Kutta-Chebyshev) (flag_values, flag_meanings)")
+_add("steady_average", "whether the values are averages over a settled motion", "1",
+     "flag: 1 when the motion is steady, oscillating or tumbling, so that the observables are means over "
+     "whole cycles (or the steady window); 0 when the run ended transient or unstable, or did not classify "
+     "its motion: the observables are then means over the last quarter of the run (or its last row), not a "
+     "settled value — do not average them with the others")
+
 _STEADY = "at the end of the run (mean over the averaging window when the run reports one)"
 for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star"):
     _base = TABLE[_name]
     _add(f"campaign/{_name}", _base.long_name, _base.units, f"{_base.definition}; {_STEADY}", _base.scale)
+for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star"):
+    _base = TABLE[_name]
+    _add(f"{_name}_error_estimate", f"error estimate of the {_base.long_name}", _base.units,
+         f"|Δ_mesh| + |Δ_time| of the window mean of {_name} (the run's error_estimate group, "
+         f"capsim run --error-estimate: one level coarser, rtol × 10); NaN when not computed", _base.scale)
 
 # ---------------------------------------------------------------- study file (netCDF)
 
@@ -278,6 +307,45 @@ GROUPS: dict[str, str] = {
 PLANNED = frozenset({"linear_iterations"})
 
 del _add, _base, _c, _key, _name, _of, _sfx, _what
+
+
+#: Categorical quantities written as CF flag variables (integer codes, flag_values, flag_meanings).
+FLAGS: dict[str, tuple[str, ...]] = {
+    "mesh_base": ("octahedron", "icosahedron"),
+    "time_scheme": ("rkf23", "rkc"),
+    "steady_average": ("no", "yes"),
+}
+
+#: The CF version the netCDF files (and the run file) follow.
+CONVENTIONS = "CF-1.10"
+
+#: The capsim scales named by the ``scale`` attribute of a dimensionless value (units "1").
+SCALES: dict[str, str] = {
+    "a": "length: the equal-volume radius of the capsule, (3V/4π)^(1/3)",
+    "1/k": "time: the inverse shear rate of the simple shear v = (k y, 0, 0)",
+    "E_s": "membrane elastic modulus (surface tension for a drop), N/m; G = μka/E_s",
+    "mu": "viscosity of the outer fluid",
+    "mu k a": "membrane tension (N/m) of the flow: G × E_s",
+    "5/2 mu k V": "particle stresslet of a rigid sphere of the capsule's volume V",
+    "E_s a^2": "bending energy (κ)",
+    "a^2": "area", "a^3": "volume",
+}
+
+
+def global_attrs(title: str) -> dict[str, str]:
+    """The CF global attributes every capsim file carries: Conventions, title, and the
+    scale definitions (``capsim_scales``) that the ``scale`` attributes refer to."""
+    return {
+        "Conventions": CONVENTIONS,
+        "title": title,
+        "institution": "capsim",
+        "source": "capsim boundary-integral simulation of a capsule in simple shear Stokes flow",
+        "capsim_scales": "; ".join(f"{k}: {v}" for k, v in SCALES.items()),
+        "comment": "dimensionless values have units \"1\" and name their scale in the attribute `scale` "
+                   "(a, 1/k, E_s, mu k a ...; defined in capsim_scales): kt = 2 is units \"1\", scale \"1/k\"; "
+                   "G = mu k a / E_s, and Ca = mu k a / G_s = ca_over_G × G (= 3 G: every elastic law has "
+                   "G_s = E_s / 3)",
+    }
 
 
 # ---------------------------------------------------------------- look-up

@@ -41,12 +41,12 @@ import numpy as np
 import yaml
 
 from capsim.config import Case, case_from_dict
-from capsim.quantities import GROUPS, attrs_for
+from capsim.quantities import GROUPS, attrs_for, global_attrs
 
 __all__ = [
     "STATUSES", "CheckpointError", "FileLock", "LockedError", "StorageError", "TrajectoryError", "TrajectoryWriter",
     "free_bytes", "is_run_file", "lock_path",
-    "case_from_trajectory", "checkpoint_path", "read_case", "read_checkpoint", "read_run_record",
+    "case_from_trajectory", "checkpoint_path", "open_run", "read_case", "read_checkpoint", "read_run_record",
     "read_run_status", "read_trajectory", "remove_checkpoint", "write_checkpoint", "write_error_estimate",
 ]
 
@@ -210,6 +210,40 @@ def _describe(group: h5py.Group, name: str) -> None:
         group.attrs["definition"] = GROUPS[name]
 
 
+#: The NAME netCDF-4 gives a dimension scale that is a dimension only, not a variable
+#: (netCDF-C, h5netcdf and xarray read such a dataset as the dimension alone).
+_NOT_A_VARIABLE = b"This is a netCDF dimension but not a netCDF variable."
+
+
+def _dimension(group: h5py.Group, name: str, size: int) -> h5py.Dataset:
+    """The netCDF-4 dimension `name` (length `size`, no coordinate variable) of `group`."""
+    if name in group:
+        return group[name]
+    ds = group.create_dataset(name, shape=(size,), dtype=">f4")
+    ds.make_scale(_NOT_A_VARIABLE + f"{size:10d}".encode("ascii"))
+    return ds
+
+
+def _index(group: h5py.Group, name: str, size: int) -> h5py.Dataset:
+    """The coordinate variable 0 … size-1 of dimension `name` (a labelled dimension scale)."""
+    ds = group.create_dataset(name, data=np.arange(size, dtype=np.int64))
+    _label(ds, name)
+    ds.make_scale(name)
+    return ds
+
+
+def _is_dimension(ds: h5py.Dataset) -> bool:
+    """True for a dimension-only scale written by :func:`_dimension` (not data)."""
+    name = ds.attrs.get("NAME", b"")
+    return isinstance(name, (bytes, np.bytes_)) and bytes(name).startswith(_NOT_A_VARIABLE)
+
+
+def _attach(ds: h5py.Dataset, *scales: h5py.Dataset) -> None:
+    """Label every axis of `ds` with its dimension scale (netCDF-4 dimensions)."""
+    for axis, scale in enumerate(scales):
+        ds.dims[axis].attach_scale(scale)
+
+
 class TrajectoryWriter:
     """Append-only writer of one run's trajectory.
 
@@ -296,6 +330,7 @@ class TrajectoryWriter:
         # "open for write" flag survives a SIGKILL and then refuses every reader.
         self._file = h5py.File(self._creating, "w")
         f = self._file
+        f.attrs.update(global_attrs("capsim run"))  # CF: Conventions, the scale definitions (issue 16)
         f.attrs["config_yaml"] = config_yaml
         f.attrs["capsim_version"] = version
         f.attrs["status"] = "running"
@@ -309,8 +344,13 @@ class TrajectoryWriter:
 
         mesh = f.create_group("mesh")
         _describe(mesh, "mesh")
-        _label(mesh.create_dataset("elements", data=elements.astype(np.int64)), "elements")
-        _label(mesh.create_dataset("rest_positions", data=rest_positions), "rest_positions")
+        # netCDF-4 dimensions with index coordinates, so that xarray opens the group as it is (issue 16)
+        node, xyz = _index(mesh, "node", self._n_nodes), _index(mesh, "xyz", 3)
+        element, element_node = _index(mesh, "element", elements.shape[0]), _index(mesh, "element_node", 6)
+        _label(ds := mesh.create_dataset("elements", data=elements.astype(np.int64)), "elements")
+        _attach(ds, element, element_node)
+        _label(ds := mesh.create_dataset("rest_positions", data=rest_positions), "rest_positions")
+        _attach(ds, node, xyz)
         self._positions = mesh.create_dataset(
             "positions",
             shape=(0, self._n_nodes, 3),
@@ -324,7 +364,7 @@ class TrajectoryWriter:
         _label(self._positions, "positions")
         _label(self._snapshot_t, "snapshot_t")
         self._snapshot_t.make_scale("snapshot_t")
-        self._positions.dims[0].attach_scale(self._snapshot_t)
+        _attach(self._positions, self._snapshot_t, node, xyz)
         self._timeseries = f.create_group("timeseries")
         _describe(self._timeseries, "timeseries")
         f.flush()
@@ -579,7 +619,9 @@ def _write_dict(group: h5py.Group, data: dict[str, Any], where: str | None = Non
         elif value is None:
             raise TypeError(f"cannot store None for '{group.name}/{key}'")
         else:
-            _label(group.create_dataset(key, data=value), key, where)
+            _label(ds := group.create_dataset(key, data=value), key, where)
+            # an array gets a netCDF-4 dimension per axis (<key>_dim<i>), so xarray reads the group
+            _attach(ds, *(_dimension(group, f"{key}_dim{i}", n) for i, n in enumerate(ds.shape)))
 
 
 def write_error_estimate(path: str | os.PathLike, estimate: dict[str, Any]) -> None:
@@ -650,6 +692,8 @@ def _read_group(group: h5py.Group) -> dict[str, Any]:
     for key, item in group.items():
         if isinstance(item, h5py.Group):
             out[key] = _read_group(item)
+        elif _is_dimension(item):
+            continue
         elif h5py.check_string_dtype(item.dtype) is not None:
             out[key] = item.asstr()[()]
         elif item.shape == ():
@@ -753,21 +797,95 @@ def read_run_status(path: str | os.PathLike) -> str | None:
 
 def read_run_record(path: str | os.PathLike) -> dict[str, Any] | None:
     """The scalars of a run file, without its arrays: ``{"attrs", "summary", "run",
-    "first", "last", "n_steps"}`` (root attributes, the scalar datasets of the
-    ``summary`` and ``run`` groups, the first and last rows of the time series and
+    "error_estimate", "first", "last", "n_steps"}`` (root attributes, the scalar datasets of the
+    ``summary``, ``run`` and ``error_estimate`` groups, the first and last rows of the time series and
     their number). None when there is no readable file. Cheap on a large file,
     and safe on one a running or killed writer holds (no lock)."""
     try:
         with h5py.File(path, "r", locking=False) as f:
             attrs = {k: _scalar(v) for k, v in f.attrs.items()}
             summary, run = _scalars(f, "summary"), _scalars(f, "run")
+            estimate = _scalars(f, "error_estimate")
             ts = f["timeseries"] if "timeseries" in f else {}
             n = min((len(ds) for ds in ts.values()), default=0)
             first = {k: float(ds[0]) for k, ds in ts.items()} if n else {}
             last = {k: float(ds[n - 1]) for k, ds in ts.items()} if n else {}
     except (OSError, ValueError, KeyError):
         return None
-    return {"attrs": attrs, "summary": summary, "run": run, "first": first, "last": last, "n_steps": n}
+    return {"attrs": attrs, "summary": summary, "run": run, "error_estimate": estimate, "first": first, "last": last,
+            "n_steps": n}
+
+
+#: HDF5 bookkeeping attributes of dimension scales, not metadata a reader wants
+_SCALE_ATTRS = frozenset({"CLASS", "NAME", "REFERENCE_LIST", "DIMENSION_LIST", "_Netcdf4Dimid", "_Netcdf4Coordinates"})
+
+
+def _group_dataset(group: h5py.Group):
+    """The datasets of one group as an xarray Dataset, dimensions from the dimension
+    scales; every dimension cut to the shortest length a dataset along it has (a
+    killed writer may have grown one column of a flush and not the next)."""
+    import xarray as xr
+
+    found: dict[str, tuple[list[str], Any, dict[str, Any]]] = {}
+    for key, item in group.items():
+        if not isinstance(item, h5py.Dataset) or _is_dimension(item):
+            continue
+        if item.is_scale and item.ndim == 1:
+            dims = [key]
+        else:  # unlabelled axes (a file written before issue 16): <key>_dim<i>
+            dims = [item.dims[i][0].name.rsplit("/", 1)[-1] if len(item.dims[i]) else f"{key}_dim{i}"
+                    for i in range(item.ndim)]
+        data = item.asstr()[()] if h5py.check_string_dtype(item.dtype) is not None else item[()]
+        attrs = {k: _scalar(v) for k, v in item.attrs.items() if k not in _SCALE_ATTRS}
+        found[key] = (dims, data, attrs)
+    sizes: dict[str, int] = {}
+    for dims, data, _ in found.values():
+        for dim, n in zip(dims, np.shape(data)):
+            sizes[dim] = min(sizes.get(dim, n), n)
+    variables = {}
+    for key, (dims, data, attrs) in found.items():
+        if dims:
+            data = np.asarray(data)[tuple(slice(0, sizes[d]) for d in dims)]
+        variables[key] = xr.Variable(dims, data, attrs)
+    coords = {k: v for k, v in variables.items() if v.dims == (k,)}
+    data_vars = {k: v for k, v in variables.items() if k not in coords}
+    ds = xr.Dataset(data_vars, coords=coords)
+    ds.attrs = {k: _scalar(v) for k, v in group.attrs.items()}
+    return ds
+
+
+def open_run(path: str | os.PathLike):
+    """A run file as an ``xarray.DataTree``: the root (the run's attributes: status,
+    the resolved case ``config_yaml``, versions …) and one node per group
+    (``timeseries``, ``mesh``, ``summary``, ``run``, ``membrane_law``, ``rest_shape``,
+    ``error_estimate``), every variable with the attributes of the quantity table.
+
+    Read into memory and closed (a running writer is not disturbed); a file cut short
+    by a killed run is read up to its last complete row, like :func:`read_trajectory`.
+    ``open_run(p)["timeseries"]["D_xy"]`` is D_xy(t). The same groups open with
+    ``xarray.open_dataset(p, group="timeseries", engine="h5netcdf")``.
+    """
+    import xarray as xr
+
+    source = os.fspath(path)
+    if not os.path.exists(source):
+        raise TrajectoryError(f"{source}: no such file")
+    if os.path.isdir(source) or not h5py.is_hdf5(source):
+        raise TrajectoryError(f"{source}: not an HDF5 file (empty, truncated or another format)")
+    nodes: dict[str, Any] = {}
+    try:
+        with h5py.File(source, "r", locking=False) as f:
+            def visit(name: str, item: Any) -> None:
+                if isinstance(item, h5py.Group):
+                    nodes["/" + name] = _group_dataset(item)
+
+            nodes["/"] = _group_dataset(f)
+            f.visititems(visit)
+    except (OSError, RuntimeError, ValueError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise TrajectoryError(f"{source}: unreadable HDF5 file (truncated or corrupt?): {first}") from None
+    tree = getattr(xr, "DataTree", None)
+    return tree.from_dict(nodes) if tree is not None else nodes
 
 
 def case_from_trajectory(data: dict[str, Any]) -> Case:
