@@ -435,7 +435,7 @@ def _steady_groups(ds, names: tuple[str, ...] = ("D_xy", "theta")) -> list[tuple
     # 'run' dimension: group by the other coordinates on it.
     dim = first.dims[0]
     G = np.asarray(ds["shear_rate_G"].values, dtype=np.float64)
-    others = [name for name, c in ds.coords.items() if c.dims == (dim,) and name not in (dim, "shear_rate_G")]
+    others = [name for name, c in ds.coords.items() if c.dims == (dim,) and name not in (dim, "shear_rate_G", "run_id")]
     keys = [tuple(np.asarray(ds[name].values)[i] for name in others) for i in range(ds.sizes[dim])]
     out = []
     for key in dict.fromkeys(keys):

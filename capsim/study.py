@@ -41,7 +41,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from capsim.config import Case, apply_overrides
-from capsim.quantities import attrs_for
+from capsim.quantities import attrs_for, global_attrs
 
 __all__ = [
     "QUANTITIES",
@@ -299,7 +299,7 @@ def run_study(
         coords={name: (name, values, _attrs(name))
                 for name, values in (("regular_order", quads), ("rtol", rtols), ("level", levels))},
         attrs={
-            "title": f"capsim accuracy study of case {case.name}",
+            **global_attrs(f"capsim accuracy study of case {case.name}"),  # CF-1.10 (issue 16)
             "case_yaml": base.to_yaml(),
             "t_end": float(case.time.t_end),
             "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
@@ -363,13 +363,14 @@ def analyse_study(ds, reference: str = "finest"):
 
 
 def write_study(ds, path: str | os.PathLike) -> Path:
-    """Write the study Dataset as netCDF (string variables as plain strings)."""
+    """Write the study Dataset as netCDF (text variables as char arrays, as CF checkers read them)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     out = ds.copy()
     for name in ("status", "status_reason"):
         out[name] = out[name].astype(str)
-    out.to_netcdf(path)
+    out.to_netcdf(path, encoding={name: {"dtype": "S1"} for name, var in out.variables.items()
+                                  if var.dtype.kind in "OU"})
     return path
 
 

@@ -6,6 +6,14 @@ and the last row of the time series, with NaN (or "") for what the file does
 not hold. Swept fields become dimensions (a ``run`` dimension when the runs are
 not a full grid). The run files are read through :mod:`capsim.store`; units,
 long names and definitions come from the one table :mod:`capsim.quantities`.
+
+Each record carries its context (issue 16): the motion's period and amplitudes,
+the averaging window, the mesh (base, level), the law and its parameters, the
+bending modulus, the time scheme and tolerance, status and reason, the error
+estimates when ``--error-estimate`` ran, the intrinsic viscosity (5/2)·S*_xy, and
+``steady_average`` = 0 for a run whose values are not means over a settled motion
+(transient, unstable, unclassified). The file follows CF-1.10: text variables are
+written as char arrays, categorical values as flag variables (flag_values, flag_meanings).
 """
 
 from __future__ import annotations
@@ -20,16 +28,27 @@ import numpy as np
 import xarray as xr
 
 from capsim import __version__
-from capsim.campaign import CAMPAIGN_FILE, INDEX_FILE, load_campaign, load_index
-from capsim.quantities import TABLE, attrs_for, case_field_attrs
-from capsim.store import read_run_record, read_run_status
+from capsim.campaign import CAMPAIGN_FILE, INDEX_FILE, expand_campaign, load_campaign, load_index
+from capsim.config import Case
+from capsim.quantities import FLAGS, TABLE, attrs_for, case_field_attrs, global_attrs
+from capsim.store import case_from_trajectory, read_run_record, read_run_status
 
-__all__ = ["SUMMARY_ATTRS", "read_run", "read_run_status", "summarize_campaign", "write_summary"]
+__all__ = ["SUMMARY_ATTRS", "read_run", "read_run_status", "summarize_campaign", "text_encoding", "write_summary"]
 
 _FLOATS = ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star",
            "D_xy_std", "theta_std", "ttf_ratio_std", "Sxy_star_std", "N1_star_std", "N2_star_std",
-           "wall_time_s", "volume_drift", "compressed_fraction", "min_tension")
+           "wall_time_s", "volume_drift", "compressed_fraction", "min_tension",
+           # the motion and the window the values are means over
+           "period", "D_xy_amplitude", "theta_amplitude", "averaging_t_from", "averaging_t_to",
+           "intrinsic_viscosity", "intrinsic_viscosity_std",
+           "D_xy_error_estimate", "theta_error_estimate", "ttf_ratio_error_estimate", "Sxy_star_error_estimate")
 _STRINGS = ("status", "status_reason", "motion")
+#: the context of a run from its resolved case: name -> (dtype, value for a run without a case)
+_CONTEXT = {"level": (np.int64, -1), "mesh_base": (np.int8, -1), "law": (object, ""),
+            "skalak_c": (np.float64, np.nan), "psi": (np.float64, np.nan), "bending_modulus": (np.float64, np.nan),
+            "time_scheme": (np.int8, -1), "rtol": (np.float64, np.nan), "steady_average": (np.int8, 0)}
+#: motions whose window means are settled values
+_SETTLED = frozenset({"steady", "oscillating", "tumbling"})
 
 _WHERE = "campaign"  # the qualified entries of capsim.quantities for this file
 
@@ -64,14 +83,45 @@ def read_run(path: str | os.PathLike) -> dict[str, Any] | None:
         "status_reason": str(attrs.get("status_reason", "")),
         "motion": str(summary.get("motion", "")),
     }
+    estimate = found.get("error_estimate", {})
     for name in _FLOATS:
-        value = summary.get(name, run.get(name, last.get(name, np.nan)))
+        if name.endswith("_error_estimate"):  # of the window mean, else of the value at t_end
+            q = name[: -len("_error_estimate")]
+            value = estimate.get(f"{q}_mean", estimate.get(q, np.nan))
+        else:
+            value = summary.get(name, run.get(name, last.get(name, np.nan)))
         record[name] = float(value) if isinstance(value, (int, float)) else np.nan
     if np.isnan(record["volume_drift"]) and "volume" in last:
         record["volume_drift"] = last["volume"] / found["first"]["volume"] - 1.0
+    # [μ] = (5/2) S*_xy: μ_eff = μ (1 + φ [μ]) for a dilute suspension of volume fraction φ
+    record["intrinsic_viscosity"] = 2.5 * record["Sxy_star"]
+    record["intrinsic_viscosity_std"] = 2.5 * record["Sxy_star_std"]
     steps = summary.get("steps", run.get("steps", n - 1 if n else -1))
     record["steps"] = int(steps)
+    record["steady_average"] = int(record["status"] == "completed" and record["motion"] in _SETTLED)
+    try:
+        case = case_from_trajectory({"attrs": attrs})
+    except Exception:  # no or an unreadable config_yaml: the context stays unknown
+        case = None
+    if case is not None:
+        record.update(_context(case))
     return record
+
+
+def _flag(name: str, value: str) -> int:
+    return FLAGS[name].index(value)
+
+
+def _context(case: Case) -> dict[str, Any]:
+    """What a reader needs to trust a run's numbers, from its resolved case."""
+    m = case.membrane
+    return {
+        "level": case.mesh.level, "mesh_base": _flag("mesh_base", case.mesh.base), "law": m.law,
+        "skalak_c": m.skalak_c if m.law == "skalak" else np.nan,
+        "psi": m.psi if m.law == "mooney_rivlin" else np.nan,
+        "bending_modulus": m.bending_modulus,
+        "time_scheme": _flag("time_scheme", case.time.scheme), "rtol": case.time.rtol,
+    }
 
 
 def _dim_names(keys: list[str]) -> dict[str, str]:
@@ -80,11 +130,16 @@ def _dim_names(keys: list[str]) -> dict[str, str]:
     return {key: key.replace(".", "_") if short.count(s) > 1 else s for key, s in zip(keys, short)}
 
 
-def _attrs_for(name: str, dotted: str | None = None) -> dict[str, str]:
-    """Attributes of a variable (`name`) or of the coordinate of case field `dotted`."""
+def _attrs_for(name: str, dotted: str | None = None) -> dict[str, Any]:
+    """Attributes of a variable (`name`) or of the coordinate of case field `dotted`;
+    a categorical one also gets CF's flag_values and flag_meanings."""
     if dotted is not None:
         return case_field_attrs(dotted)
-    return attrs_for(name, _WHERE)
+    attrs: dict[str, Any] = attrs_for(name, _WHERE)
+    if name in FLAGS:
+        attrs["flag_values"] = np.arange(len(FLAGS[name]), dtype=np.int8)
+        attrs["flag_meanings"] = " ".join(FLAGS[name])
+    return attrs
 
 
 def summarize_campaign(directory: str | os.PathLike) -> xr.Dataset:
@@ -112,6 +167,11 @@ def summarize_campaign(directory: str | os.PathLike) -> xr.Dataset:
     data: dict[str, np.ndarray] = {name: np.full(shape, np.nan) for name in _FLOATS}
     data.update({name: np.full(shape, "", dtype=object) for name in _STRINGS})
     data["steps"] = np.full(shape, -1, dtype=np.int64)
+    # the context, unless swept (then it is a coordinate already); from the campaign for a missing run
+    context = {name: np.full(shape, fill, dtype=dtype) for name, (dtype, fill) in _CONTEXT.items()
+               if name not in coords}
+    data.update(context)
+    planned = {spec.run_id: spec for spec in expand_campaign(campaign)}
     data["status"][...] = "missing"
     if dims != ("run",):
         data["run_id"] = np.full(shape, "", dtype=object)
@@ -120,20 +180,25 @@ def summarize_campaign(directory: str | os.PathLike) -> xr.Dataset:
         if "run_id" in data:
             data["run_id"][at] = run_id
         record = read_run(directory / entry["file"])
+        if run_id in planned and (record is None or "level" not in record):
+            for name, value in _context(planned[run_id].case()).items():
+                if name in context:
+                    context[name][at] = value
         if record is None:
             if entry.get("status") not in (None, "pending", "completed"):
                 data["status"][at] = entry["status"]
                 data["status_reason"][at] = entry.get("status_reason", "")
             continue
         for name, value in record.items():
-            data[name][at] = value
+            if name in data:
+                data[name][at] = value
 
     ds = xr.Dataset(
         {name: (dims, values, _attrs_for(name)) for name, values in data.items()},
         coords=coords,
     )
     ds.attrs = {
-        "title": f"capsim campaign {campaign.name}",
+        **global_attrs(f"capsim campaign {campaign.name}"),
         "capsim_version": __version__,
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "campaign_name": campaign.name,
@@ -142,9 +207,20 @@ def summarize_campaign(directory: str | os.PathLike) -> xr.Dataset:
     return ds
 
 
+def text_encoding(ds: xr.Dataset) -> dict[str, dict[str, str]]:
+    """Text variables (and coordinates) as netCDF char arrays (CF; checkers read no
+    variable-length strings); xarray reads them back as strings."""
+    return {name: {"dtype": "S1"} for name, var in ds.variables.items() if var.dtype.kind in "OU"}
+
+
 def write_summary(ds: xr.Dataset, path: str | os.PathLike) -> Path:
-    """Write with the netCDF4 engine; strings as variable-length strings."""
+    """Write with the netCDF4 engine; text as char arrays (:func:`text_encoding`); the text
+    ``run`` coordinate of a zip campaign as the auxiliary coordinate ``run_id``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    ds.to_netcdf(path, engine="netcdf4")
+    if "run" in ds.coords and ds["run"].dtype.kind in "OU":
+        # CF: a coordinate variable (named as its dimension) is numeric and monotonic; the run ids
+        # of a zip campaign are an auxiliary coordinate run_id(run) instead
+        ds = ds.rename_vars({"run": "run_id"})
+    ds.to_netcdf(path, engine="netcdf4", encoding=text_encoding(ds))
     return path
