@@ -462,3 +462,17 @@ def test_interrupt_check_stops_a_long_gmres_solve_between_iterations():
     with pytest.raises(Stop):
         model.velocity(x)
     assert model.counts["double_layer_applications"] <= 5  # stopped after 3 iterations, not 200
+
+
+def test_the_runner_hands_its_stop_flag_to_the_solver(tmp_path):
+    from capsim.runner import _Run, _StopRequested, _StopSignals
+
+    stop = _StopSignals()
+    run = _Run(_case(tmp_path), None, False, stop)
+    try:
+        run.model.interrupt_check()  # no signal yet: nothing happens
+        stop.signum = signal.SIGTERM
+        with pytest.raises(_StopRequested, match="SIGTERM"):
+            run.model.interrupt_check()
+    finally:
+        run.writer.close("interrupted", "test")
