@@ -4,7 +4,7 @@ BIN    := $(VENV)/bin
 # Reinstall only when the package metadata changes.
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv test test-all demo bench bench-threads bench-stepping
+.PHONY: venv test test-all demo bench bench-threads bench-stepping cf-tools
 
 venv: $(STAMP)
 
@@ -13,11 +13,24 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install -e '.[test]'
 	touch $@
 
-test: venv
+test: venv cf-tools
 	$(BIN)/python -m pytest -q -m "not slow"
 
 test-all: venv
 	$(BIN)/python -m pytest -q
+
+# cfchecker and the libudunits2 it loads, for tests/test_results.py (it runs offline with the CF
+# tables of tests/data/cf). Best effort: without network or root the CF tests skip with the reason.
+CF_STAMP := $(VENV)/.cf-tools
+cf-tools: $(CF_STAMP)
+
+$(CF_STAMP): pyproject.toml | $(STAMP)
+	-@ldconfig -p 2>/dev/null | grep -q libudunits2 || { [ "$$(id -u)" = 0 ] && \
+		(apt-get install -y -q libudunits2-0 udunits-bin >/dev/null 2>&1 || \
+		 (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q libudunits2-0 udunits-bin >/dev/null 2>&1)) || \
+		echo "cf-tools: no libudunits2 (needs root: apt-get install libudunits2-0 udunits-bin); CF tests will skip"; }
+	-@$(BIN)/pip install -q -e '.[cf]' || echo "cf-tools: cfchecker not installed; CF tests will skip"
+	@touch $@
 
 demo: venv
 	$(BIN)/capsim run configs/sphere.yaml --overwrite

@@ -316,6 +316,46 @@ def validate(
     typer.echo(_load(case_path).to_yaml(), nl=False)
 
 
+@app.command()
+def units(
+    shear_rate: Optional[str] = typer.Option(None, "--shear-rate", help="shear rate k, e.g. '100 1/s'"),
+    viscosity: Optional[str] = typer.Option(None, "--viscosity", help="outer viscosity μ, e.g. '1.2 mPa*s'"),
+    radius: Optional[str] = typer.Option(None, "--radius", help="equal-volume radius a, e.g. '2.8 um'"),
+    surface_modulus: Optional[str] = typer.Option(
+        None, "--surface-modulus", help="membrane elastic modulus E_s (a drop: surface tension), e.g. '18 uN/m'"),
+    shear_modulus: Optional[str] = typer.Option(
+        None, "--shear-modulus", help="surface shear modulus G_s = E_s/3 instead of E_s, e.g. '6 uN/m'"),
+    as_json: bool = typer.Option(False, "--json", help="print a JSON object (G, Ca, time_unit_s, ...)"),
+) -> None:
+    """Physical values to capsim's numbers: G = μka/E_s, Ca = μka/G_s = 3G and the time unit 1/k."""
+    from capsim.units import UnitsError, conversion, parse
+
+    given = {"shear_rate": shear_rate, "viscosity": viscosity, "radius": radius,
+             "surface_modulus": surface_modulus, "shear_modulus": shear_modulus}
+    missing = [f"--{k.replace('_', '-')}" for k in ("shear_rate", "viscosity", "radius") if given[k] is None]
+    if (surface_modulus is None) == (shear_modulus is None):
+        missing.append("--surface-modulus or --shear-modulus (one of the two)" if surface_modulus is None
+                       else "only one of --surface-modulus and --shear-modulus")
+    if missing:
+        raise _user_error(f"units: give {', '.join(missing)} (quantities with units, e.g. --radius '2.8 um')")
+    for kind, value in given.items():
+        if value is not None:
+            try:
+                parse(value, kind)
+            except UnitsError as exc:
+                raise _user_error(f"units: --{kind.replace('_', '-')}: {exc}") from None
+    out = conversion(shear_rate, viscosity, radius, surface_modulus, shear_modulus)
+    if as_json:
+        typer.echo(json.dumps(out))
+        return
+    typer.echo(f"G  = mu k a / E_s  = {out['G']:.6g}   (flow.shear_rate_G)")
+    typer.echo(f"Ca = mu k a / G_s  = {out['Ca']:.6g}   (= 3 G: G_s = E_s / 3 for every elastic law)")
+    typer.echo(f"time unit 1/k      = {out['time_unit_s']:.6g} s   (kt = 1)")
+    typer.echo(f"E_s = {out['E_s_N_per_m']:.6g} N/m, G_s = {out['G_s_N_per_m']:.6g} N/m, "
+               f"velocity unit ka = {out['velocity_m_per_s']:.6g} m/s, tension unit mu k a = "
+               f"{out['tension_N_per_m']:.6g} N/m")
+
+
 def _version(value: bool) -> None:
     if value:
         from capsim import __version__

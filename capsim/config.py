@@ -13,7 +13,7 @@ import math
 import os
 import stat
 from collections.abc import Mapping
-from typing import Any, Literal, get_args, get_origin
+from typing import Any, Literal, Optional, get_args, get_origin
 
 import yaml
 from pydantic import (
@@ -36,6 +36,7 @@ __all__ = [
     "Membrane",
     "Mesh",
     "Output",
+    "Physical",
     "Quadrature",
     "Shape",
     "Solver",
@@ -222,10 +223,51 @@ class Membrane(_Model):
         return self
 
 
+class Physical(_Model):
+    """Dimensional values that give G = μ k a / E_s (quantities with units, parsed by
+    pint: ``"100 1/s"``, ``"1.2 mPa*s"``, ``"2.8 um"``, ``"18 uN/m"``); capsim.units."""
+
+    shear_rate: str = Field(description="shear rate k, e.g. '100 1/s'")
+    viscosity: str = Field(description="viscosity μ of the outer fluid, e.g. '1.2 mPa*s'")
+    radius: str = Field(description="equal-volume radius a, e.g. '2.8 um'")
+    surface_modulus: Optional[str] = Field(
+        None, description="membrane elastic modulus E_s (a drop: its surface tension), e.g. '18 uN/m'; "
+        "or give shear_modulus")
+    shear_modulus: Optional[str] = Field(
+        None, description="surface shear modulus G_s = E_s / 3 of the elastic laws, e.g. '6 uN/m'; "
+        "or give surface_modulus")
+
+    @field_validator("shear_rate", "viscosity", "radius", "surface_modulus", "shear_modulus", mode="before")
+    @classmethod
+    def _a_quantity(cls, v: Any, info: ValidationInfo) -> Any:
+        from capsim.units import parse
+
+        if v is not None:
+            parse(v, info.field_name)  # UnitsError is a ValueError: a one-line message
+        return v
+
+    @model_validator(mode="after")
+    def _one_modulus(self) -> Physical:
+        if (self.surface_modulus is None) == (self.shear_modulus is None):
+            given = "not both" if self.surface_modulus is not None else "one of the two"
+            raise ValueError(f"give surface_modulus (E_s) or shear_modulus (G_s), {given}")
+        return self
+
+    def conversion(self) -> dict[str, float]:
+        """G, Ca and the time unit (capsim.units.conversion)."""
+        from capsim.units import conversion
+
+        return conversion(self.shear_rate, self.viscosity, self.radius, self.surface_modulus, self.shear_modulus)
+
+
 class Flow(_Model):
     """Simple shear v = (k y, 0, 0); G = mu k a / E_s, viscosity ratio lambda."""
 
-    shear_rate_G: float = Field(0.1, gt=0)
+    shear_rate_G: float = Field(
+        0.1, gt=0,
+        description="G = μ k a / E_s; or give the case's `physical` block (then G is computed from it "
+        "and stored here)",
+    )
     viscosity_ratio: float = Field(
         1.0, gt=0,
         description="internal / external viscosity λ, in [1e-3, 1e3]: the λ ≠ 1 double-layer operator "
@@ -418,6 +460,31 @@ class Case(_Model):
     solver: Solver = Solver()
     guards: Guards = Guards()
     output: Output = Field(default_factory=Output, validate_default=True)
+    physical: Optional[Physical] = Field(
+        None,
+        description="dimensional shear rate, viscosity, radius and modulus instead of flow.shear_rate_G, "
+        "which is then computed and stored (giving both is an error, unless flow.shear_rate_G is the "
+        "value they give, as in a resolved case)",
+    )
+
+    @model_validator(mode="after")
+    def _G_from_physical(self) -> Case:
+        if self.physical is None:
+            return self
+        G = self.physical.conversion()["G"]
+        if "shear_rate_G" in self.flow.model_fields_set:
+            # a resolved case holds both: accepted when they agree
+            if not math.isclose(self.flow.shear_rate_G, G, rel_tol=1e-9):
+                raise _FieldProblem(
+                    "flow.shear_rate_G", self.flow.shear_rate_G,
+                    f"give flow.shear_rate_G or physical, not both (physical gives G = {G:.6g}); remove one",
+                )
+            return self
+        if not 0 < G < 1e6:
+            raise _FieldProblem("physical", "…", f"gives G = {G:.3g}, outside (0, 1e6): check the units")
+        # frozen models: the flow with the computed G, set once while validating
+        object.__setattr__(self, "flow", self.flow.model_copy(update={"shear_rate_G": G}))
+        return self
 
     @field_validator("solver")
     @classmethod
@@ -661,6 +728,8 @@ def _model_at(loc: tuple) -> type[BaseModel] | None:
     for part in loc:
         field = model.model_fields.get(part) if isinstance(part, str) else None
         ann = field.annotation if field is not None else None
+        # Optional[Model] (flow.physical): the model inside
+        ann = next((a for a in get_args(ann) if isinstance(a, type) and issubclass(a, BaseModel)), ann)
         if not (isinstance(ann, type) and issubclass(ann, BaseModel)):
             return None
         model = ann

@@ -1,0 +1,105 @@
+"""Physical units in, capsim's dimensionless numbers out (pint parses the quantities).
+
+capsim scales lengths by the equal-volume radius a, times by the inverse shear
+rate 1/k and membrane tensions by the elastic modulus E_s, so a case needs one
+number for the flow strength: G = μ k a / E_s (``flow.shear_rate_G``). Papers often
+quote the capillary number built on the surface shear modulus G_s instead,
+Ca = μ k a / G_s; every elastic law of capsim has G_s = E_s / 3 (small-strain
+shear modulus in units of E_s: ``membrane_law/G_s`` of a run file), so Ca = 3 G.
+
+Worked examples (tests/test_units.py checks them):
+
+- a red blood cell: k = 100 1/s, μ = 1.2 mPa·s, a = 2.8 μm, G_s = 6 μN/m →
+  Ca = 1.2e-3 × 100 × 2.8e-6 / 6e-6 = 0.056, G = Ca / 3 = 0.018667, 1/k = 0.01 s;
+- an alginate capsule: k = 10 1/s, μ = 1 Pa·s (silicone oil), a = 1 mm,
+  E_s = 0.1 N/m → G = 1 × 10 × 1e-3 / 0.1 = 0.1, Ca = 0.3, 1/k = 0.1 s.
+
+Only :func:`parse` imports pint, so that importing this module (from the case
+validation) costs nothing until a ``physical:`` block is given.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+from typing import Any
+
+from capsim.errors import bounded_repr, first_line
+
+__all__ = ["KINDS", "UnitsError", "conversion", "parse"]
+
+#: G_s / E_s of every elastic law of capsim (capsim.membrane: the small-strain shear modulus)
+SHEAR_OVER_ELASTIC_MODULUS = 1.0 / 3.0
+
+#: what each physical value is: (SI unit it is converted to, what it must measure, an example)
+KINDS: dict[str, tuple[str, str, str]] = {
+    "shear_rate": ("1/s", "a shear rate (1/time)", "100 1/s"),
+    "viscosity": ("Pa*s", "a dynamic viscosity (pressure × time)", "1.2 mPa*s"),
+    "radius": ("m", "a length", "2.8 um"),
+    "surface_modulus": ("N/m", "a surface modulus (force / length)", "18 uN/m"),
+    "shear_modulus": ("N/m", "a surface modulus (force / length)", "6 uN/m"),
+}
+
+
+class UnitsError(ValueError):
+    """A physical value that is not a positive, finite quantity of the right kind; one line."""
+
+
+@lru_cache(maxsize=1)
+def _registry():
+    import pint
+
+    return pint.UnitRegistry()
+
+
+def parse(text: Any, kind: str) -> float:
+    """The value of `text` (``"1.2 mPa*s"``) in the SI unit of `kind` (:data:`KINDS`).
+
+    Raises :class:`UnitsError` (one line) for a bare number, unknown units, the
+    wrong dimension, or a value that is not positive and finite."""
+    unit, what, example = KINDS[kind]
+    if isinstance(text, bool) or not isinstance(text, str):
+        raise UnitsError(f"must be a quantity with units as a string, e.g. '{example}' (got {bounded_repr(text)})")
+    ureg = _registry()
+    try:
+        quantity = ureg.Quantity(text.strip())
+    except Exception as exc:  # pint's UndefinedUnitError, DefinitionSyntaxError, tokenizer errors …
+        raise UnitsError(f"cannot read {bounded_repr(text)} as a quantity: {first_line(exc)}") from None
+    if not isinstance(quantity, ureg.Quantity) or quantity.dimensionless:
+        raise UnitsError(f"{bounded_repr(text)} has no units; give {what}, e.g. '{example}'")
+    try:
+        value = float(quantity.to(unit).magnitude)
+    except Exception:  # DimensionalityError
+        raise UnitsError(
+            f"{bounded_repr(text)} is not {what}: its dimension is {quantity.dimensionality}, e.g. '{example}'"
+        ) from None
+    if not (math.isfinite(value) and value > 0):
+        raise UnitsError(f"{bounded_repr(text)} must be positive and finite")
+    return value
+
+
+def conversion(shear_rate: Any, viscosity: Any, radius: Any, surface_modulus: Any = None,
+               shear_modulus: Any = None) -> dict[str, float]:
+    """G = μ k a / E_s, Ca = μ k a / G_s = 3 G and the time unit 1/k (s) from physical values.
+
+    Give the membrane's elastic modulus E_s (``surface_modulus``; for a drop, the
+    surface tension) or its surface shear modulus G_s (``shear_modulus``), not both.
+    Returns ``{"G", "Ca", "time_unit_s", "E_s_N_per_m", "G_s_N_per_m", "velocity_m_per_s",
+    "tension_N_per_m"}``.
+    """
+    if (surface_modulus is None) == (shear_modulus is None):
+        raise UnitsError("give the surface modulus E_s or the shear modulus G_s (one of the two)")
+    k = parse(shear_rate, "shear_rate")
+    mu = parse(viscosity, "viscosity")
+    a = parse(radius, "radius")
+    if surface_modulus is not None:
+        e_s = parse(surface_modulus, "surface_modulus")
+        g_s = SHEAR_OVER_ELASTIC_MODULUS * e_s
+    else:
+        g_s = parse(shear_modulus, "shear_modulus")
+        e_s = g_s / SHEAR_OVER_ELASTIC_MODULUS
+    tension = mu * k * a
+    return {
+        "G": tension / e_s, "Ca": tension / g_s, "time_unit_s": 1.0 / k,
+        "E_s_N_per_m": e_s, "G_s_N_per_m": g_s, "velocity_m_per_s": k * a, "tension_N_per_m": tension,
+    }

@@ -1,0 +1,125 @@
+"""Issue 16: physical units in (``capsim units``, a case's ``physical:`` block, configs/rbc.yaml).
+
+The two worked examples of capsim/units.py (and the README), by hand:
+
+- red blood cell: k = 100 1/s, μ = 1.2 mPa s, a = 2.8 um, G_s = 6 uN/m:
+  Ca = μka/G_s = 1.2e-3 · 100 · 2.8e-6 / 6e-6 = 0.056, G = Ca/3, 1/k = 0.01 s;
+- alginate capsule: k = 10 1/s, μ = 1 Pa s, a = 1 mm, E_s = 0.1 N/m:
+  G = μka/E_s = 1 · 10 · 1e-3 / 0.1 = 0.1, Ca = 3G = 0.3, 1/k = 0.1 s.
+"""
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from capsim.cli import app
+from capsim.config import ConfigError, case_from_dict, load_case
+from capsim.units import UnitsError, conversion, parse
+
+ROOT = Path(__file__).resolve().parents[1]
+RBC = {"--shear-rate": "100 1/s", "--viscosity": "1.2 mPa*s", "--radius": "2.8 um", "--shear-modulus": "6 uN/m"}
+ALGINATE = {"--shear-rate": "10 1/s", "--viscosity": "1 Pa*s", "--radius": "1 mm", "--surface-modulus": "0.1 N/m"}
+HAND = {  # the hand computations of the docstring
+    "rbc": {"Ca": 1.2e-3 * 100 * 2.8e-6 / 6e-6, "G": 1.2e-3 * 100 * 2.8e-6 / 6e-6 / 3, "time_unit_s": 0.01},
+    "alginate": {"G": 1.0 * 10 * 1e-3 / 0.1, "Ca": 3 * 1.0 * 10 * 1e-3 / 0.1, "time_unit_s": 0.1},
+}
+
+runner = CliRunner()
+
+
+def _args(options):
+    return ["units", *[x for kv in options.items() for x in kv]]
+
+
+@pytest.mark.parametrize(("name", "options"), [("rbc", RBC), ("alginate", ALGINATE)])
+def test_units_json_equals_the_hand_computation(name, options):
+    result = runner.invoke(app, _args(options) + ["--json"])
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.stdout)
+    for key, value in HAND[name].items():
+        assert out[key] == pytest.approx(value, rel=1e-12), key
+    assert out["Ca"] == pytest.approx(3 * out["G"], rel=1e-12)
+    text = runner.invoke(app, _args(options))
+    assert text.exit_code == 0 and f"{HAND[name]['G']:.6g}" in text.stdout and "1/k" in text.stdout
+
+
+def test_other_spellings_of_the_same_values():
+    a = conversion("100 1/s", "1.2 mPa*s", "2.8 um", shear_modulus="6 uN/m")
+    b = conversion("100 Hz", "1.2 cP", "2.8e-3 mm", shear_modulus="6e-3 dyn/cm")  # 1 dyn/cm = 1 mN/m
+    for key in ("G", "Ca", "time_unit_s"):
+        assert a[key] == pytest.approx(b[key], rel=1e-12)
+
+
+@pytest.mark.parametrize(("change", "words"), [
+    ({"--radius": "2.8 kg"}, "--radius: '2.8 kg' is not a length"),
+    ({"--radius": "2.8"}, "--radius: '2.8' has no units"),
+    ({"--viscosity": "1.2 furlongz"}, "--viscosity: cannot read"),
+    ({"--shear-rate": "-100 1/s"}, "--shear-rate: '-100 1/s' must be positive"),
+    ({"--viscosity": None}, "give --viscosity"),
+    ({"--shear-modulus": None}, "--surface-modulus or --shear-modulus"),
+    ({"--surface-modulus": "18 uN/m"}, "only one of --surface-modulus and --shear-modulus"),
+])
+def test_bad_units_or_missing_values_are_one_line_exit_2(change, words):
+    options = {k: v for k, v in {**RBC, **change}.items() if v is not None}
+    result = runner.invoke(app, _args(options))
+    assert result.exit_code == 2, result.output
+    assert result.stdout == ""
+    line = result.stderr.strip()
+    assert "\n" not in line and line.startswith("error: units: ") and words in line, line
+
+
+def test_parse_refuses_what_is_not_a_quantity():
+    assert parse("1.2 mPa*s", "viscosity") == pytest.approx(1.2e-3)
+    for bad in (1.2, True, None, "", "1.2 m/s"):
+        with pytest.raises(UnitsError):
+            parse(bad, "viscosity")
+
+
+# ---------------------------------------------------------------- the physical: block of a case
+
+PHYSICAL = {"shear_rate": "10 1/s", "viscosity": "1 Pa*s", "radius": "1 mm", "surface_modulus": "0.1 N/m"}
+
+
+def test_physical_block_gives_G_and_both_are_stored(tmp_path):
+    case = case_from_dict({"name": "p", "physical": PHYSICAL})
+    assert case.flow.shear_rate_G == pytest.approx(HAND["alginate"]["G"], rel=1e-12)
+    resolved = yaml.safe_load(case.to_yaml())
+    assert resolved["physical"]["radius"] == "1 mm" and resolved["flow"]["shear_rate_G"] == case.flow.shear_rate_G
+    path = tmp_path / "resolved.yaml"
+    path.write_text(case.to_yaml())
+    assert load_case(path) == case  # the resolved case (both given, and agreeing) loads back
+    rbc = case_from_dict({"name": "r", "physical": {**PHYSICAL, "surface_modulus": None, "shear_modulus": "6 uN/m",
+                                                    "shear_rate": "100 1/s", "viscosity": "1.2 mPa*s",
+                                                    "radius": "2.8 um"}})
+    assert rbc.flow.shear_rate_G == pytest.approx(HAND["rbc"]["G"], rel=1e-12)
+
+
+@pytest.mark.parametrize(("case", "words"), [
+    ({"flow": {"shear_rate_G": 0.2}, "physical": PHYSICAL},
+     "flow.shear_rate_G = 0.2: give flow.shear_rate_G or physical, not both"),
+    ({"physical": {**PHYSICAL, "radius": "1 kg"}}, "physical.radius = '1 kg': '1 kg' is not a length"),
+    ({"physical": {**PHYSICAL, "radius": 1.0}}, "physical.radius = 1.0: must be a quantity with units"),
+    ({"physical": {k: v for k, v in PHYSICAL.items() if k != "viscosity"}},
+     "physical.viscosity: required field is missing"),
+    ({"physical": {**PHYSICAL, "shear_modulus": "6 uN/m"}}, "give surface_modulus (E_s) or shear_modulus (G_s), not both"),
+    ({"physical": {**PHYSICAL, "tension": "1 N/m"}}, "physical.tension: unknown field 'tension'"),
+])
+def test_bad_physical_block_is_one_line(case, words, tmp_path):
+    with pytest.raises(ConfigError) as info:
+        case_from_dict({"name": "p", **case}, source="c.yaml")
+    assert words in str(info.value) and "\n" not in str(info.value), str(info.value)
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump({"name": "p", **case}))
+    result = runner.invoke(app, ["validate", str(path)])
+    assert result.exit_code == 2 and words in result.stderr and result.stderr.count("\n") == 1, result.stderr
+
+
+def test_rbc_preset_resolves_with_its_documented_G():
+    case = load_case(ROOT / "configs" / "rbc.yaml")
+    G = 1.2e-3 * 100 * 2.8e-6 / (3 * 2.5e-6)  # μ k a / E_s, E_s = 3 G_s
+    assert case.flow.shear_rate_G == pytest.approx(G, rel=1e-12) == pytest.approx(0.0448, rel=1e-12)
+    assert case.membrane.bending_modulus == pytest.approx(1.8e-19 / (3 * 2.5e-6 * 2.8e-6 ** 2), rel=0.01)
+    assert (case.membrane.law, case.membrane.skalak_c, case.flow.viscosity_ratio) == ("skalak", 10.0, 5.0)
