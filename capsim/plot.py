@@ -1,13 +1,22 @@
-"""Figures of the seed's kinds, as PNG, without a display.
+"""Figures of the seed's kinds, as PNG, PDF or SVG, without a display.
 
-``capsim plot PATH --kind KIND [-o FILE.png]``; PATH is a run file (.h5) for
-every kind but ``steady``, which takes a campaign summary (netCDF from
-``capsim summarize``). Every ``*_figure`` function returns a
+``capsim plot PATH --kind KIND [-o FILE.png|.pdf|.svg] [--dpi N]``; PATH is a
+run file (.h5) for every kind but ``steady``, which takes a campaign summary
+(netCDF from ``capsim summarize``). Every ``*_figure`` function returns a
 :class:`matplotlib.figure.Figure` (no pyplot, no global state);
-:func:`plot` draws one and saves it.
+:func:`plot` draws one and saves it in the format its file suffix names.
 
-First-order small-deformation theory (docs/theory.md), drawn for
-initially spherical capsules: D_xy → D∞ = (25/4) G (ν_s = 1/2: thin shell and
+Every figure carries a caption line (shape, law, λ, G, mesh) under its axes and
+keeps its legend outside the data. θ is drawn only where it is defined (D_xy
+above :data:`THETA_MIN_D`; a sphere at kt = 0 has none) and its line is broken
+where θ wraps from −π/2 to π/2 (a tumbling capsule), or unwrapped on request.
+Sections of the surface are cut from the curved 6-node elements (each element's
+quadratic map, sampled :data:`SECTION_SUBDIVISIONS` times along an edge, the
+crossing solved on the quadratic), not from its four flat sub-triangles.
+
+First-order small-deformation theory (docs/theory.md), drawn only where it
+applies: initially spherical capsules with a ν_s = 1/2 law at G ≤
+:data:`FIRST_ORDER_G_MAX`: D_xy → D∞ = (25/4) G (ν_s = 1/2: thin shell and
 neo-Hookean), D(t) ≈ D∞ (1 − e^{−t/τ}) with kτ = τ̂(λ)·3G, τ̂ = 4.03 (λ = 1),
 2.63 (λ = 0.2), 11.0 (λ = 5) (interpolated in log λ between these, not drawn
 outside); θ = π/4; S*_xy = 1, N1* = 19 G, N2* = −N1*/2.
@@ -25,13 +34,22 @@ import numpy as np
 from capsim.membrane import linear_subtriangles
 
 __all__ = [
-    "DPI", "FIGSIZE", "KINDS", "contour_figure", "deformation_figure", "inclination_figure",
+    "DPI", "FIGSIZE", "FIGURE_FORMATS", "FIRST_ORDER_G_MAX", "KINDS", "contour_figure", "deformation_figure", "inclination_figure",
     "plot", "relaxation_time", "rheology_figure", "steady_figure", "tensions_figure",
     "trajectory_figure", "xy_section",
 ]
 
 FIGSIZE = (6.4, 4.8)  # inches
-DPI = 100             # → 640 × 480 pixels
+DPI = 100             # → 640 × 480 pixels (``--dpi`` changes it)
+#: output formats, from the file suffix
+FIGURE_FORMATS = ("png", "pdf", "svg")
+#: first-order theory lines only up to this G (D∞ = 25G/4 ≤ 0.63; beyond, O(G²) terms are not small)
+FIRST_ORDER_G_MAX = 0.1
+#: θ is not drawn where D_xy is below this share of the run's largest D_xy (or below 1e-9):
+#: the equivalent ellipsoid of a sphere has no long axis
+THETA_MIN_D = 1e-3
+#: sub-edges per element edge when cutting the curved surface with a plane
+SECTION_SUBDIVISIONS = 6
 
 # τ̂ = kτ / Ca of the impulsive-start relaxation (docs/theory.md), Ca = 3G.
 _TAU_HAT = {0.2: 2.63, 1.0: 4.03, 5.0: 11.0}
@@ -77,17 +95,53 @@ def _case_info(data: dict[str, Any]) -> dict[str, Any]:
         "aspect_ratio": float(case.shape.aspect_ratio),
         "tilt": float(case.initial_tilt_deg),
         "name": str(case.name),
+        "mesh": f"{case.mesh.base} level {case.mesh.level} ({np.asarray(data['rest_positions']).shape[0]} nodes)",
+        "bending": float(getattr(case.membrane, "bending_modulus", 0.0) or 0.0),
     }
 
 
-def _title(info: dict[str, Any]) -> str:
-    if not info:
-        return ""
-    return f"{info['name']}: {info['shape']}, {info['law']}, G = {info['G']:g}, λ = {info['lam']:g}"
+def _shape_text(info: dict[str, Any]) -> str:
+    if info["shape"] in ("oblate", "prolate"):
+        return f"{info['shape']} b/a = {info['aspect_ratio']:g}"
+    return info["shape"]
+
+
+def _caption_parts(info: dict[str, Any]) -> list[tuple[str, str]]:
+    """(key, text) of what a caption says about one run."""
+    law = info["law"] + (f", κ = {info['bending']:g}" if info.get("bending") else "")
+    return [("shape", _shape_text(info)), ("law", law), ("lam", f"λ = {info['lam']:g}"),
+            ("G", f"G = {info['G']:g}"), ("mesh", f"mesh {info['mesh']}")]
+
+
+def _caption(fig, infos: Sequence[dict[str, Any]], extra: str = "") -> str:
+    """One caption line under the axes: shape, law, λ, G and mesh (of every run when they
+    agree; what differs between overlaid runs is in the legend)."""
+    infos = [i for i in infos if i]
+    if not infos:
+        text = extra
+    else:
+        per_run = [dict(_caption_parts(i)) for i in infos]
+        parts = [v for k, v in per_run[0].items() if all(p[k] == v for p in per_run)]
+        if len(infos) == 1 and infos[0].get("name"):
+            parts.insert(0, infos[0]["name"] + ":")
+        text = ", ".join(parts).replace(":,", ":") + (f"; {extra}" if extra and parts else extra)
+    if text:
+        fig.supxlabel(text, fontsize="small", color="0.25")
+    return text
+
+
+def _legend(ax, **kwargs):
+    """The legend outside the axes, on the right, where it hides no data."""
+    handles, _ = ax.get_legend_handles_labels()
+    if not handles:
+        return None
+    return ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, fontsize="small", **kwargs)
 
 
 def _theory_applies(info: dict[str, Any]) -> bool:
-    return bool(info) and info["shape"] == "sphere" and info["law"] in _SPHERICAL_LAWS_NU_HALF
+    """First-order small-deformation theory: a sphere, a ν_s = 1/2 law, small G, no bending."""
+    return (bool(info) and info["shape"] == "sphere" and info["law"] in _SPHERICAL_LAWS_NU_HALF
+            and info["G"] <= FIRST_ORDER_G_MAX and not info.get("bending"))
 
 
 def _series(data: dict[str, Any], name: str) -> np.ndarray:
@@ -98,11 +152,22 @@ def _series(data: dict[str, Any], name: str) -> np.ndarray:
 
 
 def _snapshot_index(data: dict[str, Any], t: float | None) -> int:
-    times = np.asarray(data["snapshot_t"])
+    """The snapshot nearest kt = t (the last for None); a t outside the run's snapshots
+    (by more than half their spacing) is refused rather than snapped to the end."""
+    times = np.asarray(data["snapshot_t"], dtype=np.float64)
     if len(times) == 0:
         raise ValueError("the run has no snapshots")
     if t is None:
         return len(times) - 1
+    if not math.isfinite(t):
+        raise ValueError(f"--time kt = {t}: must be a finite number")
+    gap = 0.5 * float(np.max(np.diff(times))) if len(times) > 1 else 0.0
+    tol = max(gap, 1e-9 * max(1.0, abs(float(times[-1]))))
+    if t < times[0] - tol or t > times[-1] + tol:
+        raise ValueError(
+            f"--time kt = {t:g} is outside the run's snapshots (kt = {times[0]:g} to {times[-1]:g}, "
+            f"{len(times)} snapshots)"
+        )
     return int(np.argmin(np.abs(times - t)))
 
 
@@ -114,31 +179,63 @@ def _sources(source) -> list:
     return list(source) if isinstance(source, (list, tuple)) else [source]
 
 
-def _run_label(info: dict[str, Any]) -> str:
+def _run_label(info: dict[str, Any], shape_in_caption: bool = False) -> str:
+    """G and λ of an overlaid run, after its shape unless every run has it (the caption says it)."""
     if not info:
         return "capsim"
-    shape = {"sphere": "", "biconcave": "biconcave, "}.get(
+    shape = "" if shape_in_caption else {"sphere": "", "biconcave": "biconcave, "}.get(
         info["shape"], f"{info['shape']} b/a = {info.get('aspect_ratio', float('nan')):g}, "
     )
-    return f"{shape}G = {info['G']:g}, λ = {info['lam']:g}"
+    bending = f", κ = {info['bending']:g}" if info.get("bending") else ""
+    return f"{shape}G = {info['G']:g}, λ = {info['lam']:g}{bending}"
 
 
-def _plot_runs(ax, source, name: str, scale: float = 1.0) -> list[tuple[dict, np.ndarray, np.ndarray, str]]:
-    """Series ``name`` (divided by ``scale``) against kt: one run in black under its
-    title, several in colours labelled by their parameters. Returns (case info, t,
-    values, colour for its theory curves) per run."""
+def theta_for_plot(t: np.ndarray, theta: np.ndarray, D: np.ndarray, unwrap: bool = False) -> np.ndarray:
+    """θ with NaN where it is not defined (D_xy below THETA_MIN_D of the run's largest,
+    e.g. a sphere at kt = 0) and, unless ``unwrap``, NaN inserted where θ wraps
+    between ±π/2 so that no vertical line joins the two sides. With ``unwrap`` θ is
+    continued through ±π/2 (a tumbling capsule's angle keeps falling). Returns
+    (t, θ) of equal length (a wrap adds one point)."""
+    theta = np.asarray(theta, dtype=np.float64).copy()
+    D = np.asarray(D, dtype=np.float64)
+    finite = D[np.isfinite(D)]
+    d_max = float(np.max(np.abs(finite))) if finite.size else 0.0
+    undefined = ~(np.abs(D) > max(1e-9, THETA_MIN_D * d_max))
+    theta[undefined] = np.nan
+    t = np.asarray(t, dtype=np.float64)
+    if unwrap:
+        ok = np.isfinite(theta)
+        if ok.any():
+            theta[ok] = np.unwrap(theta[ok], period=math.pi)
+        return t, theta
+    jumps = np.flatnonzero(np.abs(np.diff(theta)) > 0.5 * math.pi)
+    if jumps.size:
+        t = np.insert(t, jumps + 1, np.nan)
+        theta = np.insert(theta, jumps + 1, np.nan)
+    return t, theta
+
+
+def _plot_runs(ax, source, name: str, scale: float = 1.0,
+               unwrap: bool = False) -> list[tuple[dict, np.ndarray, np.ndarray, str]]:
+    """Series ``name`` (divided by ``scale``) against kt: one run in black, several
+    in colours labelled by what differs between them. θ is drawn only where
+    defined and broken (or unwrapped) at ±π/2. Returns (case info, t, values,
+    colour for its theory curves) per run."""
     runs = _sources(source)
     single = len(runs) == 1
+    loaded = [_load_run(run) for run in runs]
+    infos = [_case_info(data) for data in loaded]
+    same_shape = all(i and infos[0] and _shape_text(i) == _shape_text(infos[0]) for i in infos)
     drawn = []
-    for i, run in enumerate(runs):
-        data = _load_run(run)
-        info = _case_info(data)
-        t, values = _series(data, "t"), _series(data, name) / scale
+    for i, (data, info) in enumerate(zip(loaded, infos)):
+        t, values = _series(data, "t"), _series(data, name)
+        if name == "theta":
+            t, values = theta_for_plot(t, values, _series(data, "D_xy"), unwrap=unwrap)
+        values = values / scale
         color = "k" if single else f"C{i % 10}"
-        ax.plot(t, values, "-", color=color, label="capsim" if single else _run_label(info))
-        if single:
-            ax.set_title(_title(info), fontsize="small")
+        ax.plot(t, values, "-", color=color, label="capsim" if single else _run_label(info, same_shape))
         drawn.append((info, t, values, "C0" if single else color))
+    _caption(ax.figure, [info for info, *_ in drawn])
     return drawn
 
 
@@ -167,21 +264,25 @@ def deformation_figure(source, theory: bool = True):
         ax.set_ylim(0.0, 1.15 * max(float(np.nanmax(D)) for _, _, D, _ in drawn))
     ax.set_xlabel(r"$kt$")
     ax.set_ylabel(r"$D_{xy}$")
-    ax.legend(fontsize="small")
+    _legend(ax)
     return fig
 
 
-def inclination_figure(source, theory: bool = True):
-    """θ/π against kt with the first-order π/4 (several runs overlaid when given a list)."""
+def inclination_figure(source, theory: bool = True, unwrap: bool = False):
+    """θ/π against kt (several runs overlaid when given a list), with the first-order
+    π/4 when one of the runs is a small-deformation sphere. θ is left out where it
+    is undefined and broken where it wraps at ±π/2 (``unwrap``: continued instead)."""
     fig = _figure()
     ax = fig.add_subplot()
-    drawn = _plot_runs(ax, source, "theta", math.pi)
-    if theory:
+    drawn = _plot_runs(ax, source, "theta", math.pi, unwrap=unwrap)
+    if theory and any(_theory_applies(info) for info, *_ in drawn):
         ax.axhline(0.25, color="C0" if len(drawn) == 1 else "k", ls="--", lw=1,
                    label=r"first order, $\theta = \pi/4$")
     ax.set_xlabel(r"$kt$")
     ax.set_ylabel(r"$\theta/\pi$")
-    ax.legend(fontsize="small")
+    if not unwrap and any(np.nanmin(v) < -0.1 for _, _, v, _ in drawn if np.isfinite(v).any()):
+        ax.set_ylim(-0.52, 0.52)  # a tumbling run: the whole range of θ, broken at ±π/2
+    _legend(ax)
     return fig
 
 
@@ -205,25 +306,97 @@ def rheology_figure(source, theory: bool = True):
         ax.plot([], [], "k:", lw=1, label="first order")
     ax.set_xlabel(r"$kt$")
     ax.set_ylabel(r"$S^*_{xy}$, $N_1^*$, $N_2^*$")
-    ax.set_title(_title(info), fontsize="small")
-    ax.legend(fontsize="small")
+    _caption(fig, [info])
+    _legend(ax)
     return fig
 
 
 # ------------------------------------------------------------ xy-plane section
 
 
+def _quadratic_shape(xi: np.ndarray, eta: np.ndarray) -> np.ndarray:
+    """The six quadratic shape functions (..., 6) at (ξ, η): corners (0,0), (1,0), (0,1),
+    then the mid-sides of edges 01, 12, 20 (capsim's node order)."""
+    l0 = 1.0 - xi - eta
+    return np.stack([l0 * (2 * l0 - 1), xi * (2 * xi - 1), eta * (2 * eta - 1),
+                     4 * l0 * xi, 4 * xi * eta, 4 * eta * l0], axis=-1)
+
+
+def _curved_crossings(x: np.ndarray, elements: np.ndarray, z0: float, values, m: int):
+    """Points (and values) where the curved quadratic surface meets z = z0: each element's
+    parameter triangle is cut into m² small ones; on each of their edges z is a quadratic
+    in the edge parameter (the map is quadratic), solved exactly; the point is the map's."""
+    e = np.asarray(elements)
+    grid = [(i, j) for j in range(m + 1) for i in range(m + 1 - j)]
+    index = {ij: k for k, ij in enumerate(grid)}
+    edges = []
+    for (i, j) in grid:
+        for di, dj in ((1, 0), (0, 1)):
+            if (i + di, j + dj) in index:
+                edges.append((index[(i, j)], index[(i + di, j + dj)]))
+        if (i + 1, j) in index and (i, j + 1) in index:
+            edges.append((index[(i + 1, j)], index[(i, j + 1)]))
+    uv = np.array(grid, dtype=np.float64) / m
+    a, b = np.array(edges).T
+    uva, uvb = uv[a], uv[b]
+    xe = x[e]                                          # (E, 6, 3)
+    N = _quadratic_shape(uv[:, 0], uv[:, 1])           # (P, 6)
+    z = np.einsum("pk,ek->ep", N, xe[:, :, 2]) - z0    # (E, P)
+    za, zb = z[:, a], z[:, b]
+    cross = (za >= 0.0) != (zb >= 0.0)
+    el, ed = np.nonzero(cross)
+    if el.size == 0:
+        return np.empty((0, 3)), None
+    mid = 0.5 * (uva[ed] + uvb[ed])
+    zm = np.einsum("ck,ck->c", _quadratic_shape(mid[:, 0], mid[:, 1]), xe[el, :, 2]) - z0
+    z0e, z1e = za[el, ed], zb[el, ed]
+    # z(s) = z0 + B s + A s², through z(0), z(1/2), z(1)
+    B = -3.0 * z0e + 4.0 * zm - z1e
+    A = 2.0 * z0e - 4.0 * zm + 2.0 * z1e
+    s_lin = z0e / (z0e - z1e)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        disc = np.sqrt(np.maximum(B * B - 4.0 * A * z0e, 0.0))
+        r1 = (-B + disc) / (2.0 * A)
+        r2 = (-B - disc) / (2.0 * A)
+    roots = np.stack([r1, r2], 1)
+    ok = np.isfinite(roots) & (roots >= -1e-12) & (roots <= 1 + 1e-12)
+    dist = np.where(ok, np.abs(roots - s_lin[:, None]), np.inf)
+    best = np.take_along_axis(roots, np.argmin(dist, 1)[:, None], 1)[:, 0]
+    straight = np.abs(A) <= 1e-12 * (np.abs(B) + np.abs(z0e) + np.abs(z1e))
+    s = np.clip(np.where(straight | ~np.isfinite(np.min(dist, 1)), s_lin, best), 0.0, 1.0)
+    at = uva[ed] + s[:, None] * (uvb[ed] - uva[ed])
+    Nc = _quadratic_shape(at[:, 0], at[:, 1])          # (C, 6)
+    pts = np.einsum("ck,ckd->cd", Nc, xe[el])
+    pts[:, 2] = z0
+    vals = None
+    if values is not None:
+        v = np.asarray(values, dtype=np.float64)
+        ve = v[e[el]]                                  # (C, 6, ...)
+        vals = np.einsum("ck,ck...->c...", Nc, ve)
+    return pts, vals
+
+
 def xy_section(
     x: np.ndarray, elements: np.ndarray, z0: float = 0.0, values: np.ndarray | None = None,
+    curved: bool = False,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Points where the surface meets the plane z = z0, ordered by angle about their mean.
 
-    The quadratic triangles are split into four straight ones and each edge that
-    crosses the plane contributes one point (nodes exactly on the plane count as
-    above it, so every crossing is found once). ``values`` (N_p, ...) are
-    interpolated linearly to the points. Returns (points (n, 3), values (n, ...)).
+    Default (``curved=False``): the quadratic triangles are split into four
+    straight ones and each edge that crosses the plane contributes one point
+    (nodes exactly on the plane count as above it, so every crossing is found
+    once); ``values`` (N_p, ...) are interpolated linearly to the points.
+    ``curved=True`` (what the figures use): the cut of the curved elements
+    themselves, :data:`SECTION_SUBDIVISIONS` points per element edge, values
+    interpolated with the quadratic shape functions.
+    Returns (points (n, 3), values (n, ...)).
     """
     x = np.asarray(x, dtype=np.float64)
+    if curved:
+        pts, vals = _curved_crossings(x, elements, z0, values, SECTION_SUBDIVISIONS)
+        if len(pts) == 0:
+            raise ValueError(f"the surface does not meet the plane z = {z0:g}")
+        return _merge_and_order(pts, vals)
     tri = linear_subtriangles(elements)
     edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
     edges = np.unique(np.sort(edges, axis=1), axis=0)
@@ -241,6 +414,10 @@ def xy_section(
         vals = v[a] + s.reshape(shape) * (v[b] - v[a])
     if len(pts) == 0:
         raise ValueError(f"the surface does not meet the plane z = {z0:g}")
+    return _merge_and_order(pts, vals)
+
+
+def _merge_and_order(pts: np.ndarray, vals):
     # Crossings at a node shared by several edges appear once per edge: merge them.
     key = np.round(pts / 1e-10).astype(np.int64)
     _, first = np.unique(key, axis=0, return_index=True)
@@ -271,14 +448,14 @@ def contour_figure(source, times: Sequence[float] | None = None, z0: float = 0.0
     fig = _figure()
     ax = fig.add_subplot()
     for j, k in enumerate(idx):
-        p, _ = xy_section(data["positions"][k], data["elements"], z0)
+        p, _ = xy_section(data["positions"][k], data["elements"], z0, curved=True)
         p = _closed(p)
         ax.plot(p[:, 0], p[:, 1], color=f"C{j % 10}", label=f"kt = {snap_t[k]:.3g}")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(r"$x/a$")
     ax.set_ylabel(r"$y/a$")
-    ax.set_title(_title(info), fontsize="small")
-    ax.legend(fontsize="small")
+    _caption(fig, [info], extra=f"section z = {z0:g}" if z0 else "")
+    _legend(ax)
     return fig
 
 
@@ -305,7 +482,7 @@ def trajectory_figure(source, node: int | None = None, direction: Sequence[float
     ax = fig.add_subplot()
     for k, style, label in ((0, "0.6", "surface, first snapshot"), (len(pos) - 1, "0.3", "surface, last snapshot")):
         try:
-            p, _ = xy_section(pos[k], data["elements"])
+            p, _ = xy_section(pos[k], data["elements"], curved=True)
         except ValueError:
             continue
         p = _closed(p)
@@ -315,8 +492,8 @@ def trajectory_figure(source, node: int | None = None, direction: Sequence[float
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(r"$x/a$")
     ax.set_ylabel(r"$y/a$")
-    ax.set_title(_title(info), fontsize="small")
-    ax.legend(fontsize="small")
+    _caption(fig, [info])
+    _legend(ax)
     fig.path_node = node  # the chosen node, for callers and tests
     return fig
 
@@ -332,7 +509,7 @@ def tensions_figure(source, t: float | None = None, z0: float = 0.0):
     x = np.asarray(data["positions"][k], dtype=np.float64)
     fields = membrane_fields(model_for(data), x)
     values = np.stack([fields["principal_tension_1"], fields["principal_tension_2"]], axis=1)
-    p, v = xy_section(x, data["elements"], z0, values)
+    p, v = xy_section(x, data["elements"], z0, values, curved=True)
     c = p.mean(axis=0)
     phi = np.mod(np.arctan2(p[:, 1] - c[1], p[:, 0] - c[0]), 2.0 * math.pi)
     order = np.argsort(phi)
@@ -345,8 +522,8 @@ def tensions_figure(source, t: float | None = None, z0: float = 0.0):
     ax.set_xlim(0.0, 2.0)
     ax.set_xlabel(r"polar angle in the $xy$-plane, $\varphi/\pi$")
     ax.set_ylabel(r"principal tension $/E_s$")
-    ax.set_title(f"{_title(info)}, kt = {data['snapshot_t'][k]:.3g}", fontsize="small")
-    ax.legend(fontsize="small")
+    _caption(fig, [info], extra=f"kt = {data['snapshot_t'][k]:.3g}")
+    _legend(ax)
     return fig
 
 
@@ -396,27 +573,61 @@ def steady_figure(source, theory: bool = True):
             ax_s.plot(G[order], values["N2_star"][order], "^:", color=color,
                       label=r"$N_2^*$" if j == 0 else None)
     G_all = np.asarray(ds["shear_rate_G"].values, dtype=np.float64).ravel()
-    if theory and G_all.size:
+    context = _summary_context(ds)
+    if theory and G_all.size and context.get("shape", "sphere") == "sphere":
         g = np.linspace(0.0, float(np.nanmax(G_all)), 50)
         small = g[g <= 0.12]  # first order: D_xy ≪ 1; further out it only squashes the data
         ax_d.plot(small, 25.0 / 4.0 * small, "k--", lw=1, label=r"first order, $25G/4$")
-        ax_t.axhline(0.25, color="k", ls="--", lw=1, label=r"first order, $\pi/4$")
+        ax_t.plot(small, np.full_like(small, 0.25), "k--", lw=1, label=r"first order, $\pi/4$")
         if rheology:
-            ax_f.axhline(1.0, color="k", ls="--", lw=1, label="rigid sphere")
-            ax_s.axhline(1.0, color="k", ls="--", lw=1)
+            ax_f.plot(small, np.ones_like(small), "k--", lw=1, label="rigid sphere")
+            ax_s.plot(small, np.ones_like(small), "k--", lw=1)
             ax_s.plot(small, 19.0 * small, "k:", lw=1, label=r"$N_1^* \approx 19G$")
     ax_d.set_ylabel(r"$D_{xy}$")
     ax_t.set_ylabel(r"$\theta/\pi$")
     ax_t.set_xlabel(r"$G = \mu k a / E_s$")
-    ax_d.legend(fontsize="small")
-    ax_d.set_title(str(ds.attrs.get("title", "")), fontsize="small")
+    _legend(ax_d)
     if rheology:
         ax_f.set_ylabel(r"TTF $/ f_s$")
         ax_s.set_ylabel(r"$S^*_{xy}$, $N_1^*$, $N_2^*$")
         ax_s.set_xlabel(r"$G = \mu k a / E_s$")
-        ax_f.legend(fontsize="small")
-        ax_s.legend(fontsize="small")
+        _legend(ax_f)
+        _legend(ax_s)
+    else:
+        _legend(ax_t)
+    title = str(ds.attrs.get("title", ""))
+    parts = [context[k] for k in ("shape", "law", "lam", "mesh") if context.get(k)]
+    if parts or title:
+        fig.supxlabel((f"{title}: " if title else "") + ", ".join(parts), fontsize="small", color="0.25")
     return fig
+
+
+def _summary_context(ds) -> dict[str, str]:
+    """Shape, law, λ and mesh of a campaign summary, from its stored campaign and variables
+    (what is swept is in the legend; {} for what it does not hold)."""
+    out: dict[str, str] = {}
+    try:
+        import yaml
+
+        campaign = yaml.safe_load(str(ds.attrs.get("campaign_yaml", ""))) or {}
+        base = campaign.get("base", {}) if isinstance(campaign, dict) else {}
+        shape = base.get("shape", {}) if isinstance(base.get("shape"), dict) else {}
+        swept = set(campaign.get("sweep", {}) or {}) | set(campaign.get("zip", {}) or {})
+        if "shape.kind" not in swept:
+            kind = str(shape.get("kind", "sphere"))
+            ratio = shape.get("aspect_ratio")
+            out["shape"] = f"{kind} b/a = {ratio:g}" if kind in ("oblate", "prolate") and ratio else kind
+        if "membrane.law" not in swept:
+            out["law"] = str((base.get("membrane") or {}).get("law", "thin_shell"))
+        if "flow.viscosity_ratio" not in swept and "viscosity_ratio" not in ds.dims:
+            out["lam"] = f"λ = {float((base.get('flow') or {}).get('viscosity_ratio', 1.0)):g}"
+    except Exception:  # noqa: BLE001 - a summary without its campaign still plots
+        pass
+    if "level" in ds.variables:
+        levels = sorted({int(v) for v in np.asarray(ds["level"].values).ravel() if int(v) >= 0})
+        if levels:
+            out["mesh"] = "mesh level " + ", ".join(str(v) for v in levels)
+    return out
 
 
 def _steady_groups(ds, names: tuple[str, ...] = ("D_xy", "theta")) -> list[tuple[str, np.ndarray, dict]]:
@@ -472,20 +683,57 @@ KINDS: dict[str, Callable[..., Any]] = {
 }
 
 
-def plot(source, kind: str, output: str | os.PathLike | None = None, **options: Any):
+def figure_format(output: str | os.PathLike) -> str:
+    """The format a figure file's suffix names (png, pdf, svg); ValueError for another."""
+    suffix = Path(output).suffix.lower().lstrip(".")
+    if suffix not in FIGURE_FORMATS:
+        raise ValueError(f"output {os.fspath(output)}: the suffix names the format; give "
+                         f"{', '.join('.' + f for f in FIGURE_FORMATS)}, got {('.' + suffix) if suffix else 'none'}")
+    return suffix
+
+
+def plot(source, kind: str, output: str | os.PathLike | None = None, *, dpi: float | None = None,
+         fmt: str | None = None, **options: Any):
     """Draw figure `kind` of a run (or, for 'steady', a campaign summary); save it
-    as PNG when `output` is given. Returns the Figure."""
+    when `output` is given, as the format its suffix names (or ``fmt``) at ``dpi``
+    (default :data:`DPI`). Returns the Figure."""
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {', '.join(KINDS)}, got {kind!r}")
+    if fmt is None and output is not None:
+        fmt = figure_format(output)
+    if fmt is not None and fmt not in FIGURE_FORMATS:
+        raise ValueError(f"format must be one of {', '.join(FIGURE_FORMATS)}, got {fmt!r}")
+    if dpi is not None and not (math.isfinite(dpi) and 10 <= dpi <= 2400):
+        raise ValueError(f"--dpi {dpi:g}: must be in [10, 2400]")
+    if kind == "steady":
+        _refuse_run_file(source)
     fig = KINDS[kind](source, **options)
     if output is not None:
         output = Path(output)
         output.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(output, format="png", dpi=DPI)
+        fig.savefig(output, format=fmt, dpi=dpi or DPI, metadata=_metadata(fmt))
     return fig
 
 
-def default_output(source: str | os.PathLike, kind: str) -> Path:
-    """RUN.h5 → RUN_<kind>.png beside it."""
+def _metadata(fmt: str) -> dict[str, Any]:
+    # reproducible files: no creation date in PDF and SVG
+    if fmt == "pdf":
+        return {"CreationDate": None, "Creator": "capsim"}
+    if fmt == "svg":
+        return {"Date": None, "Creator": "capsim"}
+    return {"Software": "capsim"}
+
+
+def _refuse_run_file(source) -> None:
+    if isinstance(source, (str, os.PathLike)):
+        from capsim.store import is_run_file
+
+        if is_run_file(source):
+            raise ValueError(f"{os.fspath(source)} is a run file; --kind steady takes a campaign summary "
+                             "(capsim summarize DIR -o summary.nc, then capsim plot summary.nc --kind steady)")
+
+
+def default_output(source: str | os.PathLike, kind: str, fmt: str = "png") -> Path:
+    """RUN.h5 → RUN_<kind>.<fmt> beside it."""
     source = Path(source)
-    return source.with_name(f"{source.stem}_{kind}.png")
+    return source.with_name(f"{source.stem}_{kind}.{fmt}")
