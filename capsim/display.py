@@ -1,0 +1,295 @@
+"""What `capsim run` and `capsim sweep` show while they work, and their closing tables.
+
+In a terminal (the progress stream, stderr, is a TTY): a live :mod:`rich.progress`
+display — for a run, percent of t_end, elapsed time, ETA, dt and D_xy; for a
+sweep, one row per running case (run id, kt / t_end) under an overall bar with
+its ETA. Otherwise (a log file, a pipe, CI): one plain line every
+``interval_s`` seconds (default :data:`PLAIN_INTERVAL_S`) and a last one at the
+end, with no control codes, so a redirected log stays readable line by line.
+
+Closing summaries are :class:`rich.table.Table` objects printed on stdout (no
+colour when stdout is not a terminal). numba-free: the CLI imports this before
+a run starts.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any, TextIO
+
+__all__ = ["PLAIN_INTERVAL_S", "RunProgress", "SweepProgress", "is_terminal", "print_table", "format_duration"]
+
+#: seconds between two plain progress lines (a log is not a terminal)
+PLAIN_INTERVAL_S = 10.0
+#: seconds between two redraws of the live display
+LIVE_INTERVAL_S = 0.1
+#: running cases named on one plain sweep line
+PLAIN_RUNS_SHOWN = 6
+
+
+def is_terminal(stream: Any) -> bool:
+    """Whether `stream` is an interactive terminal that can take a live display."""
+    try:
+        return bool(stream.isatty()) and os.environ.get("TERM", "") != "dumb"
+    except (AttributeError, ValueError, OSError):
+        return False
+
+
+def format_duration(seconds: float | None) -> str:
+    """h:mm:ss (or '?' when unknown)."""
+    if seconds is None or not math.isfinite(seconds) or seconds < 0:
+        return "?"
+    s = int(round(seconds))
+    return f"{s // 3600}:{(s // 60) % 60:02d}:{s % 60:02d}"
+
+
+def _number(state: Mapping[str, Any], key: str) -> float:
+    value = state.get(key)
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
+
+
+class _Display:
+    def __init__(self, stream: TextIO | None, terminal: bool | None, interval_s: float | None,
+                 clock: Callable[[], float]) -> None:
+        # Looked up now, not at import, so that a swapped sys.stderr is honoured.
+        self.stream = stream if stream is not None else sys.stderr
+        self.terminal = is_terminal(self.stream) if terminal is None else terminal
+        self.interval_s = (LIVE_INTERVAL_S if self.terminal else PLAIN_INTERVAL_S) if interval_s is None else interval_s
+        self.clock = clock
+        self._start: float | None = None
+        self._last_line: float | None = None
+        self._live = None
+        self._written = False
+        self._pending = False  # a state not yet shown
+
+    def _write(self, line: str) -> None:
+        self.stream.write(line + "\n")
+        self.stream.flush()
+        self._written = True
+
+    def _due(self, now: float) -> bool:
+        """A plain line is due once interval_s has passed since the start or the last line."""
+        ref = self._last_line if self._last_line is not None else self._start
+        return now - ref >= self.interval_s
+
+    def _console(self):
+        from rich.console import Console
+
+        return Console(file=self.stream, force_terminal=True, highlight=False)
+
+    def finish(self) -> None:
+        if self._live is not None:
+            self._refresh_live(final=True)
+            self._live.stop()
+            self._live = None
+        elif self._pending:
+            self._write(self._line(self.clock()))
+            self._pending = False
+
+    # subclasses: _line(now) -> str, _refresh_live(final)
+
+
+class RunProgress(_Display):
+    """Progress of one run; called with run_case's ``{t, dt, D_xy, step, t_end}``."""
+
+    def __init__(self, stream: TextIO | None = None, *, terminal: bool | None = None,
+                 interval_s: float | None = None, clock: Callable[[], float] = time.monotonic) -> None:
+        super().__init__(stream, terminal, interval_s, clock)
+        self.state: dict[str, Any] = {}
+        self._t0 = math.nan
+        self._task = None
+        self._last_draw = -math.inf
+
+    def _eta(self, now: float) -> float | None:
+        t, t_end = _number(self.state, "t"), _number(self.state, "t_end")
+        elapsed = now - (self._start if self._start is not None else now)
+        done = t - self._t0
+        if not (math.isfinite(done) and done > 0 and elapsed > 0 and math.isfinite(t_end)):
+            return None
+        return max(0.0, (t_end - t) * elapsed / done)
+
+    def _line(self, now: float) -> str:
+        s = self.state
+        t, t_end = _number(s, "t"), _number(s, "t_end")
+        pct = 100.0 * t / t_end if t_end > 0 else math.nan
+        return (f"kt {t:.4f} / {t_end:g} ({pct:3.0f} %)  elapsed {format_duration(now - (self._start if self._start is not None else now))}"
+                f"  ETA {format_duration(self._eta(now))}  dt {_number(s, 'dt'):.2e}"
+                f"  D_xy {_number(s, 'D_xy'):.5f}  step {int(_number(s, 'step')) if math.isfinite(_number(s, 'step')) else 0}")
+
+    def __call__(self, state: Mapping[str, Any]) -> None:
+        now = self.clock()
+        self.state = dict(state)
+        if self._start is None:
+            self._start, self._t0 = now, _number(state, "t")
+        if self.terminal:
+            if now - self._last_draw >= self.interval_s:
+                self._last_draw = now
+                self._refresh_live()
+            return
+        self._pending = True
+        if self._due(now):
+            self._last_line = now
+            self._write(self._line(now))
+            self._pending = False
+
+    def _refresh_live(self, final: bool = False) -> None:
+        from rich.progress import (BarColumn, Progress, TaskProgressColumn, TextColumn, TimeElapsedColumn,
+                                   TimeRemainingColumn)
+
+        s = self.state
+        t, t_end = _number(s, "t"), _number(s, "t_end")
+        if not math.isfinite(t_end) or t_end <= 0:
+            return
+        info = f"dt {_number(s, 'dt'):.2e}  D_xy {_number(s, 'D_xy'):.5f}"
+        if self._live is None:
+            self._live = Progress(
+                TextColumn("kt {task.fields[kt]}"), BarColumn(), TaskProgressColumn(),
+                TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(), TextColumn("{task.fields[info]}"),
+                console=self._console(), auto_refresh=False, transient=False,
+            )
+            self._live.start()
+            self._task = self._live.add_task("run", total=t_end, completed=t if math.isfinite(t) else 0.0,
+                                             kt=f"{t:.3f} / {t_end:g}", info=info)
+        else:
+            self._live.update(self._task, completed=t, total=t_end, kt=f"{t:.3f} / {t_end:g}", info=info)
+        self._live.refresh()
+
+
+class SweepProgress(_Display):
+    """Progress of a campaign; called with run_campaign's ``{total, skipped, done, failed,
+    running, kt: {run_id: t}}``. ``t_end`` maps run ids to their end times."""
+
+    def __init__(self, t_end: Mapping[str, float] | None = None, stream: TextIO | None = None, *,
+                 terminal: bool | None = None, interval_s: float | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        super().__init__(stream, terminal, interval_s, clock)
+        self.t_end = dict(t_end or {})
+        self.state: dict[str, Any] = {"total": 0, "skipped": 0, "done": 0, "failed": 0, "running": 0, "kt": {}}
+        self._rows: dict[str, Any] = {}
+        self._overall = None
+        self._last_draw = -math.inf
+        self._f0 = 0.0
+
+    # what the state says, with the running count that cannot go stale
+    def counts(self) -> dict[str, int]:
+        s = self.state
+        total = int(s.get("total", 0))
+        finished = int(s.get("skipped", 0)) + int(s.get("done", 0)) + int(s.get("failed", 0))
+        kt = s.get("kt") or {}
+        running = len(kt) if kt else max(0, min(int(s.get("running", 0)), total - finished))
+        return {"total": total, "finished": finished, "running": running, "skipped": int(s.get("skipped", 0)),
+                "done": int(s.get("done", 0)), "failed": int(s.get("failed", 0))}
+
+    def fraction(self) -> float:
+        """Share of the campaign's work done: finished runs plus the running ones' kt / t_end."""
+        c = self.counts()
+        if c["total"] <= 0:
+            return 1.0
+        part = 0.0
+        for run_id, t in (self.state.get("kt") or {}).items():
+            t_end = self.t_end.get(run_id)
+            if t_end and t_end > 0:
+                part += min(max(float(t) / t_end, 0.0), 1.0)
+        return min(1.0, (c["finished"] + part) / c["total"])
+
+    def _eta(self, now: float) -> float | None:
+        f = self.fraction()
+        elapsed = now - (self._start if self._start is not None else now)
+        if f >= 1.0:
+            return 0.0
+        if f - self._f0 <= 0 or elapsed <= 0:
+            return None
+        return (1.0 - f) * elapsed / (f - self._f0)
+
+    def _run_text(self, run_id: str, t: float) -> str:
+        t_end = self.t_end.get(run_id)
+        return f"{run_id} kt {t:.2f}" + (f"/{t_end:g}" if t_end else "")
+
+    def _line(self, now: float) -> str:
+        c = self.counts()
+        line = (f"runs {c['finished']}/{c['total']} done ({c['skipped']} skipped), {c['failed']} failed, "
+                f"{c['running']} running  {100 * self.fraction():3.0f} %  elapsed "
+                f"{format_duration(now - (self._start if self._start is not None else now))}  ETA {format_duration(self._eta(now))}")
+        kt = list((self.state.get("kt") or {}).items())
+        if kt:
+            shown = ", ".join(self._run_text(r, t) for r, t in kt[:PLAIN_RUNS_SHOWN])
+            more = f", +{len(kt) - PLAIN_RUNS_SHOWN} more" if len(kt) > PLAIN_RUNS_SHOWN else ""
+            line += f"  | {shown}{more}"
+        return line
+
+    def __call__(self, state: Mapping[str, Any]) -> None:
+        now = self.clock()
+        self.state = {**dict(state), "kt": dict(state.get("kt") or {})}
+        if self._start is None:
+            self._start = now
+            self._f0 = self.fraction()
+        if self.terminal:
+            if now - self._last_draw >= self.interval_s:
+                self._last_draw = now
+                self._refresh_live()
+            return
+        self._pending = True
+        if self._due(now):
+            self._last_line = now
+            self._write(self._line(now))
+            self._pending = False
+
+    def _refresh_live(self, final: bool = False) -> None:
+        from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeElapsedColumn, \
+            TimeRemainingColumn
+
+        c = self.counts()
+        if self._live is None:
+            self._live = Progress(
+                TextColumn("{task.description}"), BarColumn(), TaskProgressColumn(),
+                TimeElapsedColumn(), TextColumn("{task.fields[eta]}"), TimeRemainingColumn(),
+                TextColumn("{task.fields[info]}"),
+                console=self._console(), auto_refresh=False, transient=False,
+            )
+            self._live.start()
+            self._overall = self._live.add_task("campaign", total=max(c["total"], 1),
+                                                completed=self.fraction() * max(c["total"], 1), eta="ETA", info="")
+        info = f"{c['finished']}/{c['total']} done ({c['skipped']} skipped), {c['failed']} failed, {c['running']} running"
+        self._live.update(self._overall, completed=self.fraction() * max(c["total"], 1), info=info)
+        kt = {} if final else (self.state.get("kt") or {})
+        for run_id in [r for r in self._rows if r not in kt]:
+            self._live.remove_task(self._rows.pop(run_id))
+        for run_id, t in kt.items():
+            t_end = self.t_end.get(run_id) or 1.0
+            text = f"kt {t:.2f} / {t_end:g}" if run_id in self.t_end else f"kt {t:.2f}"
+            if run_id not in self._rows:
+                self._rows[run_id] = self._live.add_task(f"  {run_id}", total=t_end, completed=t, eta="", info=text)
+            else:
+                self._live.update(self._rows[run_id], completed=t, info=text)
+        self._live.refresh()
+
+
+def print_table(rows: Iterable[tuple[str, Any]] | Iterable[Iterable[Any]], *, columns: Iterable[str] | None = None,
+                title: str | None = None, stream: TextIO | None = None) -> None:
+    """A rich table on stdout: ``rows`` of (key, value) pairs, or rows under ``columns``."""
+    from rich import box
+    from rich.console import Console
+    from rich.table import Table
+
+    stream = stream if stream is not None else sys.stdout
+    table = Table(title=title, box=box.SIMPLE_HEAD, show_header=columns is not None, title_justify="left",
+                  pad_edge=False)
+    names = list(columns) if columns is not None else ["", ""]
+    for i, name in enumerate(names):
+        table.add_column(name, style="bold" if (columns is None and i == 0) else None, overflow="fold")
+    for row in rows:
+        table.add_row(*("" if v is None else str(v) for v in row))
+    if is_terminal(stream):
+        Console(file=stream, highlight=False).print(table)
+        return
+    # a log or a pipe: wide enough that no row folds, no trailing blanks, no control codes
+    width = max(200, int(os.environ.get("COLUMNS", "0") or 0))
+    console = Console(file=stream, highlight=False, width=width, color_system=None, force_terminal=False)
+    with console.capture() as captured:
+        console.print(table)
+    stream.write("\n".join(line.rstrip() for line in captured.get().splitlines()).strip("\n") + "\n")
+    stream.flush()
