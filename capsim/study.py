@@ -45,6 +45,7 @@ from capsim.quantities import attrs_for, global_attrs
 
 __all__ = [
     "QUANTITIES",
+    "REFERENCES",
     "analyse_study",
     "error_estimate",
     "format_error_estimate",
@@ -58,6 +59,8 @@ __all__ = [
 
 #: Observables whose error the study reports.
 QUANTITIES = ("D_xy", "theta", "ttf_ratio", "Sxy_star")
+#: what errors are measured against: the finest run, or the Richardson extrapolation in the level
+REFERENCES = ("finest", "richardson")
 
 
 def _attrs(name: str, **extra: Any) -> dict[str, Any]:
@@ -235,7 +238,7 @@ def run_study(
     """
     import xarray as xr
 
-    if reference not in ("finest", "richardson"):
+    if reference not in REFERENCES:
         raise ValueError(f"reference must be 'finest' or 'richardson', got {reference!r}")
     levels = sorted({int(v) for v in levels})
     rtols = sorted({float(v) for v in rtols}, reverse=True)  # loosest first: error falls along the axis
@@ -322,7 +325,7 @@ def analyse_study(ds, reference: str = "finest"):
     ``*_order``, ``*_order3`` and ``*_reference`` variables (re)computed against
     `reference` (``"finest"`` or ``"richardson"``).
     """
-    if reference not in ("finest", "richardson"):
+    if reference not in REFERENCES:
         raise ValueError(f"reference must be 'finest' or 'richardson', got {reference!r}")
     squeezed = "regular_order" not in ds.dims
     if squeezed:
