@@ -85,3 +85,34 @@ def test_every_case_section_is_a_schema_model():
     sections = {name for name, f in Case.model_fields.items() if isinstance(f.annotation, type)
                 and issubclass(f.annotation, config.BaseModel)}
     assert sections == {"shape", "membrane", "flow", "mesh", "quadrature", "time", "solver", "guards", "output"}
+
+
+def _click_choices(command: str, option: str) -> tuple:
+    """The choices the CLI itself accepts for `option` of `command` (what --help lists)."""
+    import typer
+
+    group = typer.main.get_command(cli.app)
+    param = next(p for p in group.commands[command].params if p.name == option)
+    if hasattr(param, "type_descriptor"):  # typer >= 0.2x: the annotation it parses into
+        return tuple(m.value for m in param.type_descriptor.annotation)
+    return tuple(param.type.choices)
+
+
+def test_cli_choice_enums_are_the_registries():
+    """--kind, --format, --reference (and the figure suffixes) are enums whose values are the registries'."""
+    from capsim import export, plot, study
+
+    assert tuple(m.value for m in cli.PlotKind) == tuple(plot.KINDS)
+    assert tuple(m.value for m in cli.ExportFormat) == tuple(export.FORMATS)
+    assert tuple(m.value for m in cli.StudyReference) == tuple(study.REFERENCES)
+    assert tuple(cli._FIGURE_FORMATS) == tuple(plot.FIGURE_FORMATS) == tuple(cli._FIGURE_MAGIC)
+    assert tuple(cli._EXPORT_FORMATS) == tuple(export.FORMATS)
+    assert tuple(cli._STUDY_REFERENCES) == tuple(study.REFERENCES)
+
+
+def test_cli_parameters_accept_exactly_the_registries():
+    from capsim import export, plot, study
+
+    assert _click_choices("plot", "kind") == tuple(plot.KINDS)
+    assert _click_choices("export", "fmt") == tuple(export.FORMATS)
+    assert _click_choices("study", "reference") == tuple(study.REFERENCES)
