@@ -497,7 +497,12 @@ def units(
         None, "--shear-modulus", help="surface shear modulus G_s = E_s/3 instead of E_s, e.g. '6 uN/m'"),
     as_json: bool = typer.Option(False, "--json", help="print a JSON object (G, Ca, time_unit_s, ...)"),
 ) -> None:
-    """Physical values to capsim's numbers: G = μka/E_s, Ca = μka/G_s = 3G and the time unit 1/k."""
+    """Physical values to capsim's numbers: G = μka/E_s, Ca = μka/G_s = 3G and the time unit 1/k.
+
+    Example:
+
+    capsim units --shear-rate '100 1/s' --viscosity '1.2 mPa*s' --radius '2.8 um' --shear-modulus '6 uN/m'
+    """
     from capsim.units import UnitsError, conversion, parse
 
     given = {"shear_rate": shear_rate, "viscosity": viscosity, "radius": radius,
