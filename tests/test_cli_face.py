@@ -327,3 +327,15 @@ def test_campaign_dry_run_lists_exactly_the_runs_the_sweep_runs(tmp_path, monkey
     assert set(other).isdisjoint(listed) and {a for a, _ in other.values()} == {"run"}
     _one_line_exit_2(runner.invoke(app, ["validate", str(campaign), "--set", "flow.shear_rate_G=0.2"]),
                      "the campaign sweeps this field")
+
+
+def test_the_compression_warning_says_what_to_do_in_one_line():
+    from capsim.cli import _compression
+
+    text = _compression({"compressed_fraction": 0.26, "min_tension": -0.31, "bending_modulus": 0.0})
+    assert "\n" not in text and text.startswith("26 %")
+    assert "--set membrane.bending_modulus=" in text
+    section = re.search(r'README, "([^"]+)"', text).group(1)
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    assert re.search(rf"^## {re.escape(section)}$", readme, re.M)
+    assert "would wrinkle" not in (_compression({"compressed_fraction": 0.01, "min_tension": -0.01}) or "")
