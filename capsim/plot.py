@@ -226,6 +226,10 @@ def _plot_runs(ax, source, name: str, scale: float = 1.0,
     loaded = [_load_run(run) for run in runs]
     infos = [_case_info(data) for data in loaded]
     same_shape = all(i and infos[0] and _shape_text(i) == _shape_text(infos[0]) for i in infos)
+    # runs that differ only in their shape are labelled by it (G, λ, κ are in the caption)
+    only_shape = not same_shape and all(i for i in infos) and all(
+        (i["G"], i["lam"], i.get("bending")) == (infos[0]["G"], infos[0]["lam"], infos[0].get("bending"))
+        for i in infos)
     drawn = []
     for i, (data, info) in enumerate(zip(loaded, infos)):
         t, values = _series(data, "t"), _series(data, name)
@@ -233,7 +237,8 @@ def _plot_runs(ax, source, name: str, scale: float = 1.0,
             t, values = theta_for_plot(t, values, _series(data, "D_xy"), unwrap=unwrap)
         values = values / scale
         color = "k" if single else f"C{i % 10}"
-        ax.plot(t, values, "-", color=color, label="capsim" if single else _run_label(info, same_shape))
+        label = "capsim" if single else (_shape_text(info) if only_shape else _run_label(info, same_shape))
+        ax.plot(t, values, "-", color=color, label=label)
         drawn.append((info, t, values, "C0" if single else color))
     _caption(ax.figure, [info for info, *_ in drawn])
     return drawn
