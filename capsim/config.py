@@ -286,8 +286,9 @@ class Mesh(_Model):
     level: int = Field(3, ge=0, le=6, strict=True)
     symmetry: bool = Field(
         True, strict=True,
-        description="use the mirror symmetry about z = 0 (halves the boundary-integral work; "
-        "false lets out-of-plane asymmetry develop)",
+        description="use the symmetries of shear flow and the rest shape: the mirror z -> -z and the "
+        "rotation by pi about z (boundary integrals at a quarter of the nodes; the run file's 'symmetry' "
+        "attribute says which were found); false lets asymmetric modes develop",
     )
 
 
