@@ -266,10 +266,9 @@ def test_rigid_sphere_limit_level2(root):
 def test_first_order_stresslet_depends_only_on_the_linear_moduli(tmp_path):
     """Thin shell and neo-Hookean share G_s = 1/3, K_s = 1: their N1*, N2* agree at small G.
 
-    (the superseded N2* ≈ −N1*/2, docs/theory.md, is not asserted: the drop check in
-    test_drop.py shows the machinery reproduces the exact classical N2*, and the
-    same kind of derivation would give −1/2 for a drop, where the exact ratio is
-    −2/7. See REPRODUCTION.md, "N2*".)
+    (the first-order value N2*/N1* = −29/133 of docs/theory.md is asserted, extrapolated
+    to G → 0 with weak bending at λ = 1 and 5, in
+    test_convergence.py::test_first_order_normal_stress_ratio; REPRODUCTION.md, "N2*".)
     """
     runs = {}
     for law in ("thin_shell", "neo_hookean"):
