@@ -129,7 +129,7 @@ def _sphere_run(tmp_path, level: int, t_end: float = 7.0) -> dict:
 
 @pytest.mark.slow
 def test_steady_theta_order(tmp_path):
-    """Sphere, G = 0.1, λ = 1, levels 2, 3, 4 (rkc, rtol 1e-5, about 8 min here).
+    """Sphere, G = 0.1, λ = 1, levels 2, 3, 4 (rkc, rtol 1e-5; 2.5 min on 2 cores).
 
     Measured, mean over kt ∈ (6, 7] (steady tank-treading):
     θ 0.445838, 0.446341, 0.446462 (differences 5.0e-4, 1.2e-4: order 2.05);
@@ -178,7 +178,7 @@ def test_first_order_normal_stress_ratio(tmp_path, lam, tol):
     """N2*/N1* → −29/133 ≈ −0.218 as G → 0, independent of λ (docs/theory.md).
 
     Linear extrapolation to G = 0 from G = 0.0125 and 0.00625 (level 2, κ = 1e-4;
-    about 1 min per run at λ = 1, 2 min at λ = 5 here). Measured: λ = 1: −0.2169,
+    both runs 36 s at λ = 1, 164 s at λ = 5 on 2 cores). Measured: λ = 1: −0.2169,
     −0.2182 → −0.2195; λ = 5: −0.2129, −0.2185 → −0.2242.
     """
     r1, r2 = _n2_ratio(tmp_path, 0.0125, lam), _n2_ratio(tmp_path, 0.00625, lam)
