@@ -318,6 +318,8 @@ class Quadrature(_Model):
 class Time(_Model):
     """Adaptive time stepping (capsim.timestepping); times in units of 1/k."""
 
+    # rkf23 stays the default: rkc wins at equal accuracy wherever the membrane is stiff but
+    # loses at lambda = 10 with tumbling (README, "Time stepping"); the demo case uses rkc
     scheme: Literal["rkf23", "rkc"] = Field(
         "rkf23",
         description="rkf23: the seed's Runge-Kutta-Fehlberg 2(3), pinned at the membrane's stability limit "
