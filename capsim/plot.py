@@ -14,7 +14,7 @@ Sections of the surface are cut from the curved 6-node elements (each element's
 quadratic map, sampled :data:`SECTION_SUBDIVISIONS` times along an edge, the
 crossing solved on the quadratic), not from its four flat sub-triangles.
 
-First-order small-deformation theory (docs/theory.md), drawn only where it
+First-order small-deformation theory (docs/known_answers.md), drawn only where it
 applies: initially spherical capsules with a ν_s = 1/2 law at G ≤
 :data:`FIRST_ORDER_G_MAX`: D_xy → D∞ = (25/4) G (ν_s = 1/2: thin shell and
 neo-Hookean), D(t) ≈ D∞ (1 − e^{−t/τ}) with kτ = τ̂(λ)·3G, τ̂ = 4.03 (λ = 1),
@@ -51,7 +51,7 @@ THETA_MIN_D = 1e-3
 #: sub-edges per element edge when cutting the curved surface with a plane
 SECTION_SUBDIVISIONS = 6
 
-# τ̂ = kτ / Ca of the impulsive-start relaxation (docs/theory.md), Ca = 3G.
+# τ̂ = kτ / Ca of the impulsive-start relaxation (docs/known_answers.md), Ca = 3G.
 _TAU_HAT = {0.2: 2.63, 1.0: 4.03, 5.0: 11.0}
 _SPHERICAL_LAWS_NU_HALF = {"thin_shell", "neo_hookean", "mooney_rivlin"}
 
@@ -300,7 +300,7 @@ def rheology_figure(source, theory: bool = True):
     ax = fig.add_subplot()
     first = {}
     if theory and _theory_applies(info):
-        # no N2* line: the old derived −N1*/2 was not borne out (REPRODUCTION.md, "N2*"); docs/theory.md now gives −(29/7)G
+        # no N2* line: the old derived −N1*/2 was not borne out (REPRODUCTION.md, "N2*"); docs/known_answers.md now gives −(29/7)G
         first = {"Sxy_star": 1.0, "N1_star": 19.0 * info["G"]}
     labels = {"Sxy_star": r"$S^*_{xy}$", "N1_star": r"$N_1^*$", "N2_star": r"$N_2^*$"}
     for i, (name, label) in enumerate(labels.items()):

@@ -175,7 +175,7 @@ def _n2_ratio(tmp_path, G: float, lam: float) -> float:
 @pytest.mark.slow
 @pytest.mark.parametrize("lam, tol", [(1.0, 0.01), (5.0, 0.02)])
 def test_first_order_normal_stress_ratio(tmp_path, lam, tol):
-    """N2*/N1* → −29/133 ≈ −0.218 as G → 0, independent of λ (docs/theory.md).
+    """N2*/N1* → −29/133 ≈ −0.218 as G → 0, independent of λ (docs/known_answers.md).
 
     Linear extrapolation to G = 0 from G = 0.0125 and 0.00625 (level 2, κ = 1e-4;
     both runs 36 s at λ = 1, 164 s at λ = 5 on 2 cores). Measured: λ = 1: −0.2169,

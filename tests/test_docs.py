@@ -1,8 +1,8 @@
 """The documentation lives in the repository and says what the repository holds.
 
-* No file points to notes outside the repository: the design, theory and
-  stepping notes are docs/conventions.md, docs/theory.md and
-  docs/time_stepping.md (a bare ``theory.md`` is fine only inside docs/).
+* No file points to notes outside the repository: what their design, theory and
+  stepping notes held for a reader is in docs/conventions.md,
+  docs/known_answers.md and docs/time_stepping.md.
 * Every relative markdown link in README.md, REPRODUCTION.md and docs/*.md
   points to a file that exists, and every README section cited as
   ``README, "Section"`` exists.
@@ -47,15 +47,10 @@ def _read(p: Path) -> str:
         return ""
 
 
-def _bad_note_reference(token: str, in_docs: bool) -> bool:
+def _bad_note_reference(token: str) -> bool:
     name = token.rsplit("/", 1)[-1]
-    if name not in {n + ".md" for n in _NOTES}:
-        return False  # e.g. time_stepping.md
-    if name != "theory.md":
-        return True  # design.md and stepping.md exist only outside the repository
-    if token in {"docs/theory.md", "./docs/theory.md", "../docs/theory.md"}:
-        return False
-    return not (in_docs and token in {"theory.md", "./theory.md"})
+    # e.g. time_stepping.md is fine; design.md, theory.md and stepping.md exist only outside
+    return name in {n + ".md" for n in _NOTES}
 
 
 def _markdown_files() -> list[Path]:
@@ -95,7 +90,6 @@ def test_no_reference_to_notes_outside_the_repository():
     for p in _scanned_files():
         text = _read(p)
         rel = p.relative_to(ROOT)
-        in_docs = rel.parts[0] == "docs"
         for lineno, line in enumerate(text.splitlines(), 1):
             # cheap prefilter: the token regex backtracks on long lines without a note name
             if ".md" not in line or not any(n in line for n in _NOTES):
@@ -103,24 +97,23 @@ def test_no_reference_to_notes_outside_the_repository():
             else:
                 tokens = _TOKEN.findall(line)
             for token in tokens:
-                if _bad_note_reference(token, in_docs):
+                if _bad_note_reference(token):
                     bad.append(f"{rel}:{lineno}: {token}")
             if _OUTSIDE.search(line):
                 bad.append(f"{rel}:{lineno}: {line.strip()}")
     assert not bad, "references to files outside the repository (use docs/):\n" + "\n".join(bad)
 
 
-@pytest.mark.parametrize("token,in_docs,bad", [
-    ("docs/theory.md", False, False),
-    ("theory.md", True, False),
-    ("theory.md", False, True),
-    ("shared/theory.md", False, True),
-    ("design.md", True, True),
-    ("stepping.md", False, True),
-    ("docs/time_stepping.md", False, False),
+@pytest.mark.parametrize("token,bad", [
+    ("docs/known_answers.md", False),
+    ("theory.md", True),
+        ("shared/theory.md", True),
+    ("design.md", True),
+    ("stepping.md", True),
+    ("docs/time_stepping.md", False),
 ])
-def test_note_reference_rule(token, in_docs, bad):
-    assert _bad_note_reference(token, in_docs) is bad
+def test_note_reference_rule(token, bad):
+    assert _bad_note_reference(token) is bad
 
 
 def test_relative_markdown_links_resolve():

@@ -19,7 +19,7 @@ N1*/Ca = 3.0625, N2*/Ca = −0.875, N2*/N1* = −2/7. Measured (Ca = 0.05, kt �
 −0.880, D/Ca 1.0951, θ 41.86° against 41.87°.
 
 The same machinery gives the capsule's N1* and N2*; this check is why
-REPRODUCTION.md trusts capsim's N2*/N1* ≈ −0.2 for capsules (docs/theory.md: −29/133)
+REPRODUCTION.md trusts capsim's N2*/N1* ≈ −0.2 for capsules (docs/known_answers.md: −29/133)
 over a derived −1/2 (which drops the E·E terms that make the drop's ratio −2/7).
 """
 

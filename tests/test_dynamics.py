@@ -11,7 +11,7 @@ FIRST_ORDER_D_OVER_G = 25.0 / 4.0
 
 
 def relaxation_time(G: float) -> float:
-    """First-order slow time at λ = 1: kτ ≈ 4.03 Ca with Ca = 3G (docs/theory.md)."""
+    """First-order slow time at λ = 1: kτ ≈ 4.03 Ca with Ca = 3G (docs/known_answers.md)."""
     return 4.03 * 3.0 * G
 
 

@@ -1,6 +1,6 @@
 """Tank-treading, particle stresslet, run summary and motion classifier.
 
-Known answers (docs/theory.md, seed §4): as G → 0 a capsule is a rigid sphere that
+Known answers (docs/known_answers.md, seed §4): as G → 0 a capsule is a rigid sphere that
 turns at k/2 (TTF/f_s → 1) with S*_xy → 1; N1* ≈ (19/3) Ca = 19 G at small G;
 TTF/f_s and S*_xy fall as G grows (shear thinning, seed figs 11 and 13).
 The fast tests run level-1 meshes; the level-2 versions are marked slow.
@@ -266,7 +266,7 @@ def test_rigid_sphere_limit_level2(root):
 def test_first_order_stresslet_depends_only_on_the_linear_moduli(tmp_path):
     """Thin shell and neo-Hookean share G_s = 1/3, K_s = 1: their N1*, N2* agree at small G.
 
-    (the first-order value N2*/N1* = −29/133 of docs/theory.md is asserted, extrapolated
+    (the first-order value N2*/N1* = −29/133 of docs/known_answers.md is asserted, extrapolated
     to G → 0 with weak bending at λ = 1 and 5, in
     test_convergence.py::test_first_order_normal_stress_ratio; REPRODUCTION.md, "N2*".)
     """

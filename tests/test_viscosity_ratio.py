@@ -77,7 +77,7 @@ def test_no_double_layer_work_at_lambda_one(sphere2, monkeypatch):
     assert calls == [] and model.last_solve_info["iterations"] == 0
 
 
-# first-order slow times kτ·G_s/(μa) (docs/theory.md): kτ = τ̂·Ca = 3 τ̂ G
+# first-order slow times kτ·G_s/(μa) (docs/known_answers.md): kτ = τ̂·Ca = 3 τ̂ G
 TAU_HAT = {0.2: 2.63, 5.0: 11.0}
 
 
