@@ -42,6 +42,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from capsim.errors import first_line
 from capsim import threads
 
 __all__ = ["BatchOutcome", "SigtermAsInterrupt", "kernel_kind", "one_line", "run_batch", "warm_up"]
@@ -54,8 +55,7 @@ Failure = Callable[[int, str, str], dict]
 
 def one_line(exc: BaseException) -> str:
     """'Type: first line of the message' (the type alone when the message is empty)."""
-    text = str(exc).strip()
-    first = text.splitlines()[0] if text else ""
+    first = first_line(exc, default="")
     return f"{type(exc).__name__}: {first}" if first else type(exc).__name__
 
 

@@ -41,6 +41,7 @@ import numpy as np
 import yaml
 
 from capsim.config import Case, case_from_dict
+from capsim.errors import first_line
 from capsim.quantities import GROUPS, attrs_for, global_attrs
 
 __all__ = [
@@ -666,7 +667,7 @@ def read_checkpoint(path: str | os.PathLike) -> dict[str, np.ndarray]:
         with np.load(source, allow_pickle=False) as data:
             return {key: data[key] for key in data.files}
     except Exception as exc:  # zipfile, ValueError, OSError: all mean a damaged file
-        first = str(exc).splitlines()[0] if str(exc) else ""
+        first = first_line(exc, default="")
         raise CheckpointError(f"{source}: unreadable checkpoint: {type(exc).__name__}: {first}".rstrip(": ")) from None
 
 
@@ -727,7 +728,7 @@ def read_trajectory(path: str | os.PathLike) -> dict[str, Any]:
     except KeyError as exc:
         raise TrajectoryError(f"{source}: not a capsim trajectory (missing {exc})") from None
     except (OSError, RuntimeError, ValueError) as exc:
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        first = first_line(exc)
         raise TrajectoryError(f"{source}: unreadable HDF5 file (truncated or corrupt?): {first}") from None
 
 
@@ -881,7 +882,7 @@ def open_run(path: str | os.PathLike):
             nodes["/"] = _group_dataset(f)
             f.visititems(visit)
     except (OSError, RuntimeError, ValueError) as exc:
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        first = first_line(exc)
         raise TrajectoryError(f"{source}: unreadable HDF5 file (truncated or corrupt?): {first}") from None
     tree = getattr(xr, "DataTree", None)
     return tree.from_dict(nodes) if tree is not None else nodes
@@ -901,6 +902,6 @@ def read_case(path: str | os.PathLike) -> Case:
     except KeyError:
         raise TrajectoryError(f"{source}: not a capsim trajectory (no config_yaml)") from None
     except (OSError, ValueError) as exc:
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        first = first_line(exc)
         raise TrajectoryError(f"{source}: cannot read: {first}") from None
     return case_from_trajectory({"attrs": {"config_yaml": text}})
