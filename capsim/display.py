@@ -66,6 +66,19 @@ class _Display:
         self._written = False
         self._pending = False  # a state not yet shown
 
+    def _show(self, now: float) -> None:
+        """Redraw the live display at most every interval, or write a plain line when one is due."""
+        if self.terminal:
+            if now - self._last_draw >= self.interval_s:
+                self._last_draw = now
+                self._refresh_live()
+            return
+        self._pending = True
+        if self._due(now):
+            self._last_line = now
+            self._write(self._line(now))
+            self._pending = False
+
     def _write(self, line: str) -> None:
         self.stream.write(line + "\n")
         self.stream.flush()
@@ -125,16 +138,7 @@ class RunProgress(_Display):
         self.state = dict(state)
         if self._start is None:
             self._start, self._t0 = now, _number(state, "t")
-        if self.terminal:
-            if now - self._last_draw >= self.interval_s:
-                self._last_draw = now
-                self._refresh_live()
-            return
-        self._pending = True
-        if self._due(now):
-            self._last_line = now
-            self._write(self._line(now))
-            self._pending = False
+        self._show(now)
 
     def _refresh_live(self, final: bool = False) -> None:
         from rich.progress import (BarColumn, Progress, TaskProgressColumn, TextColumn, TimeElapsedColumn,
@@ -227,16 +231,7 @@ class SweepProgress(_Display):
         if self._start is None:
             self._start = now
             self._f0 = self.fraction()
-        if self.terminal:
-            if now - self._last_draw >= self.interval_s:
-                self._last_draw = now
-                self._refresh_live()
-            return
-        self._pending = True
-        if self._due(now):
-            self._last_line = now
-            self._write(self._line(now))
-            self._pending = False
+        self._show(now)
 
     def _refresh_live(self, final: bool = False) -> None:
         from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeElapsedColumn, \
