@@ -14,7 +14,7 @@ import signal
 import threading
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
@@ -534,7 +534,7 @@ class _Run:
         self.writer.write_summary(motion)
         self.writer.set_attrs(motion=motion["motion"])
         self.writer.close(status, reason)
-        return RunResult(**{**{f.name: getattr(result, f.name) for f in fields(result)}, "summary": motion})
+        return replace(result, summary=motion)
 
     _status_kept = False
 

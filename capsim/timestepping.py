@@ -39,6 +39,7 @@ Schemes:
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, fields
 from typing import Any, Callable, ClassVar
@@ -316,6 +317,7 @@ class ChebyshevCoefficients:
     beta: float           # stability interval [−β, 0]
 
 
+@functools.lru_cache(maxsize=None)  # a run uses a few dozen stage counts, each many times
 def rkc_coefficients(s: int, damping: float = 2.0 / 13.0) -> ChebyshevCoefficients:
     """b_j = T_j''(w0)/T_j'(w0)², a_j = 1 − b_j T_j(w0), w0 = 1 + ε/s²,
     w1 = T_s'(w0)/T_s''(w0); b_0 = b_1 = b_2 (SSV 1998, §2)."""
