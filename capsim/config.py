@@ -320,11 +320,33 @@ class Time(_Model):
 
     # rkf23 stays the default: rkc wins at equal accuracy wherever the membrane is stiff but
     # loses at lambda = 10 with tumbling (README, "Time stepping"); the demo case uses rkc
-    scheme: Literal["rkf23", "rkc"] = Field(
+    scheme: Literal["rkf23", "rkc", "linearly_implicit"] = Field(
         "rkf23",
         description="rkf23: the seed's Runge-Kutta-Fehlberg 2(3), pinned at the membrane's stability limit "
         "dt ~ G h; rkc: second-order Runge-Kutta-Chebyshev (Sommeijer, Shampine & Verwer 1998), as many "
-        "stages per step as the stiffness needs, step size from the error estimate alone",
+        "stages per step as the stiffness needs, step size from the error estimate alone; "
+        "linearly_implicit: the Rosenbrock-W method ROS2 (Verwer et al. 1999) with GMRES stage solves, "
+        "no stability limit",
+    )
+    preconditioner: Literal["local", "none"] = Field(
+        "local",
+        description="linearly_implicit: preconditioner of the stage solves; local: the membrane's Hessian "
+        "with the single layer as a local drag, factorised once per step (needs membrane.traction_method "
+        "galerkin); none: plain GMRES",
+    )
+    linear_tol: float = Field(
+        0.1, gt=0, le=1,
+        description="linearly_implicit: a stage solve stops when its error moves the step by at most "
+        "this fraction of rtol",
+    )
+    linear_max_iter: int = Field(
+        300, ge=1, le=10000, strict=True,
+        description="linearly_implicit: GMRES iterations per stage solve before the step is retried smaller",
+    )
+    jacobian_refresh_steps: int = Field(
+        1, ge=1, le=10000, strict=True,
+        description="linearly_implicit: steps between rebuilds of the preconditioner's membrane Hessian "
+        "(the Jacobian-vector products are always those of the current step)",
     )
     max_stages: int = Field(
         200, ge=2, le=1000, strict=True,
@@ -487,6 +509,16 @@ class Case(_Model):
             raise _FieldProblem("physical", "…", f"gives G = {G:.3g}, outside (0, 1e6): check the units")
         # frozen models: the flow with the computed G, set once while validating
         object.__setattr__(self, "flow", self.flow.model_copy(update={"shear_rate_G": G}))
+        return self
+
+    @model_validator(mode="after")
+    def _preconditioner_needs_galerkin(self) -> Case:
+        t = self.time
+        if t.scheme == "linearly_implicit" and t.preconditioner == "local" and self.membrane.traction != "galerkin":
+            raise _FieldProblem(
+                "time.preconditioner", t.preconditioner,
+                f"needs membrane.traction: galerkin (got {self.membrane.traction}); use preconditioner: none",
+            )
         return self
 
     @field_validator("solver")

@@ -398,6 +398,37 @@ class MembraneForce:
         strain = strain_from_gradient(A, n_cur)
         return strain, tension_tensor(strain, self.law, self.law_params)
 
+    def _energy_gradient(self, x: Array) -> Array:
+        disc = self.disc
+        inv1, inv2, dual_cur, dual_ref, jac0 = kernels.gauss_point_strain(
+            x, self.rest_positions, disc.elements, disc.mem_dxi, disc.mem_deta,
+        )
+        w1, w2 = self.law.derivatives(inv1, inv2, **self.law_params)
+        rhs = kernels.galerkin_energy_gradient(
+            disc.elements, disc.n_nodes, disc.mem_dxi, disc.mem_deta, disc.mem_w,
+            jac0, np.ascontiguousarray(w1), np.ascontiguousarray(w2), dual_cur, dual_ref,
+        )
+        if self.bending is not None:
+            rhs = rhs + self.bending.energy_gradient(x)[1]
+        return rhs
+
+    def energy_gradient(self, x: Array) -> Array:
+        """∂E/∂x at every node (N_p, 3): the right-hand side of M·Δf = ∂E/∂x
+        (galerkin only; bending included). The linearly implicit scheme
+        differentiates it (capsim.linearization)."""
+        if self.traction_method != "galerkin":
+            raise ValueError("the energy gradient needs the galerkin traction method")
+        return self._energy_gradient(np.ascontiguousarray(x, dtype=np.float64))
+
+    def element_traction(self, x: Array) -> Array:
+        """The contour method's element-constant Δf (N_e, 3) at x (no counters, no warm start)."""
+        disc = self.disc
+        geo = disc.geometry(x)
+        strain, tension = self._vertex_state(x)
+        return kernels.element_tractions(
+            x, disc.elements, np.ascontiguousarray(tension), disc.contour_s, disc.contour_w, geo.element_areas,
+        )
+
     def __call__(self, x: Array) -> MembraneState:
         """Tensions and the traction jump Δf at configuration x."""
         self.evaluations += 1
@@ -415,16 +446,7 @@ class MembraneForce:
             state.traction = state.density = traction
             self.stage_times["membrane"] += time.perf_counter() - t1
             return state
-        inv1, inv2, dual_cur, dual_ref, jac0 = kernels.gauss_point_strain(
-            x, self.rest_positions, disc.elements, disc.mem_dxi, disc.mem_deta,
-        )
-        w1, w2 = self.law.derivatives(inv1, inv2, **self.law_params)
-        rhs = kernels.galerkin_energy_gradient(
-            disc.elements, disc.n_nodes, disc.mem_dxi, disc.mem_deta, disc.mem_w,
-            jac0, np.ascontiguousarray(w1), np.ascontiguousarray(w2), dual_cur, dual_ref,
-        )
-        if self.bending is not None:
-            rhs = rhs + self.bending.energy_gradient(x)[1]
+        rhs = self._energy_gradient(x)
         data = disc.mass_matrix_data(geo)
         guess = self._last_traction if self._last_traction is not None else np.zeros_like(rhs)
         traction, iterations = kernels.block_cg(

@@ -24,6 +24,7 @@ import yaml
 from capsim import __version__
 from capsim.config import Case
 from capsim.errors import bounded_repr, first_line
+from capsim.linearization import StageSolver
 from capsim.membrane import law_attributes
 from capsim.mesh import SurfaceMesh, rest_shape_attributes
 from capsim.observables import StepObserver, run_summary
@@ -108,6 +109,7 @@ class RunResult(Mapping):
     scheme: str | None = None
     velocity_evaluations: int | None = None
     layer_applications: int | None = None
+    linear_iterations: int | None = None
     final_D_xy: float | None = None
     final_theta: float | None = None
     volume_drift: float | None = None
@@ -313,7 +315,7 @@ def _check_parts(path: Path, parts: dict[str, dict[str, Any]], fresh: dict[str, 
 # ---------------------------------------------------------------- one run
 
 
-def _integrator_options(case: Case) -> dict[str, Any]:
+def _integrator_options(case: Case, model: CapsuleModel) -> dict[str, Any]:
     tc = case.time
     options = {"rtol": tc.rtol, "dt_initial": tc.dt_initial, "dt_min": tc.dt_min, "dt_max": tc.dt_max}
     if tc.scheme == "rkc":
@@ -322,6 +324,10 @@ def _integrator_options(case: Case) -> dict[str, Any]:
         exact = case.flow.viscosity_ratio == 1.0
         options.update(max_stages=tc.max_stages, rho_refresh_steps=tc.rho_refresh_steps,
                        probe_scale=1.5e-8 if exact else max(1.5e-8, 100.0 * case.solver.tol))
+    elif tc.scheme == "linearly_implicit":
+        options.update(linear_tol=tc.linear_tol, stage_solver=StageSolver(
+            model, preconditioner=tc.preconditioner, max_iter=tc.linear_max_iter,
+            refresh_steps=tc.jacobian_refresh_steps))
     return options
 
 
@@ -337,7 +343,7 @@ class _Run:
         saved, self.wall_before = _load_checkpoint(self.ckpt_path, case) if resume else (None, 0.0)
         self.model, X = build_model(case)
         self.model.interrupt_check = stop.check  # SIGTERM honoured between GMRES iterations too
-        self.integrator: Integrator = make_integrator(case.time.scheme, self._rhs, X, **_integrator_options(case))
+        self.integrator: Integrator = make_integrator(case.time.scheme, self._rhs, X, **_integrator_options(case, self.model))
         self.observer = StepObserver(self.model, X)
         self.snapshots = SnapshotSchedule(case.output.snapshot_every)
         self.checkpoints = CheckpointSchedule(case.output.checkpoint_every_steps, case.output.checkpoint_every_s)
@@ -359,6 +365,7 @@ class _Run:
             "velocity_evaluations": self.integrator.evaluations,
             "stages": self.integrator.last_stages,
             "layer_applications": counts["single_layer_applications"] + counts["double_layer_applications"],
+            "linear_iterations": getattr(self.integrator, "linear_iterations", 0),
         }
 
     def _parts(self) -> dict[str, dict[str, Any]]:
@@ -520,6 +527,7 @@ class _Run:
             rejected_steps=ig.rejected, wall_time_s=self.wall_before + time.perf_counter() - self.wall0,
             scheme=ig.name, velocity_evaluations=int(work["velocity_evaluations"]),
             layer_applications=int(work["layer_applications"]),
+            linear_iterations=int(work["linear_iterations"]),
             final_D_xy=last["D_xy"], final_theta=last["theta"],
             volume_drift=(last["volume"] - first["volume"]) / first["volume"],
             area_change=last["area"] / first["area"] - 1.0,

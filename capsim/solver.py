@@ -469,9 +469,10 @@ class CapsuleModel:
             u = u - (self.disc.flux(geo, u) / self.disc.flux(geo, normals)) * normals
         return u
 
-    def _solve_double_layer(
-        self, x: np.ndarray, geo: ElementGeometry, rhs: np.ndarray, normals: np.ndarray
-    ) -> np.ndarray:
+    def double_layer_operator(self, x: np.ndarray, geo: ElementGeometry, normals: np.ndarray):
+        """u ↦ A u = u − (1−λ)/(8π) D[u] + (1−λ) n ⟨n, u⟩/S at configuration x,
+        the deflated operator of the λ ≠ 1 equation (``velocity``); each call counts
+        one double-layer application."""
         lam = self.viscosity_ratio
         disc = self.disc
         c = (1.0 - lam) / (8.0 * np.pi)
@@ -482,6 +483,13 @@ class CapsuleModel:
             counts["double_layer_applications"] += 1
             return u - c * disc.double_layer(x, geo, u) + (1.0 - lam) * normals * (disc.flux(geo, u) / area)
 
+        return apply
+
+    def _solve_double_layer(
+        self, x: np.ndarray, geo: ElementGeometry, rhs: np.ndarray, normals: np.ndarray
+    ) -> np.ndarray:
+        lam = self.viscosity_ratio
+        apply = self.double_layer_operator(x, geo, normals)
         if self._last_velocity is not None and self._last_velocity.shape == rhs.shape:
             guess = self._last_velocity
             if self._last_rhs is not None and self._last_rhs.shape == rhs.shape:

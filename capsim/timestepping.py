@@ -468,3 +468,124 @@ class RungeKuttaChebyshev(Integrator):
         elif self.rho_age > 0:  # re-estimate before the retry unless it was made at these positions
             self.rho_age = self.rho_refresh_steps
         return Trial(accepted, finite, h, err, s, aux=aux if accepted else None), y_new, cut
+
+
+# ---------------------------------------------------------------- linearly implicit (Rosenbrock-W)
+
+
+class DenseStageSolver:
+    """Stage solver for small systems: J by forward differences of the velocity
+    (one evaluation per unknown, counted by the integrator), dense LU solves."""
+
+    def __init__(self, velocity: Callable[[np.ndarray], np.ndarray]) -> None:
+        self._velocity = velocity
+        self._x: np.ndarray | None = None
+        self._jacobian: np.ndarray | None = None
+        self.linear_iterations = 0
+
+    def freeze(self, x: np.ndarray) -> None:
+        if self._x is x:
+            return
+        flat = x.ravel()
+        f0 = self._velocity(x).ravel()
+        jac = np.empty((flat.size, flat.size))
+        for j in range(flat.size):
+            eps = 1.5e-8 * max(1.0, abs(flat[j]))
+            xp = flat.copy()
+            xp[j] += eps
+            jac[:, j] = (self._velocity(xp.reshape(x.shape)).ravel() - f0) / eps
+        self._x, self._jacobian = x, jac
+
+    def solve(self, r: np.ndarray, gamma_h: float, tol: float, **_: Any) -> np.ndarray:
+        n = r.size
+        return np.linalg.solve(np.eye(n) - gamma_h * self._jacobian, r.ravel()).reshape(r.shape)
+
+    def state(self) -> dict[str, Any]:
+        return {}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        self._x = self._jacobian = None
+
+
+@register_scheme
+class LinearlyImplicit(Integrator):
+    """ROS2, the two-stage second-order Rosenbrock-W method of Verwer, Spee, Blom
+    & Hundsdorfer, SIAM J. Sci. Comput. 20 (1999) 1456–1480 (eq. 2.2), γ = 1 + 1/√2:
+
+        (I − γhJ) k1 = f(y_n)
+        (I − γhJ) k2 = f(y_n + h k1) − 2 k1
+        y_{n+1} = y_n + (3/2) h k1 + (1/2) h k2
+
+    It is second order for any matrix J (a W-method) and L-stable for the exact
+    Jacobian, so h is limited by accuracy alone. The error estimate is its
+    difference with the embedded linearly implicit Euler solution y_n + h k1,
+    est = (h/2)(k1 + k2) (ibid. §2.2): first order, step-size exponent 1/2.
+
+    J is the velocity's Jacobian with the layer operators frozen at y_n and the
+    stage equations are solved by preconditioned GMRES (``capsim.linearization``).
+    Options: ``stage_solver`` (a ``linearization.StageSolver`` for a capsule; by
+    default a :class:`DenseStageSolver`, for small systems) and
+    ``linear_tol``: a stage solve stops when its error moves the step by at most
+    ``linear_tol`` × rtol · max(1, |y|) (estimated as γh² × the residual, since
+    k = r + γh P z and the stage operator's inverse is bounded by ~1).
+    Two velocity evaluations per step (f(y_n + h k1) and f(y_{n+1})).
+    """
+
+    name = "linearly_implicit"
+    order_low = 1
+    reference = "ROS2: Verwer, Spee, Blom & Hundsdorfer, SIAM J. Sci. Comput. 20 (1999) 1456-1480"
+    GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
+    # the stage solution is exact to about this relative residual at best (the
+    # forward-difference Jacobian–vector products): no tolerance below it
+    RESIDUAL_FLOOR = 1e-9
+    RESIDUAL_CEILING = 1e-2
+
+    def __init__(self, rhs: RightHandSide, y0: np.ndarray, *, stage_solver: Any = None, linear_tol: float = 0.1,
+                 **common: Any) -> None:
+        super().__init__(rhs, y0, **common)
+        self.stage_solver = stage_solver if stage_solver is not None else DenseStageSolver(self.velocity)
+        self.linear_tol = float(linear_tol)
+        self.failed_solves = 0
+
+    _STATE_SCALARS = Integrator._STATE_SCALARS + ("failed_solves",)
+
+    @property
+    def linear_iterations(self) -> int:
+        return int(self.stage_solver.linear_iterations)
+
+    def state(self) -> dict[str, Any]:
+        out = super().state()
+        out.update({f"stage.{k}": v for k, v in self.stage_solver.state().items()})
+        return out
+
+    def restore(self, state: dict[str, Any]) -> None:
+        super().restore({k: v for k, v in state.items() if not k.startswith("stage.")})
+        self.stage_solver.restore({k.removeprefix("stage."): v for k, v in state.items() if k.startswith("stage.")})
+
+    def note(self) -> str:
+        if not self.failed_solves:
+            return ""
+        return f"linearly_implicit: {self.failed_solves} stage solves missed their tolerance (steps retried smaller)"
+
+    def _stage(self, r: np.ndarray, h: float, scale: float) -> np.ndarray:
+        gh = self.GAMMA * h
+        bound = self.linear_tol * scale / (self.GAMMA * h * h)
+        return self.stage_solver.solve(r, gh, bound, floor=self.RESIDUAL_FLOOR, ceiling=self.RESIDUAL_CEILING)
+
+    def _try(self, h: float) -> tuple[Trial, np.ndarray, bool]:
+        from capsim.linearization import LinearSolveFailed
+
+        y0 = self.y
+        scale = self.rtol * max(1.0, float(np.abs(y0).max()))
+        self.stage_solver.freeze(y0)
+        try:
+            k1 = self._stage(self.u, h, scale)
+            f1 = self.velocity(y0 + h * k1)
+            k2 = self._stage(f1 - 2.0 * k1, h, scale)
+        except LinearSolveFailed:
+            self.failed_solves += 1
+            return Trial(False, True, h, math.inf, 1), y0, False
+        y_new = y0 + (1.5 * h) * k1 + (0.5 * h) * k2
+        err = float(np.abs((0.5 * h) * (k1 + k2)).max()) / scale
+        finite = bool(np.isfinite(err) and np.all(np.isfinite(y_new)))
+        return Trial(finite and err <= 1.0, finite, h, err, 1), y_new, False

@@ -1,0 +1,321 @@
+"""The stage solve of the linearly implicit scheme: (I − γh J) k = r, matrix-free.
+
+J approximates ∂u/∂x at the start of a step, x_n, with every layer operator and
+the volume correction frozen there (the Rosenbrock-W idea: ROS2 is second
+order for any J, so the geometric dependence of the layers, which is not
+stiff, may be left out). The stiffness is the membrane's: with the velocity of
+``CapsuleModel.velocity``,
+
+    u = P A⁻¹ b(x),   b = u∞ − SL[Δf]/(8πG),   M·Δf = ∂E/∂x,
+
+(A = I at λ = 1, else the deflated double-layer operator; P the volume
+correction u ↦ u − n ⟨n, u⟩/⟨n, n⟩, identity when it is off) the frozen
+Jacobian is J = P A⁻¹ B' with
+
+    B' v = L∞ v − SL[M⁻¹ H v]/(8πG),
+
+H v the change of the energy gradient ∂E/∂x along v (a forward difference of
+``MembraneForce.energy_gradient``, bending included; the contour method
+differentiates its element tractions instead) and M the consistent mass
+matrix at x_n (factorised once per step).
+
+λ ≠ 1 does not nest a double-layer solve in every product: with
+k = r + γh P z the stage equation becomes one system for z,
+
+    (A − γh B' P) z = B' r,
+
+whose products cost one single-layer and one double-layer application
+(λ = 1: the single layer only), solved by GMRES with right preconditioning, so
+that the residual it reports is the true one.
+
+Preconditioner ``local``: the membrane operator exactly, the single layer as a
+local drag, SL[w] ≈ s w. Then A − γh B' P ≈ I + τ M⁻¹H, τ = γ h s/(8πG), applied
+as (M + τH)⁻¹ M with H assembled by coloured finite differences of the energy
+gradient (Curtis, Powell & Reid 1974: nodes coupled through no common element
+share a colour) and factorised by a sparse LU. s is the single layer's Rayleigh
+quotient on the stiffest membrane mode (the top eigenvector of M⁻¹H, where
+the local approximation is best): one single-layer application per build.
+``none``: plain GMRES (the baseline the preconditioner is measured against).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import LinearOperator, gmres, splu
+
+__all__ = ["PRECONDITIONERS", "StageSolver", "LinearSolveFailed", "hessian_colouring"]
+
+#: stage-solve preconditioners (the schema's choices)
+PRECONDITIONERS = ("local", "none")
+
+# forward-difference step relative to max(1, |x|): √ε_machine (Brown & Saad 1990)
+_FD_SCALE = 1.5e-8
+
+
+class LinearSolveFailed(RuntimeError):
+    """GMRES missed the stage tolerance within its iterations (the step is retried smaller)."""
+
+
+def node_adjacency(n_nodes: int, groups: list[np.ndarray]) -> sp.csr_matrix:
+    """Boolean node–node matrix: i ~ j when some row of a group array holds both."""
+    rows, cols = [], []
+    for g in groups:
+        g = np.asarray(g, dtype=np.int64)
+        m = g.shape[1]
+        rows.append(np.repeat(g, m, axis=1).ravel())
+        cols.append(np.tile(g, (1, m)).ravel())
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    a = sp.csr_matrix((np.ones(r.size, dtype=np.int8), (r, c)), shape=(n_nodes, n_nodes))
+    a.data[:] = 1
+    return a
+
+
+def hessian_colouring(adjacency: sp.csr_matrix) -> np.ndarray:
+    """Greedy distance-2 colouring: nodes of one colour have no neighbour in common,
+    so one difference of the gradient per colour and component recovers their
+    columns of the Hessian without overlap (Curtis, Powell & Reid 1974)."""
+    conflict = (adjacency @ adjacency).tocsr()
+    n = adjacency.shape[0]
+    colour = np.full(n, -1, dtype=np.int64)
+    indptr, indices = conflict.indptr, conflict.indices
+    for i in range(n):
+        used = set(colour[indices[indptr[i]:indptr[i + 1]]].tolist())
+        c = 0
+        while c in used:
+            c += 1
+        colour[i] = c
+    return colour
+
+
+@dataclass
+class _Frozen:
+    """Everything frozen at x_n for the step."""
+
+    x: np.ndarray
+    geo: Any
+    normals: np.ndarray | None
+    normal_flux: float
+    mass_lu: Any | None          # scalar consistent mass matrix (galerkin)
+    mass: sp.csr_matrix | None   # the same, on the 3N unknowns
+    gradient: np.ndarray | None  # ∂E/∂x at x_n (galerkin)
+    traction: np.ndarray | None  # element Δf at x_n (contour)
+    double_layer: Any | None     # z ↦ A z (λ ≠ 1)
+
+
+class StageSolver:
+    """Solves the stage equations of a linearly implicit step for one ``CapsuleModel``.
+
+    ``freeze(x)`` fixes J at the start of a step; ``solve(r, gamma_h, tol)``
+    returns k with (I − γh J) k = r to the absolute 2-norm residual ``tol``
+    (in the units of the system for z, module docstring). Counts:
+    ``linear_iterations`` (GMRES iterations, every stage), ``solves``,
+    ``hessians`` (preconditioner builds); the layer applications are counted in
+    the model's own counters.
+    """
+
+    def __init__(self, model, *, preconditioner: str = "local", max_iter: int = 200,
+                 refresh_steps: int = 1) -> None:
+        if preconditioner not in PRECONDITIONERS:
+            raise ValueError(f"unknown preconditioner {preconditioner!r} (allowed: {', '.join(PRECONDITIONERS)})")
+        if preconditioner == "local" and model.traction_method != "galerkin":
+            raise ValueError("the local preconditioner needs the galerkin traction method")
+        self.model = model
+        self.preconditioner = preconditioner
+        self.max_iter = int(max_iter)
+        self.refresh_steps = int(refresh_steps)
+        self.linear_iterations = 0
+        self.solves = 0
+        self.hessians = 0
+        self.last_iterations = 0
+        self._frozen: _Frozen | None = None
+        self._hessian: sp.csr_matrix | None = None
+        self._hessian_x: np.ndarray | None = None  # where it was built
+        self._scale = 0.0           # s of the local drag
+        self._hessian_age = -1      # freezes since the Hessian was built (−1: none)
+        self._factor: tuple[float, Any] | None = None  # (τ, LU of M + τH)
+        self._colours: np.ndarray | None = None
+        self._adjacency: sp.csr_matrix | None = None
+
+    # -- the frozen operators ----------------------------------------------
+    def freeze(self, x: np.ndarray) -> None:
+        """Freeze J at x (the start of a step); a step retried from the same x keeps it."""
+        if self._frozen is not None and self._frozen.x is x:
+            return
+        self._frozen = self._freeze_operators(x)
+        self._factor = None
+        if self._frozen.gradient is not None:
+            if self._hessian_age < 0 or self._hessian_age >= self.refresh_steps:
+                self._build_hessian()
+            self._hessian_age += 1
+
+    def _freeze_operators(self, x: np.ndarray) -> _Frozen:
+        model, disc = self.model, self.model.disc
+        geo = disc.geometry(x)
+        lam = model.viscosity_ratio
+        needs_normals = lam != 1.0 or model.volume_correction
+        normals = disc.nodal_normals(x) if needs_normals else None
+        normal_flux = disc.flux(geo, normals) if model.volume_correction else 1.0
+        mass_lu = mass = gradient = traction = None
+        membrane = model.membrane
+        if membrane.traction_method == "galerkin":
+            m = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr),
+                              shape=(disc.n_nodes, disc.n_nodes))
+            mass_lu = splu(m.tocsc())
+            mass = sp.kron(m, sp.identity(3), format="csr")
+            gradient = membrane.energy_gradient(x)
+        else:
+            traction = membrane.element_traction(x)
+        double_layer = model.double_layer_operator(x, geo, normals) if lam != 1.0 else None
+        return _Frozen(x, geo, normals, normal_flux, mass_lu, mass, gradient, traction, double_layer)
+
+    def _project(self, v: np.ndarray) -> np.ndarray:
+        """The frozen volume correction P."""
+        fr = self._frozen
+        if fr.normals is None or not self.model.volume_correction:
+            return v
+        return v - (self.model.disc.flux(fr.geo, v) / fr.normal_flux) * fr.normals
+
+    def _traction_change(self, v: np.ndarray) -> np.ndarray:
+        """The density change along v: M⁻¹ H v at the nodes (galerkin, H the sparse
+        Hessian), or the element tractions' change by a forward difference (contour)."""
+        fr, membrane = self._frozen, self.model.membrane
+        if fr.gradient is not None:
+            hv = (self._hessian @ v.ravel()).reshape(v.shape)
+            return fr.mass_lu.solve(np.asfortranarray(hv))
+        norm = float(np.linalg.norm(v))
+        if norm == 0.0:
+            return np.zeros_like(fr.traction)
+        eps = _FD_SCALE * max(1.0, float(np.linalg.norm(fr.x))) / norm
+        return (membrane.element_traction(fr.x + eps * v) - fr.traction) / eps
+
+    def _layer_product(self, v: np.ndarray) -> np.ndarray:
+        """B' v = L∞ v − SL[Δf'(v)]/(8πG) (one single-layer application)."""
+        model, fr = self.model, self._frozen
+        change = self._traction_change(v)
+        density = change[model.disc.elements] if fr.gradient is not None else change  # nodal or per element
+        sl = model.disc.single_layer(fr.x, fr.geo, np.ascontiguousarray(density))
+        model.counts["single_layer_applications"] += 1
+        return v @ model.far_field.matrix.T - sl / (8.0 * np.pi * model.shear_rate_G)
+
+    # -- the preconditioner -------------------------------------------------
+    def _build_hessian(self) -> None:
+        """H = ∂²E/∂x² at x_n by coloured differences, and the drag s of the single layer."""
+        model, fr = self.model, self._frozen
+        disc, membrane = model.disc, model.membrane
+        n = disc.n_nodes
+        if self._colours is None:
+            groups = [disc.elements]
+            if membrane.bending is not None:
+                groups.append(membrane.bending.hinges)
+            self._adjacency = node_adjacency(n, groups)
+            self._colours = hessian_colouring(self._adjacency)
+        adj = self._adjacency.tocoo()
+        eps = _FD_SCALE * max(1.0, float(np.abs(fr.x).max()))
+        rows, cols, vals = [], [], []
+        for c in range(int(self._colours.max()) + 1):
+            nodes = np.flatnonzero(self._colours == c)
+            mask = np.isin(adj.col, nodes)
+            out_node, in_node = adj.row[mask], adj.col[mask]
+            for d in range(3):
+                xp = fr.x.copy()
+                xp[nodes, d] += eps
+                dg = (membrane.energy_gradient(xp) - fr.gradient) / eps
+                for e in range(3):
+                    rows.append(3 * out_node + e)
+                    cols.append(3 * in_node + d)
+                    vals.append(dg[out_node, e])
+        h = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * n, 3 * n))
+        self._hessian = ((h + h.T) * 0.5).tocsr()
+        self._hessian_x = fr.x
+        self._scale = self._drag_scale()
+        self._hessian_age = 0
+        self.hessians += 1
+
+    def _drag_scale(self) -> float:
+        """s = ⟨v, SL[v]⟩/⟨v, v⟩ for a random nodal field v (fixed seed): white noise is
+        dominated by the finest modes, where the single layer acts most locally."""
+        model, fr = self.model, self._frozen
+        v = np.random.default_rng(12345).standard_normal(fr.x.shape)
+        sl = model.disc.single_layer(fr.x, fr.geo, np.ascontiguousarray(v[model.disc.elements]))
+        model.counts["single_layer_applications"] += 1
+        return max(float(np.vdot(v, sl)) / float(np.vdot(v, v)), 0.0)
+
+    def _preconditioner(self, gamma_h: float):
+        if self.preconditioner == "none":
+            return None
+        fr = self._frozen
+        tau = gamma_h * self._scale / (8.0 * np.pi * self.model.shear_rate_G)
+        if self._factor is None or self._factor[0] != tau:
+            self._factor = (tau, splu((fr.mass + tau * self._hessian).tocsc()))
+        lu, mass = self._factor[1], fr.mass
+        return lambda y: lu.solve(mass @ y)
+
+    # -- one stage ------------------------------------------------------------
+    def solve(self, r: np.ndarray, gamma_h: float, tol: float, *, floor: float = 1e-9,
+              ceiling: float = 1e-2) -> np.ndarray:
+        """k with (I − γh J) k = r; GMRES stops at the absolute 2-norm residual ``tol``
+        of the z system, kept between ``floor`` and ``ceiling`` times its right-hand side."""
+        fr = self._frozen
+        if fr is None:
+            raise RuntimeError("freeze(x) before solve")
+        shape = r.shape
+        check = self.model.interrupt_check or (lambda: None)
+
+        def system(z_flat):
+            z = z_flat.reshape(shape)
+            az = z if fr.double_layer is None else fr.double_layer(z)
+            return (az - gamma_h * self._layer_product(self._project(z))).ravel()
+
+        b = self._layer_product(r).ravel()
+        bnorm = float(np.linalg.norm(b))
+        self.solves += 1
+        tol = min(max(tol, floor * bnorm), ceiling * bnorm)
+        if not bnorm > 0.0:
+            self.last_iterations = 0
+            return r.copy()
+        precondition = self._preconditioner(gamma_h)
+        n = b.size
+        if precondition is None:
+            op = LinearOperator((n, n), matvec=system, dtype=float)
+        else:
+            op = LinearOperator((n, n), matvec=lambda y: system(precondition(y)), dtype=float)
+        history: list[float] = []
+        restart = min(60, self.max_iter)
+        y, info = gmres(op, b, rtol=tol / bnorm, atol=0.0, restart=restart,
+                        maxiter=max(1, math.ceil(self.max_iter / restart)),
+                        callback=lambda pr: (history.append(float(pr)), check()), callback_type="pr_norm")
+        iterations = len(history)
+        self.linear_iterations += iterations
+        self.last_iterations = iterations
+        # right preconditioning: GMRES's residual is the true relative residual of the z system
+        residual = (history[-1] if history else 1.0) * bnorm
+        if info != 0 or not np.all(np.isfinite(y)):
+            raise LinearSolveFailed(f"stage solve: residual {residual:.2e} > {tol:.2e} after {iterations} iterations")
+        z = y if precondition is None else precondition(y)
+        return r + gamma_h * self._project(z.reshape(shape))
+
+    # -- checkpoints ----------------------------------------------------------
+    def state(self) -> dict[str, Any]:
+        """Counters, and where the preconditioner's Hessian was built (rebuilt there on restore)."""
+        out: dict[str, Any] = {"linear_iterations": self.linear_iterations, "solves": self.solves,
+                               "hessians": self.hessians, "hessian_age": self._hessian_age}
+        if self._hessian_x is not None:
+            out["hessian_x"] = np.array(self._hessian_x, copy=True)
+        return out
+
+    def restore(self, state: dict[str, Any]) -> None:
+        self._frozen = self._factor = self._hessian = self._hessian_x = None
+        hx = state.get("hessian_x")
+        if hx is not None:
+            self._frozen = self._freeze_operators(np.array(hx, dtype=float))
+            self._build_hessian()
+            self._frozen = None
+        self._hessian_age = int(state.get("hessian_age", -1))
+        self.linear_iterations = int(state.get("linear_iterations", 0))
+        self.solves = int(state.get("solves", 0))
+        self.hessians = int(state.get("hessians", 0))
