@@ -325,8 +325,13 @@ class Time(_Model):
         description="rkf23: the seed's Runge-Kutta-Fehlberg 2(3), pinned at the membrane's stability limit "
         "dt ~ G h; rkc: second-order Runge-Kutta-Chebyshev (Sommeijer, Shampine & Verwer 1998), as many "
         "stages per step as the stiffness needs, step size from the error estimate alone; "
-        "linearly_implicit: the Rosenbrock-W method ROS2 (Verwer et al. 1999) with GMRES stage solves, "
+        "linearly_implicit: a Rosenbrock-W method (time.rosenbrock) with GMRES stage solves, "
         "no stability limit",
+    )
+    rosenbrock: Literal["ros34pw2", "ros2"] = Field(
+        "ros34pw2",
+        description="linearly_implicit: ros34pw2, third order, 4 stages (Rang & Angermann 2005); ros2, second "
+        "order, 2 stages (Verwer et al. 1999)",
     )
     preconditioner: Literal["local", "none"] = Field(
         "local",

@@ -325,7 +325,7 @@ def _integrator_options(case: Case, model: CapsuleModel) -> dict[str, Any]:
         options.update(max_stages=tc.max_stages, rho_refresh_steps=tc.rho_refresh_steps,
                        probe_scale=1.5e-8 if exact else max(1.5e-8, 100.0 * case.solver.tol))
     elif tc.scheme == "linearly_implicit":
-        options.update(linear_tol=tc.linear_tol, stage_solver=StageSolver(
+        options.update(linear_tol=tc.linear_tol, method=tc.rosenbrock, stage_solver=StageSolver(
             model, preconditioner=tc.preconditioner, max_iter=tc.linear_max_iter,
             refresh_steps=tc.jacobian_refresh_steps))
     return options

@@ -507,42 +507,98 @@ class DenseStageSolver:
         self._x = self._jacobian = None
 
 
+@dataclass(frozen=True)
+class RosenbrockTableau:
+    """A Rosenbrock-W method in the transformed form that needs no J products
+    (Hairer & Wanner II, §IV.7, eq. 7.25, with U_i = Σ_j Γ_ij h k_j):
+
+        (I − γhJ) U_i = γ (h f(y + Σ_{j<i} a_ij U_j) + Σ_{j<i} c_ij U_j)
+        y_{n+1} = y + Σ m_j U_j,   error estimate Σ (m_j − m̂_j) U_j.
+    """
+
+    name: str
+    gamma: float
+    a: np.ndarray      # (s, s) strictly lower
+    c: np.ndarray      # (s, s) strictly lower
+    m: np.ndarray      # (s,)
+    m_hat: np.ndarray  # (s,) embedded solution
+    order: int
+    order_low: int
+    reference: str
+
+    @classmethod
+    def from_k_form(cls, name: str, gamma: float, alpha, gamma_offdiag, b, b_hat, order: int, order_low: int,
+                    reference: str) -> "RosenbrockTableau":
+        """From the classical form (I − γhJ) k_i = f(y + h Σ α_ij k_j) + hJ Σ γ_ij k_j,
+        y_{n+1} = y + h Σ b_i k_i: A = αΓ⁻¹, C = diag(1/γ) − Γ⁻¹, m = bΓ⁻¹."""
+        big_gamma = np.asarray(gamma_offdiag, dtype=float) + gamma * np.eye(len(b))
+        inv = np.linalg.inv(big_gamma)
+        return cls(name, gamma, np.asarray(alpha, dtype=float) @ inv, np.diag(np.diag(inv)) - inv,
+                   np.asarray(b, dtype=float) @ inv, np.asarray(b_hat, dtype=float) @ inv, order, order_low, reference)
+
+
+_G2 = 1.0 + 1.0 / math.sqrt(2.0)
+ROSENBROCK = {
+    # Verwer, Spee, Blom & Hundsdorfer (1999) eq. 2.2, given in their own transformed form:
+    # (I − γhJ) k1 = f(y), (I − γhJ) k2 = f(y + h k1) − 2 k1, y1 = y + (3/2) h k1 + (1/2) h k2,
+    # here with U_i = γ h k_i; embedded: linearly implicit Euler y + h k1 (their §2.2)
+    "ros2": RosenbrockTableau(
+        "ros2", _G2, a=np.array([[0.0, 0.0], [1.0 / _G2, 0.0]]), c=np.array([[0.0, 0.0], [-2.0 / _G2, 0.0]]),
+        m=np.array([1.5 / _G2, 0.5 / _G2]), m_hat=np.array([1.0 / _G2, 0.0]), order=2, order_low=1,
+        reference="ROS2: Verwer, Spee, Blom & Hundsdorfer, SIAM J. Sci. Comput. 20 (1999) 1456-1480"),
+    # Rang & Angermann (2005): four stages, third order for any J (a W-method), L-stable,
+    # stiffly accurate, with a second-order embedded solution
+    "ros34pw2": RosenbrockTableau.from_k_form(
+        "ros34pw2", 4.3586652150845900e-1,
+        alpha=[[0, 0, 0, 0], [8.7173304301691801e-1, 0, 0, 0],
+               [8.4457060015369423e-1, -1.1299064236484185e-1, 0, 0], [0, 0, 1, 0]],
+        gamma_offdiag=[[0, 0, 0, 0], [-8.7173304301691801e-1, 0, 0, 0],
+                       [-9.0338057013044082e-1, 5.4180672388095326e-2, 0, 0],
+                       [2.4212380706095346e-1, -1.2232505839045147, 5.4526025533510214e-1, 0]],
+        b=[2.4212380706095346e-1, -1.2232505839045147, 1.5452602553351020, 4.3586652150845900e-1],
+        b_hat=[3.7810903145819369e-1, -9.6042292212423178e-2, 0.5, 2.1793326075422950e-1],
+        order=3, order_low=2,
+        reference="ROS34PW2: Rang & Angermann, BIT Numer. Math. 45 (2005) 761-787"),
+}
+
+
 @register_scheme
 class LinearlyImplicit(Integrator):
-    """ROS2, the two-stage second-order Rosenbrock-W method of Verwer, Spee, Blom
-    & Hundsdorfer, SIAM J. Sci. Comput. 20 (1999) 1456–1480 (eq. 2.2), γ = 1 + 1/√2:
+    """Rosenbrock-W methods (``method``: a key of :data:`ROSENBROCK`, default ros34pw2).
 
-        (I − γhJ) k1 = f(y_n)
-        (I − γhJ) k2 = f(y_n + h k1) − 2 k1
-        y_{n+1} = y_n + (3/2) h k1 + (1/2) h k2
+    A Rosenbrock-W method keeps its order for any matrix J, so J may be the
+    velocity's Jacobian with the layer operators frozen at y_n and the stage
+    equations may be solved by preconditioned GMRES (``capsim.linearization``).
+    L-stable for the exact Jacobian: h is limited by accuracy alone.
 
-    It is second order for any matrix J (a W-method) and L-stable for the exact
-    Jacobian, so h is limited by accuracy alone. The error estimate is its
-    difference with the embedded linearly implicit Euler solution y_n + h k1,
-    est = (h/2)(k1 + k2) (ibid. §2.2): first order, step-size exponent 1/2.
+    ``ros34pw2`` (Rang & Angermann 2005): 4 stages, third order, error estimate
+    of second order (step-size exponent 1/3, as RKF2(3)'s), three velocity
+    evaluations and four stage solves per step. ``ros2`` (Verwer et al. 1999):
+    2 stages, second order, first-order estimate (exponent 1/2: the estimate
+    overstates the error of the solution it advances with), one evaluation and
+    two stage solves per step. Both evaluate f at the new positions for the next step.
 
-    J is the velocity's Jacobian with the layer operators frozen at y_n and the
-    stage equations are solved by preconditioned GMRES (``capsim.linearization``).
     Options: ``stage_solver`` (a ``linearization.StageSolver`` for a capsule; by
-    default a :class:`DenseStageSolver`, for small systems) and
-    ``linear_tol``: a stage solve stops when its error moves the step by at most
-    ``linear_tol`` × rtol · max(1, |y|) (estimated as γh² × the residual, since
-    k = r + γh P z and the stage operator's inverse is bounded by ~1).
-    Two velocity evaluations per step (f(y_n + h k1) and f(y_{n+1})).
+    default a :class:`DenseStageSolver`, for small systems) and ``linear_tol``: a
+    stage solve stops when its error moves the step by at most ``linear_tol`` ×
+    rtol · max(1, |y|) (from U_i = r_i + γh P z_i: |δy| ≤ Σ|m_j| γh |δz|, the stage
+    operator's inverse being bounded by ~1).
     """
 
     name = "linearly_implicit"
-    order_low = 1
-    reference = "ROS2: Verwer, Spee, Blom & Hundsdorfer, SIAM J. Sci. Comput. 20 (1999) 1456-1480"
-    GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
-    # the stage solution is exact to about this relative residual at best (the
-    # forward-difference Jacobian–vector products): no tolerance below it
-    RESIDUAL_FLOOR = 1e-9
+    order_low = 2
+    reference = "Rosenbrock-W: ROS34PW2 (Rang & Angermann 2005) or ROS2 (Verwer et al. 1999)"
+    # the stage solution is exact to about this relative residual at best: no tolerance below it
+    RESIDUAL_FLOOR = 1e-10
     RESIDUAL_CEILING = 1e-2
 
     def __init__(self, rhs: RightHandSide, y0: np.ndarray, *, stage_solver: Any = None, linear_tol: float = 0.1,
-                 **common: Any) -> None:
+                 method: str = "ros34pw2", **common: Any) -> None:
         super().__init__(rhs, y0, **common)
+        if method not in ROSENBROCK:
+            raise ValueError(f"unknown Rosenbrock method {method!r} (allowed: {', '.join(ROSENBROCK)})")
+        self.tableau = ROSENBROCK[method]
+        self.order_low = self.tableau.order_low
         self.stage_solver = stage_solver if stage_solver is not None else DenseStageSolver(self.velocity)
         self.linear_tol = float(linear_tol)
         self.failed_solves = 0
@@ -567,25 +623,31 @@ class LinearlyImplicit(Integrator):
             return ""
         return f"linearly_implicit: {self.failed_solves} stage solves missed their tolerance (steps retried smaller)"
 
-    def _stage(self, r: np.ndarray, h: float, scale: float) -> np.ndarray:
-        gh = self.GAMMA * h
-        bound = self.linear_tol * scale / (self.GAMMA * h * h)
-        return self.stage_solver.solve(r, gh, bound, floor=self.RESIDUAL_FLOOR, ceiling=self.RESIDUAL_CEILING)
-
     def _try(self, h: float) -> tuple[Trial, np.ndarray, bool]:
         from capsim.linearization import LinearSolveFailed
 
-        y0 = self.y
+        tab, y0 = self.tableau, self.y
         scale = self.rtol * max(1.0, float(np.abs(y0).max()))
+        gh = tab.gamma * h
+        tol = self.linear_tol * scale / (gh * float(np.abs(tab.m).sum()))
         self.stage_solver.freeze(y0)
+        stages: list[np.ndarray] = []
+        evaluations = 0
         try:
-            k1 = self._stage(self.u, h, scale)
-            f1 = self.velocity(y0 + h * k1)
-            k2 = self._stage(f1 - 2.0 * k1, h, scale)
+            for i in range(len(tab.m)):
+                if i == 0 or not np.any(tab.a[i, :i]):
+                    f = self.u
+                else:
+                    f = self.velocity(y0 + sum(tab.a[i, j] * stages[j] for j in range(i) if tab.a[i, j]))
+                    evaluations += 1
+                r = h * f + sum(tab.c[i, j] * stages[j] for j in range(i) if tab.c[i, j])
+                stages.append(self.stage_solver.solve(tab.gamma * r, gh, tol, floor=self.RESIDUAL_FLOOR,
+                                                      ceiling=self.RESIDUAL_CEILING))
         except LinearSolveFailed:
             self.failed_solves += 1
-            return Trial(False, True, h, math.inf, 1), y0, False
-        y_new = y0 + (1.5 * h) * k1 + (0.5 * h) * k2
-        err = float(np.abs((0.5 * h) * (k1 + k2)).max()) / scale
+            return Trial(False, True, h, math.inf, evaluations), y0, False
+        y_new = y0 + sum(mj * u for mj, u in zip(tab.m, stages))
+        est = sum((mj - mh) * u for mj, mh, u in zip(tab.m, tab.m_hat, stages))
+        err = float(np.abs(est).max()) / scale
         finite = bool(np.isfinite(err) and np.all(np.isfinite(y_new)))
-        return Trial(finite and err <= 1.0, finite, h, err, 1), y_new, False
+        return Trial(finite and err <= 1.0, finite, h, err, evaluations), y_new, False
