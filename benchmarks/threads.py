@@ -42,7 +42,10 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-VARIABLES = ("NUMBA_NUM_THREADS", "NUMBA_THREADING_LAYER", "OMP_WAIT_POLICY", "CAPSIM_THREAD_POLICY")
+VARIABLES = ("NUMBA_NUM_THREADS", "NUMBA_THREADING_LAYER", "OMP_WAIT_POLICY", "GOMP_SPINCOUNT",
+             "CAPSIM_THREAD_POLICY")
+#: bounded spin counts measured against PASSIVE (0) and libgomp's default (300000)
+SPIN_COUNTS = (1000, 10000, 100000)
 
 
 def _settings() -> dict[str, dict[str, str] | None]:
@@ -54,6 +57,10 @@ def _settings() -> dict[str, dict[str, str] | None]:
         "omp-passive": {"NUMBA_THREADING_LAYER": "omp", "OMP_WAIT_POLICY": "PASSIVE"},
         "workqueue": {"NUMBA_THREADING_LAYER": "workqueue"},
     }
+    # libgomp with its default wait policy but a bounded spin: GOMP_SPINCOUNT busy-wait
+    # iterations at a barrier, then sleep (libgomp's own default is 300000).
+    for count in SPIN_COUNTS:
+        settings[f"omp-spin{count // 1000}k"] = {"NUMBA_THREADING_LAYER": "omp", "GOMP_SPINCOUNT": str(count)}
     if "tbb" in available_layers():
         settings["tbb"] = {"NUMBA_THREADING_LAYER": "tbb"}
     settings["capsim"] = None  # the policy, applied in the child
