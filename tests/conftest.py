@@ -1,8 +1,15 @@
-import numpy as np
-import pytest
+# The thread policy of the CLI, applied before anything imports numba: on a
+# shared machine numba's spinning default makes a parallel kernel wait out the
+# time slice of a descheduled thread (README, "Threads").
+from capsim.threads import apply_policy
 
-from capsim.mesh import unit_sphere_mesh
-from capsim.solver import Discretization
+apply_policy()
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from capsim.mesh import unit_sphere_mesh  # noqa: E402
+from capsim.solver import Discretization  # noqa: E402
 
 
 @pytest.fixture(scope="session")
