@@ -158,13 +158,21 @@ class _InterruptAfter:
             raise KeyboardInterrupt
 
 
+RESUMED = {
+    # the spectral radius, its vector and age, the stage count and the controller's memory
+    "rkc": {"time.rho_refresh_steps": 3},
+    # the Hessian's age and where it was built (rebuilt there on resume)
+    "linearly_implicit": {"time.jacobian_refresh_steps": 3},
+}
+
+
 @pytest.mark.parametrize("lam", [1.0, 5.0])
-def test_resumed_rkc_run_repeats_the_uninterrupted_one(tmp_path, lam):
-    """The spectral radius, its vector and age, the stage count and the
-    controller's memory are in the checkpoint: the step sequence is the same."""
+@pytest.mark.parametrize("scheme", sorted(RESUMED))
+def test_resumed_run_repeats_the_uninterrupted_one(tmp_path, scheme, lam):
+    """The scheme's state is in the checkpoint: the step sequence is the same."""
     t_end = 1.5 if lam == 1.0 else 0.6  # every λ = 5 evaluation is a GMRES solve
-    case = _capsule(tmp_path, f"rkc{lam:g}", **{"time.scheme": "rkc", "mesh.level": 1, "time.t_end": t_end,
-                                                "time.rho_refresh_steps": 3, "flow.viscosity_ratio": lam})
+    case = _capsule(tmp_path, f"{scheme}{lam:g}", **{"time.scheme": scheme, "mesh.level": 1, "time.t_end": t_end,
+                                                     "flow.viscosity_ratio": lam, **RESUMED[scheme]})
     assert run_case(case, progress=_InterruptAfter(4))["status"] == "interrupted"
     resumed = run_case(case, resume=True)
     reference = run_case(apply_overrides(case, **{"output.path": str(tmp_path / "reference.h5")}))
@@ -172,7 +180,7 @@ def test_resumed_rkc_run_repeats_the_uninterrupted_one(tmp_path, lam):
     assert resumed["steps"] == reference["steps"]
     assert resumed["velocity_evaluations"] == reference["velocity_evaluations"]
     got, want = read_trajectory(case.output.path), read_trajectory(reference["path"])
-    for key in ("t", "D_xy", "theta", "stages", "velocity_evaluations", "layer_applications"):
+    for key in ("t", "D_xy", "theta", "stages", "velocity_evaluations", "layer_applications", "linear_iterations"):
         np.testing.assert_allclose(got["timeseries"][key], want["timeseries"][key], rtol=0, atol=1e-10, err_msg=key)
 
 
