@@ -315,6 +315,13 @@ class Quadrature(_Model):
     )
 
 
+#: the time options that belong to one scheme (set to another value with another scheme: an error)
+SCHEME_OPTIONS = {
+    "rkc": ("max_stages", "rho_refresh_steps"),
+    "linearly_implicit": ("rosenbrock", "preconditioner", "linear_tol", "linear_max_iter", "jacobian_refresh_steps"),
+}
+
+
 class Time(_Model):
     """Adaptive time stepping (capsim.timestepping); times in units of 1/k."""
 
@@ -377,6 +384,18 @@ class Time(_Model):
     dt_initial: float = Field(1.0e-3, gt=0)
     max_steps: int = Field(1_000_000, ge=1, strict=True)
     stop_when_steady: bool = Field(False, strict=True)
+
+    @model_validator(mode="after")
+    def _options_of_the_scheme(self) -> "Time":
+        for scheme, names in SCHEME_OPTIONS.items():
+            if scheme == self.scheme:
+                continue
+            for name in names:
+                value = getattr(self, name)
+                if name in self.model_fields_set and value != type(self).model_fields[name].default:
+                    raise _FieldProblem(name, value,
+                                        f"applies only to scheme: {scheme}, not to scheme: {self.scheme}; remove it")
+        return self
 
     @field_validator("rtol")
     @classmethod

@@ -231,3 +231,13 @@ def test_contour_traction_with_the_local_preconditioner_is_refused():
 def test_linearly_implicit_is_a_registered_scheme():
     assert make_integrator("linearly_implicit", lambda y: (y, None), np.ones(2), rtol=1e-3, dt_initial=0.1,
                            dt_min=1e-9, dt_max=1.0).__class__ is LinearlyImplicit
+
+
+@pytest.mark.parametrize("scheme, option, value, owner", [
+    ("rkf23", "preconditioner", "none", "linearly_implicit"),
+    ("rkc", "rosenbrock", "ros2", "linearly_implicit"),
+    ("linearly_implicit", "max_stages", 50, "rkc"),
+])
+def test_an_option_of_another_scheme_is_refused(scheme, option, value, owner):
+    with pytest.raises(ConfigError, match=f"time.{option} = .*applies only to scheme: {owner}, not to scheme: {scheme}"):
+        case_from_dict({"name": "o", "time": {"scheme": scheme, option: value}})
