@@ -231,7 +231,8 @@ _add("mesh_base", "base polyhedron of the mesh", "1",
      "flag: 0 octahedron, 1 icosahedron (flag_values, flag_meanings); the mesh is the base subdivided "
      "`level` times")
 _add("time_scheme", "time-stepping scheme", "1",
-     "flag: 0 rkf23 (Runge-Kutta-Fehlberg 2(3)), 1 rkc (Runge-Kutta-Chebyshev) (flag_values, flag_meanings)")
+     "flag: 0 rkf23 (Runge-Kutta-Fehlberg 2(3)), 1 rkc (Runge-Kutta-Chebyshev), 2 linearly_implicit "
+     "(Rosenbrock-W) (flag_values, flag_meanings)")
 _add("steady_average", "whether the values are averages over a settled motion", "1",
      "flag: 1 when the motion is steady, oscillating or tumbling, so that the observables are means over "
      "whole cycles (or the steady window); 0 when the run ended transient or unstable, or did not classify "
@@ -313,7 +314,7 @@ del _add, _base, _c, _key, _name, _of, _sfx, _what
 #: Categorical quantities written as CF flag variables (integer codes, flag_values, flag_meanings).
 FLAGS: dict[str, tuple[str, ...]] = {
     "mesh_base": ("octahedron", "icosahedron"),
-    "time_scheme": ("rkf23", "rkc"),
+    "time_scheme": ("rkf23", "rkc", "linearly_implicit"),  # the order of timestepping.SCHEMES
     "steady_average": ("no", "yes"),
 }
 

@@ -241,3 +241,14 @@ def test_linearly_implicit_is_a_registered_scheme():
 def test_an_option_of_another_scheme_is_refused(scheme, option, value, owner):
     with pytest.raises(ConfigError, match=f"time.{option} = .*applies only to scheme: {owner}, not to scheme: {scheme}"):
         case_from_dict({"name": "o", "time": {"scheme": scheme, option: value}})
+
+
+def test_a_linearly_implicit_run_is_summarized_with_its_scheme_flag(tmp_path):
+    from capsim.quantities import FLAGS
+    from capsim.summary import read_run
+
+    result = run_case(_case(tmp_path, "sum", **{"time.scheme": "linearly_implicit", "mesh.level": 1,
+                                                 "time.t_end": 0.3}))
+    record = read_run(result["path"])
+    assert record["time_scheme"] == FLAGS["time_scheme"].index("linearly_implicit") == 2
+    assert record["steps"] == result["steps"] > 0

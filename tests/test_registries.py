@@ -53,6 +53,10 @@ def test_time_schemes_are_the_registry():
     from capsim.timestepping import SCHEMES
 
     assert set(_choices(Time, "scheme")) == set(SCHEMES)
+    # a summary's time_scheme flag has a code for every scheme
+    from capsim.quantities import FLAGS
+
+    assert FLAGS["time_scheme"] == tuple(SCHEMES)
 
 
 def test_law_parameters_and_defaults_are_defined_once():
