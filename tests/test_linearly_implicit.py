@@ -1,33 +1,18 @@
-"""The linearly implicit scheme (ROS2, a Rosenbrock-W method) and its matrix-free stage solver."""
+"""The linearly implicit schemes (Rosenbrock-W: ROS2, ROS34PW2) and their matrix-free stage solver."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from capsim.config import ConfigError, apply_overrides, case_from_dict
+from capsim.config import ConfigError, case_from_dict
 from capsim.linearization import StageSolver, hessian_colouring, node_adjacency
 from capsim.runner import run_case
 from capsim.solver import build_model
 from capsim.store import read_trajectory
 from capsim.timestepping import RKF23, ROSENBROCK, LinearlyImplicit, attempt_step, make_integrator
 
-# The stiff linear problem of test_timestepping: y' = A y + b, eigenvalues in [−1e4, −1].
-EIGENVALUES = -np.logspace(0, 4, 40)
-Q = np.linalg.qr(np.random.default_rng(1).standard_normal((40, 40)))[0]
-A = Q @ np.diag(EIGENVALUES) @ Q.T
-FORCING = Q @ np.linspace(1.0, 2.0, 40)
-Y_STAR = -np.linalg.solve(A, FORCING)
-Y0 = Y_STAR + Q @ np.where(-EIGENVALUES <= 10.0, 1.0, 0.0)
-RKF23_LIMIT = 2.5 / 1e4
-
-
-def linear(y):
-    return A @ y + FORCING
-
-
-def exact(t):
-    return Y_STAR + Q @ (np.exp(EIGENVALUES * t) * (Q.T @ (Y0 - Y_STAR)))
+from stiff_problems import A, EIGENVALUES, Q, RKF23_LIMIT, Y0, capsule_case as _case, exact, linear
 
 
 class MatrixStageSolver:
@@ -120,14 +105,6 @@ def test_distance_two_colouring_separates_nodes_with_a_common_element():
         for j in range(14):
             if i != j and two_step[i, j]:
                 assert colour[i] != colour[j], (i, j)
-
-
-def _case(tmp_path, name, **dotted):
-    case = case_from_dict({
-        "name": name, "mesh": {"level": 2}, "flow": {"shear_rate_G": 0.05},
-        "time": {"t_end": 2.0}, "output": {"path": str(tmp_path / f"{name}.h5")},
-    })
-    return apply_overrides(case, **dotted)
 
 
 def _deformed(case):
