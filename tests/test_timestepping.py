@@ -1,6 +1,6 @@
 """Time integrators: every registered scheme against an exact solution; RKC's
 order, stability interval and stage count; a capsule run against a tight
-RKF2(3) reference; an interrupted RKC run resumed."""
+RKF2(3) reference; interrupted runs of the schemes with state (rkc, linearly_implicit) resumed."""
 
 from __future__ import annotations
 
