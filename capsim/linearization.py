@@ -135,6 +135,8 @@ class StageSolver:
         self._frozen: _Frozen | None = None
         self._hessian: sp.csr_matrix | None = None
         self._hessian_x: np.ndarray | None = None  # where it was built
+        self._hessian_mass: sp.csr_matrix | None = None  # the mass matrix there
+        self.factorisations = 0
         self._scale = 0.0           # s of the local drag
         self._hessian_age = -1      # freezes since the Hessian was built (−1: none)
         self._factor: tuple[float, Any] | None = None  # (τ, LU of M + τH)
@@ -147,7 +149,6 @@ class StageSolver:
         if self._frozen is not None and self._frozen.x is x:
             return
         self._frozen = self._freeze_operators(x)
-        self._factor = None
         if self._frozen.gradient is not None:
             if self._hessian_age < 0 or self._hessian_age >= self.refresh_steps:
                 self._build_hessian()
@@ -232,6 +233,8 @@ class StageSolver:
         h = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * n, 3 * n))
         self._hessian = ((h + h.T) * 0.5).tocsr()
         self._hessian_x = fr.x
+        self._hessian_mass = fr.mass
+        self._factor = None
         self._scale = self._drag_scale()
         self._hessian_age = 0
         self.hessians += 1
@@ -248,12 +251,20 @@ class StageSolver:
     def _preconditioner(self, gamma_h: float):
         if self.preconditioner == "none":
             return None
-        fr = self._frozen
         tau = gamma_h * self._scale / (8.0 * np.pi * self.model.shear_rate_G)
-        if self._factor is None or self._factor[0] != tau:
-            self._factor = (tau, splu((fr.mass + tau * self._hessian).tocsc()))
-        lu, mass = self._factor[1], fr.mass
+        # the factor of M + τH (M where H was built) is kept while τ stays within
+        # TAU_SLACK of its τ: with jacobian_refresh_steps > 1 that saves the LU of
+        # most steps (the preconditioner need not match J exactly)
+        if self._factor is None or abs(tau / self._factor[0] - 1.0) > self.TAU_SLACK:
+            self._factorise(tau)
+        lu, mass = self._factor[1], self._hessian_mass
         return lambda y: lu.solve(mass @ y)
+
+    TAU_SLACK = 0.3
+
+    def _factorise(self, tau: float) -> None:
+        self._factor = (tau, splu((self._hessian_mass + tau * self._hessian).tocsc()))
+        self.factorisations += 1
 
     # -- one stage ------------------------------------------------------------
     def solve(self, r: np.ndarray, gamma_h: float, tol: float, *, floor: float = 1e-9,
@@ -306,15 +317,21 @@ class StageSolver:
                                "hessians": self.hessians, "hessian_age": self._hessian_age}
         if self._hessian_x is not None:
             out["hessian_x"] = np.array(self._hessian_x, copy=True)
+        if self._factor is not None:
+            out["factor_tau"] = float(self._factor[0])
+        out["factorisations"] = self.factorisations
         return out
 
     def restore(self, state: dict[str, Any]) -> None:
-        self._frozen = self._factor = self._hessian = self._hessian_x = None
+        self._frozen = self._factor = self._hessian = self._hessian_x = self._hessian_mass = None
         hx = state.get("hessian_x")
         if hx is not None:
             self._frozen = self._freeze_operators(np.array(hx, dtype=float))
             self._build_hessian()
             self._frozen = None
+            if state.get("factor_tau") is not None and self.preconditioner == "local":
+                self._factorise(float(state["factor_tau"]))
+        self.factorisations = int(state.get("factorisations", 0))
         self._hessian_age = int(state.get("hessian_age", -1))
         self.linear_iterations = int(state.get("linear_iterations", 0))
         self.solves = int(state.get("solves", 0))
