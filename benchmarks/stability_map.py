@@ -1,5 +1,5 @@
 """Stability map (issue 8): how far each extreme case runs, its wall time and why
-it stopped. Writes benchmarks/stability_map.md and .json. Level 2 (130 nodes
+it stopped. Writes one benchmarks/stability_map/row<i>.json per case. Level 2 (130 nodes
 per octant... 514 nodes) to keep the whole map within an hour on 2 cores."""
 
 import json

@@ -1,8 +1,8 @@
 """The documentation lives in the repository and says what the repository holds.
 
-* No file points to notes outside the repository: what their design, theory and
-  stepping notes held for a reader is in docs/conventions.md,
-  docs/known_answers.md and docs/time_stepping.md.
+* No file points to notes outside the repository: every markdown file a file
+  names is one of the repository's (what a reader needs of the project's notes
+  is in docs/conventions.md, docs/known_answers.md and docs/time_stepping.md).
 * Every relative markdown link in README.md, REPRODUCTION.md and docs/*.md
   points to a file that exists, and every README section cited as
   ``README, "Section"`` exists.
@@ -22,11 +22,10 @@ SCANNED_FILES = ("README.md", "REPRODUCTION.md", "Makefile", "pyproject.toml")
 TEXT_SUFFIXES = {".py", ".md", ".yaml", ".yml", ".toml", ".txt", ".cfg", ".ini", ".json"}
 MARKDOWN = ("README.md", "REPRODUCTION.md", "docs/*.md")
 
-# a path-like token ending in one of the note names (the names are assembled so
-# that this file does not match itself)
-_NOTES = ("design", "stepping", "theory")
-_TOKEN = re.compile(r"[\w./-]*\b(?:" + "|".join(_NOTES) + r")\.md\b")
-_OUTSIDE = re.compile(r"/work/|\bshared/(?:seed|design|theory|stepping|style)")
+# a path-like token naming a markdown file: it must be a file of the repository
+_MD_TOKEN = re.compile(r"[\w./-]*\w\.md\b")
+# absolute paths of the machines the notes were written on, and the folder beside the repository
+_OUTSIDE = re.compile(r"/work/|\.\./shared\b|\bshared/\w")
 _LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
 _README_SECTION = re.compile(r"README,\s+\"([^\"]+)\"")
 
@@ -47,10 +46,16 @@ def _read(p: Path) -> str:
         return ""
 
 
-def _bad_note_reference(token: str) -> bool:
+def _dangling_markdown_reference(token: str, source: Path) -> bool:
+    """True when no file of the repository answers to `token`: relative to the file
+    that names it, to the repository root, to docs/ or to benchmarks/, or as the name of
+    a markdown file anywhere in the tree (text often names a file without its folder)."""
+    for base in (source.parent, ROOT, ROOT / "docs", ROOT / "benchmarks"):
+        if (base / token).is_file():
+            return False
     name = token.rsplit("/", 1)[-1]
-    # e.g. time_stepping.md is fine; design.md, theory.md and stepping.md exist only outside
-    return name in {n + ".md" for n in _NOTES}
+    return not any(p.name == name for d in SCANNED_DIRS for p in (ROOT / d).rglob("*.md")) and \
+        not (ROOT / name).is_file()
 
 
 def _markdown_files() -> list[Path]:
@@ -91,13 +96,9 @@ def test_no_reference_to_notes_outside_the_repository():
         text = _read(p)
         rel = p.relative_to(ROOT)
         for lineno, line in enumerate(text.splitlines(), 1):
-            # cheap prefilter: the token regex backtracks on long lines without a note name
-            if ".md" not in line or not any(n in line for n in _NOTES):
-                tokens = []
-            else:
-                tokens = _TOKEN.findall(line)
+            tokens = _MD_TOKEN.findall(line) if ".md" in line else []
             for token in tokens:
-                if _bad_note_reference(token):
+                if _dangling_markdown_reference(token, p):
                     bad.append(f"{rel}:{lineno}: {token}")
             if _OUTSIDE.search(line):
                 bad.append(f"{rel}:{lineno}: {line.strip()}")
@@ -106,14 +107,15 @@ def test_no_reference_to_notes_outside_the_repository():
 
 @pytest.mark.parametrize("token,bad", [
     ("docs/known_answers.md", False),
-    ("theory.md", True),
-        ("shared/theory.md", True),
-    ("design.md", True),
-    ("stepping.md", True),
     ("docs/time_stepping.md", False),
+    ("time_stepping.md", False),       # named without its folder
+    ("time_schemes.md", False),        # benchmarks/
+    ("README.md", False),
+    ("notes.md", True),                # no such file in the repository
+    ("../elsewhere/notes.md", True),
 ])
-def test_note_reference_rule(token, bad):
-    assert _bad_note_reference(token) is bad
+def test_markdown_reference_rule(token, bad):
+    assert _dangling_markdown_reference(token, ROOT / "README.md") is bad
 
 
 def test_relative_markdown_links_resolve():
