@@ -32,10 +32,9 @@ sys.path.insert(0, str(HERE.parent))
 
 from capsim.config import apply_overrides, case_from_dict  # noqa: E402
 from capsim.runner import run_case  # noqa: E402
-from capsim.study import _window_mean, error_estimate  # noqa: E402
+from capsim.study import error_estimate, final_values  # noqa: E402
 from capsim.store import read_trajectory  # noqa: E402
 
-import numpy as np  # noqa: E402
 
 #: name: (shape, G, λ, t_end)
 CASES = {
@@ -47,7 +46,6 @@ CASES = {
     "oblate0.5-G0.2-lam1": ({"kind": "oblate", "aspect_ratio": 0.5}, 0.2, 1.0, 5.0),
     "biconcave-G0.2-lam5": ({"kind": "biconcave"}, 0.2, 5.0, 3.0),
 }
-QUANTITIES = ("D_xy", "theta", "ttf_ratio", "Sxy_star")
 
 
 def make_case(name: str, level: int, rtol: float, scheme: str, path: str):
@@ -61,16 +59,7 @@ def make_case(name: str, level: int, rtol: float, scheme: str, path: str):
 
 
 def values(path: str, window: tuple[float, float]) -> dict[str, float]:
-    ts = read_trajectory(path)["timeseries"]
-    t = np.asarray(ts["t"], float)
-    out = {}
-    for q in QUANTITIES:
-        s = np.asarray(ts[q], float)
-        if q == "theta":
-            s = np.unwrap(s, period=np.pi)
-        out[q] = float(s[-1])
-        out[f"{q}_mean"] = _window_mean(t, s, *window)
-    return out
+    return final_values(read_trajectory(path)["timeseries"], window)
 
 
 def run_one(name: str, level: int, scheme: str, reference: str | None = None) -> dict:

@@ -83,6 +83,21 @@ def _window_mean(t: np.ndarray, s: np.ndarray, t0: float, t1: float) -> float:
     )
 
 
+def final_values(ts: dict[str, np.ndarray], window: tuple[float, float] | None = None) -> dict[str, float]:
+    """Each of QUANTITIES at the last row of a time series (θ unwrapped modulo π)
+    and, with `window` = (t0, t1), its time mean over the window as ``<q>_mean``."""
+    t = np.asarray(ts["t"], float)
+    out: dict[str, float] = {}
+    for q in QUANTITIES:
+        s = np.asarray(ts[q], float)
+        if q == "theta":
+            s = np.unwrap(s, period=np.pi)
+        out[q] = float(s[-1])
+        if window is not None:
+            out[f"{q}_mean"] = _window_mean(t, s, *window)
+    return out
+
+
 def _failed_record(reason: str) -> dict[str, Any]:
     record: dict[str, Any] = {"status": "failed", "status_reason": reason, "wall_time_s": float("nan"),
                               "steps": -1, "volume_drift": float("nan"), "n_nodes": -1, "t": float("nan")}
@@ -118,14 +133,7 @@ def _run_one(case: Case, window: tuple[float, float] | None = None) -> dict[str,
     traj = read_trajectory(case.output.path)
     ts = traj["timeseries"]
     record["n_nodes"] = int(traj["attrs"].get("n_nodes", traj["rest_positions"].shape[0]))
-    t = np.asarray(ts["t"], float)
-    for q in QUANTITIES:
-        s = np.asarray(ts[q], float)
-        if q == "theta":
-            s = np.unwrap(s, period=np.pi)
-        record[q] = float(s[-1])
-        if window is not None:
-            record[f"{q}_mean"] = _window_mean(t, s, *window)
+    record.update(final_values(ts, window))
     if record["status"] == "completed" and abs(record["t"] - case.time.t_end) > 1e-9 * max(1.0, case.time.t_end):
         record["status_reason"] = f"stopped at kt = {record['t']:.6g} before t_end"
     return record
@@ -498,13 +506,7 @@ def error_estimate(case: Case, summary: dict[str, Any], workers: int = 2,
     t0 = float(summary.get("averaging_t_from", float("nan")))
     t1 = float(summary.get("averaging_t_to", t[-1] if t.size else float("nan")))
     window = (t0, t1)
-    main: dict[str, float] = {}
-    for q in QUANTITIES:
-        s = np.asarray(ts[q], float)
-        if q == "theta":
-            s = np.unwrap(s, period=np.pi)
-        main[q] = float(s[-1])
-        main[f"{q}_mean"] = _window_mean(t, s, *window)
+    main = final_values(ts, window)
 
     tmp = tempfile.mkdtemp(prefix="capsim-errest-")
     try:
