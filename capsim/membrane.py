@@ -420,11 +420,12 @@ class MembraneForce:
             raise ValueError("the energy gradient needs the galerkin traction method")
         return self._energy_gradient(np.ascontiguousarray(x, dtype=np.float64))
 
-    def element_traction(self, x: Array) -> Array:
-        """The contour method's element-constant Δf (N_e, 3) at x (no counters, no warm start)."""
+    def element_traction(self, x: Array, geo=None, tension: Array | None = None) -> Array:
+        """The contour method's element-constant Δf (N_e, 3) at x (seed 3.6–3.7; no
+        counters): from the geometry and vertex tensions, computed here unless given."""
         disc = self.disc
-        geo = disc.geometry(x)
-        strain, tension = self._vertex_state(x)
+        geo = disc.geometry(x) if geo is None else geo
+        tension = self._vertex_state(x)[1] if tension is None else tension
         return kernels.element_tractions(
             x, disc.elements, np.ascontiguousarray(tension), disc.contour_s, disc.contour_w, geo.element_areas,
         )
@@ -440,10 +441,7 @@ class MembraneForce:
         vertex_state = lambda: self._vertex_state(x)  # noqa: E731
         if self.traction_method == "contour":
             state = MembraneState(np.empty(0), geo, np.empty(0), vertex_state)
-            traction = kernels.element_tractions(
-                x, disc.elements, np.ascontiguousarray(state.tension), disc.contour_s, disc.contour_w, geo.element_areas,
-            )
-            state.traction = state.density = traction
+            state.traction = state.density = self.element_traction(x, geo, state.tension)
             self.stage_times["membrane"] += time.perf_counter() - t1
             return state
         rhs = self._energy_gradient(x)
