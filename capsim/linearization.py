@@ -48,6 +48,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, gmres, splu
 
+from capsim.timestepping import LinearSolveFailed
+
 __all__ = ["PRECONDITIONERS", "StageSolver", "LinearSolveFailed", "hessian_colouring"]
 
 #: stage-solve preconditioners (the schema's choices)
@@ -55,10 +57,6 @@ PRECONDITIONERS = ("local", "none")
 
 # forward-difference step relative to max(1, |x|): √ε_machine (Brown & Saad 1990)
 _FD_SCALE = 1.5e-8
-
-
-class LinearSolveFailed(RuntimeError):
-    """GMRES missed the stage tolerance within its iterations (the step is retried smaller)."""
 
 
 def node_adjacency(n_nodes: int, groups: list[np.ndarray]) -> sp.csr_matrix:
@@ -99,9 +97,8 @@ class _Frozen:
     x: np.ndarray
     geo: Any
     normals: np.ndarray | None
-    normal_flux: float
-    mass_lu: Any | None          # scalar consistent mass matrix (galerkin)
-    mass: sp.csr_matrix | None   # the same, on the 3N unknowns
+    mass: sp.csr_matrix | None   # scalar consistent mass matrix (galerkin), applied per component
+    mass_lu: Any | None          # its LU
     gradient: np.ndarray | None  # ∂E/∂x at x_n (galerkin)
     traction: np.ndarray | None  # element Δf at x_n (contour)
     double_layer: Any | None     # z ↦ A z (λ ≠ 1)
@@ -112,10 +109,9 @@ class StageSolver:
 
     ``freeze(x)`` fixes J at the start of a step; ``solve(r, gamma_h, tol)``
     returns k with (I − γh J) k = r to the absolute 2-norm residual ``tol``
-    (in the units of the system for z, module docstring). Counts:
-    ``linear_iterations`` (GMRES iterations, every stage), ``solves``,
-    ``hessians`` (preconditioner builds); the layer applications are counted in
-    the model's own counters.
+    (in the units of the system for z, module docstring). Counts
+    ``linear_iterations`` (GMRES iterations, every stage); the layer
+    applications are counted in the model's own counters.
     """
 
     def __init__(self, model, *, preconditioner: str = "local", max_iter: int = 200,
@@ -129,19 +125,14 @@ class StageSolver:
         self.max_iter = int(max_iter)
         self.refresh_steps = int(refresh_steps)
         self.linear_iterations = 0
-        self.solves = 0
-        self.hessians = 0
-        self.last_iterations = 0
         self._frozen: _Frozen | None = None
         self._hessian: sp.csr_matrix | None = None
         self._hessian_x: np.ndarray | None = None  # where it was built
         self._hessian_mass: sp.csr_matrix | None = None  # the mass matrix there
-        self.factorisations = 0
         self._scale = 0.0           # s of the local drag
         self._hessian_age = -1      # freezes since the Hessian was built (−1: none)
         self._factor: tuple[float, Any] | None = None  # (τ, LU of M + τH)
-        self._colours: np.ndarray | None = None
-        self._adjacency: sp.csr_matrix | None = None
+        self._colour_groups: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
 
     # -- the frozen operators ----------------------------------------------
     def freeze(self, x: np.ndarray) -> None:
@@ -160,26 +151,24 @@ class StageSolver:
         lam = model.viscosity_ratio
         needs_normals = lam != 1.0 or model.volume_correction
         normals = disc.nodal_normals(x) if needs_normals else None
-        normal_flux = disc.flux(geo, normals) if model.volume_correction else 1.0
-        mass_lu = mass = gradient = traction = None
+        mass = mass_lu = gradient = traction = None
         membrane = model.membrane
         if membrane.traction_method == "galerkin":
-            m = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr),
-                              shape=(disc.n_nodes, disc.n_nodes))
-            mass_lu = splu(m.tocsc())
-            mass = sp.kron(m, sp.identity(3), format="csr")
+            mass = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr),
+                                 shape=(disc.n_nodes, disc.n_nodes))
+            mass_lu = splu(mass.tocsc())
             gradient = membrane.energy_gradient(x)
         else:
             traction = membrane.element_traction(x)
         double_layer = model.double_layer_operator(x, geo, normals) if lam != 1.0 else None
-        return _Frozen(x, geo, normals, normal_flux, mass_lu, mass, gradient, traction, double_layer)
+        return _Frozen(x, geo, normals, mass, mass_lu, gradient, traction, double_layer)
 
     def _project(self, v: np.ndarray) -> np.ndarray:
         """The frozen volume correction P."""
         fr = self._frozen
-        if fr.normals is None or not self.model.volume_correction:
+        if not self.model.volume_correction:
             return v
-        return v - (self.model.disc.flux(fr.geo, v) / fr.normal_flux) * fr.normals
+        return self.model.remove_net_flux(fr.geo, v, fr.normals)
 
     def _traction_change(self, v: np.ndarray) -> np.ndarray:
         """The density change along v: M⁻¹ H v at the nodes (galerkin, H the sparse
@@ -209,19 +198,19 @@ class StageSolver:
         model, fr = self.model, self._frozen
         disc, membrane = model.disc, model.membrane
         n = disc.n_nodes
-        if self._colours is None:
+        if self._colour_groups is None:  # the topology's: once per run
             groups = [disc.elements]
             if membrane.bending is not None:
                 groups.append(membrane.bending.hinges)
-            self._adjacency = node_adjacency(n, groups)
-            self._colours = hessian_colouring(self._adjacency)
-        adj = self._adjacency.tocoo()
+            adj = node_adjacency(n, groups).tocoo()
+            colours = hessian_colouring(adj.tocsr())
+            # per colour: its nodes, and the (row node, column node) pairs of H it recovers
+            self._colour_groups = [
+                (np.flatnonzero(colours == c), adj.row[colours[adj.col] == c], adj.col[colours[adj.col] == c])
+                for c in range(int(colours.max()) + 1)]
         eps = _FD_SCALE * max(1.0, float(np.abs(fr.x).max()))
         rows, cols, vals = [], [], []
-        for c in range(int(self._colours.max()) + 1):
-            nodes = np.flatnonzero(self._colours == c)
-            mask = np.isin(adj.col, nodes)
-            out_node, in_node = adj.row[mask], adj.col[mask]
+        for nodes, out_node, in_node in self._colour_groups:
             for d in range(3):
                 xp = fr.x.copy()
                 xp[nodes, d] += eps
@@ -237,7 +226,6 @@ class StageSolver:
         self._factor = None
         self._scale = self._drag_scale()
         self._hessian_age = 0
-        self.hessians += 1
 
     def _drag_scale(self) -> float:
         """s = ⟨v, SL[v]⟩/⟨v, v⟩ for a random nodal field v (fixed seed): white noise is
@@ -258,13 +246,13 @@ class StageSolver:
         if self._factor is None or abs(tau / self._factor[0] - 1.0) > self.TAU_SLACK:
             self._factorise(tau)
         lu, mass = self._factor[1], self._hessian_mass
-        return lambda y: lu.solve(mass @ y)
+        return lambda y: lu.solve((mass @ y.reshape(-1, 3)).ravel())
 
     TAU_SLACK = 0.3
 
     def _factorise(self, tau: float) -> None:
-        self._factor = (tau, splu((self._hessian_mass + tau * self._hessian).tocsc()))
-        self.factorisations += 1
+        mass3 = sp.kron(self._hessian_mass, sp.identity(3), format="csr")  # on the 3N unknowns
+        self._factor = (tau, splu((mass3 + tau * self._hessian).tocsc()))
 
     # -- one stage ------------------------------------------------------------
     def solve(self, r: np.ndarray, gamma_h: float, tol: float, *, floor: float = 1e-9,
@@ -284,10 +272,8 @@ class StageSolver:
 
         b = self._layer_product(r).ravel()
         bnorm = float(np.linalg.norm(b))
-        self.solves += 1
         tol = min(max(tol, floor * bnorm), ceiling * bnorm)
         if not bnorm > 0.0:
-            self.last_iterations = 0
             return r.copy()
         precondition = self._preconditioner(gamma_h)
         n = b.size
@@ -302,7 +288,6 @@ class StageSolver:
                         callback=lambda pr: (history.append(float(pr)), check()), callback_type="pr_norm")
         iterations = len(history)
         self.linear_iterations += iterations
-        self.last_iterations = iterations
         # right preconditioning: GMRES's residual is the true relative residual of the z system
         residual = (history[-1] if history else 1.0) * bnorm
         if info != 0 or not np.all(np.isfinite(y)):
@@ -313,13 +298,11 @@ class StageSolver:
     # -- checkpoints ----------------------------------------------------------
     def state(self) -> dict[str, Any]:
         """Counters, and where the preconditioner's Hessian was built (rebuilt there on restore)."""
-        out: dict[str, Any] = {"linear_iterations": self.linear_iterations, "solves": self.solves,
-                               "hessians": self.hessians, "hessian_age": self._hessian_age}
+        out: dict[str, Any] = {"linear_iterations": self.linear_iterations, "hessian_age": self._hessian_age}
         if self._hessian_x is not None:
             out["hessian_x"] = np.array(self._hessian_x, copy=True)
         if self._factor is not None:
             out["factor_tau"] = float(self._factor[0])
-        out["factorisations"] = self.factorisations
         return out
 
     def restore(self, state: dict[str, Any]) -> None:
@@ -331,8 +314,5 @@ class StageSolver:
             self._frozen = None
             if state.get("factor_tau") is not None and self.preconditioner == "local":
                 self._factorise(float(state["factor_tau"]))
-        self.factorisations = int(state.get("factorisations", 0))
         self._hessian_age = int(state.get("hessian_age", -1))
         self.linear_iterations = int(state.get("linear_iterations", 0))
-        self.solves = int(state.get("solves", 0))
-        self.hessians = int(state.get("hessians", 0))

@@ -465,9 +465,12 @@ class CapsuleModel:
             # (small G) amplifies by 1/G, and a slowly deflating capsule gains
             # excess area and deforms without stretching: remove the net flux
             # with a uniform normal velocity.
-            geo = state.geometry
-            u = u - (self.disc.flux(geo, u) / self.disc.flux(geo, normals)) * normals
+            u = self.remove_net_flux(state.geometry, u, normals)
         return u
+
+    def remove_net_flux(self, geo: ElementGeometry, u: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """The volume correction P: u − n ⟨n, u⟩/⟨n, n⟩ (fluxes over the surface)."""
+        return u - (self.disc.flux(geo, u) / self.disc.flux(geo, normals)) * normals
 
     def double_layer_operator(self, x: np.ndarray, geo: ElementGeometry, normals: np.ndarray):
         """u ↦ A u = u − (1−λ)/(8π) D[u] + (1−λ) n ⟨n, u⟩/S at configuration x,
