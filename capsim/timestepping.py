@@ -473,6 +473,10 @@ class RungeKuttaChebyshev(Integrator):
 # ---------------------------------------------------------------- linearly implicit (Rosenbrock-W)
 
 
+class LinearSolveFailed(RuntimeError):
+    """A stage solver missed its tolerance within its iterations (the step is retried smaller)."""
+
+
 class DenseStageSolver:
     """Stage solver for small systems: J by forward differences of the velocity
     (one evaluation per unknown, counted by the integrator), dense LU solves."""
@@ -624,8 +628,6 @@ class LinearlyImplicit(Integrator):
         return f"linearly_implicit: {self.failed_solves} stage solves missed their tolerance (steps retried smaller)"
 
     def _try(self, h: float) -> tuple[Trial, np.ndarray, bool]:
-        from capsim.linearization import LinearSolveFailed
-
         tab, y0 = self.tableau, self.y
         scale = self.rtol * max(1.0, float(np.abs(y0).max()))
         gh = tab.gamma * h
