@@ -135,8 +135,9 @@ class StageSolver:
         self._colour_groups: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
 
     # -- the frozen operators ----------------------------------------------
-    def freeze(self, x: np.ndarray) -> None:
-        """Freeze J at x (the start of a step); a step retried from the same x keeps it."""
+    def freeze(self, x: np.ndarray, u: np.ndarray | None = None) -> None:
+        """Freeze J at x (the start of a step; u, the velocity there, is not needed:
+        J comes from the Hessian); a step retried from the same x keeps it."""
         if self._frozen is not None and self._frozen.x is x:
             return
         self._frozen = self._freeze_operators(x)
@@ -255,10 +256,11 @@ class StageSolver:
         self._factor = (tau, splu((mass3 + tau * self._hessian).tocsc()))
 
     # -- one stage ------------------------------------------------------------
-    def solve(self, r: np.ndarray, gamma_h: float, tol: float, *, floor: float = 1e-9,
+    def solve(self, r: np.ndarray, gamma_h: float, tol: float, *, floor: float = 1e-10,
               ceiling: float = 1e-2) -> np.ndarray:
         """k with (I − γh J) k = r; GMRES stops at the absolute 2-norm residual ``tol``
-        of the z system, kept between ``floor`` and ``ceiling`` times its right-hand side."""
+        of the z system, kept between ``floor`` times its right-hand side (about the
+        best the products' round-off allows) and ``ceiling`` times it."""
         fr = self._frozen
         if fr is None:
             raise RuntimeError("freeze(x) before solve")

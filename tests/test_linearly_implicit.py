@@ -22,7 +22,7 @@ class MatrixStageSolver:
         self.jacobian = jacobian
         self.linear_iterations = 0
 
-    def freeze(self, x):
+    def freeze(self, x, u):
         pass
 
     def solve(self, r, gamma_h, tol, **_):
