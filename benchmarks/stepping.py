@@ -18,18 +18,23 @@ and of wall time, measured in one run. Writes benchmarks/time_schemes.md and .js
 
 from __future__ import annotations
 
-import json
+# the CLI's thread policy, before numpy (OpenBLAS) and numba load: capsim.threads
+from capsim.threads import apply_policy
+
+apply_policy()
+
+import json  # noqa: E402
 import platform
-import sys
-import tempfile
-from datetime import datetime, timezone
-from pathlib import Path
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+from datetime import datetime, timezone  # noqa: E402
+from pathlib import Path  # noqa: E402
 
-import numpy as np
+import numpy as np  # noqa: E402
 
-from capsim import __version__
-from capsim.config import case_from_dict
-from capsim.runner import run_case
+from capsim import __version__  # noqa: E402
+from capsim.config import case_from_dict  # noqa: E402
+from capsim.runner import run_case  # noqa: E402
 from capsim.store import read_trajectory
 
 D_TOL, THETA_TOL = 1e-4, 1e-3

@@ -281,6 +281,14 @@ class Flow(_Model):
         return _in_range(v, 1e-3, 1e3, "the double-layer solve's condition number is max(λ, 1/λ)")
 
 
+#: most nodes the dense stage preconditioner takes: it holds a few (3N)² matrices
+#: (76 MB each at level 3, N = 1026) and its LU costs (3N)³/3 multiply-adds
+DENSE_MAX_NODES = 1100
+
+#: faces of each base polyhedron
+BASE_FACES = {"octahedron": 8, "icosahedron": 20}
+
+
 class Mesh(_Model):
     base: Literal["octahedron", "icosahedron"] = "octahedron"
     level: int = Field(3, ge=0, le=6, strict=True)
@@ -290,6 +298,11 @@ class Mesh(_Model):
         "rotation by pi about z (boundary integrals at a quarter of the nodes; the run file's 'symmetry' "
         "attribute says which were found); false lets asymmetric modes develop",
     )
+
+    @property
+    def n_nodes(self) -> int:
+        """Nodes of the 6-node mesh: F = F₀·4^level faces, F/2 + 2 vertices and 3F/2 edge midpoints."""
+        return 2 * BASE_FACES[self.base] * 4 ** self.level + 2
 
 
 class Quadrature(_Model):
@@ -340,11 +353,12 @@ class Time(_Model):
         description="linearly_implicit: ros34pw2, third order, 4 stages (Rang & Angermann 2005); ros2, second "
         "order, 2 stages (Verwer et al. 1999)",
     )
-    preconditioner: Literal["local", "none"] = Field(
+    preconditioner: Literal["local", "dense", "none"] = Field(
         "local",
         description="linearly_implicit: preconditioner of the stage solves; local: the membrane's Hessian "
-        "with the single layer as a local drag, factorised once per step (needs membrane.traction_method "
-        "galerkin); none: plain GMRES",
+        "with the single layer as a local drag, factorised once per step; dense: the frozen stage operator "
+        "itself (layer matrices, Hessian, mass matrix) LU-factorised, for meshes of at most "
+        f"{DENSE_MAX_NODES} nodes (level 3 octahedron); both need membrane.traction galerkin; none: plain GMRES",
     )
     linear_tol: float = Field(
         0.1, gt=0, le=1,
@@ -536,12 +550,20 @@ class Case(_Model):
         return self
 
     @model_validator(mode="after")
-    def _preconditioner_needs_galerkin(self) -> Case:
+    def _stage_preconditioner_fits(self) -> Case:
         t = self.time
-        if t.scheme == "linearly_implicit" and t.preconditioner == "local" and self.membrane.traction != "galerkin":
+        if t.scheme != "linearly_implicit":
+            return self
+        if t.preconditioner in ("local", "dense") and self.membrane.traction != "galerkin":
             raise _FieldProblem(
                 "time.preconditioner", t.preconditioner,
                 f"needs membrane.traction: galerkin (got {self.membrane.traction}); use preconditioner: none",
+            )
+        if t.preconditioner == "dense" and self.mesh.n_nodes > DENSE_MAX_NODES:
+            raise _FieldProblem(
+                "time.preconditioner", t.preconditioner,
+                f"takes meshes of at most {DENSE_MAX_NODES} nodes (mesh.level {self.mesh.level} "
+                f"{self.mesh.base} has {self.mesh.n_nodes}); use preconditioner: local",
             )
         return self
 

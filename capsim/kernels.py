@@ -972,3 +972,156 @@ def double_layer_near_correction(
             out[it, 1] += sy - ry
             out[it, 2] += sz - rz
     return out
+
+
+# ---------------------------------------------------------------- layer matrices
+# The layer operators as dense matrices, for the stage solver's direct
+# preconditioner: row blocks per target node, column blocks per source node, the
+# density interpolated quadratically over each element. The same rules as the
+# sums and corrections above, element by element: the regular rule everywhere,
+# replaced by the Duffy rule on the elements holding the target and by the
+# subdivided rule on its near elements.
+
+@njit(inline="always")
+def _add_stokeslet_block(out, i, nodes, phi, dx, dy, dz, w, sign):
+    """out[i, :, node_a, :] += sign · w φ_a G(d) for the 6 nodes of one element."""
+    rinv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
+    r3 = rinv * rinv * rinv
+    g00 = rinv + dx * dx * r3
+    g11 = rinv + dy * dy * r3
+    g22 = rinv + dz * dz * r3
+    g01 = dx * dy * r3
+    g02 = dx * dz * r3
+    g12 = dy * dz * r3
+    for a in range(6):
+        s = sign * w * phi[a]
+        j = nodes[a]
+        out[i, 0, j, 0] += s * g00
+        out[i, 0, j, 1] += s * g01
+        out[i, 0, j, 2] += s * g02
+        out[i, 1, j, 0] += s * g01
+        out[i, 1, j, 1] += s * g11
+        out[i, 1, j, 2] += s * g12
+        out[i, 2, j, 0] += s * g02
+        out[i, 2, j, 1] += s * g12
+        out[i, 2, j, 2] += s * g22
+
+
+@njit(inline="always")
+def _add_stresslet_block(out, i, nodes, phi, dx, dy, dz, mx, my, mz, sign):
+    """The double layer's share of one rule point: K = −6 (d·m) d dᵀ / r⁵ (seed 2.12b)
+    into the element's 6 node columns (× φ_a) and, desingularised, −K into column i."""
+    self_node = np.int64(i)
+    rinv2 = 1.0 / (dx * dx + dy * dy + dz * dz)
+    c = -6.0 * sign * (dx * mx + dy * my + dz * mz) * rinv2 * rinv2 * np.sqrt(rinv2)
+    d0 = dx
+    d1 = dy
+    d2 = dz
+    k00 = c * d0 * d0
+    k11 = c * d1 * d1
+    k22 = c * d2 * d2
+    k01 = c * d0 * d1
+    k02 = c * d0 * d2
+    k12 = c * d1 * d2
+    for a in range(7):
+        # six node columns (× φ_a), then the target's own column (−K: the u0 of u − u0)
+        s = phi[a] if a < 6 else -1.0
+        j = nodes[a] if a < 6 else self_node
+        out[i, 0, j, 0] += s * k00
+        out[i, 0, j, 1] += s * k01
+        out[i, 0, j, 2] += s * k02
+        out[i, 1, j, 0] += s * k01
+        out[i, 1, j, 1] += s * k11
+        out[i, 1, j, 2] += s * k12
+        out[i, 2, j, 0] += s * k02
+        out[i, 2, j, 1] += s * k12
+        out[i, 2, j, 2] += s * k22
+
+
+@njit(inline="always")
+def _rule_point(xe, e, phi, dxi, deta):
+    """Position and unnormalised normal at one rule point of element e."""
+    px = 0.0
+    py = 0.0
+    pz = 0.0
+    ax = 0.0
+    ay = 0.0
+    az = 0.0
+    bx = 0.0
+    by = 0.0
+    bz = 0.0
+    for a in range(6):
+        px += phi[a] * xe[e, a, 0]
+        py += phi[a] * xe[e, a, 1]
+        pz += phi[a] * xe[e, a, 2]
+        ax += dxi[a] * xe[e, a, 0]
+        ay += dxi[a] * xe[e, a, 1]
+        az += dxi[a] * xe[e, a, 2]
+        bx += deta[a] * xe[e, a, 0]
+        by += deta[a] * xe[e, a, 1]
+        bz += deta[a] * xe[e, a, 2]
+    nx, ny, nz = _cross(ax, ay, az, bx, by, bz)
+    return px, py, pz, nx, ny, nz
+
+
+@njit(inline="always")
+def _layer_element(out, i, x0, y0, z0, xe, nodes, e, phi, dxi, deta, w, double, sign):
+    """One element's rule (phi, dxi, deta (m, 6), w (m,)) into row i of a layer matrix."""
+    for j in range(w.shape[0]):
+        px, py, pz, nx, ny, nz = _rule_point(xe, e, phi[j], dxi[j], deta[j])
+        if double:
+            _add_stresslet_block(out, i, nodes, phi[j], px - x0, py - y0, pz - z0,
+                                 nx * w[j], ny * w[j], nz * w[j], sign)
+        else:
+            _add_stokeslet_block(out, i, nodes, phi[j], px - x0, py - y0, pz - z0,
+                                 w[j] * np.sqrt(nx * nx + ny * ny + nz * nz), sign)
+
+
+@njit(inline="always")
+def _layer_element_regular(out, i, x0, y0, z0, nodes, e, reg_points, reg_weights, reg_normals_w, reg_phi,
+                           double, sign):
+    """The regular rule's share of element e (the precomputed points of the sums)."""
+    for q in range(reg_weights.shape[1]):
+        dx = reg_points[e, q, 0] - x0
+        dy = reg_points[e, q, 1] - y0
+        dz = reg_points[e, q, 2] - z0
+        if double:
+            _add_stresslet_block(out, i, nodes, reg_phi[q], dx, dy, dz, reg_normals_w[e, q, 0],
+                                 reg_normals_w[e, q, 1], reg_normals_w[e, q, 2], sign)
+        else:
+            _add_stokeslet_block(out, i, nodes, reg_phi[q], dx, dy, dz, reg_weights[e, q], sign)
+
+
+@njit(parallel=True, **_JIT)
+def layer_matrix(
+    x, elements, reg_points, reg_weights, reg_normals_w, reg_phi,
+    inc_offsets, inc_elem, inc_local, sing_phi, sing_dxi, sing_deta, sing_w,
+    fine_phi, fine_dxi, fine_deta, fine_w, pair_offsets, pair_elem, double,
+):
+    """The single layer ∫ G·f dS (double=False) or the double layer
+    ∫ (u − u0)·T·n dS (double=True) at every node as an (N, 3, N, 3) matrix acting
+    on nodal values. pair_offsets/pair_elem: the near pairs of every node as target
+    (empty offsets, all zero, when the near field is off)."""
+    n = x.shape[0]
+    ne = elements.shape[0]
+    xe = _gather(x, elements)
+    out = np.zeros((n, 3, n, 3))
+    for i in prange(n):
+        x0, y0, z0 = x[i, 0], x[i, 1], x[i, 2]
+        for e in range(ne):
+            _layer_element_regular(out, i, x0, y0, z0, elements[e], e, reg_points, reg_weights,
+                                   reg_normals_w, reg_phi, double, 1.0)
+        for c in range(inc_offsets[i], inc_offsets[i + 1]):
+            e = inc_elem[c]
+            k = inc_local[c]
+            _layer_element_regular(out, i, x0, y0, z0, elements[e], e, reg_points, reg_weights,
+                                   reg_normals_w, reg_phi, double, -1.0)
+            _layer_element(out, i, x0, y0, z0, xe, elements[e], e, sing_phi[k], sing_dxi[k], sing_deta[k],
+                           sing_w[k], double, 1.0)
+        for c in range(pair_offsets[i], pair_offsets[i + 1]):
+            e = pair_elem[c]
+            _layer_element_regular(out, i, x0, y0, z0, elements[e], e, reg_points, reg_weights,
+                                   reg_normals_w, reg_phi, double, -1.0)
+            _layer_element(out, i, x0, y0, z0, xe, elements[e], e, fine_phi, fine_dxi, fine_deta, fine_w,
+                           double, 1.0)
+    return out

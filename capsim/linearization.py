@@ -45,15 +45,17 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import scipy.linalg
 import scipy.sparse as sp
-from scipy.sparse.linalg import LinearOperator, gmres, splu
+from scipy.sparse.linalg import splu
 
+from capsim.config import DENSE_MAX_NODES
 from capsim.timestepping import LinearSolveFailed
 
 __all__ = ["PRECONDITIONERS", "StageSolver", "LinearSolveFailed", "hessian_colouring"]
 
 #: stage-solve preconditioners (the schema's choices)
-PRECONDITIONERS = ("local", "none")
+PRECONDITIONERS = ("local", "dense", "none")
 
 # forward-difference step relative to max(1, |x|): √ε_machine (Brown & Saad 1990)
 _FD_SCALE = 1.5e-8
@@ -90,6 +92,62 @@ def hessian_colouring(adjacency: sp.csr_matrix) -> np.ndarray:
     return colour
 
 
+def right_preconditioned_gmres(matvec, precondition, b: np.ndarray, tol: float, *, max_iter: int,
+                                restart: int, callback=None) -> tuple[np.ndarray, int, float]:
+    """x with |b − A x|₂ ≤ tol by restarted GMRES on A M⁻¹ y = b, x = M⁻¹ y (Saad &
+    Schultz 1986; modified Gram–Schmidt, Givens rotations). With right
+    preconditioning the Arnoldi residual is the true one (in exact arithmetic), so
+    a solve that converges in its first cycle costs one product per iteration and
+    nothing more (SciPy's gmres adds a product for the final residual: a layer
+    application per stage). Returns (x, iterations, residual); x0 = 0."""
+    n = b.size
+    apply_m = precondition if precondition is not None else (lambda v: v)
+    x = np.zeros(n)
+    r = b.copy()
+    beta = float(np.linalg.norm(r))
+    iterations = 0
+    while beta > tol and iterations < max_iter:
+        m = min(restart, max_iter - iterations)
+        basis = np.empty((m + 1, n))
+        hess = np.zeros((m + 1, m))
+        cs, sn = np.zeros(m), np.zeros(m)
+        g = np.zeros(m + 1)
+        g[0] = beta
+        basis[0] = r / beta
+        j = -1
+        for j in range(m):
+            w = matvec(apply_m(basis[j]))
+            iterations += 1
+            for i in range(j + 1):
+                hess[i, j] = float(basis[i] @ w)
+                w -= hess[i, j] * basis[i]
+            h_next = float(np.linalg.norm(w))
+            hess[j + 1, j] = h_next
+            for i in range(j):  # earlier rotations on the new column
+                hess[i, j], hess[i + 1, j] = (cs[i] * hess[i, j] + sn[i] * hess[i + 1, j],
+                                              -sn[i] * hess[i, j] + cs[i] * hess[i + 1, j])
+            rho = math.hypot(hess[j, j], hess[j + 1, j])
+            cs[j], sn[j] = (hess[j, j] / rho, hess[j + 1, j] / rho) if rho > 0.0 else (1.0, 0.0)
+            hess[j, j], hess[j + 1, j] = rho, 0.0
+            g[j], g[j + 1] = cs[j] * g[j], -sn[j] * g[j]
+            if callback is not None:
+                callback()
+            if not np.isfinite(g[j + 1]):
+                return x, iterations, math.inf
+            if abs(g[j + 1]) <= tol or not h_next > 0.0:  # converged, or the Krylov space is exhausted
+                break
+            basis[j + 1] = w / h_next
+        k = j + 1
+        coef = scipy.linalg.solve_triangular(hess[:k, :k], g[:k], check_finite=False)
+        x += apply_m(coef @ basis[:k])
+        if abs(g[k]) <= tol or iterations >= max_iter:
+            return x, iterations, abs(g[k])
+        r = b - matvec(x)  # a restart: the true residual (one product)
+        iterations += 1
+        beta = float(np.linalg.norm(r))
+    return x, iterations, beta
+
+
 @dataclass
 class _Frozen:
     """Everything frozen at x_n for the step."""
@@ -118,8 +176,11 @@ class StageSolver:
                  refresh_steps: int = 1) -> None:
         if preconditioner not in PRECONDITIONERS:
             raise ValueError(f"unknown preconditioner {preconditioner!r} (allowed: {', '.join(PRECONDITIONERS)})")
-        if preconditioner == "local" and model.traction_method != "galerkin":
-            raise ValueError("the local preconditioner needs the galerkin traction method")
+        if preconditioner in ("local", "dense") and model.traction_method != "galerkin":
+            raise ValueError(f"the {preconditioner} preconditioner needs the galerkin traction method")
+        if preconditioner == "dense" and model.disc.n_nodes > DENSE_MAX_NODES:
+            raise ValueError(f"the dense preconditioner takes at most {DENSE_MAX_NODES} nodes "
+                             f"(this mesh has {model.disc.n_nodes})")
         self.model = model
         self.preconditioner = preconditioner
         self.max_iter = int(max_iter)
@@ -131,7 +192,9 @@ class StageSolver:
         self._hessian_mass: sp.csr_matrix | None = None  # the mass matrix there
         self._scale = 0.0           # s of the local drag
         self._hessian_age = -1      # freezes since the Hessian was built (−1: none)
-        self._factor: tuple[float, Any] | None = None  # (τ, LU of M + τH)
+        self._factor: tuple[float, Any] | None = None  # (τ, LU of M + τH) or (γh, LU of the dense Z)
+        self._dense: dict[str, Any] | None = None  # _dense_operators, where H was built
+        self.layer_matrices = 0     # dense layer matrices assembled (dense preconditioner)
         self._colour_groups: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
 
     # -- the frozen operators ----------------------------------------------
@@ -176,7 +239,14 @@ class StageSolver:
         Hessian), or the element tractions' change by a forward difference (contour)."""
         fr, membrane = self._frozen, self.model.membrane
         if fr.gradient is not None:
-            hv = (self._hessian @ v.ravel()).reshape(v.shape)
+            if self._hessian_x is fr.x:  # the Hessian is this step's
+                hv = (self._hessian @ v.ravel()).reshape(v.shape)
+            else:  # it is the preconditioner's, built steps ago: J must be this step's
+                norm = float(np.linalg.norm(v))
+                if norm == 0.0:
+                    return np.zeros_like(v)
+                eps = _FD_SCALE * max(1.0, float(np.linalg.norm(fr.x))) / norm
+                hv = (membrane.energy_gradient(fr.x + eps * v) - fr.gradient) / eps
             return fr.mass_lu.solve(np.asfortranarray(hv))
         norm = float(np.linalg.norm(v))
         if norm == 0.0:
@@ -225,8 +295,81 @@ class StageSolver:
         self._hessian_x = fr.x
         self._hessian_mass = fr.mass
         self._factor = None
-        self._scale = self._drag_scale()
+        if self.preconditioner == "dense":
+            self._dense = self._dense_operators()
+        else:
+            self._scale = self._drag_scale()
         self._hessian_age = 0
+
+    def _dense_operators(self) -> dict[str, Any]:
+        """The dense preconditioner's matrices at x_n (module docstring).
+
+        λ = 1, the equation for k: Z = I − γh P B' = I − γh P L∞ + c P S M⁻¹ H
+        with c = γh/(8πG). Leaving out the flow term (not stiff: γh|L∞| ≪ 1 at the
+        steps the membrane allows) the push-through identity gives
+        Z⁻¹ ≈ I − c PS (M + c H PS)⁻¹ H: no M⁻¹, and per γh only the LU of
+        M + c·(H PS), whose product H PS is formed once per build.
+        λ ≠ 1, the equation for z: A − γh B'P itself, from the single and double
+        layer matrices, LU-factorised per γh."""
+        model, fr, disc = self.model, self._frozen, self.model.disc
+        n = disc.n_nodes
+        single = disc.layer_matrix(fr.x, fr.geo, "single")
+        self.layer_matrices += 1
+        if model.volume_correction:  # P = I − n wᵀ/(w·n)
+            normals = fr.normals.ravel()
+            weights = disc.flux_weights(fr.geo).ravel()
+            weights /= float(weights @ normals)
+        if fr.double_layer is None:
+            if model.volume_correction:
+                single -= np.outer(normals, weights @ single)  # P S
+            mass3 = np.kron(fr.mass.toarray(), np.eye(3))
+            return {"ps": single, "hps": np.asarray(self._hessian @ single), "mass": mass3}
+        # S M⁻¹ H as (M⁻¹ Sᵀ)ᵀ per component (a dense Cholesky: SuperLU's solve is slow
+        # on 9N right-hand sides), then a product with the sparse, symmetric H
+        mass = scipy.linalg.cho_factor(fr.mass.toarray(), check_finite=False)
+        s_minv = scipy.linalg.cho_solve(mass, np.ascontiguousarray(single.T).reshape(n, -1),
+                                        overwrite_b=True, check_finite=False).reshape(3 * n, 3 * n).T
+        del single
+        b_prime = np.asarray(self._hessian @ s_minv.T).T
+        del s_minv
+        b_prime *= -1.0 / (8.0 * np.pi * model.shear_rate_G)
+        flow = model.far_field.matrix
+        idx = np.arange(n)  # + L∞ on every node's diagonal block
+        for a in range(3):
+            for b in range(3):
+                b_prime[3 * idx + a, 3 * idx + b] += flow[a, b]
+        if model.volume_correction:  # B'P
+            b_prime -= np.outer(b_prime @ normals, weights)
+        lam = model.viscosity_ratio
+        a_matrix = disc.layer_matrix(fr.x, fr.geo, "double")
+        self.layer_matrices += 1
+        a_matrix *= -(1.0 - lam) / (8.0 * np.pi)
+        a_matrix[np.diag_indices(3 * n)] += 1.0
+        area = float(fr.geo.weights.sum())
+        a_matrix += (1.0 - lam) / area * np.outer(fr.normals.ravel(), disc.flux_weights(fr.geo).ravel())
+        return {"a": a_matrix, "b_prime_p": b_prime}
+
+    def _dense_factor(self, gamma_h: float):
+        """The dense preconditioner at this γh: y ↦ Z⁻¹ y (``_dense_operators``)."""
+        d = self._dense
+        lu = scipy.linalg.lu_factor
+        if "ps" in d:
+            c = gamma_h / (8.0 * np.pi * self.model.shear_rate_G)
+            factor = lu(d["mass"] + c * d["hps"], overwrite_a=True, check_finite=False)
+            ps, hessian, flow = d["ps"], self._hessian, self.model.far_field.matrix
+
+            def stiff_inverse(y):
+                return y - c * (ps @ scipy.linalg.lu_solve(factor, hessian @ y, check_finite=False))
+
+            def precondition(y):
+                # the flow term by one Neumann step: Z⁻¹ ≈ Z̃⁻¹ + Z̃⁻¹ (γh P L∞) Z̃⁻¹, an
+                # error of (γh|L∞|)², at no layer application
+                t = stiff_inverse(y)
+                return t + stiff_inverse(gamma_h * self._project((t.reshape(-1, 3) @ flow.T)).ravel())
+
+            return precondition
+        factor = lu(d["a"] - gamma_h * d["b_prime_p"], overwrite_a=True, check_finite=False)
+        return lambda y: scipy.linalg.lu_solve(factor, y, check_finite=False)
 
     def _drag_scale(self) -> float:
         """s = ⟨v, SL[v]⟩/⟨v, v⟩ for a random nodal field v (fixed seed): white noise is
@@ -240,6 +383,10 @@ class StageSolver:
     def _preconditioner(self, gamma_h: float):
         if self.preconditioner == "none":
             return None
+        if self.preconditioner == "dense":
+            if self._factor is None or abs(gamma_h / self._factor[0] - 1.0) > self.TAU_SLACK:
+                self._factor = (gamma_h, self._dense_factor(gamma_h))
+            return self._factor[1]
         tau = gamma_h * self._scale / (8.0 * np.pi * self.model.shear_rate_G)
         # the factor of M + τH (M where H was built) is kept while τ stays within
         # TAU_SLACK of its τ: with jacobian_refresh_steps > 1 that saves the LU of
@@ -258,49 +405,50 @@ class StageSolver:
     # -- one stage ------------------------------------------------------------
     def solve(self, r: np.ndarray, gamma_h: float, tol: float, *, floor: float = 1e-10,
               ceiling: float = 1e-2) -> np.ndarray:
-        """k with (I − γh J) k = r; GMRES stops at the absolute 2-norm residual ``tol``
-        of the z system, kept between ``floor`` times its right-hand side (about the
-        best the products' round-off allows) and ``ceiling`` times it."""
+        """k with (I − γh J) k = r. ``tol`` bounds the 2-norm residual in the units
+        of z (module docstring: an error δz moves k by γh P δz), kept between
+        ``floor`` times the right-hand side (about the best the products' round-off
+        allows) and ``ceiling`` times it.
+
+        λ = 1 (A = I): the stage equation itself, (I − γh P B') k = r, whose
+        right-hand side needs no product, to the residual γh·tol. λ ≠ 1: the
+        system for z, whose right-hand side B' r costs one single layer."""
         fr = self._frozen
         if fr is None:
             raise RuntimeError("freeze(x) before solve")
         shape = r.shape
         check = self.model.interrupt_check or (lambda: None)
+        if fr.double_layer is None:
+            def system(k_flat):
+                k = k_flat.reshape(shape)
+                return (k - gamma_h * self._project(self._layer_product(k))).ravel()
 
-        def system(z_flat):
-            z = z_flat.reshape(shape)
-            az = z if fr.double_layer is None else fr.double_layer(z)
-            return (az - gamma_h * self._layer_product(self._project(z))).ravel()
+            b, tol = r.ravel(), gamma_h * tol
+        else:
+            def system(z_flat):
+                z = z_flat.reshape(shape)
+                return (fr.double_layer(z) - gamma_h * self._layer_product(self._project(z))).ravel()
 
-        b = self._layer_product(r).ravel()
+            b = self._layer_product(r).ravel()
         bnorm = float(np.linalg.norm(b))
-        tol = min(max(tol, floor * bnorm), ceiling * bnorm)
         if not bnorm > 0.0:
             return r.copy()
-        precondition = self._preconditioner(gamma_h)
-        n = b.size
-        if precondition is None:
-            op = LinearOperator((n, n), matvec=system, dtype=float)
-        else:
-            op = LinearOperator((n, n), matvec=lambda y: system(precondition(y)), dtype=float)
-        history: list[float] = []
-        restart = min(60, self.max_iter)
-        y, info = gmres(op, b, rtol=tol / bnorm, atol=0.0, restart=restart,
-                        maxiter=max(1, math.ceil(self.max_iter / restart)),
-                        callback=lambda pr: (history.append(float(pr)), check()), callback_type="pr_norm")
-        iterations = len(history)
+        tol = min(max(tol, floor * bnorm), ceiling * bnorm)
+        solution, iterations, residual = right_preconditioned_gmres(
+            system, self._preconditioner(gamma_h), b, tol, max_iter=self.max_iter, restart=min(60, self.max_iter),
+            callback=check)
         self.linear_iterations += iterations
-        # right preconditioning: GMRES's residual is the true relative residual of the z system
-        residual = (history[-1] if history else 1.0) * bnorm
-        if info != 0 or not np.all(np.isfinite(y)):
+        if not residual <= tol or not np.all(np.isfinite(solution)):
             raise LinearSolveFailed(f"stage solve: residual {residual:.2e} > {tol:.2e} after {iterations} iterations")
-        z = y if precondition is None else precondition(y)
-        return r + gamma_h * self._project(z.reshape(shape))
+        if fr.double_layer is None:
+            return solution.reshape(shape)
+        return r + gamma_h * self._project(solution.reshape(shape))
 
     # -- checkpoints ----------------------------------------------------------
     def state(self) -> dict[str, Any]:
         """Counters, and where the preconditioner's Hessian was built (rebuilt there on restore)."""
-        out: dict[str, Any] = {"linear_iterations": self.linear_iterations, "hessian_age": self._hessian_age}
+        out: dict[str, Any] = {"linear_iterations": self.linear_iterations, "hessian_age": self._hessian_age,
+                               "layer_matrices": self.layer_matrices}
         if self._hessian_x is not None:
             out["hessian_x"] = np.array(self._hessian_x, copy=True)
         if self._factor is not None:
@@ -309,12 +457,17 @@ class StageSolver:
 
     def restore(self, state: dict[str, Any]) -> None:
         self._frozen = self._factor = self._hessian = self._hessian_x = self._hessian_mass = None
+        self._dense = None
         hx = state.get("hessian_x")
         if hx is not None:
             self._frozen = self._freeze_operators(np.array(hx, dtype=float))
             self._build_hessian()
             self._frozen = None
-            if state.get("factor_tau") is not None and self.preconditioner == "local":
-                self._factorise(float(state["factor_tau"]))
+            tau = state.get("factor_tau")
+            if tau is not None and self.preconditioner == "local":
+                self._factorise(float(tau))
+            elif tau is not None and self.preconditioner == "dense":
+                self._preconditioner(float(tau))  # the LU at the saved γh
         self._hessian_age = int(state.get("hessian_age", -1))
         self.linear_iterations = int(state.get("linear_iterations", 0))
+        self.layer_matrices = int(state.get("layer_matrices", 0))

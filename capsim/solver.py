@@ -303,6 +303,35 @@ class Discretization:
             )
         return self.expand(out)
 
+    def layer_matrix(self, x: np.ndarray, geo: ElementGeometry, kind: str) -> np.ndarray:
+        """The single (kind "single") or double ("double") layer as a dense
+        (3N, 3N) matrix on nodal values (node-major, then component), with the
+        rules of ``single_layer``/``double_layer`` (density interpolated
+        quadratically; u_target = u): ``single_layer(x, geo, f[elements]).ravel()
+        == S @ f.ravel()`` to round-off. Every row is computed, symmetry or not.
+        Costs about 15 layer applications of kernel work, and 8·(3N)² bytes."""
+        n = self.n_nodes
+        if self.near_field_factor > 0.0:
+            offsets, elems = kernels.near_field_pairs(
+                np.ascontiguousarray(x), self.elements, self.inc_offsets, self.inc_elem,
+                np.arange(n, dtype=np.int64), float(self.near_field_factor))
+        else:
+            offsets, elems = np.zeros(n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        nw = np.ascontiguousarray(geo.normals * geo.weights[..., None])
+        out = kernels.layer_matrix(
+            np.ascontiguousarray(x), self.elements, geo.points, geo.weights, nw, self.reg_phi,
+            self.inc_offsets, self.inc_elem, self.inc_local,
+            self.sing_phi, self.sing_dxi, self.sing_deta, self.sing_w,
+            self.fine_phi, self.fine_dxi, self.fine_deta, self.fine_w, offsets, elems, kind == "double")
+        return out.reshape(3 * n, 3 * n)
+
+    def flux_weights(self, geo: ElementGeometry) -> np.ndarray:
+        """w (N, 3) with ``flux(geo, u) == (w * u).sum()``."""
+        per_node = np.einsum("qa,eqd->ead", self.reg_phi, geo.normals * geo.weights[..., None])
+        out = np.zeros((self.n_nodes, 3))
+        np.add.at(out, self.elements, per_node)
+        return out
+
 
 COUNTERS = ("velocity_evaluations", "single_layer_applications", "double_layer_applications")
 

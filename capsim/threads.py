@@ -39,14 +39,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 __all__ = [
-    "ENV_LAYER", "ENV_THREADS", "ENV_WAIT", "LAYERS", "ThreadPolicy", "apply_policy", "available_layers",
+    "ENV_BLAS_TIMEOUT", "ENV_LAYER", "ENV_THREADS", "ENV_WAIT", "LAYERS", "ThreadPolicy", "apply_policy", "available_layers",
     "choose_policy", "policy_attrs", "threads_per_worker", "usable_cores",
 ]
 
 ENV_THREADS = "NUMBA_NUM_THREADS"
 ENV_LAYER = "NUMBA_THREADING_LAYER"
 ENV_WAIT = "OMP_WAIT_POLICY"
-_VARIABLES = (ENV_THREADS, ENV_LAYER, ENV_WAIT)
+ENV_BLAS_TIMEOUT = "OPENBLAS_THREAD_TIMEOUT"
+_VARIABLES = (ENV_THREADS, ENV_LAYER, ENV_WAIT, ENV_BLAS_TIMEOUT)
 #: the variables capsim set in this environment, as NAME=VALUE;... (not the user's)
 _MARK = "CAPSIM_THREAD_POLICY"
 
@@ -54,6 +55,12 @@ _MARK = "CAPSIM_THREAD_POLICY"
 LAYERS = ("omp", "tbb", "workqueue")
 #: the OpenMP wait policy capsim sets: idle threads sleep instead of spinning
 WAIT_POLICY = "PASSIVE"
+#: OpenBLAS's idle threads spin 2^n cycles before they sleep (its default n = 28,
+#: about 0.1 s): after every LU or matrix product of the dense stage
+#: preconditioner they took the cores from the numba kernels that followed (a
+#: level-2 run of case (g) took 5.5 s instead of 2.9 s). n = 4 is its minimum.
+#: OpenBLAS reads it when it loads, so it is set before numpy is imported.
+BLAS_THREAD_TIMEOUT = "4"
 
 # The numba extension module behind each layer (workqueue has no dependency).
 _LAYER_MODULES = {"omp": "omppool", "tbb": "tbbpool", "workqueue": "workqueue"}
@@ -173,7 +180,7 @@ def apply_policy(threads: int | str = "auto", *, workers: int = 1) -> ThreadPoli
     policy = choose_policy(threads, workers=workers, env=env)
     ours = {}
     for name, value in ((ENV_THREADS, str(policy.num_threads)), (ENV_LAYER, policy.layer),
-                        (ENV_WAIT, policy.wait_policy)):
+                        (ENV_WAIT, policy.wait_policy), (ENV_BLAS_TIMEOUT, BLAS_THREAD_TIMEOUT)):
         if name not in user:
             env[name] = value
             ours[name] = value
@@ -204,6 +211,8 @@ def policy_attrs() -> dict[str, str | int]:
       (``numba.get_num_threads()`` once numba is imported, else the configured count).
     - ``omp_wait_policy``: ``OMP_WAIT_POLICY`` (``unset``: libgomp's default,
       spinning for a while at every barrier; only the omp layer reads it).
+    - ``openblas_thread_timeout``: ``OPENBLAS_THREAD_TIMEOUT`` (``unset``: OpenBLAS's
+      default, idle BLAS threads spinning for about 0.1 s after each call).
     - ``thread_policy_user_env``: the variables that came from the user's
       environment instead of capsim's policy (``NAME=value``, comma-separated; "" if none).
     """
@@ -228,5 +237,6 @@ def policy_attrs() -> dict[str, str | int]:
         "numba_threading_layer_source": source,
         "numba_num_threads": n,
         "omp_wait_policy": env.get(ENV_WAIT) or "unset",
+        "openblas_thread_timeout": env.get(ENV_BLAS_TIMEOUT) or "unset",
         "thread_policy_user_env": ", ".join(user),
     }

@@ -16,7 +16,7 @@ import yaml
 from capsim import threads
 from capsim.campaign import campaign_from_dict, run_campaign
 
-VARIABLES = (threads.ENV_THREADS, threads.ENV_LAYER, threads.ENV_WAIT, "CAPSIM_THREAD_POLICY")
+VARIABLES = (threads.ENV_THREADS, threads.ENV_LAYER, threads.ENV_WAIT, threads.ENV_BLAS_TIMEOUT, "CAPSIM_THREAD_POLICY")
 CASE = {"name": "threads", "mesh": {"level": 0}, "time": {"t_end": 0.05}, "output": {"snapshot_every": 0.05}}
 
 
@@ -73,11 +73,11 @@ def test_apply_sets_the_environment_before_numba_and_records_it():
         "    return s\n"
         "f(np.ones(64)); a = t.policy_attrs(); "
         "print(p.applied, a['numba_threading_layer'], a['numba_threading_layer_source'], a['numba_num_threads'], "
-        "a['omp_wait_policy'], repr(a['thread_policy_user_env']))"
+        "a['omp_wait_policy'], a['openblas_thread_timeout'], repr(a['thread_policy_user_env']))"
     )
     out = subprocess.run([sys.executable, "-c", code], env=clean_env(), capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["True", chosen_layer(), "running", str(max(1, threads.usable_cores() // 2)),
-                                  "PASSIVE", "''"]
+                                  "PASSIVE", threads.BLAS_THREAD_TIMEOUT, "''"]
 
 
 # ---------------------------------------------------------------- CLI run
