@@ -134,8 +134,10 @@ class _InterruptAfter:
 RESUMED = {
     # the spectral radius, its vector and age, the stage count and the controller's memory
     "rkc": {"time.rho_refresh_steps": 3},
-    # the Hessian's age and where it was built (rebuilt there on resume)
+    # the Hessian's age and where it was built (rebuilt there on resume), the factor's γh
     "linearly_implicit": {"time.jacobian_refresh_steps": 3},
+    "linearly_implicit/dense": {"time.scheme": "linearly_implicit", "time.preconditioner": "dense",
+                                "time.jacobian_refresh_steps": 3},
 }
 
 
@@ -144,8 +146,9 @@ RESUMED = {
 def test_resumed_run_repeats_the_uninterrupted_one(tmp_path, scheme, lam):
     """The scheme's state is in the checkpoint: the step sequence is the same."""
     t_end = 1.5 if lam == 1.0 else 0.6  # every λ = 5 evaluation is a GMRES solve
-    case = _capsule(tmp_path, f"{scheme}{lam:g}", **{"time.scheme": scheme, "mesh.level": 1, "time.t_end": t_end,
-                                                     "flow.viscosity_ratio": lam, **RESUMED[scheme]})
+    settings = {"time.scheme": scheme, **RESUMED[scheme]}
+    case = _capsule(tmp_path, f"{scheme.replace('/', '-')}{lam:g}", **{"mesh.level": 1, "time.t_end": t_end,
+                                                                       "flow.viscosity_ratio": lam, **settings})
     assert run_case(case, progress=_InterruptAfter(4))["status"] == "interrupted"
     resumed = run_case(case, resume=True)
     reference = run_case(apply_overrides(case, **{"output.path": str(tmp_path / "reference.h5")}))
