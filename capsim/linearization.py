@@ -40,7 +40,6 @@ the local approximation is best): one single-layer application per build.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -50,6 +49,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
 from capsim.config import DENSE_MAX_NODES
+from capsim.krylov import gmres
 from capsim.timestepping import LinearSolveFailed
 
 __all__ = ["PRECONDITIONERS", "StageSolver", "LinearSolveFailed", "hessian_colouring"]
@@ -90,62 +90,6 @@ def hessian_colouring(adjacency: sp.csr_matrix) -> np.ndarray:
             c += 1
         colour[i] = c
     return colour
-
-
-def right_preconditioned_gmres(matvec, precondition, b: np.ndarray, tol: float, *, max_iter: int,
-                                restart: int, callback=None) -> tuple[np.ndarray, int, float]:
-    """x with |b − A x|₂ ≤ tol by restarted GMRES on A M⁻¹ y = b, x = M⁻¹ y (Saad &
-    Schultz 1986; modified Gram–Schmidt, Givens rotations). With right
-    preconditioning the Arnoldi residual is the true one (in exact arithmetic), so
-    a solve that converges in its first cycle costs one product per iteration and
-    nothing more (SciPy's gmres adds a product for the final residual: a layer
-    application per stage). Returns (x, iterations, residual); x0 = 0."""
-    n = b.size
-    apply_m = precondition if precondition is not None else (lambda v: v)
-    x = np.zeros(n)
-    r = b.copy()
-    beta = float(np.linalg.norm(r))
-    iterations = 0
-    while beta > tol and iterations < max_iter:
-        m = min(restart, max_iter - iterations)
-        basis = np.empty((m + 1, n))
-        hess = np.zeros((m + 1, m))
-        cs, sn = np.zeros(m), np.zeros(m)
-        g = np.zeros(m + 1)
-        g[0] = beta
-        basis[0] = r / beta
-        j = -1
-        for j in range(m):
-            w = matvec(apply_m(basis[j]))
-            iterations += 1
-            for i in range(j + 1):
-                hess[i, j] = float(basis[i] @ w)
-                w -= hess[i, j] * basis[i]
-            h_next = float(np.linalg.norm(w))
-            hess[j + 1, j] = h_next
-            for i in range(j):  # earlier rotations on the new column
-                hess[i, j], hess[i + 1, j] = (cs[i] * hess[i, j] + sn[i] * hess[i + 1, j],
-                                              -sn[i] * hess[i, j] + cs[i] * hess[i + 1, j])
-            rho = math.hypot(hess[j, j], hess[j + 1, j])
-            cs[j], sn[j] = (hess[j, j] / rho, hess[j + 1, j] / rho) if rho > 0.0 else (1.0, 0.0)
-            hess[j, j], hess[j + 1, j] = rho, 0.0
-            g[j], g[j + 1] = cs[j] * g[j], -sn[j] * g[j]
-            if callback is not None:
-                callback()
-            if not np.isfinite(g[j + 1]):
-                return x, iterations, math.inf
-            if abs(g[j + 1]) <= tol or not h_next > 0.0:  # converged, or the Krylov space is exhausted
-                break
-            basis[j + 1] = w / h_next
-        k = j + 1
-        coef = scipy.linalg.solve_triangular(hess[:k, :k], g[:k], check_finite=False)
-        x += apply_m(coef @ basis[:k])
-        if abs(g[k]) <= tol or iterations >= max_iter:
-            return x, iterations, abs(g[k])
-        r = b - matvec(x)  # a restart: the true residual (one product)
-        iterations += 1
-        beta = float(np.linalg.norm(r))
-    return x, iterations, beta
 
 
 @dataclass
@@ -347,6 +291,10 @@ class StageSolver:
         a_matrix[np.diag_indices(3 * n)] += 1.0
         area = float(fr.geo.weights.sum())
         a_matrix += (1.0 - lam) / area * np.outer(fr.normals.ravel(), disc.flux_weights(fr.geo).ravel())
+        # A's LU preconditions the velocity solves of the steps to come (their A differs
+        # from this one by the motion since: one or two GMRES iterations instead of ~10)
+        a_factor = scipy.linalg.lu_factor(a_matrix, check_finite=False)
+        model.double_layer_preconditioner = lambda y: scipy.linalg.lu_solve(a_factor, y, check_finite=False)
         return {"a": a_matrix, "b_prime_p": b_prime}
 
     def _dense_factor(self, gamma_h: float):
@@ -434,9 +382,9 @@ class StageSolver:
         if not bnorm > 0.0:
             return r.copy()
         tol = min(max(tol, floor * bnorm), ceiling * bnorm)
-        solution, iterations, residual = right_preconditioned_gmres(
-            system, self._preconditioner(gamma_h), b, tol, max_iter=self.max_iter, restart=min(60, self.max_iter),
-            callback=check)
+        solution, iterations, residual = gmres(
+            system, b, tol, precondition=self._preconditioner(gamma_h), max_iter=self.max_iter,
+            restart=min(60, self.max_iter), callback=check)
         self.linear_iterations += iterations
         if not residual <= tol or not np.all(np.isfinite(solution)):
             raise LinearSolveFailed(f"stage solve: residual {residual:.2e} > {tol:.2e} after {iterations} iterations")

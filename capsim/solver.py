@@ -24,6 +24,7 @@ import numpy as np
 
 from capsim import kernels
 from capsim.geometry import ElementGeometry, element_geometry, interpolate, shape_functions
+from capsim.krylov import gmres
 from capsim.membrane import TRACTION_METHODS, MembraneForce, MembraneState, get_law  # noqa: F401 (re-exported)
 from capsim.mesh import node_element_incidence, rest_shape_mesh
 from capsim.quadrature import NODE_XI, NODE_ETA, gauss_legendre_01, singular_rules, subdivided_rule, triangle_rule
@@ -357,6 +358,10 @@ class CapsuleModel:
     # called between the iterations of a velocity solve; raises to stop a long one
     # (the runner passes its SIGINT/SIGTERM flag's check); no signal handling here
     interrupt_check: Callable[[], None] | None = field(default=None, repr=False, compare=False)
+    # y ↦ Ã⁻¹ y for an Ã near this configuration's A (λ ≠ 1), the right preconditioner of
+    # the velocity solve: the dense stage preconditioner's LU of A at the start of the step
+    double_layer_preconditioner: Callable[[np.ndarray], np.ndarray] | None = field(
+        default=None, repr=False, compare=False)
     # iterations and relative residual of the last velocity solve (0 at λ = 1)
     last_solve_info: dict = field(default_factory=lambda: {"iterations": 0, "residual": 0.0}, init=False)
     # cumulative work: velocity evaluations and layer applications (each GMRES or
@@ -539,23 +544,15 @@ class CapsuleModel:
         iterations = 0
         check = self.interrupt_check or (lambda: None)
         if residual > self.solver_tol and self.solver_method == "gmres":
-            from scipy.sparse.linalg import LinearOperator, gmres
-
-            # solve for the correction A·δ = r from δ = 0: GMRES's own residual
-            # history is then the true relative residual of u + δ
-            n = b.size
-            op = LinearOperator((n, n), matvec=lambda v: apply(v.reshape(-1, 3)).ravel(), dtype=float)
-            history: list[float] = []
-            rnorm = residual * bnorm
-            delta, _ = gmres(
-                op, r.ravel(), rtol=self.solver_tol * bnorm / rnorm, atol=0.0,
-                restart=min(60, self.solver_max_iter), maxiter=self.solver_max_iter,
-                callback=lambda pr: (history.append(float(pr)), check()), callback_type="pr_norm",
-            )
+            # the correction A·δ = r from δ = 0: the residual GMRES reports is the true
+            # one of u + δ (right preconditioning, capsim.krylov)
+            restart = min(60, self.solver_max_iter)
+            delta, iterations, rnorm = gmres(
+                lambda v: apply(v.reshape(-1, 3)).ravel(), r.ravel(), self.solver_tol * bnorm,
+                precondition=self.double_layer_preconditioner, max_iter=self.solver_max_iter * restart,
+                restart=restart, callback=check)
             u = u + delta.reshape(-1, 3)
-            iterations = len(history)
-            if history:
-                residual = history[-1] * rnorm / bnorm
+            residual = rnorm / bnorm
         elif residual > self.solver_tol:
             # successive substitution (seed §3) as Richardson iteration with the
             # optimal step for a spectrum in [min(1, λ), max(1, λ)]: rate |1−λ|/(1+λ)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from capsim.config import ConfigError, case_from_dict
-from capsim.linearization import StageSolver, hessian_colouring, node_adjacency, right_preconditioned_gmres
+from capsim.krylov import gmres
+from capsim.linearization import StageSolver, hessian_colouring, node_adjacency
 from capsim.runner import run_case
 from capsim.solver import build_model
 from capsim.store import read_trajectory
@@ -203,16 +204,16 @@ def test_gmres_meets_its_tolerance_with_restarts_and_counts_one_product_per_iter
     tol = 1e-10 * np.linalg.norm(b)
     for restart in (200, 7):
         products = []
-        x, iterations, residual = right_preconditioned_gmres(
-            lambda v: (products.append(1), a @ v)[1], None, b, tol, max_iter=500, restart=restart)
+        x, iterations, residual = gmres(lambda v: (products.append(1), a @ v)[1], b, tol, max_iter=500,
+                                        restart=restart)
         assert residual <= tol
         assert np.linalg.norm(b - a @ x) <= 1.01 * tol
         assert iterations == len(products)
     inverse = np.linalg.inv(a)
-    x, iterations, residual = right_preconditioned_gmres(lambda v: a @ v, lambda v: inverse @ v, b, tol,
-                                                         max_iter=10, restart=10)
+    x, iterations, residual = gmres(lambda v: a @ v, b, tol, precondition=lambda v: inverse @ v, max_iter=10,
+                                    restart=10)
     assert iterations == 1 and np.linalg.norm(b - a @ x) <= tol
-    _, iterations, residual = right_preconditioned_gmres(lambda v: a @ v, None, b, tol, max_iter=3, restart=10)
+    _, iterations, residual = gmres(lambda v: a @ v, b, tol, max_iter=3, restart=10)
     assert iterations == 3 and residual > tol
 
 
