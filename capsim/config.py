@@ -370,9 +370,10 @@ class Time(_Model):
         description="linearly_implicit: GMRES iterations per stage solve before the step is retried smaller",
     )
     jacobian_refresh_steps: int = Field(
-        1, ge=1, le=10000, strict=True,
-        description="linearly_implicit: steps between rebuilds of the preconditioner's membrane Hessian "
-        "(the Jacobian-vector products are always those of the current step)",
+        10, ge=1, le=10000, strict=True,
+        description="linearly_implicit: steps between rebuilds of the preconditioner (the membrane Hessian, "
+        "and the layer matrices of preconditioner dense), applied between rebuilds in the frame of the "
+        "capsule's best-fit rotation; the Jacobian-vector products are always those of the current step",
     )
     max_stages: int = Field(
         200, ge=2, le=1000, strict=True,

@@ -92,6 +92,14 @@ def hessian_colouring(adjacency: sp.csr_matrix) -> np.ndarray:
     return colour
 
 
+def best_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The rotation R (3×3) minimising Σ |R (a_i − ā) − (b_i − b̄)|² over the nodes
+    (Kabsch 1976: from the SVD of the cross-covariance, reflections excluded)."""
+    u, _, vt = np.linalg.svd((a - a.mean(axis=0)).T @ (b - b.mean(axis=0)))
+    d = np.sign(np.linalg.det(u @ vt))
+    return (u @ np.diag([1.0, 1.0, d]) @ vt).T
+
+
 @dataclass
 class _Frozen:
     """Everything frozen at x_n for the step."""
@@ -139,6 +147,8 @@ class StageSolver:
         self._factor: tuple[float, Any] | None = None  # (τ, LU of M + τH) or (γh, LU of the dense Z)
         self._dense: dict[str, Any] | None = None  # _dense_operators, where H was built
         self.layer_matrices = 0     # dense layer matrices assembled (dense preconditioner)
+        self._a_factor: Any = None  # LU of the dense A (λ ≠ 1), where H was built
+        self._rotation: np.ndarray | None = None  # best-fit rotation from there to this step's x
         self._colour_groups: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
 
     # -- the frozen operators ----------------------------------------------
@@ -152,6 +162,24 @@ class StageSolver:
             if self._hessian_age < 0 or self._hessian_age >= self.refresh_steps:
                 self._build_hessian()
             self._hessian_age += 1
+            # a preconditioner built steps ago is applied in its own frame: the capsule's
+            # membrane turns (tank-treading) while its shape stays, and a rotation
+            # misaligns the preconditioner's finest modes by the distance a node travels
+            self._rotation = None if self._hessian_x is x else best_rotation(self._hessian_x, x)
+        if self._a_factor is not None:
+            factor = self._a_factor
+            self.model.double_layer_preconditioner = lambda y: self._rotate_out(
+                scipy.linalg.lu_solve(factor, self._rotate_in(y), check_finite=False))
+
+    def _rotate_in(self, y: np.ndarray) -> np.ndarray:
+        """Rᵀ at every node: from this step's frame to the preconditioner's."""
+        r = self._rotation
+        return y if r is None else (y.reshape(-1, 3) @ r).ravel()
+
+    def _rotate_out(self, z: np.ndarray) -> np.ndarray:
+        """R at every node: from the preconditioner's frame to this step's."""
+        r = self._rotation
+        return z if r is None else (z.reshape(-1, 3) @ r.T).ravel()
 
     def _freeze_operators(self, x: np.ndarray) -> _Frozen:
         model, disc = self.model, self.model.disc
@@ -293,8 +321,7 @@ class StageSolver:
         a_matrix += (1.0 - lam) / area * np.outer(fr.normals.ravel(), disc.flux_weights(fr.geo).ravel())
         # A's LU preconditions the velocity solves of the steps to come (their A differs
         # from this one by the motion since: one or two GMRES iterations instead of ~10)
-        a_factor = scipy.linalg.lu_factor(a_matrix, check_finite=False)
-        model.double_layer_preconditioner = lambda y: scipy.linalg.lu_solve(a_factor, y, check_finite=False)
+        self._a_factor = scipy.linalg.lu_factor(a_matrix, check_finite=False)
         return {"a": a_matrix, "b_prime_p": b_prime}
 
     def _dense_factor(self, gamma_h: float):
@@ -307,7 +334,8 @@ class StageSolver:
             ps, hessian, flow = d["ps"], self._hessian, self.model.far_field.matrix
 
             def stiff_inverse(y):
-                return y - c * (ps @ scipy.linalg.lu_solve(factor, hessian @ y, check_finite=False))
+                y = self._rotate_in(y)
+                return self._rotate_out(y - c * (ps @ scipy.linalg.lu_solve(factor, hessian @ y, check_finite=False)))
 
             def precondition(y):
                 # the flow term by one Neumann step: Z⁻¹ ≈ Z̃⁻¹ + Z̃⁻¹ (γh P L∞) Z̃⁻¹, an
@@ -317,7 +345,7 @@ class StageSolver:
 
             return precondition
         factor = lu(d["a"] - gamma_h * d["b_prime_p"], overwrite_a=True, check_finite=False)
-        return lambda y: scipy.linalg.lu_solve(factor, y, check_finite=False)
+        return lambda y: self._rotate_out(scipy.linalg.lu_solve(factor, self._rotate_in(y), check_finite=False))
 
     def _drag_scale(self) -> float:
         """s = ⟨v, SL[v]⟩/⟨v, v⟩ for a random nodal field v (fixed seed): white noise is
@@ -342,7 +370,7 @@ class StageSolver:
         if self._factor is None or abs(tau / self._factor[0] - 1.0) > self.TAU_SLACK:
             self._factorise(tau)
         lu, mass = self._factor[1], self._hessian_mass
-        return lambda y: lu.solve((mass @ y.reshape(-1, 3)).ravel())
+        return lambda y: self._rotate_out(lu.solve((mass @ self._rotate_in(y).reshape(-1, 3)).ravel()))
 
     TAU_SLACK = 0.3
 
@@ -405,7 +433,7 @@ class StageSolver:
 
     def restore(self, state: dict[str, Any]) -> None:
         self._frozen = self._factor = self._hessian = self._hessian_x = self._hessian_mass = None
-        self._dense = None
+        self._dense = self._a_factor = self._rotation = None
         hx = state.get("hessian_x")
         if hx is not None:
             self._frozen = self._freeze_operators(np.array(hx, dtype=float))
