@@ -14,28 +14,41 @@ Jacobian is J = P A⁻¹ B' with
 
     B' v = L∞ v − SL[M⁻¹ H v]/(8πG),
 
-H v the change of the energy gradient ∂E/∂x along v (a forward difference of
-``MembraneForce.energy_gradient``, bending included; the contour method
-differentiates its element tractions instead) and M the consistent mass
-matrix at x_n (factorised once per step).
+H v the change of the energy gradient ∂E/∂x along v (the sparse Hessian of
+``MembraneForce.energy_gradient`` built at x_n, or, when the preconditioner's
+Hessian is older than the step, a forward difference of the gradient: J is
+always the step's own; bending included; the contour method differentiates
+its element tractions instead) and M the consistent mass matrix at x_n.
 
-λ ≠ 1 does not nest a double-layer solve in every product: with
-k = r + γh P z the stage equation becomes one system for z,
+λ = 1: GMRES solves the stage equation itself, (I − γh P B') k = r, whose
+right-hand side needs no product. λ ≠ 1 does not nest a double-layer solve in
+every product: with k = r + γh P z the stage equation becomes one system for z,
 
     (A − γh B' P) z = B' r,
 
-whose products cost one single-layer and one double-layer application
-(λ = 1: the single layer only), solved by GMRES with right preconditioning, so
-that the residual it reports is the true one.
+whose products cost one single-layer and one double-layer application. GMRES
+(``capsim.krylov``) is right-preconditioned, so the residual it reports is the
+true one, and spends a product on nothing else.
 
 Preconditioner ``local``: the membrane operator exactly, the single layer as a
-local drag, SL[w] ≈ s w. Then A − γh B' P ≈ I + τ M⁻¹H, τ = γ h s/(8πG), applied
-as (M + τH)⁻¹ M with H assembled by coloured finite differences of the energy
-gradient (Curtis, Powell & Reid 1974: nodes coupled through no common element
-share a colour) and factorised by a sparse LU. s is the single layer's Rayleigh
-quotient on the stiffest membrane mode (the top eigenvector of M⁻¹H, where
-the local approximation is best): one single-layer application per build.
-``none``: plain GMRES (the baseline the preconditioner is measured against).
+local drag, SL[w] ≈ s w. Then the stage operator ≈ I + τ M⁻¹H, τ = γ h s/(8πG),
+applied as (M + τH)⁻¹ M with H assembled by coloured finite differences of the
+energy gradient (Curtis, Powell & Reid 1974: nodes coupled through no common
+element share a colour) and factorised by a sparse LU. s is the single layer's
+Rayleigh quotient on white noise (which the finest modes dominate, where the
+local approximation is best): one single-layer application per build.
+
+Preconditioner ``dense``: the stage operator from the dense layer matrices
+(``Discretization.layer_matrix``), LU-factorised (``_dense_operators``): at
+λ = 1 the membrane and single layer exactly, by the push-through identity, and
+the flow term by one Neumann step; at λ ≠ 1 the z system whole, and A's LU
+then also preconditions the velocity solves. ``none``: plain GMRES (the
+baseline the others are measured against).
+
+Both are rebuilt every ``refresh_steps`` steps and refactorised when γh has
+moved by more than ``TAU_SLACK``; in between they are applied in the frame of
+the best-fit rotation from the nodes where they were built (tank-treading turns
+the membrane through them while the shape stays).
 """
 
 from __future__ import annotations
