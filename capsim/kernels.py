@@ -982,7 +982,21 @@ def double_layer_near_correction(
 # replaced by the Duffy rule on the elements holding the target and by the
 # subdivided rule on its near elements.
 
-@njit(inline="always")
+@njit(**_JIT)
+def _add_symmetric_block(out, i, j, s, b00, b11, b22, b01, b02, b12):
+    """out[i, :, j, :] += s · B for a symmetric 3×3 B given by its six entries."""
+    out[i, 0, j, 0] += s * b00
+    out[i, 0, j, 1] += s * b01
+    out[i, 0, j, 2] += s * b02
+    out[i, 1, j, 0] += s * b01
+    out[i, 1, j, 1] += s * b11
+    out[i, 1, j, 2] += s * b12
+    out[i, 2, j, 0] += s * b02
+    out[i, 2, j, 1] += s * b12
+    out[i, 2, j, 2] += s * b22
+
+
+@njit(**_JIT)
 def _add_stokeslet_block(out, i, nodes, phi, dx, dy, dz, w, sign):
     """out[i, :, node_a, :] += sign · w φ_a G(d) for the 6 nodes of one element."""
     rinv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
@@ -994,81 +1008,34 @@ def _add_stokeslet_block(out, i, nodes, phi, dx, dy, dz, w, sign):
     g02 = dx * dz * r3
     g12 = dy * dz * r3
     for a in range(6):
-        s = sign * w * phi[a]
-        j = nodes[a]
-        out[i, 0, j, 0] += s * g00
-        out[i, 0, j, 1] += s * g01
-        out[i, 0, j, 2] += s * g02
-        out[i, 1, j, 0] += s * g01
-        out[i, 1, j, 1] += s * g11
-        out[i, 1, j, 2] += s * g12
-        out[i, 2, j, 0] += s * g02
-        out[i, 2, j, 1] += s * g12
-        out[i, 2, j, 2] += s * g22
+        _add_symmetric_block(out, i, nodes[a], sign * w * phi[a], g00, g11, g22, g01, g02, g12)
 
 
-@njit(inline="always")
+@njit(**_JIT)
 def _add_stresslet_block(out, i, nodes, phi, dx, dy, dz, mx, my, mz, sign):
     """The double layer's share of one rule point: K = −6 (d·m) d dᵀ / r⁵ (seed 2.12b)
     into the element's 6 node columns (× φ_a) and, desingularised, −K into column i."""
     self_node = np.int64(i)
     rinv2 = 1.0 / (dx * dx + dy * dy + dz * dz)
     c = -6.0 * sign * (dx * mx + dy * my + dz * mz) * rinv2 * rinv2 * np.sqrt(rinv2)
-    d0 = dx
-    d1 = dy
-    d2 = dz
-    k00 = c * d0 * d0
-    k11 = c * d1 * d1
-    k22 = c * d2 * d2
-    k01 = c * d0 * d1
-    k02 = c * d0 * d2
-    k12 = c * d1 * d2
-    for a in range(7):
-        # six node columns (× φ_a), then the target's own column (−K: the u0 of u − u0)
-        s = phi[a] if a < 6 else -1.0
-        j = nodes[a] if a < 6 else self_node
-        out[i, 0, j, 0] += s * k00
-        out[i, 0, j, 1] += s * k01
-        out[i, 0, j, 2] += s * k02
-        out[i, 1, j, 0] += s * k01
-        out[i, 1, j, 1] += s * k11
-        out[i, 1, j, 2] += s * k12
-        out[i, 2, j, 0] += s * k02
-        out[i, 2, j, 1] += s * k12
-        out[i, 2, j, 2] += s * k22
-
-
-@njit(inline="always")
-def _rule_point(xe, e, phi, dxi, deta):
-    """Position and unnormalised normal at one rule point of element e."""
-    px = 0.0
-    py = 0.0
-    pz = 0.0
-    ax = 0.0
-    ay = 0.0
-    az = 0.0
-    bx = 0.0
-    by = 0.0
-    bz = 0.0
+    k00 = c * dx * dx
+    k11 = c * dy * dy
+    k22 = c * dz * dz
+    k01 = c * dx * dy
+    k02 = c * dx * dz
+    k12 = c * dy * dz
     for a in range(6):
-        px += phi[a] * xe[e, a, 0]
-        py += phi[a] * xe[e, a, 1]
-        pz += phi[a] * xe[e, a, 2]
-        ax += dxi[a] * xe[e, a, 0]
-        ay += dxi[a] * xe[e, a, 1]
-        az += dxi[a] * xe[e, a, 2]
-        bx += deta[a] * xe[e, a, 0]
-        by += deta[a] * xe[e, a, 1]
-        bz += deta[a] * xe[e, a, 2]
-    nx, ny, nz = _cross(ax, ay, az, bx, by, bz)
-    return px, py, pz, nx, ny, nz
+        _add_symmetric_block(out, i, nodes[a], phi[a], k00, k11, k22, k01, k02, k12)
+    # the target's own column: −K, the u0 of u − u0
+    _add_symmetric_block(out, i, self_node, -1.0, k00, k11, k22, k01, k02, k12)
 
 
 @njit(inline="always")
 def _layer_element(out, i, x0, y0, z0, xe, nodes, e, phi, dxi, deta, w, double, sign):
     """One element's rule (phi, dxi, deta (m, 6), w (m,)) into row i of a layer matrix."""
     for j in range(w.shape[0]):
-        px, py, pz, nx, ny, nz = _rule_point(xe, e, phi[j], dxi[j], deta[j])
+        # (the density slot of _element_point reads the positions again, unused here)
+        px, py, pz, nx, ny, nz, _, _, _ = _element_point(xe, xe, e, phi[j], dxi[j], deta[j])
         if double:
             _add_stresslet_block(out, i, nodes, phi[j], px - x0, py - y0, pz - z0,
                                  nx * w[j], ny * w[j], nz * w[j], sign)
