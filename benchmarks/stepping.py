@@ -156,6 +156,13 @@ def _recompute_ratios(row: dict) -> None:
                               if a.get("run") is not None and a.get("run") == b.get("run") else None)}
 
 
+def _matrices(entry: dict) -> str:
+    """Layer matrices assembled (dense preconditioner); "—" where the entry predates
+    the count."""
+    value = entry.get("layer_matrices")
+    return "—" if value is None else str(value)
+
+
 def _met(entry: dict) -> bool:
     """Whether the entry meets the accuracy target."""
     return entry["D_xy_error"] <= D_TOL and entry["theta_error"] <= THETA_TOL
@@ -163,7 +170,7 @@ def _met(entry: dict) -> bool:
 
 def _cost(result: dict) -> dict:
     keys = ("status", "steps", "rejected_steps", "velocity_evaluations", "layer_applications",
-            "linear_iterations", "wall_time_s")
+            "linear_iterations", "layer_matrices", "wall_time_s")
     return {k: result.get(k) for k in keys}
 
 
@@ -173,8 +180,8 @@ def _line(c: dict) -> str:
 
 
 def markdown(rows: list[dict]) -> str:
-    head = ("| case | scheme | rtol | steps | velocity evals | layer apps | GMRES its | wall s | max abs dD_xy | "
-            "max abs dtheta |\n|---|---|---|---|---|---|---|---|---|---|")
+    head = ("| case | scheme | rtol | steps | velocity evals | layer apps | GMRES its | layer matrices | wall s | "
+            "max abs dD_xy | max abs dtheta |\n|---|---|---|---|---|---|---|---|---|---|---|")
     lines = [head]
     for r in rows:
         for scheme in LADDER:
@@ -184,6 +191,7 @@ def markdown(rows: list[dict]) -> str:
             note = "" if _met(e) else " (missed the target)"
             lines.append(f"| ({r['case']}) {r['label']} | {scheme}{note} | {e['rtol']:g} | {e['steps']} | "
                          f"{e['velocity_evaluations']} | {e['layer_applications']} | {e.get('linear_iterations') or 0} | "
+                         f"{_matrices(e)} | "
                          f"{e['wall_time_s']:.1f} | {e['D_xy_error']:.1e} | {e['theta_error']:.1e} |")
     lines += ["", "| case | schemes | evaluations | layer applications | wall time |", "|---|---|---|---|---|"]
     for r in rows:

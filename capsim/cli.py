@@ -288,6 +288,7 @@ def _summary_rows(summary: dict[str, Any]) -> list[tuple[str, str]]:
         ("layer applications", _fmt(summary.get("layer_applications"), "d")),
         # only the linearly implicit scheme solves stage equations
         ("stage-solve iterations", _fmt(summary.get("linear_iterations"), "d") if summary.get("linear_iterations") else None),
+        ("layer matrices", _fmt(summary.get("layer_matrices"), "d") if summary.get("layer_matrices") else None),
         ("wall time (s)", _fmt(summary.get("wall_time_s"), ".1f")),
         ("volume drift", _fmt(summary.get("volume_drift"), ".3e")),
         ("compressed vertices", _compression(summary)),

@@ -147,6 +147,10 @@ _add("layer_applications", "single- and double-layer applications", "1",
 _add("linear_iterations", "iterations of the stage solves", "1",
      "cumulative GMRES iterations of the linearly implicit scheme's stage solves since t = 0, rejected "
      "steps included; 0 for the explicit schemes (the λ ≠ 1 velocity solves are solver_iterations)")
+_add("layer_matrices", "layer matrices assembled", "1",
+     "cumulative dense single- and double-layer matrices assembled by the linearly implicit scheme's dense "
+     "preconditioner since t = 0 (each evaluates the layer kernel at every node and rule point, the "
+     "work of about four layer applications under quarter symmetry); 0 otherwise")
 
 # ---------------------------------------------------------------- run/ (the state at the end) and records
 

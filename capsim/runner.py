@@ -110,6 +110,7 @@ class RunResult(Mapping):
     velocity_evaluations: int | None = None
     layer_applications: int | None = None
     linear_iterations: int | None = None
+    layer_matrices: int | None = None
     final_D_xy: float | None = None
     final_theta: float | None = None
     volume_drift: float | None = None
@@ -366,6 +367,7 @@ class _Run:
             "stages": self.integrator.last_stages,
             "layer_applications": counts["single_layer_applications"] + counts["double_layer_applications"],
             "linear_iterations": getattr(self.integrator, "linear_iterations", 0),
+            "layer_matrices": getattr(self.integrator, "layer_matrices", 0),
         }
 
     def _parts(self) -> dict[str, dict[str, Any]]:
@@ -528,6 +530,7 @@ class _Run:
             scheme=ig.name, velocity_evaluations=int(work["velocity_evaluations"]),
             layer_applications=int(work["layer_applications"]),
             linear_iterations=int(work["linear_iterations"]),
+            layer_matrices=int(work["layer_matrices"]),
             final_D_xy=last["D_xy"], final_theta=last["theta"],
             volume_drift=(last["volume"] - first["volume"]) / first["volume"],
             area_change=last["area"] / first["area"] - 1.0,

@@ -610,6 +610,10 @@ class LinearlyImplicit(Integrator):
     def linear_iterations(self) -> int:
         return int(self.stage_solver.linear_iterations)
 
+    @property
+    def layer_matrices(self) -> int:
+        return int(getattr(self.stage_solver, "layer_matrices", 0))
+
     def state(self) -> dict[str, Any]:
         out = super().state()
         out.update({f"stage.{k}": v for k, v in self.stage_solver.state().items()})

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -361,3 +363,7 @@ def test_dense_and_local_preconditioners_give_the_same_run_without_symmetry_and_
     assert dense["steps"] == local["steps"]
     assert np.abs(a["D_xy"] - b["D_xy"]).max() <= 1e-5
     assert dense["linear_iterations"] < local["linear_iterations"]
+    # matrices: one single and one double layer per rebuild (every 10 steps), none for local
+    assert b["layer_matrices"][-1] == dense["layer_matrices"] == (2 if lam != 1.0 else 1) * math.ceil(
+        dense["steps"] / 10)  # a build at the first of every 10 step starts (a retry keeps its start)
+    assert local["layer_matrices"] == 0
