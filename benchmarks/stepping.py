@@ -11,7 +11,7 @@ spectral-radius probes included), layer applications (each GMRES iteration
 included), wall time, the two errors; and the ratios rkf23 / rkc of evaluations
 and of wall time, measured in one run. Writes benchmarks/time_schemes.md and .json.
 
-    python benchmarks/stepping.py            # every case (about an hour on 2 cores)
+    python benchmarks/stepping.py            # every case (about 1.5 h on 2 cores, 40 min of it h5)
     python benchmarks/stepping.py a c f      # some of them
     python benchmarks/stepping.py c e --scheme=linearly_implicit   # one scheme (others' rows kept)
 
