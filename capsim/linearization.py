@@ -157,10 +157,9 @@ class StageSolver:
         self._hessian_mass: sp.csr_matrix | None = None  # the mass matrix there
         self._scale = 0.0           # s of the local drag
         self._hessian_age = -1      # freezes since the Hessian was built (−1: none)
-        self._factor: tuple[float, Any] | None = None  # (τ, LU of M + τH) or (γh, LU of the dense Z)
+        self._factor: tuple[float, Any] | None = None  # (γh, y ↦ preconditioned y) of the last factorisation
         self._dense: dict[str, Any] | None = None  # _dense_operators, where H was built
         self.layer_matrices = 0     # dense layer matrices assembled (dense preconditioner)
-        self._a_factor: Any = None  # LU of the dense A (λ ≠ 1), where H was built
         self._rotation: np.ndarray | None = None  # best-fit rotation from there to this step's x
         self._colour_groups: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
 
@@ -179,10 +178,6 @@ class StageSolver:
             # membrane turns (tank-treading) while its shape stays, and a rotation
             # misaligns the preconditioner's finest modes by the distance a node travels
             self._rotation = None if self._hessian_x is x else best_rotation(self._hessian_x, x)
-        if self._a_factor is not None:
-            factor = self._a_factor
-            self.model.double_layer_preconditioner = lambda y: self._rotate_out(
-                scipy.linalg.lu_solve(factor, self._rotate_in(y), check_finite=False))
 
     def _rotate_in(self, y: np.ndarray) -> np.ndarray:
         """Rᵀ at every node: from this step's frame to the preconditioner's."""
@@ -333,8 +328,11 @@ class StageSolver:
         area = float(fr.geo.weights.sum())
         a_matrix += (1.0 - lam) / area * np.outer(fr.normals.ravel(), disc.flux_weights(fr.geo).ravel())
         # A's LU preconditions the velocity solves of the steps to come (their A differs
-        # from this one by the motion since: one or two GMRES iterations instead of ~10)
-        self._a_factor = scipy.linalg.lu_factor(a_matrix, check_finite=False)
+        # from this one by the motion since: one or two GMRES iterations instead of ~10),
+        # in the frame of the rotation since, as the stage preconditioner
+        a_factor = scipy.linalg.lu_factor(a_matrix, check_finite=False)
+        model.double_layer_preconditioner = lambda y: self._rotate_out(
+            scipy.linalg.lu_solve(a_factor, self._rotate_in(y), check_finite=False))
         return {"a": a_matrix, "b_prime_p": b_prime}
 
     def _dense_factor(self, gamma_h: float):
@@ -370,26 +368,25 @@ class StageSolver:
         return max(float(np.vdot(v, sl)) / float(np.vdot(v, v)), 0.0)
 
     def _preconditioner(self, gamma_h: float):
+        """y ↦ (approximately) Z⁻¹ y at this γh, or None (``none``). The factorisation is
+        kept while γh stays within TAU_SLACK of the γh it was made for (the
+        preconditioner need not match J exactly; CVODE's rule): with
+        jacobian_refresh_steps > 1 that saves the LU of most steps."""
         if self.preconditioner == "none":
             return None
-        if self.preconditioner == "dense":
-            if self._factor is None or abs(gamma_h / self._factor[0] - 1.0) > self.TAU_SLACK:
-                self._factor = (gamma_h, self._dense_factor(gamma_h))
-            return self._factor[1]
-        tau = gamma_h * self._scale / (8.0 * np.pi * self.model.shear_rate_G)
-        # the factor of M + τH (M where H was built) is kept while τ stays within
-        # TAU_SLACK of its τ: with jacobian_refresh_steps > 1 that saves the LU of
-        # most steps (the preconditioner need not match J exactly)
-        if self._factor is None or abs(tau / self._factor[0] - 1.0) > self.TAU_SLACK:
-            self._factorise(tau)
-        lu, mass = self._factor[1], self._hessian_mass
-        return lambda y: self._rotate_out(lu.solve((mass @ self._rotate_in(y).reshape(-1, 3)).ravel()))
+        if self._factor is None or abs(gamma_h / self._factor[0] - 1.0) > self.TAU_SLACK:
+            factorise = self._dense_factor if self.preconditioner == "dense" else self._local_factor
+            self._factor = (gamma_h, factorise(gamma_h))
+        return self._factor[1]
 
     TAU_SLACK = 0.3
 
-    def _factorise(self, tau: float) -> None:
-        mass3 = sp.kron(self._hessian_mass, sp.identity(3), format="csr")  # on the 3N unknowns
-        self._factor = (tau, splu((mass3 + tau * self._hessian).tocsc()))
+    def _local_factor(self, gamma_h: float):
+        """(M + τH)⁻¹ M, τ = γh s/(8πG), with M and H where H was built (module docstring)."""
+        tau = gamma_h * self._scale / (8.0 * np.pi * self.model.shear_rate_G)
+        mass = self._hessian_mass
+        lu = splu((sp.kron(mass, sp.identity(3), format="csr") + tau * self._hessian).tocsc())
+        return lambda y: self._rotate_out(lu.solve((mass @ self._rotate_in(y).reshape(-1, 3)).ravel()))
 
     # -- one stage ------------------------------------------------------------
     def solve(self, r: np.ndarray, gamma_h: float, tol: float, *, floor: float = 1e-10,
@@ -441,22 +438,20 @@ class StageSolver:
         if self._hessian_x is not None:
             out["hessian_x"] = np.array(self._hessian_x, copy=True)
         if self._factor is not None:
-            out["factor_tau"] = float(self._factor[0])
+            out["factor_gamma_h"] = float(self._factor[0])
         return out
 
     def restore(self, state: dict[str, Any]) -> None:
         self._frozen = self._factor = self._hessian = self._hessian_x = self._hessian_mass = None
-        self._dense = self._a_factor = self._rotation = None
+        self._dense = self._rotation = None
         hx = state.get("hessian_x")
         if hx is not None:
             self._frozen = self._freeze_operators(np.array(hx, dtype=float))
             self._build_hessian()
             self._frozen = None
-            tau = state.get("factor_tau")
-            if tau is not None and self.preconditioner == "local":
-                self._factorise(float(tau))
-            elif tau is not None and self.preconditioner == "dense":
-                self._preconditioner(float(tau))  # the LU at the saved γh
+            gamma_h = state.get("factor_gamma_h")
+            if gamma_h is not None:
+                self._preconditioner(float(gamma_h))  # the factorisation of the saved γh
         self._hessian_age = int(state.get("hessian_age", -1))
         self.linear_iterations = int(state.get("linear_iterations", 0))
         self.layer_matrices = int(state.get("layer_matrices", 0))
