@@ -105,6 +105,15 @@ def hessian_colouring(adjacency: sp.csr_matrix) -> np.ndarray:
     return colour
 
 
+def _directional_difference(f, x: np.ndarray, fx: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(f(x + εv) − f(x))/ε with ε = √ε_machine · max(1, |x|)/|v| (Brown & Saad 1990)."""
+    norm = float(np.linalg.norm(v))
+    if norm == 0.0:
+        return np.zeros_like(fx)
+    eps = _FD_SCALE * max(1.0, float(np.linalg.norm(x))) / norm
+    return (f(x + eps * v) - fx) / eps
+
+
 def best_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The rotation R (3×3) minimising Σ |R (a_i − ā) − (b_i − b̄)|² over the nodes
     (Kabsch 1976: from the SVD of the cross-covariance, reflections excluded)."""
@@ -215,24 +224,17 @@ class StageSolver:
         return self.model.remove_net_flux(fr.geo, v, fr.normals)
 
     def _traction_change(self, v: np.ndarray) -> np.ndarray:
-        """The density change along v: M⁻¹ H v at the nodes (galerkin, H the sparse
-        Hessian), or the element tractions' change by a forward difference (contour)."""
+        """The density change along v: M⁻¹ H v at the nodes (galerkin: H the sparse
+        Hessian when it is this step's, else a difference of the energy gradient, so
+        that J is always the step's own), or the element tractions' change (contour)."""
         fr, membrane = self._frozen, self.model.membrane
-        if fr.gradient is not None:
-            if self._hessian_x is fr.x:  # the Hessian is this step's
-                hv = (self._hessian @ v.ravel()).reshape(v.shape)
-            else:  # it is the preconditioner's, built steps ago: J must be this step's
-                norm = float(np.linalg.norm(v))
-                if norm == 0.0:
-                    return np.zeros_like(v)
-                eps = _FD_SCALE * max(1.0, float(np.linalg.norm(fr.x))) / norm
-                hv = (membrane.energy_gradient(fr.x + eps * v) - fr.gradient) / eps
-            return fr.mass_lu.solve(np.asfortranarray(hv))
-        norm = float(np.linalg.norm(v))
-        if norm == 0.0:
-            return np.zeros_like(fr.traction)
-        eps = _FD_SCALE * max(1.0, float(np.linalg.norm(fr.x))) / norm
-        return (membrane.element_traction(fr.x + eps * v) - fr.traction) / eps
+        if fr.gradient is None:
+            return _directional_difference(membrane.element_traction, fr.x, fr.traction, v)
+        if self._hessian_x is fr.x:
+            hv = (self._hessian @ v.ravel()).reshape(v.shape)
+        else:
+            hv = _directional_difference(membrane.energy_gradient, fr.x, fr.gradient, v)
+        return fr.mass_lu.solve(np.asfortranarray(hv))
 
     def _layer_product(self, v: np.ndarray) -> np.ndarray:
         """B' v = L∞ v − SL[Δf'(v)]/(8πG) (one single-layer application)."""
