@@ -297,15 +297,14 @@ class StageSolver:
         n = disc.n_nodes
         single = disc.layer_matrix(fr.x, fr.geo, "single")
         self.layer_matrices += 1
-        if model.volume_correction:  # P = I − n wᵀ/(w·n)
+        if fr.normals is not None:  # flux weights w: ⟨n, u⟩ = w·u (P, and A's deflation)
             normals = fr.normals.ravel()
-            weights = disc.flux_weights(fr.geo).ravel()
-            weights /= float(weights @ normals)
+            flux_weights = disc.flux_weights(fr.geo).ravel()
+            weights = flux_weights / float(flux_weights @ normals)  # P = I − n wᵀ/(w·n)
         if fr.double_layer is None:
             if model.volume_correction:
                 single -= np.outer(normals, weights @ single)  # P S
-            mass3 = np.kron(fr.mass.toarray(), np.eye(3))
-            return {"ps": single, "hps": np.asarray(self._hessian @ single), "mass": mass3}
+            return {"ps": single, "hps": np.asarray(self._hessian @ single), "mass": fr.mass.toarray()}
         # S M⁻¹ H as (M⁻¹ Sᵀ)ᵀ per component (a dense Cholesky: SuperLU's solve is slow
         # on 9N right-hand sides), then a product with the sparse, symmetric H
         mass = scipy.linalg.cho_factor(fr.mass.toarray(), check_finite=False)
@@ -315,11 +314,8 @@ class StageSolver:
         b_prime = np.asarray(self._hessian @ s_minv.T).T
         del s_minv
         b_prime *= -1.0 / (8.0 * np.pi * model.shear_rate_G)
-        flow = model.far_field.matrix
         idx = np.arange(n)  # + L∞ on every node's diagonal block
-        for a in range(3):
-            for b in range(3):
-                b_prime[3 * idx + a, 3 * idx + b] += flow[a, b]
+        b_prime.reshape(n, 3, n, 3)[idx, :, idx, :] += model.far_field.matrix
         if model.volume_correction:  # B'P
             b_prime -= np.outer(b_prime @ normals, weights)
         lam = model.viscosity_ratio
@@ -328,7 +324,7 @@ class StageSolver:
         a_matrix *= -(1.0 - lam) / (8.0 * np.pi)
         a_matrix[np.diag_indices(3 * n)] += 1.0
         area = float(fr.geo.weights.sum())
-        a_matrix += (1.0 - lam) / area * np.outer(fr.normals.ravel(), disc.flux_weights(fr.geo).ravel())
+        a_matrix += (1.0 - lam) / area * np.outer(normals, flux_weights)
         # A's LU preconditions the velocity solves of the steps to come (their A differs
         # from this one by the motion since: one or two GMRES iterations instead of ~10),
         # in the frame of the rotation since, as the stage preconditioner
@@ -343,7 +339,11 @@ class StageSolver:
         lu = scipy.linalg.lu_factor
         if "ps" in d:
             c = gamma_h / (8.0 * np.pi * self.model.shear_rate_G)
-            factor = lu(d["mass"] + c * d["hps"], overwrite_a=True, check_finite=False)
+            q = c * d["hps"]  # + M (scalar, per component) on the diagonal of each node pair's block
+            q4 = q.reshape(q.shape[0] // 3, 3, -1, 3)
+            for a in range(3):
+                q4[:, a, :, a] += d["mass"]
+            factor = lu(q, overwrite_a=True, check_finite=False)
             ps, hessian, flow = d["ps"], self._hessian, self.model.far_field.matrix
 
             def stiff_inverse(y):
