@@ -129,6 +129,7 @@ class _Frozen:
     x: np.ndarray
     geo: Any
     normals: np.ndarray | None
+    normal_flux: float | None    # ⟨n, n⟩ of the volume correction P (applied at every product)
     mass: sp.csr_matrix | None   # scalar consistent mass matrix (galerkin), applied per component
     mass_lu: Any | None          # its LU
     gradient: np.ndarray | None  # ∂E/∂x at x_n (galerkin)
@@ -204,6 +205,7 @@ class StageSolver:
         lam = model.viscosity_ratio
         needs_normals = lam != 1.0 or model.volume_correction
         normals = disc.nodal_normals(x) if needs_normals else None
+        normal_flux = disc.flux(geo, normals) if model.volume_correction else None
         mass = mass_lu = gradient = traction = None
         membrane = model.membrane
         if membrane.traction_method == "galerkin":
@@ -214,14 +216,14 @@ class StageSolver:
         else:
             traction = membrane.element_traction(x)
         double_layer = model.double_layer_operator(x, geo, normals) if lam != 1.0 else None
-        return _Frozen(x, geo, normals, mass, mass_lu, gradient, traction, double_layer)
+        return _Frozen(x, geo, normals, normal_flux, mass, mass_lu, gradient, traction, double_layer)
 
     def _project(self, v: np.ndarray) -> np.ndarray:
         """The frozen volume correction P."""
         fr = self._frozen
         if not self.model.volume_correction:
             return v
-        return self.model.remove_net_flux(fr.geo, v, fr.normals)
+        return self.model.remove_net_flux(fr.geo, v, fr.normals, fr.normal_flux)
 
     def _traction_change(self, v: np.ndarray) -> np.ndarray:
         """The density change along v: M⁻¹ H v at the nodes (galerkin: H the sparse

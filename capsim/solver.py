@@ -502,9 +502,13 @@ class CapsuleModel:
             u = self.remove_net_flux(state.geometry, u, normals)
         return u
 
-    def remove_net_flux(self, geo: ElementGeometry, u: np.ndarray, normals: np.ndarray) -> np.ndarray:
-        """The volume correction P: u − n ⟨n, u⟩/⟨n, n⟩ (fluxes over the surface)."""
-        return u - (self.disc.flux(geo, u) / self.disc.flux(geo, normals)) * normals
+    def remove_net_flux(self, geo: ElementGeometry, u: np.ndarray, normals: np.ndarray,
+                        normal_flux: float | None = None) -> np.ndarray:
+        """The volume correction P: u − n ⟨n, u⟩/⟨n, n⟩ (fluxes over the surface);
+        ``normal_flux``, ⟨n, n⟩, when the caller applies P many times at one configuration."""
+        if normal_flux is None:
+            normal_flux = self.disc.flux(geo, normals)
+        return u - (self.disc.flux(geo, u) / normal_flux) * normals
 
     def double_layer_operator(self, x: np.ndarray, geo: ElementGeometry, normals: np.ndarray):
         """u ↦ A u = u − (1−λ)/(8π) D[u] + (1−λ) n ⟨n, u⟩/S at configuration x,
