@@ -309,8 +309,10 @@ class Discretization:
         (3N, 3N) matrix on nodal values (node-major, then component), with the
         rules of ``single_layer``/``double_layer`` (density interpolated
         quadratically; u_target = u): ``single_layer(x, geo, f[elements]).ravel()
-        == S @ f.ravel()`` to round-off. Every row is computed, symmetry or not.
-        Costs about 15 layer applications of kernel work, and 8·(3N)² bytes."""
+        == S @ f.ravel()`` to round-off. Every row is computed, symmetry or not: the
+        kernel evaluations of about four applications under quarter symmetry, each
+        scattered into six node columns (8–13 ms at level 2, 85 ms at level 3, about
+        30 and 40 applications of wall time), and 8·(3N)² bytes."""
         n = self.n_nodes
         if self.near_field_factor > 0.0:
             offsets, elems = kernels.near_field_pairs(
