@@ -43,7 +43,7 @@ bench: venv
 bench-threads: venv
 	$(BIN)/python benchmarks/threads.py
 
-# time schemes at equal accuracy (about an hour on 2 cores; CASES=a c to run some):
+# time schemes at equal accuracy (about 1.5 h on 2 cores, 40 min of it case h5; CASES=a c to run some):
 # writes benchmarks/time_schemes.md and benchmarks/time_schemes.json
 bench-stepping: venv
 	$(BIN)/python benchmarks/stepping.py $(CASES)
