@@ -136,62 +136,39 @@ def _load(case_path: Path, sets: list[str] | None = None, **overrides: Any):
         raise _user_error(f"{case_path}: --set/options: {text[len(prefix):] if text.startswith(prefix) else text}") from None
 
 
+def _files_call(fn, *args, **kwargs):
+    """A capsim.files guard or writer; its OutputError/StorageError is a one-line user error."""
+    from capsim.files import LockedError, OutputError, StorageError
+
+    try:
+        return fn(*args, **kwargs)
+    except (OutputError, StorageError, LockedError) as exc:
+        raise _user_error(str(exc)) from None
+
+
 def _check_writable(path: Path) -> None:
-    """Refuse an output path we cannot write before spending time on a run."""
-    if path.is_dir():
-        raise _user_error(f"output path {path} is a directory")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise _user_error(f"output path {path}: cannot create its directory {path.parent}: {exc.strerror}") from None
-    if not os.access(path.parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
-        raise _user_error(f"output path {path} is not writable")
+    from capsim import files
 
-
-def _same_file(a: Path, b: Path) -> bool:
-    try:
-        return a.exists() and b.exists() and os.path.samefile(a, b)
-    except OSError:
-        return False
+    _files_call(files.check_writable, path)
 
 
 def _protected(path: Path) -> str | None:
-    """What an existing file is that no command replaces unless told to (--overwrite); None if not one."""
-    from capsim.campaign import CAMPAIGN_FILE, INDEX_FILE
-    from capsim.store import is_run_file
+    from capsim import files
 
-    if path.name in (CAMPAIGN_FILE, INDEX_FILE):
-        return "a campaign's own file"
-    if path.name.endswith(".ckpt.npz"):
-        return "a restart checkpoint"
-    if is_run_file(path):
-        return "a capsim run file"
-    return None
+    return files.protected(path)
 
 
 def _guard_output(out: Path, inputs: list[Path], overwrite: bool, *, ours=lambda p: False,
                   option: str = "--overwrite") -> None:
-    """Refuse (exit 2, one line) to write over one of the command's inputs (never), or
-    over an existing file it does not write itself (``ours``) or that is a run file,
-    a checkpoint or a campaign file, unless `overwrite`."""
-    for source in inputs:
-        if _same_file(out, source):
-            raise _user_error(f"output path {out} is this command's input {source}; choose another output")
-    if out.exists() and not out.is_dir() and not overwrite:
-        kind = _protected(out)
-        if kind is not None or not ours(out):
-            raise _user_error(f"output path {out} exists ({kind or 'a file this command did not write'}); "
-                              f"nothing was changed: choose another output, or pass {option} to replace it")
+    from capsim import files
+
+    _files_call(files.guard_output, out, inputs, overwrite, ours=ours, option=option)
 
 
 def _starts_with(magic: bytes):
-    def check(path: Path) -> bool:
-        try:
-            with open(path, "rb") as fh:
-                return fh.read(len(magic)) == magic
-        except OSError:
-            return False
-    return check
+    from capsim import files
+
+    return files.starts_with(magic)
 
 
 def _is_summary(path: Path) -> bool:
@@ -205,21 +182,21 @@ def _is_summary(path: Path) -> bool:
         return False
 
 
-def _replace_atomically(out: Path, write) -> None:
-    """``write(tmp)`` to a temporary name next to `out`, then move it into place:
-    a failure (a full disk) leaves `out` as it was; exit 2 with one line."""
-    tmp = out.with_name(f".{out.stem}.tmp-{os.getpid()}{out.suffix}")
-    try:
-        write(tmp)
-        os.replace(tmp, out)
-    except (OSError, RuntimeError) as exc:
-        tmp.unlink(missing_ok=True)
-        from capsim.errors import first_line
+def _is_study(path: Path) -> bool:
+    """A netCDF file written by `capsim study` (its study_reference attribute)."""
+    import h5py
 
-        raise _user_error(f"cannot write {out}: {getattr(exc, 'strerror', None) or first_line(exc)}; "
-                          "nothing was changed") from None
-    finally:
-        tmp.unlink(missing_ok=True)
+    try:
+        with h5py.File(path, "r", locking=False) as f:
+            return "error_definition" in f.attrs and "reference" in f.attrs
+    except (OSError, ValueError):
+        return False
+
+
+def _replace_atomically(out: Path, write) -> None:
+    from capsim import files
+
+    _files_call(files.replace_atomically, out, write)
 
 
 def _run_progress():
@@ -346,9 +323,13 @@ def run(
         },
     )
     out = Path(case.output.path)
+    from capsim.files import lock_path
+
+    if out.name.endswith((".ckpt.npz", ".capsim-lock")):
+        raise _user_error(f"output path {out}: a name capsim keeps for a run's checkpoint or lock; choose another")
     _check_writable(out)
     _guard_output(out, [case_path], overwrite or resume, option="--overwrite (or --resume to continue it)")
-    for derived in (Path(f"{out}.ckpt.npz"), Path(f"{out}.lock")):
+    for derived in (Path(f"{out}.ckpt.npz"), lock_path(out)):
         _guard_output(derived, [case_path], True)
 
     from capsim.runner import ResumeError, run_case
@@ -373,7 +354,7 @@ def run(
     if error_estimate and summary.get("status") == "completed":
         from capsim.study import run_error_estimate
 
-        typer.echo(run_error_estimate(case, summary))
+        typer.echo(_files_call(run_error_estimate, case, summary))
     raise typer.Exit(code=0 if summary.get("status") == "completed" else 1)
 
 
@@ -772,6 +753,7 @@ def export(
     from capsim.config import ConfigError
     from capsim.errors import first_line
     from capsim.export import export_run
+    from capsim.files import StorageError
     from capsim.store import TrajectoryError, is_run_file
 
     fmt = fmt.value
@@ -789,7 +771,7 @@ def export(
             _guard_output(target, [path], overwrite, ours=lambda p: _protected(p) is None)
     try:
         files = export_run(path, out_dir, fmt, fields=not no_fields)
-    except (TrajectoryError, ConfigError, ValueError) as exc:
+    except (TrajectoryError, ConfigError, ValueError, StorageError) as exc:
         raise _user_error(first_line(exc)) from None
     except OSError as exc:
         raise _user_error(f"cannot write {out_dir}: {exc.strerror or first_line(exc)}") from None
@@ -822,6 +804,8 @@ def study(
     ),
     output: Path = typer.Option(Path("study.nc"), "-o", "--output", help="netCDF path; the Pareto plot goes next to it (.png)"),
     runs_dir: Optional[Path] = typer.Option(None, "--runs-dir", help="keep the run files here (default: discarded)"),
+    overwrite: bool = typer.Option(
+        False, "--overwrite", help="replace an existing output file, figure or run files in --runs-dir"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no line per finished run"),
     sets: Optional[list[str]] = typer.Option(None, "--set", metavar="FIELD=VALUE", help=_SET_HELP),
 ) -> None:
@@ -843,19 +827,25 @@ def study(
     if reference == "richardson" and len(set(level_list)) < 2:
         raise _user_error("--reference richardson needs at least two levels")
     case = _load(case_path, sets, **{"time.t_end": t_end})
-    _check_writable(output)
+    png = output.with_suffix(".png")
+    for path, ours in ((output, _is_study), (png, _starts_with(_FIGURE_MAGIC["png"]))):
+        _check_writable(path)
+        _guard_output(path, [case_path], overwrite, ours=ours)
+    if runs_dir is not None and runs_dir.exists() and not runs_dir.is_dir():
+        raise _user_error(f"--runs-dir {runs_dir} is not a directory")
     report = None if quiet else (lambda line: typer.echo(line, err=True))
     try:
-        ds = run_study(case, level_list, rtol_list, regular_orders=quad_list, reference=reference,
-                       workers=workers, out_dir=runs_dir, progress=report)
+        ds = _files_call(run_study, case, level_list, rtol_list, regular_orders=quad_list, reference=reference,
+                         workers=workers, out_dir=runs_dir, progress=report, overwrite=overwrite,
+                         inputs=[case_path, output, png])
     except ConfigError as exc:
         raise _user_error(str(exc)) from None
     except KeyboardInterrupt:
         typer.echo("\ninterrupted", err=True)
         raise typer.Exit(code=1) from None
     typer.echo(format_study_table(ds))
-    write_study(ds, output)
-    png = plot_pareto(ds, output.with_suffix(".png"))
+    _replace_atomically(output, lambda tmp: write_study(ds, tmp))
+    _replace_atomically(png, lambda tmp: plot_pareto(ds, tmp))
     typer.echo(f"{output}, {png}")
     raise typer.Exit(code=0 if bool((ds["status"] == "completed").all()) else 1)
 

@@ -399,6 +399,11 @@ class Time(_Model):
     dt_initial: float = Field(1.0e-3, gt=0)
     max_steps: int = Field(1_000_000, ge=1, strict=True)
     stop_when_steady: bool = Field(False, strict=True)
+    max_wall_s: Optional[float] = Field(
+        None, gt=0, le=1e9,
+        description="wall-time limit in seconds: the run stops as 'interrupted' at the first step past it, "
+        "with its checkpoint, so that --resume continues it (default: none)",
+    )
 
     @model_validator(mode="after")
     def _options_of_the_scheme(self) -> "Time":

@@ -29,12 +29,15 @@ Open the .xdmf (XDMF reader) or the .pvd in ParaView.
 from __future__ import annotations
 
 import os
+import shutil
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
 
 import h5py
 import numpy as np
+
+from capsim.files import StorageError, write_failure
 
 __all__ = ["FORMATS", "case_of", "export_run", "membrane_fields", "model_for", "snapshot_fields"]
 
@@ -155,7 +158,10 @@ def _write_xdmf(out_dir: Path, stem: str, elements, rest, snapshots) -> list[Pat
     domain = ET.SubElement(root, "Domain")
     collection = ET.SubElement(domain, "Grid", Name=stem, GridType="Collection", CollectionType="Temporal")
     elements = np.asarray(elements, dtype=np.int64)
-    with h5py.File(out_dir / h5name, "w") as h5:
+    # Built in memory and written with one plain write: a full disk or a file-size limit
+    # then fails that write cleanly, never inside HDF5 (where it has crashed the process).
+    h5 = h5py.File(f"capsim-export-{os.getpid()}-{id(root)}", "w", driver="core", backing_store=False)
+    try:
         h5.create_dataset("topology", data=elements)
         for k, (t, x, point, cell) in enumerate(snapshots):
             grid = ET.SubElement(collection, "Grid", Name=f"{stem}_{k:04d}", GridType="Uniform")
@@ -174,6 +180,12 @@ def _write_xdmf(out_dir: Path, stem: str, elements, rest, snapshots) -> list[Pat
                     h5.create_dataset(path, data=value)
                     attr = ET.SubElement(grid, "Attribute", Name=name, AttributeType=_attribute_type(value), Center=center)
                     _xdmf_item(attr, h5name, path, value)
+        h5.flush()
+        image = h5.id.get_file_image()
+    finally:
+        h5.close()
+    with open(out_dir / h5name, "wb") as fh:
+        fh.write(image)
     ET.indent(root)
     ET.ElementTree(root).write(xdmf_path, encoding="utf-8", xml_declaration=True)
     return [xdmf_path, out_dir / h5name]
@@ -232,4 +244,17 @@ def export_run(
             yield float(t), x, point, cell
 
     writer = _write_xdmf if fmt == "xdmf" else _write_vtu
-    return writer(out, path.stem, elements, rest, snapshots())
+    # Every file is written in a private staging directory inside `out`, then renamed into
+    # place: a full disk, a size limit or a kill leaves what was in `out` as it was.
+    staging = out / f".capsim-export-{os.getpid()}"
+    shutil.rmtree(staging, ignore_errors=True)
+    try:
+        staging.mkdir()
+        staged = writer(staging, path.stem, elements, rest, snapshots())
+        for file in staged:
+            os.replace(file, out / file.name)
+    except (OSError, RuntimeError) as exc:
+        raise StorageError(write_failure(out, exc) + "; the files that were there are unchanged") from None
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return [out / file.name for file in staged]

@@ -52,7 +52,7 @@ class _StopRequested(Exception):
 
 
 class _StopSignals:
-    """SIGINT and SIGTERM ask the run to stop at its next velocity evaluation.
+    """SIGINT, SIGTERM and SIGHUP ask the run to stop at its next velocity evaluation.
 
     Raising from the handler could land inside a numba kernel, where a
     KeyboardInterrupt surfaces as a SystemError with the run half-updated; a
@@ -66,7 +66,8 @@ class _StopSignals:
 
     def __enter__(self) -> _StopSignals:
         if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
+            # SIGHUP: the terminal closed (an ssh session dropped) - stop the same way, not die 'running'
+            for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
                 if signal.getsignal(sig) is not signal.SIG_IGN:
                     self._old[sig] = signal.signal(sig, self._handle)
         return self
@@ -193,6 +194,7 @@ def _step_defining(case: dict) -> dict:
     resumed after moving its files or changing its guards and checkpoint cadence."""
     out = {k: v for k, v in case.items() if k != "guards"}
     out["output"] = {k: v for k, v in case.get("output", {}).items() if k == "snapshot_every"}
+    out["time"] = {k: v for k, v in case.get("time", {}).items() if k != "max_wall_s"}
     return out
 
 
@@ -476,7 +478,8 @@ class _Run:
             if trial.accepted:
                 self._accepted(trial)
             state = LoopState(ig.t, ig.dt, ig.steps, signal=stop.name, attempted=True, finite=trial.finite,
-                              accepted=trial.accepted, h=trial.h)
+                              accepted=trial.accepted, h=trial.h,
+                              wall_s=self.wall_before + time.perf_counter() - self.wall0)
         return outcome
 
     def execute(self) -> RunResult:
@@ -504,6 +507,8 @@ class _Run:
             self._fail(exc)
         text = str(exc) if isinstance(exc, StorageError) else f"{self.path}: cannot write: {getattr(exc, 'strerror', None) or first_line(exc)}"
         t = float(self.committed["integrator"]["t"]) if self.committed is not None else 0.0
+        if not self.writer.still_ours():
+            return StorageError(f"{first_line(StorageError(text))} at kt = {t:.6g}; status 'failed'")
         kept = ("status 'failed' and the reason are in the file" if self._status_kept
                 else "the file keeps its last flushed rows")
         return StorageError(f"{first_line(StorageError(text))}; the run stopped at kt = {t:.6g} ({kept}; "
@@ -552,7 +557,12 @@ class _Run:
     def _fail(self, exc: BaseException) -> None:
         """Keep what can be kept: a checkpoint of the last accepted step (where the
         disk takes it; else the previous one stays), and 'failed' with the reason in
-        the file (where that can still be written; else its last flushed state)."""
+        the file (where that can still be written; else its last flushed state).
+        A run file deleted or replaced meanwhile is another's now: neither it nor
+        the checkpoint beside it is touched."""
+        if not self.writer.still_ours():
+            self.writer.abandon()
+            return
         if self.committed is not None:
             try:
                 self._save_checkpoint(self.committed)

@@ -75,6 +75,7 @@ class LoopState:
     finite: bool = True               # ... and it produced finite values
     accepted: bool = False            # ... and it was accepted
     h: float = 0.0                    # its step size
+    wall_s: float = 0.0               # wall time the run has spent (resumed parts included)
 
 
 def stop_reason(state: LoopState, time: Time, guards: Guards, row: dict | None, row0: dict | None,
@@ -95,6 +96,8 @@ def stop_reason(state: LoopState, time: Time, guards: Guards, row: dict | None, 
         return Stop("unstable", f"guard dt_min: step size collapsed to dt = {state.dt:.3g} < {time.dt_min:g} {at}")
     if state.t >= time.t_end - end_tolerance(time.t_end):
         return Stop("completed", "")
+    if time.max_wall_s is not None and state.wall_s >= time.max_wall_s:
+        return Stop("interrupted", f"wall-time limit time.max_wall_s = {time.max_wall_s:g} s reached")
     if state.steps >= time.max_steps:
         return Stop("unstable", f"max_steps = {time.max_steps} reached {at}")
     return None

@@ -27,10 +27,7 @@ Every dataset takes units, long_name and definition from the one table
 
 from __future__ import annotations
 
-import errno
-import fcntl
 import os
-import resource
 import shutil
 from datetime import datetime, timezone
 from pathlib import Path
@@ -42,6 +39,12 @@ import yaml
 
 from capsim.config import Case, case_from_dict
 from capsim.errors import first_line
+from capsim.files import (
+    FileIdentity, FileLock, LockedError, StorageError, copy_and_replace, free_bytes, lock_path, room_bytes,
+)
+from capsim.files import mb as _mb
+from capsim.files import tmp_name as _tmp_name
+from capsim.files import write_failure as _write_failure
 from capsim.quantities import GROUPS, attrs_for, global_attrs
 
 __all__ = [
@@ -66,125 +69,14 @@ class CheckpointError(Exception):
     """A restart checkpoint that is missing or cannot be read; one line naming it."""
 
 
-class LockedError(Exception):
-    """Another process holds the file (a run file, a campaign directory); one line naming it."""
-
-
-class StorageError(Exception):
-    """Writing failed (a full disk, a file-size limit, an I/O error); one line naming the file."""
-
-
-def _write_failure(path: str | os.PathLike, exc: BaseException) -> str:
-    """'<path>: cannot write: <reason>' in one line (strerror of an OSError, else its first line)."""
-    reason = getattr(exc, "strerror", None) or (str(exc)[:400].splitlines() or [type(exc).__name__])[0]
-    return f"{os.fspath(path)}: cannot write: {reason}"
-
-
-def lock_path(path: str | os.PathLike) -> Path:
-    """The lock file of a run file or directory: ``<path>.lock`` (``<dir>/.capsim.lock`` for a directory)."""
-    path = Path(path)
-    return path / ".capsim.lock" if path.is_dir() else path.with_name(path.name + ".lock")
-
-
-class FileLock:
-    """An exclusive, non-blocking ``flock`` on ``lock_path(path)``, taken before the
-    guarded file is touched and held until release (the kernel drops it when the
-    process dies, SIGKILL included). A second holder gets :class:`LockedError`.
-
-    The lock file is removed on release; a process that opened it just before
-    it was removed notices (its file is no longer the one at the path) and retries.
-    """
-
-    def __init__(self, path: str | os.PathLike, what: str = "run file") -> None:
-        self.target, self.what = Path(path), what
-        self.path = lock_path(path)
-        self._fd: int | None = None
-
-    def acquire(self) -> FileLock:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        for _ in range(100):
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError as exc:
-                os.close(fd)
-                if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                    holder = ""
-                    try:
-                        holder = self.path.read_text(encoding="ascii", errors="replace").strip()[:20]
-                    except OSError:
-                        pass
-                    by = f" (process {holder})" if holder.isdigit() else ""
-                    raise LockedError(
-                        f"{self.target}: {self.what} in use by another capsim process{by}; "
-                        "nothing was changed (wait for it to end, or stop it)"
-                    ) from None
-                raise
-            try:
-                same = os.fstat(fd).st_ino == os.stat(self.path).st_ino
-            except FileNotFoundError:
-                same = False
-            if same:
-                self._fd = fd
-                try:
-                    os.ftruncate(fd, 0)
-                    os.write(fd, str(os.getpid()).encode())
-                except OSError:  # a full disk: the lock holds without the pid in it
-                    pass
-                return self
-            os.close(fd)  # removed by its last holder between our open and our lock: retry
-        raise LockedError(f"{self.target}: could not take the lock {self.path}")
-
-    def release(self) -> None:
-        if self._fd is None:
-            return
-        try:
-            self.path.unlink(missing_ok=True)
-        except OSError:
-            pass
-        os.close(self._fd)
-        self._fd = None
-
-    def __enter__(self) -> FileLock:
-        return self.acquire()
-
-    def __exit__(self, *exc) -> None:
-        self.release()
-
-
 #: room a writer keeps free beyond the largest flush (a snapshot and a chunk of every column),
 #: so that a run stopped by a full disk can still close its file with its status
-WRITE_MARGIN_BYTES = 256 * 2**10
+WRITE_MARGIN_BYTES = 2**20
 
 
 def _needed_bytes(n_nodes: int, columns: tuple[str, ...] | None) -> int:
     n_columns = len(columns or ())  # no columns yet: no chunk of them to allocate
     return WRITE_MARGIN_BYTES + 2 * (24 * n_nodes + 8 * 1024 * n_columns)
-
-
-def _mb(n: float) -> str:
-    return f"{max(n, 0) / 1e6:.2f} MB"
-
-
-def room_bytes(path: str | os.PathLike, size: int = 0) -> float:
-    """Bytes a file of `size` bytes in directory `path` may still grow by: the file
-    system's free space, capped by this process's RLIMIT_FSIZE."""
-    soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
-    limit = float("inf") if soft == resource.RLIM_INFINITY else float(soft)
-    return min(float(free_bytes(path)), limit - size)
-
-
-def free_bytes(path: str | os.PathLike) -> int:
-    """Free bytes for an unprivileged writer on the file system holding `path` (or its nearest existing parent)."""
-    p = Path(path)
-    while not p.exists() and p != p.parent:
-        p = p.parent
-    return shutil.disk_usage(p).free
-
-
-def _tmp_name(path: Path) -> Path:
-    """A temporary name next to `path`, private to this process."""
-    return path.with_name(f".{path.name}.tmp-{os.getpid()}")
 
 
 def _now() -> str:
@@ -264,25 +156,36 @@ class TrajectoryWriter:
         target = Path(path)
         target.parent.mkdir(parents=True, exist_ok=True)
         self._creating = _tmp_name(target)
-        need = _needed_bytes(np.size(header.get("rest_positions", ())) // 3, ())  # the mesh, no columns yet
+        # The header is built in memory and written with plain writes: a full disk or a
+        # file-size limit then fails one write() cleanly, never inside HDF5's metadata
+        # cache (where it has crashed the process, leaving a file no reader opens).
+        try:
+            image = self._build_image(**header)
+        except (OSError, RuntimeError) as exc:
+            raise StorageError(_write_failure(target, exc) + "; nothing was changed") from None
+        need = len(image) + _needed_bytes(np.size(header.get("rest_positions", ())) // 3, ())
         room = room_bytes(target.parent)
         if room < need:
             raise StorageError(f"{target}: cannot write: {_mb(room)} of room on its file system (or under the "
                                f"file-size limit), a new run file needs {_mb(need)}; nothing was changed")
         try:
-            self._build(target, **header)
+            self._creating.unlink(missing_ok=True)  # a stale one of a dead process of this pid
+            with open(self._creating, "xb") as fh:
+                fh.write(image)
+                fh.flush()
+                os.fsync(fh.fileno())
             os.replace(self._creating, target)
-        except BaseException as exc:
-            file = getattr(self, "_file", None)
-            if file is not None:
-                try:
-                    file.close()
-                except Exception:
-                    pass
+        except OSError as exc:
             self._creating.unlink(missing_ok=True)
-            if isinstance(exc, (OSError, RuntimeError)):  # h5py: RuntimeError "Can't write image to file"
-                raise StorageError(_write_failure(target, exc) + "; nothing was changed") from None
-            raise
+            raise StorageError(_write_failure(target, exc) + "; nothing was changed") from None
+        self.path = target
+        try:
+            self._file = h5py.File(target, "a")
+            self._identity = FileIdentity(target)
+            self._cut_back(0, 0, resumed=False)
+        except (OSError, RuntimeError) as exc:
+            self.abandon()
+            raise StorageError(_write_failure(target, exc)) from None
 
     def _check_room(self) -> None:
         """Refuse a write that could leave the file system (or the file-size limit)
@@ -295,15 +198,15 @@ class TrajectoryWriter:
                                f"under the file-size limit, a flush needs {_mb(need)})")
 
     def _guarded(self, write: Callable[[], None]) -> None:
+        self._identity.check()  # the file at the path is still the one this run writes
         self._check_room()
         try:
             write()
         except (OSError, RuntimeError) as exc:  # h5py reports a failed write as either
             raise StorageError(_write_failure(self.path, exc)) from None
 
-    def _build(
-        self,
-        path: str | os.PathLike,
+    @staticmethod
+    def _build_image(
         *,
         config_yaml: str,
         elements: np.ndarray,
@@ -317,19 +220,10 @@ class TrajectoryWriter:
             raise ValueError(f"elements must have shape (Ne, 6), got {elements.shape}")
         if rest_positions.ndim != 2 or rest_positions.shape[1] != 3:
             raise ValueError(f"rest_positions must have shape (Np, 3), got {rest_positions.shape}")
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._n_nodes = rest_positions.shape[0]
-        self._keys: tuple[str, ...] | None = None
-        self._n_steps = 0
-        self._n_snapshots = 0
-        self._unflushed_steps = 0
-        self._pending: list[list[float]] = []
-
+        n_nodes = rest_positions.shape[0]
         # Default libver on purpose: libver="latest" writes a superblock whose
         # "open for write" flag survives a SIGKILL and then refuses every reader.
-        self._file = h5py.File(self._creating, "w")
-        f = self._file
+        f = h5py.File(f"capsim-header-{os.getpid()}-{id(rest_positions)}", "w", driver="core", backing_store=False)
         f.attrs.update(global_attrs("capsim run"))  # CF: Conventions, the scale definitions (issue 16)
         f.attrs["config_yaml"] = config_yaml
         f.attrs["capsim_version"] = version
@@ -345,29 +239,31 @@ class TrajectoryWriter:
         mesh = f.create_group("mesh")
         _describe(mesh, "mesh")
         # netCDF-4 dimensions with index coordinates, so that xarray opens the group as it is (issue 16)
-        node, xyz = _index(mesh, "node", self._n_nodes), _index(mesh, "xyz", 3)
+        node, xyz = _index(mesh, "node", n_nodes), _index(mesh, "xyz", 3)
         element, element_node = _index(mesh, "element", elements.shape[0]), _index(mesh, "element_node", 6)
         _label(ds := mesh.create_dataset("elements", data=elements.astype(np.int64)), "elements")
         _attach(ds, element, element_node)
         _label(ds := mesh.create_dataset("rest_positions", data=rest_positions), "rest_positions")
         _attach(ds, node, xyz)
-        self._positions = mesh.create_dataset(
+        positions = mesh.create_dataset(
             "positions",
-            shape=(0, self._n_nodes, 3),
-            maxshape=(None, self._n_nodes, 3),
-            chunks=(1, self._n_nodes, 3),
+            shape=(0, n_nodes, 3),
+            maxshape=(None, n_nodes, 3),
+            chunks=(1, n_nodes, 3),
             dtype=np.float64,
         )
-        self._snapshot_t = mesh.create_dataset(
+        snapshot_t = mesh.create_dataset(
             "snapshot_t", shape=(0,), maxshape=(None,), chunks=(256,), dtype=np.float64
         )
-        _label(self._positions, "positions")
-        _label(self._snapshot_t, "snapshot_t")
-        self._snapshot_t.make_scale("snapshot_t")
-        _attach(self._positions, self._snapshot_t, node, xyz)
-        self._timeseries = f.create_group("timeseries")
-        _describe(self._timeseries, "timeseries")
+        _label(positions, "positions")
+        _label(snapshot_t, "snapshot_t")
+        snapshot_t.make_scale("snapshot_t")
+        _attach(positions, snapshot_t, node, xyz)
+        _describe(f.create_group("timeseries"), "timeseries")
         f.flush()
+        image = f.id.get_file_image()
+        f.close()
+        return image
 
     @classmethod
     def reopen(
@@ -409,7 +305,8 @@ class TrajectoryWriter:
             self._file = h5py.File(tmp, "a")
             self._cut_back(n_steps, n_snapshots)
             os.replace(tmp, self.path)
-        except OSError as exc:
+            self._identity = FileIdentity(self.path)
+        except (OSError, RuntimeError) as exc:
             if getattr(self, "_file", None) is not None:
                 try:
                     self._file.close()
@@ -419,7 +316,7 @@ class TrajectoryWriter:
             raise StorageError(_write_failure(self.path, exc) + "; the run file is unchanged") from None
         return self
 
-    def _cut_back(self, n_steps: int, n_snapshots: int) -> None:
+    def _cut_back(self, n_steps: int, n_snapshots: int, resumed: bool = True) -> None:
         f = self._file
         mesh = f["mesh"]
         self._positions, self._snapshot_t = mesh["positions"], mesh["snapshot_t"]
@@ -435,10 +332,11 @@ class TrajectoryWriter:
                 del f[name]
         self._n_steps, self._n_snapshots, self._unflushed_steps = n_steps, n_snapshots, 0
         self._pending = []
-        f.attrs["status"] = "running"
-        f.attrs["status_reason"] = ""
-        f.attrs["resumed"] = _now()
-        f.flush()
+        if resumed:
+            f.attrs["status"] = "running"
+            f.attrs["status_reason"] = ""
+            f.attrs["resumed"] = _now()
+            f.flush()
 
     def steps(self) -> dict[str, np.ndarray]:
         """Every time series written so far, one array per column."""
@@ -458,6 +356,14 @@ class TrajectoryWriter:
             self.close("interrupted", "KeyboardInterrupt")
         else:
             self.close("failed", f"{type(exc).__name__}: {exc}")
+
+    def still_ours(self) -> bool:
+        """The file at the path is still the one this writer opened (not deleted, not replaced)."""
+        try:
+            self._identity.check()
+            return True
+        except StorageError:
+            return False
 
     @property
     def closed(self) -> bool:
@@ -626,13 +532,20 @@ def _write_dict(group: h5py.Group, data: dict[str, Any], where: str | None = Non
 
 def write_error_estimate(path: str | os.PathLike, estimate: dict[str, Any]) -> None:
     """Store an error estimate (:func:`capsim.study.error_estimate`) as the run
-    file's ``error_estimate`` group, replacing any (holding the run file's lock)."""
-    with FileLock(path), h5py.File(path, "a") as f:
-        if "error_estimate" in f:
-            del f["error_estimate"]
-        group = f.create_group("error_estimate")
-        _describe(group, "error_estimate")
-        _write_dict(group, estimate, "error_estimate")
+    file's ``error_estimate`` group, replacing any (holding the run file's lock).
+
+    The group is written into a copy that is renamed over the run file (room for the
+    copy checked first): a full disk or a kill leaves the completed run file as it was."""
+    def change(copy: Path) -> None:
+        with h5py.File(copy, "a") as f:
+            if "error_estimate" in f:
+                del f["error_estimate"]
+            group = f.create_group("error_estimate")
+            _describe(group, "error_estimate")
+            _write_dict(group, estimate, "error_estimate")
+
+    with FileLock(path):
+        copy_and_replace(path, change, headroom=_needed_bytes(0, tuple(estimate)))
 
 
 # ---------------------------------------------------------------- checkpoints

@@ -235,6 +235,8 @@ def run_study(
     workers: int = 1,
     out_dir: str | os.PathLike | None = None,
     progress: Callable[[str], None] | None = None,
+    overwrite: bool = False,
+    inputs: Sequence[str | os.PathLike] = (),
 ):
     """Run the ladder levels × rtols (× regular_orders) and compare with the reference.
 
@@ -242,7 +244,10 @@ def run_study(
     highest Gauss order) or ``"richardson"`` (extrapolation in the level of the
     finest-tolerance runs, with the observed order when three levels give one
     between 0.5 and 8, else 2). The run files go to `out_dir` (a temporary
-    directory, removed afterwards, when None). Returns an xarray Dataset.
+    directory, removed afterwards, when None); a run file already there (a
+    file of an earlier study, or any other) is not replaced unless `overwrite`
+    (:class:`capsim.files.OutputError`), nor ever one of `inputs`. Returns an
+    xarray Dataset.
     """
     import xarray as xr
 
@@ -275,6 +280,12 @@ def run_study(
                     "output.path": str(run_dir / f"{name}.h5"),
                 })
                 jobs.append((c, (iq, ir, il)))
+    if tmp is None:
+        from capsim.files import guard_output
+
+        for c, _ in jobs:  # before any run: nothing of an earlier study is replaced unasked
+            guard_output(Path(c.output.path), list(inputs), overwrite,
+                         option="--overwrite (or another --runs-dir)")
     try:
         records = _run_jobs(jobs, workers, progress)
     finally:

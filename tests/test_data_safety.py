@@ -27,6 +27,7 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
+import capsim.files
 import capsim.store
 from capsim.campaign import campaign_from_dict, expand_campaign, run_campaign
 from capsim.cli import app
@@ -210,7 +211,7 @@ def test_full_disk_mid_run_keeps_a_readable_file_and_resume_refuses_then_finishe
 def test_resume_checks_free_space_first(stopped, tmp_path, monkeypatch):
     moved = _copy(stopped[0], tmp_path / "runs")
     before = _snapshot(tmp_path / "runs")
-    monkeypatch.setattr(capsim.store, "free_bytes", lambda path: 10_000)
+    monkeypatch.setattr(capsim.files, "free_bytes", lambda path: 10_000)
     line = _one_line_exit_2(_cli("run", _case_file(moved, tmp_path / "c.yaml"), "-q", "--resume"), "cannot resume: ")
     assert "MB of room" in line and "resuming needs" in line
     assert _snapshot(tmp_path / "runs") == before
