@@ -153,6 +153,12 @@ class RunSpec(BaseModel):
     def case(self) -> Case:
         return case_from_dict(yaml.safe_load(self.case_yaml), source=self.run_id)
 
+    def digest(self) -> str:
+        """:func:`capsim.config.case_digest` of this run's case (what its run file must hold)."""
+        from capsim.config import case_digest
+
+        return case_digest(self.case())
+
 
 # ---------------------------------------------------------------- loading
 
@@ -373,10 +379,22 @@ def _dask_slots_on_this_host() -> int:
 # ---------------------------------------------------------------- campaign
 
 
-def _file_status(path: str) -> str | None:
-    from capsim.store import read_run_status
+#: the status of a run whose path holds the run file of another case
+FOREIGN = "foreign"
 
-    return read_run_status(path)
+
+def _file_status(spec: RunSpec) -> str | None:
+    """The status of the run file at a run's path; :data:`FOREIGN` when that file
+    holds another case (another G, level, ...), so that it is neither skipped as
+    done nor summarised as this run; None when there is no readable file."""
+    from capsim.store import read_run_digest, read_run_status
+
+    status = read_run_status(spec.path)
+    if status is None:
+        return None
+    if read_run_digest(spec.path) != spec.digest():
+        return FOREIGN
+    return status
 
 
 def campaign_digest(campaign: Campaign) -> str:
@@ -390,7 +408,7 @@ def _index_entries(specs: list[RunSpec], old: dict[str, Any]) -> dict[str, dict]
     """runs.json's entries, statuses from the run files (runs.json itself is never trusted for them)."""
     runs = {}
     for s in specs:
-        status = _file_status(s.path) or "pending"
+        status = _file_status(s) or "pending"
         before = old.get(s.run_id) if isinstance(old.get(s.run_id), dict) else {}
         reason = before.get("status_reason", "") if before.get("status") == status else ""
         runs[s.run_id] = {"file": Path(s.path).name, "params": s.params, "grid_index": list(s.grid_index),
@@ -557,16 +575,23 @@ def _claim(campaign: Campaign, out_dir: Path, overwrite: bool) -> str:
 def _run_locked(campaign, specs, out_dir, *, workers, scheduler, resume, progress, overwrite) -> dict[str, Any]:
     digest = _claim(campaign, out_dir, overwrite)
     index = _Index(out_dir, specs, digest)
-    todo = []
+    todo, refused = [], []
     for spec in specs:
-        if resume and index.runs[spec.run_id]["status"] == "completed":
+        status = index.runs[spec.run_id]["status"]
+        if resume and status == "completed":
             index.runs[spec.run_id].update(status="completed", status_reason="")
+        elif status == FOREIGN and not overwrite:  # never replaced unasked
+            reason = (f"{spec.path} holds the run file of another case; nothing was changed: "
+                      "move it away, or pass --overwrite to replace it")
+            index.runs[spec.run_id].update(status=FOREIGN, status_reason=reason)
+            refused.append(_record(spec, FOREIGN, reason))
         else:
             todo.append(spec)
     index.write()
     state = {"total": len(specs), "skipped": len(specs) - len(todo), "done": 0, "failed": 0,
              "running": 0, "kt": {}}  # kt: the runs started and not finished
-    records: list[dict] = []
+    records: list[dict] = list(refused)
+    state["failed"] += len(refused)
     interrupted = False
     if todo:
         runner = _run_dask if scheduler else _run_local

@@ -29,6 +29,7 @@ from pydantic import (
 from capsim.errors import bounded_repr, first_line
 
 __all__ = [
+    "case_digest", "step_defining",
     "Case",
     "ConfigError",
     "Flow",
@@ -750,6 +751,26 @@ def read_yaml(path: str | os.PathLike) -> Any:
         raise ConfigError(f"{source}: not valid YAML: {_yaml_problem(exc)}") from None
     except RecursionError:
         raise ConfigError(f"{source}: not valid YAML: nested too deeply") from None
+
+
+def step_defining(case: dict) -> dict:
+    """The part of a resolved case (``case.model_dump(mode="json")``) that fixes its
+    step sequence and so its results: not its name, guards, output location,
+    checkpoint cadence or wall-time limit (a run may be resumed, moved or renamed
+    across those)."""
+    out = {k: v for k, v in case.items() if k not in ("guards", "name")}
+    out["output"] = {k: v for k, v in case.get("output", {}).items() if k == "snapshot_every"}
+    out["time"] = {k: v for k, v in case.get("time", {}).items() if k != "max_wall_s"}
+    return out
+
+
+def case_digest(case: "Case | dict") -> str:
+    """A hash of :func:`step_defining`: two runs with one digest compute the same thing."""
+    import hashlib
+    import json
+
+    data = case.model_dump(mode="json") if isinstance(case, Case) else case
+    return hashlib.sha256(json.dumps(step_defining(data), sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
 def load_case(path: str | os.PathLike) -> Case:

@@ -119,10 +119,8 @@ def _kind_of(path: Path) -> str | None:
     """What an existing path is that no command writes, even with --overwrite; None for a regular file."""
     try:
         st = os.lstat(path)
-    except FileNotFoundError:
+    except OSError:  # absent, or a parent that is not a directory: the later checks say which
         return None
-    except OSError as exc:
-        return f"unreadable ({exc.strerror})"
     if stat.S_ISLNK(st.st_mode):
         return "a symbolic link (capsim never writes through one: give the path it points to)"
     if stat.S_ISDIR(st.st_mode):

@@ -22,7 +22,7 @@ import numpy as np
 import yaml
 
 from capsim import __version__
-from capsim.config import Case
+from capsim.config import Case, step_defining
 from capsim.errors import bounded_repr, first_line
 from capsim.linearization import StageSolver
 from capsim.membrane import law_attributes
@@ -190,11 +190,11 @@ def _unflatten(arrays: dict[str, Any]) -> dict[str, dict[str, Any]]:
 
 
 def _step_defining(case: dict) -> dict:
-    """The part of a resolved case that fixes the step sequence: a run may be
-    resumed after moving its files or changing its guards and checkpoint cadence."""
-    out = {k: v for k, v in case.items() if k != "guards"}
-    out["output"] = {k: v for k, v in case.get("output", {}).items() if k == "snapshot_every"}
-    out["time"] = {k: v for k, v in case.get("time", {}).items() if k != "max_wall_s"}
+    """The part of a resolved case that fixes the step sequence, name kept: the
+    checkpoint is the run's own (:func:`capsim.config.step_defining`)."""
+    out = step_defining(case)
+    if "name" in case:
+        out["name"] = case["name"]
     return out
 
 

@@ -708,6 +708,19 @@ def read_run_status(path: str | os.PathLike) -> str | None:
         return None
 
 
+def read_run_digest(path: str | os.PathLike) -> str | None:
+    """:func:`capsim.config.case_digest` of the case a run file holds; None when unreadable."""
+    from capsim.config import case_digest
+
+    try:
+        with h5py.File(path, "r", locking=False) as f:
+            text = _scalar(f.attrs.get("config_yaml", ""))
+        stored = yaml.safe_load(text) if isinstance(text, str) and text else None
+        return case_digest(case_from_dict(stored).model_dump(mode="json")) if isinstance(stored, dict) else None
+    except Exception:  # noqa: BLE001 - unreadable or foreign: no digest
+        return None
+
+
 def read_run_record(path: str | os.PathLike) -> dict[str, Any] | None:
     """The scalars of a run file, without its arrays: ``{"attrs", "summary", "run",
     "error_estimate", "first", "last", "n_steps"}`` (root attributes, the scalar datasets of the

@@ -31,7 +31,7 @@ from capsim import __version__
 from capsim.campaign import CAMPAIGN_FILE, INDEX_FILE, expand_campaign, load_campaign, load_index
 from capsim.config import Case
 from capsim.quantities import FLAGS, TABLE, attrs_for, case_field_attrs, global_attrs
-from capsim.store import case_from_trajectory, read_run_record, read_run_status
+from capsim.store import case_from_trajectory, read_run_digest, read_run_record, read_run_status
 
 __all__ = ["SUMMARY_ATTRS", "read_run", "read_run_status", "summarize_campaign", "text_encoding", "write_summary"]
 
@@ -180,10 +180,19 @@ def summarize_campaign(directory: str | os.PathLike) -> xr.Dataset:
         if "run_id" in data:
             data["run_id"][at] = run_id
         record = read_run(directory / entry["file"])
+        # a run file of another case at this run's path is not this run's result
+        foreign = (record is not None and run_id in planned
+                   and read_run_digest(directory / entry["file"]) != planned[run_id].digest())
+        if foreign:
+            record = None
         if run_id in planned and (record is None or "level" not in record):
             for name, value in _context(planned[run_id].case()).items():
                 if name in context:
                     context[name][at] = value
+        if foreign:
+            data["status"][at] = "foreign"
+            data["status_reason"][at] = f"{entry['file']} holds the run file of another case"
+            continue
         if record is None:
             if entry.get("status") not in (None, "pending", "completed"):
                 data["status"][at] = entry["status"]
