@@ -588,7 +588,7 @@ def _run_locked(campaign, specs, out_dir, *, workers, scheduler, resume, progres
         else:
             todo.append(spec)
     index.write()
-    state = {"total": len(specs), "skipped": len(specs) - len(todo), "done": 0, "failed": 0,
+    state = {"total": len(specs), "skipped": len(specs) - len(todo) - len(refused), "done": 0, "failed": 0,
              "running": 0, "kt": {}}  # kt: the runs started and not finished
     records: list[dict] = list(refused)
     state["failed"] += len(refused)
@@ -619,9 +619,25 @@ def _finish(record: dict, index: _Index, state: dict, records: list, progress) -
         progress(state)
 
 
+def _reconcile(spec: RunSpec, record: dict) -> dict:
+    """A run whose worker died: the record follows its file (completed before the worker
+    died: completed; left 'running': marked failed in the file too), so that runs.json
+    never contradicts the files."""
+    if record["status"] != "failed" or not record["status_reason"].startswith("worker died"):
+        return record
+    from capsim.store import mark_abandoned, read_run_record
+
+    status = _file_status(spec)
+    if status == "completed":
+        found = read_run_record(spec.path) or {}
+        return _record(spec, "completed", "", summary=dict(found.get("summary", {})))
+    mark_abandoned(spec.path, record["status_reason"])
+    return record
+
+
 def _run_local(todo, index, state, records, progress, *, workers, scheduler) -> bool:
     def done(i: int, record: dict) -> None:
-        _finish(record, index, state, records, progress)
+        _finish(_reconcile(todo[i], record), index, state, records, progress)
 
     def running(kt: dict[str, float]) -> None:
         state["kt"] = kt

@@ -139,7 +139,7 @@ class _QueueProgress:
         now = time.monotonic()
         if now - self._last >= 1.0:
             self._last = now
-            self.q.put((self.key, float(state.get("t", math.nan))))
+            self.q.put((self.key, float(state.get("t", math.nan)), os.getpid()))
 
 
 # Set once per worker process by its initializer (the pool's way to hand over
@@ -203,7 +203,7 @@ def _pool_task(task: Task, key: str, item: Any) -> Any:
             return _NOT_STARTED
         progress = None
         if _WORKER_QUEUE is not None:
-            _WORKER_QUEUE.put((key, 0.0))  # started: the parent counts it as running
+            _WORKER_QUEUE.put((key, 0.0, os.getpid()))  # started: the parent counts it as running
             progress = _QueueProgress(key, _WORKER_QUEUE)
         try:
             return task(item, progress)
@@ -291,6 +291,23 @@ def _run_here(items, task, order, warm, failure, done, stop_on_interrupted, outc
         outcome.interrupted = True
 
 
+class _PoolBroken(Exception):
+    """A worker process died (killed, out of memory): the pool can take no more work."""
+
+
+def _culprits(procs: dict[int, Any], started: dict[str, int], finished: set[str]) -> set[str]:
+    """The items whose worker died of its own accord (a signal other than the pool's
+    SIGTERM, or an exit without a result): the others were stopped by the pool."""
+    dead = set()
+    for pid, proc in procs.items():
+        proc.join(timeout=5.0)
+        code = proc.exitcode
+        if code is not None and code not in (0, -signal.SIGTERM):
+            dead.add(pid)
+    held = {key for key, pid in started.items() if key not in finished}
+    return {key for key in held if started[key] in dead} or held
+
+
 def _run_pool(items, task, keys, order, warm, failure, done, on_progress, workers,
               stop_on_interrupted, name, outcome) -> None:
     cores = threads.usable_cores()
@@ -300,18 +317,39 @@ def _run_pool(items, task, keys, order, warm, failure, done, on_progress, worker
     warm_up(kinds)  # compile into the on-disk cache once, before n workers would each compile
     ctx = multiprocessing.get_context("spawn")
     kt_queue, stop = ctx.Queue(), ctx.Event()
-    pool = cf.ProcessPoolExecutor(n, mp_context=ctx, initializer=_init_worker,
+    finished: set[str] = set()
+    todo = list(order)
+    try:
+        # A dead worker breaks the whole pool: the item it held fails, the pool is built
+        # anew and every other unfinished item runs again (a run stopped by the pool's
+        # SIGTERM resumes from its checkpoint). Each round finishes at least one item.
+        for _ in range(len(items) + 1):
+            todo = _pool_round(items, task, keys, todo, kinds, failure, done, on_progress, n, n_threads, ctx,
+                               kt_queue, stop, finished, stop_on_interrupted, name, outcome)
+            if not todo:
+                break
+    finally:
+        kt_queue.close()
+
+
+def _pool_round(items, task, keys, order, kinds, failure, done, on_progress, n, n_threads, ctx, kt_queue, stop,
+                finished, stop_on_interrupted, name, outcome) -> list[int]:
+    """One pool over `order`; returns the items to run again after a worker died ([] when done)."""
+    pool = cf.ProcessPoolExecutor(min(n, len(order)), mp_context=ctx, initializer=_init_worker,
                                   initargs=(n_threads, kt_queue, stop, kinds))
     futures = {pool.submit(_pool_task, task, keys[i], items[i]): i for i in order}
     pending = set(futures)
-    finished: set[str] = set()
     running: dict[str, float] = {}
+    started: dict[str, int] = {}
+    procs: dict[int, Any] = {}
 
     def collect(fut) -> dict:
         i = futures[fut]
         try:
             record = fut.result()
-        except Exception as exc:  # a worker process died (killed, out of memory)
+        except cf.process.BrokenProcessPool:
+            raise _PoolBroken from None
+        except Exception as exc:  # noqa: BLE001 - the worker failed otherwise
             return failure(i, "failed", f"worker died: {one_line(exc)}")
         if isinstance(record, str) and record == _NOT_STARTED:
             return failure(i, "interrupted", f"{name} stopped before this run started")
@@ -321,19 +359,41 @@ def _run_pool(items, task, keys, order, warm, failure, done, on_progress, worker
 
     try:
         while pending:
+            procs.update(getattr(pool, "_processes", None) or {})
             ready, pending = cf.wait(pending, timeout=0.5, return_when=cf.FIRST_COMPLETED)
-            _drain(kt_queue, running, finished)
+            _drain(kt_queue, running, finished, started)
+            broken = False
             for fut in ready:
                 i = futures[fut]
-                record = collect(fut)
+                try:
+                    record = collect(fut)
+                except _PoolBroken:
+                    broken = True
+                    continue
                 finished.add(keys[i])
                 running.pop(keys[i], None)
                 done(i, record)
                 if stop_on_interrupted and record.get("status") == "interrupted":
                     raise KeyboardInterrupt(record.get("status_reason", ""))
+            if broken:
+                pool.shutdown(wait=True, cancel_futures=True)
+                _drain(kt_queue, running, finished, started)
+                guilty = _culprits(procs, started, finished)
+                again = []
+                for fut, i in futures.items():
+                    if keys[i] in finished:
+                        continue
+                    if keys[i] in guilty:
+                        finished.add(keys[i])
+                        done(i, failure(i, "failed", "worker died (killed, or out of memory) while running this; "
+                                                     "the other runs went on"))
+                    else:
+                        again.append(i)
+                return again
             if on_progress is not None:
                 on_progress(dict(running))
         pool.shutdown(wait=True)
+        return []
     except KeyboardInterrupt:
         outcome.interrupted = True
         # Items already handed to a worker cannot be cancelled here: the event makes them return at once.
@@ -360,15 +420,15 @@ def _run_pool(items, task, keys, order, warm, failure, done, on_progress, worker
                 # The stop signal can surface as any exception (e.g. from inside a numba call).
                 record = dict(record, status="interrupted", status_reason=f"{name} stopped: {record['status_reason']}")
             done(i, record)
-    finally:
-        kt_queue.close()
+        return []
 
 
-def _drain(q: Any, running: dict[str, float], finished: set[str]) -> None:
+def _drain(q: Any, running: dict[str, float], finished: set[str], started: dict[str, int]) -> None:
     while True:
         try:
-            key, t = q.get_nowait()
+            key, t, pid = q.get_nowait()
         except (queue.Empty, OSError, ValueError):
             return
         if key not in finished:  # a late message must not revive a finished item
             running[key] = t
+            started[key] = pid

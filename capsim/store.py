@@ -50,7 +50,7 @@ from capsim.quantities import GROUPS, attrs_for, global_attrs
 __all__ = [
     "STATUSES", "CheckpointError", "FileLock", "LockedError", "StorageError", "TrajectoryError", "TrajectoryWriter",
     "free_bytes", "is_run_file", "lock_path",
-    "case_from_trajectory", "checkpoint_path", "open_run", "read_case", "read_checkpoint", "read_run_record",
+    "case_from_trajectory", "checkpoint_path", "mark_abandoned", "open_run", "read_case", "read_checkpoint", "read_run_record",
     "read_run_status", "read_trajectory", "remove_checkpoint", "write_checkpoint", "write_error_estimate",
 ]
 
@@ -706,6 +706,27 @@ def read_run_status(path: str | os.PathLike) -> str | None:
             return str(_scalar(f.attrs.get("status", "")))
     except (OSError, ValueError):
         return None
+
+
+def mark_abandoned(path: str | os.PathLike, reason: str) -> bool:
+    """Record 'failed' and `reason` in a run file left 'running' by a process that died
+    (SIGKILL, out of memory), so that the file says what the campaign knows. Made on a
+    copy renamed into place, under the file's lock (a live writer keeps it: then
+    nothing is done). Returns whether the file was changed."""
+    if read_run_status(path) != "running":
+        return False
+    try:
+        with FileLock(path):
+            def change(copy: Path) -> None:
+                with h5py.File(copy, "a") as f:
+                    f.attrs["status"] = "failed"
+                    f.attrs["status_reason"] = reason
+                    f.attrs["finished"] = _now()
+
+            copy_and_replace(path, change, headroom=WRITE_MARGIN_BYTES)
+        return True
+    except (LockedError, StorageError, OSError, RuntimeError):
+        return False
 
 
 def read_run_digest(path: str | os.PathLike) -> str | None:

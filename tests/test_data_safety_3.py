@@ -1,0 +1,346 @@
+"""Nothing on disk lost, round three (issue 25): every writer guarded (study, error
+estimate, lock, exporters), a run that knows its file is still its own, campaigns
+that check a completed file is the run's before trusting it, and a campaign that
+outlives a killed worker.
+
+A full disk is simulated with ``RLIMIT_FSIZE`` in a subprocess (SIGXFSZ ignored, so
+that writes past the limit fail with EFBIG as they fail with ENOSPC on a full disk).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import resource
+import shutil
+import signal
+import stat
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+import capsim.files
+import capsim.store
+from capsim.campaign import campaign_from_dict, run_campaign
+from capsim.cli import app
+from capsim.config import apply_overrides, case_from_dict
+from capsim.runner import run_case
+from capsim.store import read_run_status, read_trajectory
+
+runner = CliRunner()
+
+
+def _case_dict(tmp: Path, name: str = "r", **time) -> dict:
+    return {"name": name, "flow": {"shear_rate_G": 0.2}, "mesh": {"level": 0},
+            "time": {"t_end": 0.3, **time},
+            "output": {"path": str(tmp / f"{name}.h5"), "snapshot_every": 0.1, "checkpoint_every_steps": 3}}
+
+
+def _case_file(tmp: Path, name: str = "r", **time) -> Path:
+    path = tmp / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(_case_dict(tmp, name, **time)))
+    return path
+
+
+def _digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _snapshot(directory: Path) -> dict[str, str]:
+    return {str(p.relative_to(directory)): _digest(p) for p in sorted(directory.rglob("*")) if p.is_file()}
+
+
+def _one_line_2(result, expected: str) -> str:
+    assert result.exit_code == 2, result.output
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and expected in lines[0], result.stderr
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def completed(tmp_path_factory) -> Path:
+    """A completed level-0 run file."""
+    tmp = tmp_path_factory.mktemp("done")
+    case = case_from_dict(_case_dict(tmp, "done"))
+    assert run_case(case)["status"] == "completed"
+    return Path(case.output.path)
+
+
+# ---------------------------------------------------------------- 1. study
+
+
+def test_study_refuses_to_write_over_its_case_a_run_or_any_file(tmp_path, completed):
+    case_file = _case_file(tmp_path)
+    run = tmp_path / "run.h5"
+    shutil.copy(completed, run)
+    other = tmp_path / "foo.nc"
+    other.write_bytes(b"precious")
+    before = {p: _digest(p) for p in (case_file, run, other)}
+    for out, expected in ((case_file, "this command's input"), (run, "a capsim run file"),
+                          (other, "a file this command did not write")):
+        _one_line_2(runner.invoke(app, ["study", str(case_file), "--levels", "0", "--rtols", "1e-2",
+                                        "-o", str(out), "-q"]), expected)
+    assert {p: _digest(p) for p in before} == before
+
+
+def test_a_second_study_does_not_replace_the_first_studys_runs(tmp_path):
+    case_file = _case_file(tmp_path)
+    args = ["study", str(case_file), "--levels", "0", "--rtols", "1e-2", "--t-end", "0.05", "-q",
+            "--runs-dir", str(tmp_path / "kept")]
+    first = runner.invoke(app, [*args, "-o", str(tmp_path / "a.nc")])
+    assert first.exit_code == 0, first.output
+    kept = _snapshot(tmp_path / "kept")
+    assert kept
+    _one_line_2(runner.invoke(app, [*args, "-o", str(tmp_path / "b.nc")]), "exists")
+    assert _snapshot(tmp_path / "kept") == kept
+    assert not (tmp_path / "b.nc").exists()
+
+
+# ---------------------------------------------------------------- 2. error estimate
+
+
+def test_error_estimate_that_fails_leaves_the_completed_run_as_it_was(tmp_path, completed, monkeypatch):
+    run = tmp_path / "run.h5"
+    shutil.copy(completed, run)
+    before = _digest(run)
+
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(capsim.store, "_write_dict", full_disk)
+    with pytest.raises(capsim.store.StorageError, match="nothing was changed"):
+        capsim.store.write_error_estimate(run, {"D_xy": 1e-3})
+    assert _digest(run) == before
+    assert [p.name for p in tmp_path.iterdir()] == ["run.h5"]  # no copy left behind
+
+    monkeypatch.undo()
+    monkeypatch.setattr(capsim.files, "free_bytes", lambda path: 1000)  # no room for the copy: refused first
+    with pytest.raises(capsim.store.StorageError, match="beyond a copy"):
+        capsim.store.write_error_estimate(run, {"D_xy": 1e-3})
+    assert _digest(run) == before
+
+
+def test_error_estimate_is_written_through_a_copy(tmp_path, completed):
+    run = tmp_path / "run.h5"
+    shutil.copy(completed, run)
+    inode = os.stat(run).st_ino
+    capsim.store.write_error_estimate(run, {"D_xy": 1e-3})
+    assert os.stat(run).st_ino != inode  # a new file renamed into place, not the old one written in place
+    with h5py.File(run, "r") as f:
+        assert float(f["error_estimate/D_xy"][()]) == 1e-3
+        assert f.attrs["status"] == "completed"
+
+
+# ---------------------------------------------------------------- 3. the lock
+
+
+def test_the_lock_never_touches_a_users_file(tmp_path):
+    user_lock = tmp_path / "poetry.lock"
+    user_lock.write_text("[[package]]\n")
+    case_file = _case_file(tmp_path)
+    result = runner.invoke(app, ["run", str(case_file), "-o", str(tmp_path / "poetry"), "-q"])
+    assert result.exit_code == 0, result.output
+    assert user_lock.read_text() == "[[package]]\n"
+    assert not list(tmp_path.glob(".*capsim-lock"))  # released and removed
+
+
+def test_a_lock_that_is_a_link_is_refused_and_its_target_untouched(tmp_path):
+    target = tmp_path / "precious.txt"
+    target.write_text("keep me")
+    out = tmp_path / "r.h5"
+    os.symlink(target, capsim.files.lock_path(out))
+    with pytest.raises(capsim.files.LockedError, match="symbolic link"):
+        capsim.files.FileLock(out).acquire()
+    assert target.read_text() == "keep me"
+    assert os.path.islink(capsim.files.lock_path(out))
+
+
+def test_release_removes_only_the_lock_it_holds(tmp_path):
+    out = tmp_path / "r.h5"
+    lock = capsim.files.FileLock(out).acquire()
+    path = capsim.files.lock_path(out)
+    path.unlink()
+    path.write_text("someone else's")  # a file put at the lock's name meanwhile
+    lock.release()
+    assert path.read_text() == "someone else's"
+
+
+# ---------------------------------------------------------------- 4. full disks and size limits
+
+
+def _limited(limit: int, *args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    def limit_file_size():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    return subprocess.run([sys.executable, "-m", "capsim.cli", *args], preexec_fn=limit_file_size,
+                          capture_output=True, text=True, timeout=300, cwd=cwd)
+
+
+@pytest.mark.parametrize("limit", [300_000, 1_200_000, 1_700_000])
+def test_a_size_limit_during_a_run_never_crashes_nor_leaves_an_unreadable_file(tmp_path, limit):
+    case_file = _case_file(tmp_path, t_end=2.0)
+    proc = _limited(limit, "run", str(case_file), "-q")
+    assert proc.returncode in (0, 2), proc.stderr[-2000:]  # never 139 (a segfault) or a traceback
+    assert "Traceback" not in proc.stderr
+    out = tmp_path / "r.h5"
+    if out.exists():  # whatever is at the output path is a readable run file with its status
+        assert read_run_status(out) in ("completed", "failed")
+    assert not list(tmp_path.glob(".*tmp-*"))
+
+
+@pytest.mark.parametrize("fmt", ["xdmf", "vtu"])
+def test_export_under_a_size_limit_leaves_what_was_there(tmp_path, completed, fmt):
+    run = tmp_path / "run.h5"
+    shutil.copy(completed, run)
+    out = tmp_path / "out"
+    out.mkdir()
+    old = out / ("run_data.h5" if fmt == "xdmf" else "run_0000.vtu")
+    old.write_bytes(b"an earlier export")
+    proc = _limited(3000, "export", str(run), "-f", fmt, "-o", str(out), "--overwrite")
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert len(proc.stderr.strip().splitlines()) == 1 and "cannot write" in proc.stderr
+    assert old.read_bytes() == b"an earlier export"
+    assert sorted(p.name for p in out.iterdir()) == [old.name]  # no partial file, no staging left
+
+
+# ---------------------------------------------------------------- 5. the run's file is its own
+
+
+def _stop_at(step: int, action):
+    def progress(state: dict) -> None:
+        if state["step"] == step:
+            action()
+    return progress
+
+
+def test_a_run_whose_file_was_deleted_stops_failed(tmp_path):
+    case = case_from_dict(_case_dict(tmp_path))
+    path = Path(case.output.path)
+    with pytest.raises(capsim.store.StorageError, match="was deleted"):
+        run_case(case, progress=_stop_at(4, path.unlink))
+    assert not path.exists()
+
+
+def test_a_run_whose_file_was_replaced_leaves_the_new_file_and_its_checkpoint_alone(tmp_path, completed):
+    case = case_from_dict(_case_dict(tmp_path))
+    path = Path(case.output.path)
+    ckpt = capsim.store.checkpoint_path(path)
+
+    def replace():
+        shutil.copy(completed, tmp_path / "other.h5")
+        os.replace(tmp_path / "other.h5", path)
+        ckpt.write_bytes(b"the other run's checkpoint")
+
+    with pytest.raises(capsim.store.StorageError, match="replaced by another file"):
+        run_case(case, progress=_stop_at(4, replace))
+    assert _digest(path) == _digest(completed)
+    assert ckpt.read_bytes() == b"the other run's checkpoint"
+
+
+# ---------------------------------------------------------------- 6. non-regular files
+
+
+def test_overwrite_never_replaces_a_pipe_or_a_link(tmp_path, completed):
+    case_file = _case_file(tmp_path)
+    fifo = tmp_path / "pipe.h5"
+    os.mkfifo(fifo)
+    _one_line_2(runner.invoke(app, ["run", str(case_file), "-o", str(fifo), "--overwrite", "-q"]), "not a regular file")
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+    figure = tmp_path / "fig.png"
+    os.mkfifo(figure)
+    _one_line_2(runner.invoke(app, ["plot", str(completed), "-k", "deformation", "-o", str(figure), "--overwrite"]),
+                "not a regular file")
+    assert stat.S_ISFIFO(os.lstat(figure).st_mode)
+    target = tmp_path / "target.nc"
+    target.write_bytes(b"keep")
+    link = tmp_path / "link.png"
+    os.symlink(target, link)
+    _one_line_2(runner.invoke(app, ["plot", str(completed), "-k", "deformation", "-o", str(link), "--overwrite"]),
+                "symbolic link")
+    assert target.read_bytes() == b"keep" and link.is_symlink()
+
+
+def test_device_nodes_are_refused_even_with_overwrite(completed):
+    _one_line_2(runner.invoke(app, ["plot", str(completed), "-k", "deformation", "-o", "/dev/null", "--overwrite"]),
+                "not a regular file")
+    assert stat.S_ISCHR(os.stat("/dev/null").st_mode)
+
+
+# ---------------------------------------------------------------- 7. a completed file of another case
+
+
+def _campaign(out_dir: Path) -> dict:
+    return {"name": "c", "base": {"mesh": {"level": 0}, "time": {"t_end": 0.1},
+                                  "output": {"snapshot_every": 0.05}},
+            "sweep": {"flow.shear_rate_G": [0.05, 0.1]}, "output": {"dir": str(out_dir)}}
+
+
+def test_a_completed_file_of_another_case_is_neither_skipped_summarised_nor_replaced(tmp_path):
+    from capsim.summary import summarize_campaign
+
+    out = tmp_path / "c"
+    campaign = campaign_from_dict(_campaign(out))
+    assert run_campaign(campaign, workers=1)["completed"] == 2
+    files = sorted(out.glob("*.h5"))
+    other = case_from_dict(_case_dict(tmp_path, "other"))  # G = 0.2, completed
+    assert run_case(other)["status"] == "completed"
+    shutil.copy(other.output.path, files[0])
+    before = _digest(files[0])
+    result = run_campaign(campaign, workers=1)
+    assert result["skipped"] == 1
+    (foreign,) = [r for r in result["records"] if r["status"] == "foreign"]
+    assert "another case" in foreign["status_reason"]
+    assert _digest(files[0]) == before
+    runs = json.loads((out / "runs.json").read_text())["runs"]
+    assert sorted(e["status"] for e in runs.values()) == ["completed", "foreign"]
+    ds = summarize_campaign(out)
+    assert sorted(ds["status"].values.ravel().tolist()) == ["completed", "foreign"]
+    assert np.isnan(ds["D_xy"].values[ds["status"].values == "foreign"]).all()
+
+
+# ---------------------------------------------------------------- 8. a killed worker
+
+
+def test_a_killed_worker_costs_only_the_run_it_held(tmp_path):
+    out = tmp_path / "c"
+    d = _campaign(out)
+    d["base"]["time"]["t_end"] = 1.0
+    d["sweep"] = {"flow.shear_rate_G": [0.05, 0.1, 0.15, 0.2]}
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(d))
+    proc = subprocess.Popen([sys.executable, "-m", "capsim.cli", "sweep", str(tmp_path / "c.yaml"), "--workers", "2",
+                             "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    victim = None
+    try:
+        deadline = time.monotonic() + 240
+        while victim is None and time.monotonic() < deadline and proc.poll() is None:
+            for lock in out.glob(".*.h5.capsim-lock"):
+                try:
+                    pid = int(lock.read_text())
+                except (OSError, ValueError):
+                    continue
+                victim = (lock.name[1:-len(".capsim-lock")], pid)
+                os.kill(pid, signal.SIGKILL)
+                break
+            time.sleep(0.05)
+        stdout, stderr = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert victim is not None, "no run started"
+    assert proc.returncode == 1, stderr[-2000:]
+    assert "Traceback" not in stderr
+    runs = json.loads((out / "runs.json").read_text())["runs"]
+    failed = {k: e for k, e in runs.items() if e["status"] != "completed"}
+    assert list(failed) == [victim[0][: -len(".h5")]], runs
+    assert "worker died" in failed[victim[0][: -len(".h5")]]["status_reason"]
+    for run_id, entry in runs.items():  # runs.json says what the files say
+        assert read_run_status(out / entry["file"]) == entry["status"], (run_id, entry)
