@@ -506,6 +506,8 @@ def run_campaign(
     A failure to write ``campaign.yaml`` or ``runs.json`` raises
     :class:`capsim.store.StorageError` (at the end, once the runs are under way).
     """
+    if scheduler is not None:  # before the directory's lock: a bad address holds nothing
+        check_scheduler(scheduler)
     specs = expand_campaign(campaign)
     out_dir = Path(campaign.output.dir)
     try:
@@ -518,6 +520,49 @@ def run_campaign(
     with FileLock(out_dir, what="campaign directory (another sweep is running on it)"):
         return _run_locked(campaign, specs, out_dir, workers=workers, scheduler=scheduler, resume=resume,
                            progress=progress, overwrite=overwrite)
+
+
+#: seconds to wait for a scheduler to accept a connection and to greet
+SCHEDULER_TIMEOUT_S = 5.0
+
+
+def check_scheduler(address: str, timeout: float = SCHEDULER_TIMEOUT_S) -> None:
+    """Refuse (ConfigError, one line, within `timeout` seconds each for the connection
+    and the greeting) an address that is not ``tcp://HOST:PORT`` of a Dask scheduler:
+    a malformed one, a closed port, a service that is not Dask (a Dask scheduler
+    sends its handshake at once: a frame of 8-byte total length and frame count)."""
+    import socket
+    import struct
+
+    shown = bounded_repr(address)
+    allowed = "allowed: tcp://HOST:PORT of a running Dask scheduler (dask scheduler prints it)"
+    if not isinstance(address, str) or not address.startswith("tcp://"):
+        raise ConfigError(f"--scheduler {shown}: not a scheduler address; {allowed}")
+    hostport = address[len("tcp://"):].rstrip("/")
+    host, sep, port_text = hostport.rpartition(":")
+    host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
+    if not sep or not host or not port_text.isdigit() or not 1 <= int(port_text) <= 65535 or "/" in host:
+        raise ConfigError(f"--scheduler {shown}: no HOST:PORT with a port in 1..65535; {allowed}")
+    try:
+        with socket.create_connection((host, int(port_text)), timeout=timeout) as sock:
+            sock.settimeout(timeout)
+            greeting = b""
+            while len(greeting) < 16:
+                chunk = sock.recv(16 - len(greeting))
+                if not chunk:
+                    break
+                greeting += chunk
+    except socket.timeout:
+        raise ConfigError(f"--scheduler {shown}: no Dask scheduler answered within {timeout:g} s; {allowed}") from None
+    except (OSError, UnicodeError, ValueError) as exc:
+        reason = getattr(exc, "strerror", None) or first_line(exc)
+        raise ConfigError(f"--scheduler {shown}: cannot connect ({reason}); {allowed}") from None
+    if len(greeting) < 16:
+        raise ConfigError(f"--scheduler {shown}: the service there closed the connection; it is not a Dask "
+                          f"scheduler; {allowed}")
+    total, frames = struct.unpack("<QQ", greeting)
+    if not (0 < total < 2**30 and 0 < frames <= 10_000):
+        raise ConfigError(f"--scheduler {shown}: the service there is not a Dask scheduler; {allowed}")
 
 
 def _owner(out_dir: Path) -> tuple[str | None, str]:

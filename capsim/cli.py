@@ -49,6 +49,13 @@ class _OneLineErrors(TyperGroup):
         except typer.Abort:
             typer.echo("aborted", err=True)
             sys.exit(1)
+        except OSError as exc:  # the system refused a resource (open-file limit, a path too long, ...): one line
+            where = f": {exc.filename}" if getattr(exc, "filename", None) else ""
+            typer.echo(f"error: {exc.strerror or type(exc).__name__}{str(where)[:300]}", err=True)
+            sys.exit(2)
+        except MemoryError:
+            typer.echo("error: out of memory (a smaller mesh level, or fewer --workers)", err=True)
+            sys.exit(2)
         sys.exit(code if isinstance(code, int) else 0)
 
 
@@ -537,9 +544,12 @@ def main(
     """Boundary-integral simulation of elastic capsules in simple shear flow."""
     # Before any command imports numba: threading layer, wait policy and thread count
     # (capsim.threads; NUMBA_NUM_THREADS, NUMBA_THREADING_LAYER, OMP_WAIT_POLICY of the user win).
-    from capsim.threads import apply_policy
+    from capsim.threads import ThreadsError, apply_policy
 
-    policy = apply_policy()
+    try:
+        policy = apply_policy()
+    except ThreadsError as exc:
+        raise _user_error(str(exc)) from None
     if policy.user and ctx.invoked_subcommand in _COMPUTING:
         typer.echo(f"threads: {policy.describe()}", err=True)
 

@@ -125,6 +125,11 @@ def _in_range(v: float, lo: float, hi: float, why: str) -> float:
 # decimal strings (PyYAML reads `1e-4` as a string) but never booleans.
 
 
+#: smallest Evans-Fung thickness factor min(c0 + c2 s + c4 s²) of a biconcave rest shape: the
+#: faces are then at least ~0.03 a apart, above a level-6 element (~0.025 a)
+MIN_BICONCAVE_THICKNESS = 0.05
+
+
 class Shape(_Model):
     """Rest shape of the capsule; lengths are scaled by the equal-volume radius a."""
 
@@ -170,12 +175,14 @@ class Shape(_Model):
             candidates = [0.0, 1.0] + ([-c2 / (2 * c4)] if c4 > 0 and 0 < -c2 / (2 * c4) < 1 else [])
             s_min = min(candidates, key=lambda s: c0 + c2 * s + c4 * s * s)
             h_min = c0 + c2 * s_min + c4 * s_min * s_min
-            if not h_min > 0:
+            if not h_min >= MIN_BICONCAVE_THICKNESS:
                 name = "c0" if s_min == 0.0 else "c4" if "c4" in self.model_fields_set else "c2"
                 raise _FieldProblem(
                     name, getattr(self, name),
-                    f"the Evans-Fung thickness c0 + c2 s + c4 s² = {h_min:.3g} <= 0 at s = r²/R0² = {s_min:.3g}: "
-                    f"(c0, c2, c4) = ({c0:g}, {c2:g}, {c4:g}) give no surface; it must be > 0 on [0, 1]",
+                    f"the Evans-Fung thickness c0 + c2 s + c4 s² = {h_min:.3g} at s = r²/R0² = {s_min:.3g}: "
+                    f"(c0, c2, c4) = ({c0:g}, {c2:g}, {c4:g}) pinch the disk; it must be >= "
+                    f"{MIN_BICONCAVE_THICKNESS:g} on [0, 1] (thinner, the two faces come closer than the "
+                    "finest mesh's elements and the surface is degenerate)",
                 )
         return self
 
@@ -749,6 +756,8 @@ def read_yaml(path: str | os.PathLike) -> Any:
         return yaml.load(text, Loader=_UniqueKeyLoader)
     except yaml.YAMLError as exc:
         raise ConfigError(f"{source}: not valid YAML: {_yaml_problem(exc)}") from None
+    except ValueError as exc:  # an integer of more digits than Python converts (4300)
+        raise ConfigError(f"{source}: not valid YAML: {first_line(exc)[:120]}") from None
     except RecursionError:
         raise ConfigError(f"{source}: not valid YAML: nested too deeply") from None
 

@@ -308,10 +308,34 @@ def _culprits(procs: dict[int, Any], started: dict[str, int], finished: set[str]
     return {key for key in held if started[key] in dead} or held
 
 
+#: open files a pool needs: the parent's own, then pipes, queues and semaphores per worker
+_FILES_BASE, _FILES_PER_WORKER = 64, 16
+
+
+def _ensure_open_files(n_workers: int) -> None:
+    """Raise the soft open-file limit to what a pool of `n_workers` needs (up to the hard
+    limit), or refuse before any worker starts: a pool that runs out of descriptors
+    half-way leaves workers dying with tracebacks."""
+    import errno
+    import resource
+
+    need = _FILES_BASE + _FILES_PER_WORKER * n_workers
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft == resource.RLIM_INFINITY or soft >= need:
+        return
+    if hard == resource.RLIM_INFINITY or hard >= need:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (need, hard))
+        return
+    raise OSError(errno.EMFILE, f"Too many open files: the open-file limit {soft} (hard {hard}) is below the "
+                                f"{need} that {n_workers} worker processes need; raise it (ulimit -n) or use "
+                                "fewer --workers")
+
+
 def _run_pool(items, task, keys, order, warm, failure, done, on_progress, workers,
               stop_on_interrupted, name, outcome) -> None:
     cores = threads.usable_cores()
     n = max(1, min(workers or cores, len(items)))
+    _ensure_open_files(n)
     n_threads = threads.threads_per_worker(n, cores)
     kinds = distinct_kinds(list(warm))
     warm_up(kinds)  # compile into the on-disk cache once, before n workers would each compile

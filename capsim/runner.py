@@ -410,7 +410,11 @@ class _Run:
                                                   verify=self._belongs_to_checkpoint)
         except (TrajectoryError, StorageError) as exc:
             raise ResumeError(str(exc)) from None
-        self.writer.set_attrs(config_yaml=self.config_yaml)
+        stored_version = str(self.writer._file.attrs.get("capsim_version", ""))
+        attrs = {"config_yaml": self.config_yaml, "capsim_version": __version__}
+        if stored_version and stored_version != __version__:  # the rows after the cut are this version's
+            attrs["resumed_from_version"] = stored_version
+        self.writer.set_attrs(**attrs)
         self.observer.resume(self.writer.steps())
         self.committed = saved
 

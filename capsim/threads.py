@@ -157,6 +157,30 @@ def choose_policy(threads: int | str = "auto", *, workers: int = 1, env=None) ->
     return ThreadPolicy(num_threads=int(user.get(ENV_THREADS, n)), layer=layer, wait_policy=wait, user=user)
 
 
+class ThreadsError(ValueError):
+    """A thread variable of the environment that numba would refuse with a traceback; one line."""
+
+
+#: the values of NUMBA_THREADING_LAYER numba knows
+KNOWN_LAYERS = ("default", "safe", "forksafe", "threadsafe", "tbb", "omp", "workqueue")
+MAX_THREADS = 1024
+
+
+def check_user_variables(env=os.environ) -> None:
+    """Refuse (ThreadsError, one line) a NUMBA_NUM_THREADS that is not a whole number in
+    1..MAX_THREADS or a NUMBA_THREADING_LAYER numba does not know, before numba reads them."""
+    threads = env.get(ENV_THREADS)
+    if threads is not None and threads.strip() != "":
+        text = threads.strip()
+        if not (text.isdigit() and len(text) <= 6 and 1 <= int(text) <= MAX_THREADS):
+            raise ThreadsError(f"{ENV_THREADS}={threads[:40]!r}: must be a whole number from 1 to {MAX_THREADS}; "
+                               "unset it to let capsim choose")
+    layer = env.get(ENV_LAYER)
+    if layer is not None and layer.strip() != "" and layer.strip().lower() not in KNOWN_LAYERS:
+        raise ThreadsError(f"{ENV_LAYER}={layer[:40]!r}: unknown threading layer; allowed: "
+                           f"{', '.join(KNOWN_LAYERS)}")
+
+
 def apply_policy(threads: int | str = "auto", *, workers: int = 1) -> ThreadPolicy:
     """Choose the policy and put it in ``os.environ`` (before numba is imported).
 
@@ -169,6 +193,7 @@ def apply_policy(threads: int | str = "auto", *, workers: int = 1) -> ThreadPoli
     env = os.environ
     if _APPLIED is not None:
         return _APPLIED
+    check_user_variables(env)
     if "numba" in sys.modules:
         return _in_effect()
     user = {name: value for name in _VARIABLES if (value := _user_value(name, env)) is not None}

@@ -21,6 +21,7 @@ validation) costs nothing until a ``physical:`` block is given.
 from __future__ import annotations
 
 import math
+import re
 from functools import lru_cache
 from typing import Any
 
@@ -52,6 +53,29 @@ def _registry():
     return pint.UnitRegistry()
 
 
+#: longest quantity text read; largest |exponent| of a power in it
+MAX_TEXT = 100
+MAX_EXPONENT = 30
+_NUMBER = r"[+-]?\s*(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?"
+_POWER = re.compile(r"(\*\*|\^)\s*(" + _NUMBER + r")?")
+
+
+def _check_bounded(text: str) -> None:
+    """Refuse, before pint evaluates it, a text whose evaluation could take unbounded
+    time or memory: a long one, a power whose exponent is not a plain small number
+    (``10**10**10`` is evaluated exactly by Python's integers and never ends)."""
+    if len(text) > MAX_TEXT:
+        raise UnitsError(f"{bounded_repr(text)}: at most {MAX_TEXT} characters")
+    for match in _POWER.finditer(text):
+        exponent = match.group(2)
+        rest = text[match.end():].lstrip()
+        if exponent is None or rest.startswith(("**", "^")):
+            raise UnitsError(f"{bounded_repr(text)}: an exponent must be a plain number (as in 'um**2' or "
+                             "'10**-6 m'), not an expression or another power")
+        if abs(float(exponent.replace(" ", ""))) > MAX_EXPONENT:
+            raise UnitsError(f"{bounded_repr(text)}: exponents up to {MAX_EXPONENT} in size")
+
+
 def parse(text: Any, kind: str) -> float:
     """The value of `text` (``"1.2 mPa*s"``) in the SI unit of `kind` (:data:`KINDS`).
 
@@ -60,6 +84,7 @@ def parse(text: Any, kind: str) -> float:
     unit, what, example = KINDS[kind]
     if isinstance(text, bool) or not isinstance(text, str):
         raise UnitsError(f"must be a quantity with units as a string, e.g. '{example}' (got {bounded_repr(text)})")
+    _check_bounded(text)
     ureg = _registry()
     try:
         quantity = ureg.Quantity(text.strip())
