@@ -120,10 +120,16 @@ class SigtermAsInterrupt:
     def _handle(signum, frame):
         raise KeyboardInterrupt(f"signal {signum}")
 
+
     def __exit__(self, *exc):
         if self._old is not None:
             signal.signal(signal.SIGTERM, self._old)
         return False
+
+
+def _stopping_signal(exc: BaseException) -> int:
+    """The signal behind a KeyboardInterrupt: SIGTERM when SigtermAsInterrupt raised it, else SIGINT."""
+    return signal.SIGTERM if str(exc) == f"signal {int(signal.SIGTERM)}" else signal.SIGINT
 
 
 # ---------------------------------------------------------------- worker side
@@ -146,13 +152,20 @@ class _QueueProgress:
 # objects that cannot travel with each task).
 _WORKER_QUEUE: Any = None
 _WORKER_STOP: Any = None
+_WORKER_STOP_SIGNAL: Any = None
 _WORKER_WARM: list = []
 _WORKER_BUSY = threading.Event()
 _WORKER_PARENT: int | None = None  # the pool's process; another parent means it died
 _NOT_STARTED = "capsim-executor: not started"
 
 
-def _init_worker(numba_threads: int, progress_queue: Any, stop: Any, warm: list) -> None:
+def _relayed_signal() -> int | None:
+    """The signal that stopped the batch in the parent (relayed to this worker as SIGTERM)."""
+    value = getattr(_WORKER_STOP_SIGNAL, "value", 0)
+    return int(value) or None
+
+
+def _init_worker(numba_threads: int, progress_queue: Any, stop: Any, warm: list, stop_signal: Any = None) -> None:
     # Before numba is imported: the thread count, layer and wait policy are read once, at import.
     threads.apply_policy(numba_threads)
     # Ctrl-C goes to the whole process group; the parent decides what stops.
@@ -162,8 +175,12 @@ def _init_worker(numba_threads: int, progress_queue: Any, stop: Any, warm: list)
     # worker, and the pool's shutdown, waiting for that lock for ever. A running case
     # replaces this handler with run_case's, which closes the run as 'interrupted'.
     signal.signal(signal.SIGTERM, _ignore_while_idle)
-    global _WORKER_QUEUE, _WORKER_STOP, _WORKER_WARM, _WORKER_PARENT
+    global _WORKER_QUEUE, _WORKER_STOP, _WORKER_WARM, _WORKER_PARENT, _WORKER_STOP_SIGNAL
     _WORKER_QUEUE, _WORKER_STOP, _WORKER_WARM = progress_queue, stop, warm
+    _WORKER_STOP_SIGNAL = stop_signal
+    from capsim import runner
+
+    runner.RELAYED_SIGNAL = _relayed_signal  # a run stopped by the parent names the parent's signal
     _WORKER_PARENT = os.getppid()
     threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()
 
@@ -305,7 +322,9 @@ def _culprits(procs: dict[int, Any], started: dict[str, int], finished: set[str]
         if code is not None and code not in (0, -signal.SIGTERM):
             dead.add(pid)
     held = {key for key, pid in started.items() if key not in finished}
-    return {key for key in held if started[key] in dead} or held
+    if not dead:  # no exit status tells: every run in progress is suspect
+        return held
+    return {key for key in held if started[key] in dead}  # empty when the dead worker was between runs
 
 
 #: open files a pool needs: the parent's own, then pipes, queues and semaphores per worker
@@ -340,7 +359,7 @@ def _run_pool(items, task, keys, order, warm, failure, done, on_progress, worker
     kinds = distinct_kinds(list(warm))
     warm_up(kinds)  # compile into the on-disk cache once, before n workers would each compile
     ctx = multiprocessing.get_context("spawn")
-    kt_queue, stop = ctx.Queue(), ctx.Event()
+    kt_queue, stop, stop_signal = ctx.Queue(), ctx.Event(), ctx.Value("i", 0)
     finished: set[str] = set()
     todo = list(order)
     try:
@@ -349,7 +368,7 @@ def _run_pool(items, task, keys, order, warm, failure, done, on_progress, worker
         # SIGTERM resumes from its checkpoint). Each round finishes at least one item.
         for _ in range(len(items) + 1):
             todo = _pool_round(items, task, keys, todo, kinds, failure, done, on_progress, n, n_threads, ctx,
-                               kt_queue, stop, finished, stop_on_interrupted, name, outcome)
+                               kt_queue, stop, stop_signal, finished, stop_on_interrupted, name, outcome)
             if not todo:
                 break
     finally:
@@ -357,10 +376,10 @@ def _run_pool(items, task, keys, order, warm, failure, done, on_progress, worker
 
 
 def _pool_round(items, task, keys, order, kinds, failure, done, on_progress, n, n_threads, ctx, kt_queue, stop,
-                finished, stop_on_interrupted, name, outcome) -> list[int]:
+                stop_signal, finished, stop_on_interrupted, name, outcome) -> list[int]:
     """One pool over `order`; returns the items to run again after a worker died ([] when done)."""
     pool = cf.ProcessPoolExecutor(min(n, len(order)), mp_context=ctx, initializer=_init_worker,
-                                  initargs=(n_threads, kt_queue, stop, kinds))
+                                  initargs=(n_threads, kt_queue, stop, kinds, stop_signal))
     futures = {pool.submit(_pool_task, task, keys[i], items[i]): i for i in order}
     pending = set(futures)
     running: dict[str, float] = {}
@@ -418,8 +437,9 @@ def _pool_round(items, task, keys, order, kinds, failure, done, on_progress, n, 
                 on_progress(dict(running))
         pool.shutdown(wait=True)
         return []
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         outcome.interrupted = True
+        stop_signal.value = int(_stopping_signal(exc))  # the runs name it, not the SIGTERM that relays it
         # Items already handed to a worker cannot be cancelled here: the event makes them return at once.
         stop.set()
         for fut in pending:

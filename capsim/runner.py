@@ -47,6 +47,10 @@ class ResumeError(Exception):
     trajectory, a different case); the message is one line."""
 
 
+#: in a campaign worker, the signal that stopped the parent (which relays every stop as SIGTERM)
+RELAYED_SIGNAL: Callable[[], int | None] = lambda: None
+
+
 class _StopRequested(Exception):
     pass
 
@@ -79,7 +83,12 @@ class _StopSignals:
 
     @property
     def name(self) -> str | None:
-        return None if self.signum is None else signal.Signals(self.signum).name
+        if self.signum is None:
+            return None
+        relayed = RELAYED_SIGNAL() if self.signum == signal.SIGTERM else None
+        if relayed is not None and relayed != signal.SIGTERM:  # a sweep's Ctrl-C, relayed to its workers
+            return f"{signal.Signals(relayed).name} (relayed to the worker)"
+        return signal.Signals(self.signum).name
 
     def check(self) -> None:
         if self.signum is not None:
