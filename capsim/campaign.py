@@ -80,8 +80,7 @@ __all__ = [
     "campaign_from_dict",
 ]
 
-INDEX_FILE = "runs.json"
-CAMPAIGN_FILE = "campaign.yaml"
+from capsim.files import CAMPAIGN_FILE, INDEX_FILE  # noqa: E402 - named once, for every guard
 #: default most runs of a campaign (``capsim sweep --max-runs``): every run is validated
 #: before the first starts (~3 ms each), and a grid this large is nearly always a mistake
 MAX_RUNS = 10_000

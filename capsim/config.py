@@ -175,8 +175,14 @@ class Shape(_Model):
             candidates = [0.0, 1.0] + ([-c2 / (2 * c4)] if c4 > 0 and 0 < -c2 / (2 * c4) < 1 else [])
             s_min = min(candidates, key=lambda s: c0 + c2 * s + c4 * s * s)
             h_min = c0 + c2 * s_min + c4 * s_min * s_min
+            name = "c0" if s_min == 0.0 else "c4" if "c4" in self.model_fields_set else "c2"
+            if not h_min > 0:
+                raise _FieldProblem(
+                    name, getattr(self, name),
+                    f"the Evans-Fung thickness c0 + c2 s + c4 s² = {h_min:.3g} <= 0 at s = r²/R0² = {s_min:.3g}: "
+                    f"(c0, c2, c4) = ({c0:g}, {c2:g}, {c4:g}) give no surface; it must be > 0 on [0, 1]",
+                )
             if not h_min >= MIN_BICONCAVE_THICKNESS:
-                name = "c0" if s_min == 0.0 else "c4" if "c4" in self.model_fields_set else "c2"
                 raise _FieldProblem(
                     name, getattr(self, name),
                     f"the Evans-Fung thickness c0 + c2 s + c4 s² = {h_min:.3g} at s = r²/R0² = {s_min:.3g}: "

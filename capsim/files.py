@@ -1,7 +1,7 @@
 """Every file capsim writes goes through here: output guards, locks, temporary names,
 atomic replacement, room checks and the identity of an open file.
 
-The rules (README, "Data safety"):
+The rules (README, "Robustness"):
 
 - Nothing a command did not create is removed, truncated or replaced unless the user
   says ``--overwrite``; never a command's own input; never a directory, a device, a
@@ -152,11 +152,25 @@ def check_writable(path: str | os.PathLike) -> None:
         raise OutputError(f"output path {str(path)[:200]}: {exc.strerror or first_line(exc)}") from None
 
 
+#: a campaign directory's own files (capsim.campaign writes them; named here, where every guard sees them)
+INDEX_FILE = "runs.json"
+CAMPAIGN_FILE = "campaign.yaml"
+
+def is_run_file(path: str | os.PathLike) -> bool:
+    """Whether `path` is a capsim run file (an HDF5 file with a stored case), however damaged its arrays."""
+    import h5py  # here, not at the top: the guards of a --help need no HDF5
+
+    try:
+        if not os.path.isfile(path) or not h5py.is_hdf5(path):
+            return False
+        with h5py.File(path, "r", locking=False) as f:
+            return "config_yaml" in f.attrs
+    except (OSError, ValueError):
+        return False
+
+
 def protected(path: Path) -> str | None:
     """What an existing file is that no command replaces unless told to (--overwrite); None if not one."""
-    from capsim.campaign import CAMPAIGN_FILE, INDEX_FILE
-    from capsim.store import is_run_file
-
     if path.name in (CAMPAIGN_FILE, INDEX_FILE):
         return "a campaign's own file"
     if path.name.endswith(".ckpt.npz"):

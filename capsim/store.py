@@ -42,6 +42,7 @@ from capsim.errors import first_line
 from capsim.files import (
     FileIdentity, FileLock, LockedError, StorageError, copy_and_replace, free_bytes, lock_path, room_bytes,
 )
+from capsim.files import is_run_file  # noqa: F401 - part of this module's reading API
 from capsim.files import mb as _mb
 from capsim.files import tmp_name as _tmp_name
 from capsim.files import write_failure as _write_failure
@@ -686,17 +687,6 @@ def _scalars(f: h5py.File, name: str) -> dict[str, Any]:
         if isinstance(ds, h5py.Dataset) and ds.shape == ():
             out[key] = ds.asstr()[()] if h5py.check_string_dtype(ds.dtype) else _scalar(ds[()])
     return out
-
-
-def is_run_file(path: str | os.PathLike) -> bool:
-    """Whether `path` is a capsim run file (an HDF5 file with a stored case), however damaged its arrays."""
-    try:
-        if not os.path.isfile(path) or not h5py.is_hdf5(path):
-            return False
-        with h5py.File(path, "r", locking=False) as f:
-            return "config_yaml" in f.attrs
-    except (OSError, ValueError):
-        return False
 
 
 def read_run_status(path: str | os.PathLike) -> str | None:
