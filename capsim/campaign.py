@@ -168,6 +168,36 @@ def load_campaign(path: str | os.PathLike, max_runs: int = MAX_RUNS) -> Campaign
     return campaign_from_dict(read_yaml(source), source=source, max_runs=max_runs)
 
 
+def load_campaign_with(path: str | os.PathLike, sets: list[str] | None = None, *, max_runs: int = MAX_RUNS,
+                       data: Any = None) -> Campaign:
+    """The campaign at `path` (or its already read `data`) with ``--set`` texts written
+    into its base; a field the campaign sweeps cannot be set. One-line ConfigError."""
+    from capsim.config import parse_sets
+
+    if max_runs < 1:
+        raise ConfigError(f"--max-runs = {max_runs}: must be >= 1")
+    dotted = parse_sets(sets)
+    data = read_yaml(path) if data is None else data
+    if dotted and isinstance(data, dict):
+        data = dict(data)
+        base = json.loads(json.dumps(data.get("base") or {}, default=str)) if isinstance(
+            data.get("base") or {}, dict) else data.get("base")
+        for key, value in dotted.items():
+            if key in (data.get("sweep") or {}) or key in (data.get("zip") or {}):
+                raise ConfigError(f"--set {key}: the campaign sweeps this field; change its sweep instead")
+            node = base
+            parts = key.split(".")
+            for part in parts[:-1]:
+                if not isinstance(node, dict):
+                    break
+                node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"--set {key}: '{'.'.join(parts[:-1])}' is not a section of the case")
+            node[parts[-1]] = value
+        data["base"] = base
+    return campaign_from_dict(data, source=str(path), max_runs=max_runs)
+
+
 def campaign_from_dict(d: Any, source: str = "<campaign>", max_runs: int = MAX_RUNS) -> Campaign:
     """Validate a campaign and every case it expands to (before any run starts).
 
@@ -562,6 +592,20 @@ def check_scheduler(address: str, timeout: float = SCHEDULER_TIMEOUT_S) -> None:
     total, frames = struct.unpack("<QQ", greeting)
     if not (0 < total < 2**30 and 0 < frames <= 10_000):
         raise ConfigError(f"--scheduler {shown}: the service there is not a Dask scheduler; {allowed}")
+
+
+def plan_lines(campaign: Campaign, source: str = "<campaign>") -> list[str]:
+    """A dry run (``capsim validate CAMPAIGN.yaml``): a head line, then per run its id, what
+    a sweep would do (run, or skip a completed file that holds this run's case), its
+    path and swept values."""
+    specs = expand_campaign(campaign, source=source)
+    actions = ["skip (completed)" if _file_status(spec) == "completed" else "run" for spec in specs]
+    lines = [f"{campaign.name}: {len(specs)} runs, {actions.count('run')} to run -> {campaign.output.dir}"]
+    width = max(len(spec.run_id) for spec in specs)
+    for spec, action in zip(specs, actions):
+        swept = ", ".join(f"{k}={v}" for k, v in spec.params.items())
+        lines.append(f"{spec.run_id:<{width}}  {action:<16}  {spec.path}" + (f"  {swept}" if swept else ""))
+    return lines
 
 
 def _owner(out_dir: Path) -> tuple[str | None, str]:

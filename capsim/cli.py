@@ -17,6 +17,8 @@ from typing import Any, Optional
 import typer
 from typer.core import TyperGroup
 
+from capsim.files import FIGURE_MAGIC, is_study_file
+
 try:  # typer >= 0.2x carries its own copy of click
     from typer import _click as click
 except ImportError:  # pragma: no cover - older typer on the real click
@@ -38,7 +40,7 @@ class _OneLineErrors(TyperGroup):
             from capsim.errors import first_line
 
             where = exc.ctx.command_path if exc.ctx is not None else "capsim"
-            text = first_line(Exception(exc.format_message()), type(exc).__name__).replace("Value error, ", "")
+            text = "".join(first_line(Exception(exc.format_message()), type(exc).__name__).split("Value error, "))
             typer.echo(f"error: {text.rstrip('.')}; see '{where} -h'", err=True)
             sys.exit(2)
         except click.exceptions.ClickException as exc:
@@ -69,13 +71,14 @@ app = typer.Typer(
 )
 
 # Choices, as enums so that --help lists them. Written out here (the CLI must not import
-# matplotlib or h5py for --help); tests/test_registries.py checks them against the registries:
+# matplotlib or HDF5 for --help); tests/test_registries.py checks them against the registries:
 # plot kinds capsim.plot.KINDS, export formats capsim.export.FORMATS, study references
 # capsim.study.REFERENCES, figure formats capsim.plot.FIGURE_FORMATS.
 _PLOT_KINDS = ("deformation", "inclination", "contour", "trajectory", "tensions", "rheology", "steady")
 _EXPORT_FORMATS = ("xdmf", "vtu")
 _STUDY_REFERENCES = ("finest", "richardson")
 _FIGURE_FORMATS = ("png", "pdf", "svg")
+_FIGURE_MAGIC = FIGURE_MAGIC
 PlotKind = enum.Enum("PlotKind", {k: k for k in _PLOT_KINDS}, type=str)
 ExportFormat = enum.Enum("ExportFormat", {k: k for k in _EXPORT_FORMATS}, type=str)
 StudyReference = enum.Enum("StudyReference", {k: k for k in _STUDY_REFERENCES}, type=str)
@@ -83,64 +86,19 @@ StudyReference = enum.Enum("StudyReference", {k: k for k in _STUDY_REFERENCES}, 
 #: --set FIELD=VALUE, repeatable (run, validate, sweep, study)
 _SET_HELP = ("set a case field, dotted path = YAML value, repeatable: --set mesh.level=1 "
              "--set time.scheme=rkc (a campaign: a field of its base)")
-#: longest --set text: a field path and a value, not a document
-_SET_MAX = 1000
-
-
 def _user_error(message: str) -> typer.Exit:
     typer.echo(f"error: {message}", err=True)
     return typer.Exit(code=2)
 
 
-def _parse_sets(sets: list[str] | None) -> dict[str, Any]:
-    """--set FIELD=VALUE options as {dotted field: value}; a bad one is a one-line user error."""
-    from capsim.errors import bounded_repr
-
-    out: dict[str, Any] = {}
-    for text in sets or ():
-        shown = bounded_repr(text)
-        if len(text) > _SET_MAX:
-            raise _user_error(f"--set {shown}: at most {_SET_MAX} characters")
-        key, sep, raw = text.partition("=")
-        key = key.strip()
-        if not sep or not key or any(not part.isidentifier() for part in key.split(".")):
-            raise _user_error(f"--set {shown}: give FIELD=VALUE with a dotted case field, e.g. --set mesh.level=2")
-        import yaml
-
-        try:
-            value = yaml.safe_load(raw) if raw.strip() else None
-        except yaml.YAMLError as exc:
-            from capsim.errors import first_line
-
-            raise _user_error(f"--set {shown}: the value is not YAML ({first_line(exc)})") from None
-        if value is None:
-            raise _user_error(f"--set {shown}: no value after '='")
-        if key in out:
-            raise _user_error(f"--set {key} is given twice")
-        out[key] = value
-    return out
-
-
 def _load(case_path: Path, sets: list[str] | None = None, **overrides: Any):
-    # Imported here so that `capsim --help` does not pay for pydantic.
-    from capsim.config import ConfigError, apply_overrides, load_case
+    """The case at `case_path` with --set fields and the command's own options; user errors exit 2."""
+    from capsim.config import ConfigError, load_case_with
 
-    dotted = _parse_sets(sets)
-    for key, value in overrides.items():
-        if value is not None:
-            if key in dotted:
-                raise _user_error(f"--set {key} and its own option both given; give one")
-            dotted[key] = value
     try:
-        case = load_case(case_path)
+        return load_case_with(case_path, sets, **overrides)
     except ConfigError as exc:
         raise _user_error(str(exc)) from None
-    try:
-        return apply_overrides(case, **dotted) if dotted else case
-    except ConfigError as exc:
-        text = str(exc)
-        prefix = "<overrides>: "
-        raise _user_error(f"{case_path}: --set/options: {text[len(prefix):] if text.startswith(prefix) else text}") from None
 
 
 def _files_call(fn, *args, **kwargs):
@@ -159,12 +117,6 @@ def _check_writable(path: Path) -> None:
     _files_call(files.check_writable, path)
 
 
-def _protected(path: Path) -> str | None:
-    from capsim import files
-
-    return files.protected(path)
-
-
 def _guard_output(out: Path, inputs: list[Path], overwrite: bool, *, ours=lambda p: False,
                   option: str = "--overwrite") -> None:
     from capsim import files
@@ -178,29 +130,7 @@ def _starts_with(magic: bytes):
     return files.starts_with(magic)
 
 
-def _is_summary(path: Path) -> bool:
-    """A netCDF file written by `capsim summarize` (its campaign_yaml attribute)."""
-    import h5py
-
-    try:
-        with h5py.File(path, "r", locking=False) as f:
-            return "campaign_yaml" in f.attrs and "config_yaml" not in f.attrs
-    except (OSError, ValueError):
-        return False
-
-
-def _is_study(path: Path) -> bool:
-    """A netCDF file written by `capsim study` (its study_reference attribute)."""
-    import h5py
-
-    try:
-        with h5py.File(path, "r", locking=False) as f:
-            return "error_definition" in f.attrs and "reference" in f.attrs
-    except (OSError, ValueError):
-        return False
-
-
-def _replace_atomically(out: Path, write) -> None:
+def _write_atomically(out: Path, write) -> None:
     from capsim import files
 
     _files_call(files.replace_atomically, out, write)
@@ -211,87 +141,6 @@ def _run_progress():
     from capsim.display import RunProgress
 
     return RunProgress()
-
-
-def _fmt(value: Any, spec: str) -> str:
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        return format(value, spec)
-    return "n/a" if value is None else str(value)
-
-
-def _mean_std(summary: dict[str, Any], name: str, scale: float = 1.0) -> str | None:
-    """'mean ± std' over the averaging window, or None when the run has no summary."""
-    mean, std = summary.get(name), summary.get(f"{name}_std")
-    if not isinstance(mean, (int, float)):
-        return None
-    shown = f"{mean / scale:.6f}"
-    return shown + (f" ± {std / scale:.2e}" if isinstance(std, (int, float)) else "")
-
-
-def _compression(summary: dict[str, Any]) -> str | None:
-    """Share of the membrane under compression at the end, with a warning when large.
-
-    A membrane without bending stiffness cannot carry compression: where the smaller
-    principal tension is negative a real capsule wrinkles, and where the compression
-    persists the computed solution comes to depend on the mesh (README, "Compressed
-    membranes and bending stiffness").
-    """
-    frac, low = summary.get("compressed_fraction"), summary.get("min_tension")
-    if not isinstance(frac, float):
-        return None
-    text = f"{100 * frac:.0f} % (smallest tension {low:.3g} μka)"
-    if frac > 0.05:
-        if summary.get("bending_modulus", 0.0) > 0:
-            text += f": held by the bending modulus {summary['bending_modulus']:g}; check mesh convergence"
-        else:
-            text += (": would wrinkle without bending; rerun with --set membrane.bending_modulus=1e-4 "
-                     "(README, \"Compressed membranes and bending stiffness\")")
-    return text
-
-
-def _summary_rows(summary: dict[str, Any]) -> list[tuple[str, str]]:
-    """The closing table of a run: (quantity, value) rows, those without a value left out."""
-    period = summary.get("period")
-    window = (summary.get("averaging_t_from"), summary.get("averaging_t_to"))
-    rows = [
-        ("status", summary.get("status")),
-        ("reason", summary.get("status_reason") or None),
-        ("t", _fmt(summary.get("t"), "g")),
-        ("motion", summary.get("motion")),
-        ("averaged over kt", f"[{window[0]:.4g}, {window[1]:.4g}]" if None not in window else None),
-        ("period kT", _fmt(period, ".4g") if isinstance(period, float) and math.isfinite(period) else None),
-        ("D_xy", _mean_std(summary, "D_xy")),
-        ("theta/pi", _mean_std(summary, "theta", math.pi)),
-        ("TTF/f_s", _mean_std(summary, "ttf_ratio")),
-        ("S*_xy", _mean_std(summary, "Sxy_star")),
-        ("N1*", _mean_std(summary, "N1_star")),
-        ("N2*", _mean_std(summary, "N2_star")),
-        ("scheme", summary.get("scheme")),
-        ("steps", _fmt(summary.get("steps"), "d")),
-        ("velocity evaluations", _fmt(summary.get("velocity_evaluations"), "d")),
-        ("layer applications", _fmt(summary.get("layer_applications"), "d")),
-        # only the linearly implicit scheme solves stage equations
-        ("stage-solve iterations", _fmt(summary.get("linear_iterations"), "d") if summary.get("linear_iterations") else None),
-        ("layer matrices", _fmt(summary.get("layer_matrices"), "d") if summary.get("layer_matrices") else None),
-        ("wall time (s)", _fmt(summary.get("wall_time_s"), ".1f")),
-        ("volume drift", _fmt(summary.get("volume_drift"), ".3e")),
-        ("compressed vertices", _compression(summary)),
-        ("output", summary.get("path")),
-    ]
-    return [(key, str(value)) for key, value in rows if value is not None]
-
-
-def _summary_table(summary: dict[str, Any]) -> str:
-    """The closing table as plain aligned text."""
-    rows = _summary_rows(summary)
-    width = max(len(key) for key, _ in rows)
-    return "\n".join(f"{key:<{width}}  {value}" for key, value in rows)
-
-
-def _print_summary(summary: dict[str, Any], title: str | None = None) -> None:
-    from capsim.display import print_table
-
-    print_table(_summary_rows(summary), title=title)
 
 
 @app.command()
@@ -305,7 +154,7 @@ def run(
     level: Optional[int] = typer.Option(None, "--level", help="override mesh.level"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress line"),
     resume: bool = typer.Option(
-        False, "--resume", help="continue an interrupted run from its checkpoint <output>.ckpt.npz"
+        False, "--resume", help="continue an interrupted run from the checkpoint beside its output"
     ),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing file at the output path"),
     sets: Optional[list[str]] = typer.Option(None, "--set", metavar="FIELD=VALUE", help=_SET_HELP),
@@ -329,15 +178,9 @@ def run(
             "mesh.level": level,
         },
     )
-    out = Path(case.output.path)
-    from capsim.files import lock_path
+    from capsim.store import guard_run_output
 
-    if out.name.endswith((".ckpt.npz", ".capsim-lock")):
-        raise _user_error(f"output path {out}: a name capsim keeps for a run's checkpoint or lock; choose another")
-    _check_writable(out)
-    _guard_output(out, [case_path], overwrite or resume, option="--overwrite (or --resume to continue it)")
-    for derived in (Path(f"{out}.ckpt.npz"), lock_path(out)):
-        _guard_output(derived, [case_path], True)
+    _files_call(guard_run_output, case.output.path, [case_path], overwrite=overwrite, resume=resume)
 
     from capsim.runner import ResumeError, run_case
     from capsim.store import LockedError, StorageError
@@ -357,7 +200,9 @@ def run(
     finally:
         if progress is not None:
             progress.finish()
-    _print_summary(summary, title=case.name)
+    from capsim.display import print_summary
+
+    print_summary(summary, title=case.name)
     if error_estimate and summary.get("status") == "completed":
         from capsim.study import run_error_estimate
 
@@ -389,15 +234,9 @@ def bench(
     if as_json:
         typer.echo(json.dumps(result, indent=2, default=str))
         return
-    width = max((len(key) for key in result), default=0)
-    for key, value in result.items():
-        if isinstance(value, float):
-            shown = f"{value:.6g}"
-        elif isinstance(value, (str, int)):
-            shown = str(value)
-        else:
-            shown = json.dumps(value, default=str)
-        typer.echo(f"{key:<{width}}  {shown}")
+    from capsim.display import key_value_lines
+
+    typer.echo(key_value_lines(result))
 
 
 @app.command()
@@ -427,17 +266,9 @@ def validate(
     if not _is_campaign(data):
         typer.echo(_load(case_path, sets).to_yaml(), nl=False)
         return
-    campaign = _load_campaign(case_path, sets, max_runs, data=data)
-    from capsim.campaign import expand_campaign
-    from capsim.store import read_run_status
+    from capsim.campaign import plan_lines
 
-    specs = expand_campaign(campaign, source=str(case_path))
-    actions = ["skip (completed)" if read_run_status(spec.path) == "completed" else "run" for spec in specs]
-    typer.echo(f"{campaign.name}: {len(specs)} runs, {actions.count('run')} to run -> {campaign.output.dir}")
-    width = max(len(spec.run_id) for spec in specs)
-    for spec, action in zip(specs, actions):
-        swept = ", ".join(f"{k}={v}" for k, v in spec.params.items())
-        typer.echo(f"{spec.run_id:<{width}}  {action:<16}  {spec.path}" + (f"  {swept}" if swept else ""))
+    typer.echo("\n".join(plan_lines(_load_campaign(case_path, sets, max_runs, data=data), source=str(case_path))))
 
 
 def _is_campaign(data: Any) -> bool:
@@ -447,34 +278,18 @@ def _is_campaign(data: Any) -> bool:
 
 def _load_campaign(path: Path, sets: list[str] | None, max_runs: int, data: Any = None):
     """The campaign at `path` with --set fields written into its base; user errors exit 2."""
-    from capsim.campaign import campaign_from_dict
-    from capsim.config import ConfigError, read_yaml
+    from capsim.campaign import load_campaign_with
+    from capsim.config import ConfigError
 
-    if max_runs < 1:
-        raise _user_error(f"--max-runs = {max_runs}: must be >= 1")
-    dotted = _parse_sets(sets)
     try:
-        data = read_yaml(path) if data is None else data
-        if dotted and isinstance(data, dict):
-            data = dict(data)
-            base = json.loads(json.dumps(data.get("base") or {}, default=str)) if isinstance(
-                data.get("base") or {}, dict) else data.get("base")
-            for key, value in dotted.items():
-                if key in (data.get("sweep") or {}) or key in (data.get("zip") or {}):
-                    raise _user_error(f"--set {key}: the campaign sweeps this field; change its sweep instead")
-                node = base
-                parts = key.split(".")
-                for part in parts[:-1]:
-                    if not isinstance(node, dict):
-                        break
-                    node = node.setdefault(part, {})
-                if not isinstance(node, dict):
-                    raise _user_error(f"--set {key}: '{'.'.join(parts[:-1])}' is not a section of the case")
-                node[parts[-1]] = value
-            data["base"] = base
-        return campaign_from_dict(data, source=str(path), max_runs=max_runs)
+        return load_campaign_with(path, sets, max_runs=max_runs, data=data)
     except ConfigError as exc:
         raise _user_error(str(exc)) from None
+
+
+def _option(name: str) -> str:
+    """--the-option of a parameter name."""
+    return "--" + "-".join(name.split("_"))
 
 
 @app.command()
@@ -494,11 +309,11 @@ def units(
 
     capsim units --shear-rate '100 1/s' --viscosity '1.2 mPa*s' --radius '2.8 um' --shear-modulus '6 uN/m'
     """
-    from capsim.units import UnitsError, conversion, parse
+    from capsim.units import UnitsError, conversion, describe_conversion, parse
 
     given = {"shear_rate": shear_rate, "viscosity": viscosity, "radius": radius,
              "surface_modulus": surface_modulus, "shear_modulus": shear_modulus}
-    missing = [f"--{k.replace('_', '-')}" for k in ("shear_rate", "viscosity", "radius") if given[k] is None]
+    missing = [_option(k) for k in ("shear_rate", "viscosity", "radius") if given[k] is None]
     if (surface_modulus is None) == (shear_modulus is None):
         missing.append("--surface-modulus or --shear-modulus (one of the two)" if surface_modulus is None
                        else "only one of --surface-modulus and --shear-modulus")
@@ -509,17 +324,9 @@ def units(
             try:
                 parse(value, kind)
             except UnitsError as exc:
-                raise _user_error(f"units: --{kind.replace('_', '-')}: {exc}") from None
+                raise _user_error(f"units: {_option(kind)}: {exc}") from None
     out = conversion(shear_rate, viscosity, radius, surface_modulus, shear_modulus)
-    if as_json:
-        typer.echo(json.dumps(out))
-        return
-    typer.echo(f"G  = mu k a / E_s  = {out['G']:.6g}   (flow.shear_rate_G)")
-    typer.echo(f"Ca = mu k a / G_s  = {out['Ca']:.6g}   (= 3 G: G_s = E_s / 3 for every elastic law)")
-    typer.echo(f"time unit 1/k      = {out['time_unit_s']:.6g} s   (kt = 1)")
-    typer.echo(f"E_s = {out['E_s_N_per_m']:.6g} N/m, G_s = {out['G_s_N_per_m']:.6g} N/m, "
-               f"velocity unit ka = {out['velocity_m_per_s']:.6g} m/s, tension unit mu k a = "
-               f"{out['tension_N_per_m']:.6g} N/m")
+    typer.echo(json.dumps(out) if as_json else describe_conversion(out))
 
 
 def _version(value: bool) -> None:
@@ -605,24 +412,9 @@ def sweep(
     for record in result["records"]:
         if record["status"] != "completed":
             typer.echo(f"{record['run_id']}: {record['status']}: {record['status_reason']}", err=True)
-    if result["records"] and not quiet:
-        from capsim.display import print_table
+    from capsim.display import print_sweep_result
 
-        def cell(record: dict, key: str, spec: str) -> str:
-            summary = record.get("summary") or {}
-            return _fmt(summary.get(key), spec) if key in summary else ""
-
-        print_table([(r["run_id"], r["status"], cell(r, "t", ".4g"), cell(r, "D_xy", ".5f"),
-                      cell(r, "wall_time_s", ".1f"), r.get("status_reason") or "")
-                     for r in result["records"]],
-                    columns=("run", "status", "kt", "D_xy", "wall (s)", "reason"), title=campaign.name)
-    not_started = result["total"] - result["skipped"] - result["completed"] - result["failed"]
-    typer.echo(
-        f"{campaign.name}: {result['total']} runs, {result['skipped']} skipped, {result['completed']} completed, "
-        f"{result['failed']} not completed{' (interrupted)' if result['interrupted'] else ''}"
-        + (f", {not_started} not started" if not_started > 0 else "")
-        + f" -> {campaign.output.dir}"
-    )
+    print_sweep_result(result, campaign, table=not quiet)
     raise typer.Exit(code=0 if result["failed"] == 0 and not result["interrupted"] else 1)
 
 
@@ -639,27 +431,14 @@ def summarize(
     capsim summarize runs/fig9-11-13-spheres-level2 -o s.nc   (then: capsim plot s.nc --kind steady)
     """
     from capsim.config import ConfigError
-    from capsim.summary import summarize_campaign, write_summary
+    from capsim.summary import summarize_to_file
 
     try:
-        ds = summarize_campaign(directory)
+        path, ds = _files_call(summarize_to_file, directory, output, overwrite=overwrite)
     except (FileNotFoundError, ConfigError) as exc:
         raise _user_error(str(exc)) from None
-    path = output if output is not None else directory / "summary.nc"
-    _check_writable(path)
-    from capsim.campaign import CAMPAIGN_FILE, INDEX_FILE
-    from capsim.store import is_run_file
-
-    inputs = [directory / CAMPAIGN_FILE, directory / INDEX_FILE]
-    if path.exists() and path.resolve().parent == directory.resolve() and is_run_file(path):
-        inputs.append(path)  # one of the campaign's runs
-    _guard_output(path, inputs, overwrite, ours=_is_summary)
-    _replace_atomically(path, lambda tmp: write_summary(ds, tmp))
     counts = {s: int((ds["status"] == s).sum()) for s in sorted(set(ds["status"].values.ravel()))}
     typer.echo(f"{path}: dims {dict(ds.sizes)}, status {counts}")
-
-
-_FIGURE_MAGIC = {"png": b"\x89PNG\r\n\x1a\n", "pdf": b"%PDF-", "svg": b"<?xml"}
 
 
 @app.command()
@@ -690,54 +469,13 @@ def plot(
 
     capsim summarize runs/fig9 -o s.nc; capsim plot s.nc --kind steady -o steady.svg
     """
-    from capsim import plot as plotting
-    from capsim.config import ConfigError
-    from capsim.errors import first_line
-    from capsim.store import TrajectoryError
+    from capsim.plot import FigureError, write_figure
 
-    kind = kind.value
-    if len(paths) > 1 and kind not in plotting.OVERLAY_KINDS:
-        raise _user_error(
-            f"--kind {kind} takes one PATH, got {len(paths)}; "
-            f"several runs overlay only for {', '.join(plotting.OVERLAY_KINDS)}"
-        )
-    for path in paths:
-        if not path.exists():
-            raise _user_error(f"{path}: no such file")
-        if path.is_dir():
-            raise _user_error(f"{path}: is a directory; give a run file (.h5) or a summary (.nc)")
-    if dpi is not None and not (math.isfinite(dpi) and 10 <= dpi <= 2400):
-        raise _user_error(f"--dpi {dpi:g}: must be in [10, 2400]")
-    path = paths[0]
-    out = output if output is not None else plotting.default_output(path, kind)
     try:
-        fmt = plotting.figure_format(out)
-    except ValueError as exc:
-        _guard_output(out, list(paths), overwrite)  # an input or a run file named as output: say that first
+        out = _files_call(write_figure, paths, kind.value, output, overwrite=overwrite, dpi=dpi,
+                          theory=not no_theory, unwrap=unwrap, times=times, node=node)
+    except FigureError as exc:
         raise _user_error(str(exc)) from None
-    _check_writable(out)
-    _guard_output(out, list(paths), overwrite, ours=_starts_with(_FIGURE_MAGIC[fmt]))
-    options: dict[str, Any] = {}
-    if kind in ("deformation", "inclination", "rheology", "steady"):
-        options["theory"] = not no_theory
-    if kind == "inclination" and unwrap:
-        options["unwrap"] = True
-    if kind == "contour" and times:
-        options["times"] = times
-    if kind == "tensions" and times:
-        options["t"] = times[-1]
-    if kind == "trajectory" and node is not None:
-        options["node"] = node
-
-    source: Any = [str(p) for p in paths] if len(paths) > 1 else path
-    try:
-        _replace_atomically(out, lambda tmp: plotting.plot(source, kind, tmp, dpi=dpi, fmt=fmt, **options))
-    except (TrajectoryError, ConfigError, ValueError, KeyError) as exc:
-        raise _user_error(first_line(exc)) from None
-    except OSError as exc:
-        raise _user_error(f"{path}: {exc.strerror or first_line(exc)}") from None
-    except Exception as exc:  # noqa: BLE001 - a file that is not what --kind needs: one line, not a traceback
-        raise _user_error(f"cannot plot {path} as --kind {kind}: {type(exc).__name__}: {first_line(exc)}") from None
     typer.echo(str(out))
 
 
@@ -760,39 +498,18 @@ def export(
 
     capsim export runs/sphere-G0.1.h5 --format vtu -o vtu/
     """
-    from capsim.config import ConfigError
-    from capsim.errors import first_line
-    from capsim.export import export_run
-    from capsim.files import StorageError
-    from capsim.store import TrajectoryError, is_run_file
+    from capsim.export import ExportError, export_to_dir
 
-    fmt = fmt.value
-    if not path.exists():
-        raise _user_error(f"{path}: no such file")
-    if not is_run_file(path):
-        raise _user_error(f"{path}: not a capsim run file (an HDF5 file written by capsim run or sweep)")
-    out_dir = output if output is not None else path.with_name(f"{path.stem}_{fmt}")
-    if out_dir.exists() and not out_dir.is_dir():
-        raise _user_error(f"output path {out_dir} is not a directory")
-    if out_dir.is_dir():  # the files it will write: <stem>.xdmf, <stem>_data.h5 | <stem>_NNNN.vtu, <stem>.pvd
-        planned = [out_dir / f"{path.stem}.xdmf", out_dir / f"{path.stem}_data.h5", out_dir / f"{path.stem}.pvd"]
-        planned += sorted(out_dir.glob(f"{path.stem}_[0-9][0-9][0-9][0-9].vtu"))
-        for target in planned:
-            _guard_output(target, [path], overwrite, ours=lambda p: _protected(p) is None)
     try:
-        files = export_run(path, out_dir, fmt, fields=not no_fields)
-    except (TrajectoryError, ConfigError, ValueError, StorageError) as exc:
-        raise _user_error(first_line(exc)) from None
-    except OSError as exc:
-        raise _user_error(f"cannot write {out_dir}: {exc.strerror or first_line(exc)}") from None
-    except Exception as exc:  # noqa: BLE001 - one line, not a traceback
-        raise _user_error(f"cannot export {path}: {type(exc).__name__}: {first_line(exc)}") from None
+        files = _files_call(export_to_dir, path, output, fmt.value, fields=not no_fields, overwrite=overwrite)
+    except ExportError as exc:
+        raise _user_error(str(exc)) from None
     typer.echo(f"{files[0]} ({len(files)} files)")
 
 
 def _number_list(text: str, kind: type, option: str) -> list:
     try:
-        values = [kind(v) for v in text.replace(" ", "").split(",") if v]
+        values = [kind(v) for v in "".join(text.split()).split(",") if v]
     except ValueError:
         raise _user_error(f"{option} must be a comma-separated list of {kind.__name__}s, got {text!r}") from None
     if not values:
@@ -838,7 +555,7 @@ def study(
         raise _user_error("--reference richardson needs at least two levels")
     case = _load(case_path, sets, **{"time.t_end": t_end})
     png = output.with_suffix(".png")
-    for path, ours in ((output, _is_study), (png, _starts_with(_FIGURE_MAGIC["png"]))):
+    for path, ours in ((output, is_study_file), (png, _starts_with(_FIGURE_MAGIC["png"]))):
         _check_writable(path)
         _guard_output(path, [case_path], overwrite, ours=ours)
     if runs_dir is not None and runs_dir.exists() and not runs_dir.is_dir():
@@ -854,8 +571,8 @@ def study(
         typer.echo("\ninterrupted", err=True)
         raise typer.Exit(code=1) from None
     typer.echo(format_study_table(ds))
-    _replace_atomically(output, lambda tmp: write_study(ds, tmp))
-    _replace_atomically(png, lambda tmp: plot_pareto(ds, tmp))
+    _write_atomically(output, lambda tmp: write_study(ds, tmp))
+    _write_atomically(png, lambda tmp: plot_pareto(ds, tmp))
     typer.echo(f"{output}, {png}")
     raise typer.Exit(code=0 if bool((ds["status"] == "completed").all()) else 1)
 

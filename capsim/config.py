@@ -29,7 +29,7 @@ from pydantic import (
 from capsim.errors import bounded_repr, first_line
 
 __all__ = [
-    "case_digest", "step_defining",
+    "load_case_with", "parse_sets",    "case_digest", "step_defining",
     "Case",
     "ConfigError",
     "Flow",
@@ -807,6 +807,52 @@ def case_from_dict(d: Any, source: str = "<dict>") -> Case:
         return Case.model_validate(dict(d))
     except ValidationError as exc:
         raise ConfigError(_format_validation_error(exc, source)) from None
+
+
+#: longest --set text: a field path and a value, not a document
+SET_MAX = 1000
+
+
+def parse_sets(sets: list[str] | None) -> dict[str, Any]:
+    """``--set FIELD=VALUE`` texts as {dotted field: YAML value}; a bad one is a one-line ConfigError."""
+    out: dict[str, Any] = {}
+    for text in sets or ():
+        shown = bounded_repr(text)
+        if len(text) > SET_MAX:
+            raise ConfigError(f"--set {shown}: at most {SET_MAX} characters")
+        key, sep, raw = text.partition("=")
+        key = key.strip()
+        if not sep or not key or any(not part.isidentifier() for part in key.split(".")):
+            raise ConfigError(f"--set {shown}: give FIELD=VALUE with a dotted case field, e.g. --set mesh.level=2")
+        try:
+            value = yaml.safe_load(raw) if raw.strip() else None
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"--set {shown}: the value is not YAML ({first_line(exc)})") from None
+        except ValueError as exc:  # an integer of more digits than Python converts
+            raise ConfigError(f"--set {shown}: {first_line(exc)[:120]}") from None
+        if value is None:
+            raise ConfigError(f"--set {shown}: no value after '='")
+        if key in out:
+            raise ConfigError(f"--set {key} is given twice")
+        out[key] = value
+    return out
+
+
+def load_case_with(path: str | os.PathLike, sets: list[str] | None = None, **overrides: Any) -> Case:
+    """The case at `path` with ``--set`` texts and dotted `overrides` (None: not given) applied."""
+    dotted = parse_sets(sets)
+    for key, value in overrides.items():
+        if value is not None:
+            if key in dotted:
+                raise ConfigError(f"--set {key} and its own option both given; give one")
+            dotted[key] = value
+    case = load_case(path)
+    try:
+        return apply_overrides(case, **dotted) if dotted else case
+    except ConfigError as exc:
+        text = str(exc)
+        prefix = "<overrides>: "
+        raise ConfigError(f"{path}: --set/options: {text[len(prefix):] if text.startswith(prefix) else text}") from None
 
 
 def apply_overrides(case: Case, **dotted: Any) -> Case:

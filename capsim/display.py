@@ -21,7 +21,8 @@ import time
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any, TextIO
 
-__all__ = ["PLAIN_INTERVAL_S", "RunProgress", "SweepProgress", "is_terminal", "print_table", "format_duration"]
+__all__ = ["PLAIN_INTERVAL_S", "RunProgress", "SweepProgress", "fmt", "format_duration", "is_terminal", "print_summary",
+           "print_table", "summary_rows", "summary_table"]
 
 #: seconds between two plain progress lines (a log is not a terminal)
 PLAIN_INTERVAL_S = 10.0
@@ -288,3 +289,128 @@ def print_table(rows: Iterable[tuple[str, Any]] | Iterable[Iterable[Any]], *, co
         console.print(table)
     stream.write("\n".join(line.rstrip() for line in captured.get().splitlines()).strip("\n") + "\n")
     stream.flush()
+
+
+# ---------------------------------------------------------------- the closing table of a run
+
+
+def fmt(value: Any, spec: str) -> str:
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return format(value, spec)
+    return "n/a" if value is None else str(value)
+
+
+def _mean_std(summary: dict[str, Any], name: str, scale: float = 1.0) -> str | None:
+    """'mean ± std' over the averaging window, or None when the run has no summary."""
+    mean, std = summary.get(name), summary.get(f"{name}_std")
+    if not isinstance(mean, (int, float)):
+        return None
+    shown = f"{mean / scale:.6f}"
+    return shown + (f" ± {std / scale:.2e}" if isinstance(std, (int, float)) else "")
+
+
+def _compression(summary: dict[str, Any]) -> str | None:
+    """Share of the membrane under compression at the end, with a warning when large.
+
+    A membrane without bending stiffness cannot carry compression: where the smaller
+    principal tension is negative a real capsule wrinkles, and where the compression
+    persists the computed solution comes to depend on the mesh (README, "Compressed
+    membranes and bending stiffness").
+    """
+    frac, low = summary.get("compressed_fraction"), summary.get("min_tension")
+    if not isinstance(frac, float):
+        return None
+    text = f"{100 * frac:.0f} % (smallest tension {low:.3g} μka)"
+    if frac > 0.05:
+        if summary.get("bending_modulus", 0.0) > 0:
+            text += f": held by the bending modulus {summary['bending_modulus']:g}; check mesh convergence"
+        else:
+            text += (": would wrinkle without bending; rerun with --set membrane.bending_modulus=1e-4 "
+                     "(README, \"Compressed membranes and bending stiffness\")")
+    return text
+
+
+def summary_rows(summary: dict[str, Any]) -> list[tuple[str, str]]:
+    """The closing table of a run: (quantity, value) rows, those without a value left out."""
+    period = summary.get("period")
+    window = (summary.get("averaging_t_from"), summary.get("averaging_t_to"))
+    rows = [
+        ("status", summary.get("status")),
+        ("reason", summary.get("status_reason") or None),
+        ("t", fmt(summary.get("t"), "g")),
+        ("motion", summary.get("motion")),
+        ("averaged over kt", f"[{window[0]:.4g}, {window[1]:.4g}]" if None not in window else None),
+        ("period kT", fmt(period, ".4g") if isinstance(period, float) and math.isfinite(period) else None),
+        ("D_xy", _mean_std(summary, "D_xy")),
+        ("theta/pi", _mean_std(summary, "theta", math.pi)),
+        ("TTF/f_s", _mean_std(summary, "ttf_ratio")),
+        ("S*_xy", _mean_std(summary, "Sxy_star")),
+        ("N1*", _mean_std(summary, "N1_star")),
+        ("N2*", _mean_std(summary, "N2_star")),
+        ("scheme", summary.get("scheme")),
+        ("steps", fmt(summary.get("steps"), "d")),
+        ("velocity evaluations", fmt(summary.get("velocity_evaluations"), "d")),
+        ("layer applications", fmt(summary.get("layer_applications"), "d")),
+        # only the linearly implicit scheme solves stage equations
+        ("stage-solve iterations", fmt(summary.get("linear_iterations"), "d") if summary.get("linear_iterations") else None),
+        ("layer matrices", fmt(summary.get("layer_matrices"), "d") if summary.get("layer_matrices") else None),
+        ("wall time (s)", fmt(summary.get("wall_time_s"), ".1f")),
+        ("volume drift", fmt(summary.get("volume_drift"), ".3e")),
+        ("compressed vertices", _compression(summary)),
+        ("output", summary.get("path")),
+    ]
+    return [(key, str(value)) for key, value in rows if value is not None]
+
+
+def summary_table(summary: dict[str, Any]) -> str:
+    """The closing table as plain aligned text."""
+    rows = summary_rows(summary)
+    width = max(len(key) for key, _ in rows)
+    return "\n".join(f"{key:<{width}}  {value}" for key, value in rows)
+
+
+def print_summary(summary: dict[str, Any], title: str | None = None) -> None:
+    print_table(summary_rows(summary), title=title)
+
+
+def print_sweep_result(result: dict[str, Any], campaign: Any, table: bool = True) -> None:
+    """What `capsim sweep` prints at the end: the runs that did not complete (stderr), a
+    table of the runs (unless not `table`) and the one-line count."""
+    import typer
+
+    for record in result["records"]:
+        if record["status"] != "completed":
+            typer.echo(f"{record['run_id']}: {record['status']}: {record['status_reason']}", err=True)
+    if result["records"] and table:
+        def cell(record: dict, key: str, spec: str) -> str:
+            summary = record.get("summary") or {}
+            return fmt(summary.get(key), spec) if key in summary else ""
+
+        print_table([(r["run_id"], r["status"], cell(r, "t", ".4g"), cell(r, "D_xy", ".5f"),
+                      cell(r, "wall_time_s", ".1f"), r.get("status_reason") or "")
+                     for r in result["records"]],
+                    columns=("run", "status", "kt", "D_xy", "wall (s)", "reason"), title=campaign.name)
+    not_started = result["total"] - result["skipped"] - result["completed"] - result["failed"]
+    typer.echo(
+        f"{campaign.name}: {result['total']} runs, {result['skipped']} skipped, {result['completed']} completed, "
+        f"{result['failed']} not completed{' (interrupted)' if result['interrupted'] else ''}"
+        + (f", {not_started} not started" if not_started > 0 else "")
+        + f" -> {campaign.output.dir}"
+    )
+
+
+def key_value_lines(result: Mapping[str, Any]) -> str:
+    """A flat mapping as aligned 'key  value' lines (floats to 6 digits, others as JSON)."""
+    import json
+
+    width = max((len(key) for key in result), default=0)
+    lines = []
+    for key, value in result.items():
+        if isinstance(value, float):
+            shown = f"{value:.6g}"
+        elif isinstance(value, (str, int)):
+            shown = str(value)
+        else:
+            shown = json.dumps(value, default=str)
+        lines.append(f"{key:<{width}}  {shown}")
+    return "\n".join(lines)

@@ -258,3 +258,43 @@ def export_run(
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return [out / file.name for file in staged]
+
+
+class ExportError(ValueError):
+    """A run that cannot be exported (not a run file, an unreadable one); one line."""
+
+
+def export_to_dir(path: str | os.PathLike, out_dir: str | os.PathLike | None = None, fmt: str = "xdmf", *,
+                  fields: bool = True, overwrite: bool = False) -> list[Path]:
+    """`capsim export`: :func:`export_run` behind the output guards: the files it would
+    replace in `out_dir` (``<stem>.xdmf``, ``<stem>_data.h5`` | ``<stem>_NNNN.vtu``,
+    ``<stem>.pvd``) are replaced only if they are not run files, checkpoints or campaign
+    files, unless `overwrite`. Raises ExportError, OutputError or StorageError (one line)."""
+    from capsim.config import ConfigError
+    from capsim.errors import first_line
+    from capsim.files import OutputError, guard_output, is_run_file, protected
+    from capsim.store import TrajectoryError
+
+    path = Path(path)
+    if not path.exists():
+        raise ExportError(f"{path}: no such file")
+    if not is_run_file(path):
+        raise ExportError(f"{path}: not a capsim run file (an HDF5 file written by capsim run or sweep)")
+    out = Path(out_dir) if out_dir is not None else path.with_name(f"{path.stem}_{fmt}")
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"output path {out} is not a directory")
+    if out.is_dir():
+        planned = [out / f"{path.stem}.xdmf", out / f"{path.stem}_data.h5", out / f"{path.stem}.pvd"]
+        planned += sorted(out.glob(f"{path.stem}_[0-9][0-9][0-9][0-9].vtu"))
+        for target in planned:
+            guard_output(target, [path], overwrite, ours=lambda p: protected(p) is None)
+    try:
+        return export_run(path, out, fmt, fields=fields)
+    except (TrajectoryError, ConfigError, ValueError) as exc:
+        raise ExportError(first_line(exc)) from None
+    except StorageError:
+        raise
+    except OSError as exc:
+        raise StorageError(f"cannot write {out}: {exc.strerror or first_line(exc)}") from None
+    except Exception as exc:  # noqa: BLE001 - one line, not a traceback
+        raise ExportError(f"cannot export {path}: {type(exc).__name__}: {first_line(exc)}") from None

@@ -169,6 +169,32 @@ def is_run_file(path: str | os.PathLike) -> bool:
         return False
 
 
+def _root_attrs(path: str | os.PathLike) -> set[str]:
+    """The root attribute names of an HDF5 (netCDF-4) file; empty when it is none."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r", locking=False) as f:
+            return set(f.attrs)
+    except (OSError, ValueError):
+        return set()
+
+
+def is_summary_file(path: str | os.PathLike) -> bool:
+    """A netCDF file written by `capsim summarize` (its campaign_yaml attribute, no config_yaml)."""
+    attrs = _root_attrs(path)
+    return "campaign_yaml" in attrs and "config_yaml" not in attrs
+
+
+def is_study_file(path: str | os.PathLike) -> bool:
+    """A netCDF file written by `capsim study` (its reference and error_definition attributes)."""
+    return {"error_definition", "reference"} <= _root_attrs(path)
+
+
+#: the first bytes of a figure of each format: an existing file that starts so is one capsim may redraw
+FIGURE_MAGIC = {"png": b"\x89PNG\r\n\x1a\n", "pdf": b"%PDF-", "svg": b"<?xml"}
+
+
 def protected(path: Path) -> str | None:
     """What an existing file is that no command replaces unless told to (--overwrite); None if not one."""
     if path.name in (CAMPAIGN_FILE, INDEX_FILE):

@@ -742,3 +742,71 @@ def default_output(source: str | os.PathLike, kind: str, fmt: str = "png") -> Pa
     """RUN.h5 → RUN_<kind>.<fmt> beside it."""
     source = Path(source)
     return source.with_name(f"{source.stem}_{kind}.{fmt}")
+
+
+class FigureError(ValueError):
+    """A figure that cannot be drawn from these inputs (one line)."""
+
+
+def write_figure(paths: Sequence[str | os.PathLike], kind: str, output: str | os.PathLike | None = None, *,
+                 overwrite: bool = False, dpi: float | None = None, theory: bool = True, unwrap: bool = False,
+                 times: Sequence[float] | None = None, node: int | None = None) -> Path:
+    """`capsim plot`: draw `kind` of one run (several overlaid for :data:`OVERLAY_KINDS`, a
+    summary for 'steady') into `output` (default :func:`default_output`), through the output
+    guards and a temporary file renamed into place. Raises FigureError, or
+    :class:`capsim.files.OutputError`/``StorageError``, each one line. Returns the path."""
+    from capsim.files import FIGURE_MAGIC, check_writable, guard_output, replace_atomically, starts_with
+    from capsim.errors import first_line
+
+    paths = [Path(p) for p in paths]
+    if kind not in KINDS:
+        raise FigureError(f"--kind must be one of {', '.join(KINDS)}, got {kind!r}")
+    if len(paths) > 1 and kind not in OVERLAY_KINDS:
+        raise FigureError(f"--kind {kind} takes one PATH, got {len(paths)}; "
+                          f"several runs overlay only for {', '.join(OVERLAY_KINDS)}")
+    for path in paths:
+        if not path.exists():
+            raise FigureError(f"{path}: no such file")
+        if path.is_dir():
+            raise FigureError(f"{path}: is a directory; give a run file (.h5) or a summary (.nc)")
+    if dpi is not None and not (math.isfinite(dpi) and 10 <= dpi <= 2400):
+        raise FigureError(f"--dpi {dpi:g}: must be in [10, 2400]")
+    path = paths[0]
+    out = Path(output) if output is not None else default_output(path, kind)
+    try:
+        fmt = figure_format(out)
+    except ValueError as exc:
+        guard_output(out, paths, overwrite)  # an input or a run file named as output: say that first
+        raise FigureError(str(exc)) from None
+    check_writable(out)
+    guard_output(out, paths, overwrite, ours=starts_with(FIGURE_MAGIC[fmt]))
+    options: dict[str, Any] = {}
+    if kind in ("deformation", "inclination", "rheology", "steady"):
+        options["theory"] = theory
+    if kind == "inclination" and unwrap:
+        options["unwrap"] = True
+    if kind == "contour" and times:
+        options["times"] = list(times)
+    if kind == "tensions" and times:
+        options["t"] = times[-1]
+    if kind == "trajectory" and node is not None:
+        options["node"] = node
+    source: Any = [str(p) for p in paths] if len(paths) > 1 else path
+
+    def draw(tmp: Path) -> None:
+        import matplotlib.pyplot as plt
+
+        from capsim.config import ConfigError
+        from capsim.store import TrajectoryError
+
+        try:
+            plt.close(plot(source, kind, tmp, dpi=dpi, fmt=fmt, **options))
+        except (TrajectoryError, ConfigError, ValueError, KeyError) as exc:
+            raise FigureError(first_line(exc)) from None
+        except OSError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a file that is not what --kind needs: one line
+            raise FigureError(f"cannot plot {path} as --kind {kind}: {type(exc).__name__}: {first_line(exc)}") from None
+
+    replace_atomically(out, draw)
+    return out

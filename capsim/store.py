@@ -51,7 +51,7 @@ from capsim.quantities import GROUPS, attrs_for, global_attrs
 __all__ = [
     "STATUSES", "CheckpointError", "FileLock", "LockedError", "StorageError", "TrajectoryError", "TrajectoryWriter",
     "free_bytes", "is_run_file", "lock_path",
-    "case_from_trajectory", "checkpoint_path", "mark_abandoned", "open_run", "read_case", "read_checkpoint", "read_run_record",
+    "case_from_trajectory", "checkpoint_path", "guard_run_output", "mark_abandoned", "open_run", "read_case", "read_checkpoint", "read_run_record",
     "read_run_status", "read_trajectory", "remove_checkpoint", "write_checkpoint", "write_error_estimate",
 ]
 
@@ -555,6 +555,22 @@ def write_error_estimate(path: str | os.PathLike, estimate: dict[str, Any]) -> N
 def checkpoint_path(trajectory_path: str | os.PathLike) -> Path:
     """Where the restart checkpoint of a trajectory lives: ``<path>.ckpt.npz``."""
     return Path(os.fspath(trajectory_path) + ".ckpt.npz")
+
+
+def guard_run_output(path: str | os.PathLike, inputs: list, *, overwrite: bool = False, resume: bool = False) -> None:
+    """Refuse (:class:`capsim.files.OutputError`, one line) a run's output path before the
+    run: a name capsim keeps for a checkpoint or a lock, a path that cannot be written,
+    one of the inputs, or an existing file without `overwrite` (or `resume`); the
+    checkpoint and lock beside it must not be inputs either."""
+    from capsim.files import OutputError, check_writable, guard_output
+
+    out = Path(path)
+    if out.name.endswith((".ckpt.npz", ".capsim-lock")):
+        raise OutputError(f"output path {out}: a name capsim keeps for a run's checkpoint or lock; choose another")
+    check_writable(out)
+    guard_output(out, inputs, overwrite or resume, option="--overwrite (or --resume to continue it)")
+    for derived in (checkpoint_path(out), lock_path(out)):
+        guard_output(derived, inputs, True)
 
 
 def write_checkpoint(path: str | os.PathLike, arrays: dict[str, Any]) -> None:

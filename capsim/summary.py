@@ -233,3 +233,25 @@ def write_summary(ds: xr.Dataset, path: str | os.PathLike) -> Path:
         ds = ds.rename_vars({"run": "run_id"})
     ds.to_netcdf(path, engine="netcdf4", encoding=text_encoding(ds))
     return path
+
+
+def summarize_to_file(directory: str | os.PathLike, output: str | os.PathLike | None = None, *,
+                      overwrite: bool = False):
+    """`capsim summarize`: the campaign in `directory` summarised into `output` (default
+    DIR/summary.nc) through the output guards (never over the campaign's own files or
+    one of its runs; another file than a summary only with `overwrite`) and a temporary
+    file renamed into place. Returns (path, Dataset)."""
+    from capsim.files import (
+        CAMPAIGN_FILE, INDEX_FILE, check_writable, guard_output, is_run_file, is_summary_file, replace_atomically,
+    )
+
+    directory = Path(directory)
+    ds = summarize_campaign(directory)
+    path = Path(output) if output is not None else directory / "summary.nc"
+    check_writable(path)
+    inputs = [directory / CAMPAIGN_FILE, directory / INDEX_FILE]
+    if path.exists() and path.resolve().parent == directory.resolve() and is_run_file(path):
+        inputs.append(path)  # one of the campaign's runs
+    guard_output(path, inputs, overwrite, ours=is_summary_file)
+    replace_atomically(path, lambda tmp: write_summary(ds, tmp))
+    return path, ds

@@ -128,3 +128,15 @@ def conversion(shear_rate: Any, viscosity: Any, radius: Any, surface_modulus: An
         "G": tension / e_s, "Ca": tension / g_s, "time_unit_s": 1.0 / k,
         "E_s_N_per_m": e_s, "G_s_N_per_m": g_s, "velocity_m_per_s": k * a, "tension_N_per_m": tension,
     }
+
+
+def describe_conversion(out: dict[str, float]) -> str:
+    """:func:`conversion`'s result as the lines `capsim units` prints."""
+    return "\n".join([
+        f"G  = mu k a / E_s  = {out['G']:.6g}   (flow.shear_rate_G)",
+        f"Ca = mu k a / G_s  = {out['Ca']:.6g}   (= 3 G: G_s = E_s / 3 for every elastic law)",
+        f"time unit 1/k      = {out['time_unit_s']:.6g} s   (kt = 1)",
+        f"E_s = {out['E_s_N_per_m']:.6g} N/m, G_s = {out['G_s_N_per_m']:.6g} N/m, "
+        f"velocity unit ka = {out['velocity_m_per_s']:.6g} m/s, tension unit mu k a = "
+        f"{out['tension_N_per_m']:.6g} N/m",
+    ])

@@ -330,7 +330,7 @@ def test_campaign_dry_run_lists_exactly_the_runs_the_sweep_runs(tmp_path, monkey
 
 
 def test_the_compression_warning_says_what_to_do_in_one_line():
-    from capsim.cli import _compression
+    from capsim.display import _compression  # the closing table lives in display (issue 27)
 
     text = _compression({"compressed_fraction": 0.26, "min_tension": -0.31, "bending_modulus": 0.0})
     assert "\n" not in text and text.startswith("26 %")
