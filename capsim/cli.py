@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import enum
 import json
-import math
-import os
 import sys
 from pathlib import Path
 from typing import Any, Optional

@@ -74,7 +74,7 @@ def tmp_name(path: str | os.PathLike) -> Path:
 def lock_path(path: str | os.PathLike) -> Path:
     """The lock of a file, ``.<name>.capsim-lock`` beside it; of a directory, ``<dir>/.capsim.lock``."""
     path = Path(path)
-    return path / ".capsim.lock" if path.is_dir() else path.with_name(f".{path.name}.capsim-lock")
+    return path / ".capsim.lock" if path.is_dir() else path.with_name(f".{path.name}{LOCK_SUFFIX}")
 
 
 # ---------------------------------------------------------------- room
@@ -152,6 +152,11 @@ def check_writable(path: str | os.PathLike) -> None:
         raise OutputError(f"output path {str(path)[:200]}: {exc.strerror or first_line(exc)}") from None
 
 
+#: the name of a run's restart checkpoint beside it (capsim.checkpoint owns its content)
+CHECKPOINT_SUFFIX = ".ckpt.npz"
+#: the name of a lock beside the file it guards
+LOCK_SUFFIX = ".capsim-lock"
+
 #: a campaign directory's own files (capsim.campaign writes them; named here, where every guard sees them)
 INDEX_FILE = "runs.json"
 CAMPAIGN_FILE = "campaign.yaml"
@@ -199,7 +204,7 @@ def protected(path: Path) -> str | None:
     """What an existing file is that no command replaces unless told to (--overwrite); None if not one."""
     if path.name in (CAMPAIGN_FILE, INDEX_FILE):
         return "a campaign's own file"
-    if path.name.endswith(".ckpt.npz"):
+    if path.name.endswith(CHECKPOINT_SUFFIX):
         return "a restart checkpoint"
     if is_run_file(path):
         return "a capsim run file"

@@ -19,11 +19,10 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 import numpy as np
-import yaml
 
 from capsim import __version__
-from capsim.config import Case, step_defining
-from capsim.errors import bounded_repr, first_line
+from capsim.config import Case
+from capsim.errors import first_line
 from capsim.linearization import StageSolver
 from capsim.membrane import law_attributes
 from capsim.mesh import SurfaceMesh, rest_shape_attributes
@@ -31,20 +30,14 @@ from capsim.observables import StepObserver, run_summary
 from capsim.schedules import CheckpointSchedule, SnapshotSchedule
 from capsim.solver import CapsuleModel, build_model
 from capsim.stopping import LoopState, Stop, end_tolerance, stop_reason
-from capsim.store import (
-    CheckpointError, FileLock, StorageError, TrajectoryError, TrajectoryWriter, checkpoint_path, read_checkpoint,
-    remove_checkpoint, write_checkpoint,
-)
+from capsim import checkpoint
+from capsim.checkpoint import ResumeError, checkpoint_path, remove_checkpoint
+from capsim.store import FileLock, StorageError, TrajectoryError, TrajectoryWriter
 from capsim.timestepping import Integrator, make_integrator
 
 __all__ = ["ResumeError", "RunResult", "build_model", "run_case"]
 
 ProgressCallback = Callable[[dict], None]
-
-
-class ResumeError(Exception):
-    """A run that cannot be resumed (no or damaged checkpoint, unreadable
-    trajectory, a different case); the message is one line."""
 
 
 #: in a campaign worker, the signal that stopped the parent (which relays every stop as SIGTERM)
@@ -178,152 +171,6 @@ def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool 
         return _Run(case, progress, resume, stop).execute()
 
 
-# ---------------------------------------------------------------- checkpoints
-
-_CHECKPOINT_FORMAT = 2
-_PARTS = ("integrator", "model", "observer", "snapshots")
-
-
-def _flatten(parts: dict[str, dict[str, Any]]) -> dict[str, Any]:
-    return {f"{part}.{key}": value for part, state in parts.items() for key, value in state.items()
-            if value is not None}
-
-
-def _unflatten(arrays: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    parts: dict[str, dict[str, Any]] = {part: {} for part in _PARTS}
-    for key, value in arrays.items():
-        part, _, rest = key.partition(".")
-        if part in parts:
-            parts[part][rest] = value.item() if isinstance(value, np.ndarray) and value.ndim == 0 else value
-    return parts
-
-
-def _step_defining(case: dict) -> dict:
-    """The part of a resolved case that fixes the step sequence, name kept: the
-    checkpoint is the run's own (:func:`capsim.config.step_defining`)."""
-    out = step_defining(case)
-    if "name" in case:
-        out["name"] = case["name"]
-    return out
-
-
-def _first_difference(a: dict, b: dict, prefix: str = "", where: str = "the checkpoint") -> str | None:
-    for key in sorted(set(a) | set(b), key=str):
-        va, vb = a.get(key), b.get(key)
-        if isinstance(va, dict) and isinstance(vb, dict):
-            found = _first_difference(va, vb, f"{prefix}{key}.", where)
-            if found:
-                return found
-        elif va != vb:
-            return f"{prefix}{key} = {bounded_repr(vb)} in {where}, {bounded_repr(va)} now"
-    return None
-
-
-def _stored_case(text: Any) -> dict | None:
-    """A stored config_yaml as a mapping; None when it is not one (garbage, not YAML)."""
-    if isinstance(text, np.ndarray):
-        text = text.item() if text.ndim == 0 else None
-    if isinstance(text, bytes):
-        text = text.decode("utf-8", "replace")
-    if not isinstance(text, str) or len(text) > 1_000_000:
-        return None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError:
-        return None
-    return data if isinstance(data, dict) else None
-
-
-def _header_number(saved: dict[str, Any], key: str, path: Path, *, integer: bool = False) -> float:
-    """A scalar of the checkpoint's header, refused unless a finite number >= 0 (whole with `integer`)."""
-    if key not in saved:
-        raise ResumeError(f"{path}: bad checkpoint: {key} is missing")
-    value = np.asarray(saved[key])
-    if value.shape != () or value.dtype.kind not in "iuf":
-        shown = bounded_repr(value.item() if value.shape == () else value)
-        raise ResumeError(f"{path}: bad checkpoint: {key} = {shown}: must be a number")
-    x = float(value)
-    if not (np.isfinite(x) and x >= 0) or (integer and not x.is_integer()):
-        kind = "a whole number >= 0" if integer else "a finite number >= 0"
-        raise ResumeError(f"{path}: bad checkpoint: {key} = {x!r}: must be {kind}")
-    return x
-
-
-def _load_checkpoint(path: Path, case: Case) -> tuple[dict[str, dict[str, Any]], float]:
-    """The parts of a checkpoint of this case and the wall time spent before it
-    (the header checked here, the parts against the run in :meth:`_Run._reopen`)."""
-    try:
-        saved = read_checkpoint(path)
-    except CheckpointError as exc:
-        raise ResumeError(str(exc)) from None
-    fmt = np.asarray(saved.get("format", -1))
-    if fmt.shape != () or fmt.dtype.kind not in "iu" or int(fmt) != _CHECKPOINT_FORMAT or "config_yaml" not in saved:
-        raise ResumeError(f"{path}: not a capsim checkpoint of format {_CHECKPOINT_FORMAT}")
-    saved_case = _stored_case(saved["config_yaml"])
-    if saved_case is None:
-        raise ResumeError(f"{path}: bad checkpoint: config_yaml is not a case (not a YAML mapping)")
-    diff = _first_difference(_step_defining(case.model_dump(mode="json")), _step_defining(saved_case))
-    if diff is not None:
-        raise ResumeError(f"{path}: belongs to another case: {diff}")
-    wall = _header_number(saved, "wall_s", path)
-    for key in ("steps", "t"):
-        _header_number(saved, key, path, integer=key == "steps")
-    parts = _unflatten(saved)
-    for key in ("steps", "t"):
-        if key in parts["integrator"] and np.asarray(parts["integrator"][key]).shape == () and \
-                parts["integrator"][key] != np.asarray(saved[key]).item():
-            raise ResumeError(f"{path}: bad checkpoint: {key} = {np.asarray(saved[key]).item()!r} in the header, "
-                              f"{parts['integrator'][key]!r} in the integrator's state")
-    return parts, wall
-
-
-def _check_parts(path: Path, parts: dict[str, dict[str, Any]], fresh: dict[str, dict[str, Any]],
-                 t_end: float) -> None:
-    """Refuse a checkpoint whose state cannot be this run's: every entry a fresh run
-    has must be there, numeric and finite, of the fresh run's shape (nodal arrays of
-    this mesh's node count), counters whole numbers >= 0, t within [0, t_end], dt > 0."""
-    def bad(name: str, what: str) -> ResumeError:
-        return ResumeError(f"{path}: bad checkpoint: {name} {what}")
-
-    nodal = np.shape(fresh["integrator"]["y"])
-    for part in _PARTS:
-        have, want_part = parts[part], fresh[part]
-        for key, want in want_part.items():
-            if want is not None and key not in have:
-                raise bad(f"{part}.{key}", "is missing")
-        for key, value in have.items():
-            name, want = f"{part}.{key}", want_part.get(key)
-            arr = np.asarray(value)
-            if arr.dtype.kind not in "biuf":
-                raise bad(name, f"= {bounded_repr(value)}: must be numbers (dtype {arr.dtype})")
-            if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
-                raise bad(name, f"holds {int(np.count_nonzero(~np.isfinite(arr)))} non-finite values")
-            if part == "integrator" and (arr.ndim or (want is not None and np.ndim(want))):
-                if arr.shape != nodal:
-                    raise bad(name, f"has shape {arr.shape}, this mesh needs {nodal}")
-            elif part == "model" and key.startswith("warm_"):
-                if arr.ndim != 2 or arr.shape[1] != 3:
-                    raise bad(name, f"has shape {arr.shape}, expected (n, 3)")
-            elif want is not None and arr.ndim != np.ndim(want):
-                raise bad(name, f"has shape {arr.shape}, expected {np.shape(want)}")
-            elif want is None and part == "observer" and arr.ndim != 1:
-                raise bad(name, f"has shape {arr.shape}, expected (n,)")
-            if want is not None and np.ndim(want) == 0 and np.asarray(want).dtype.kind in "iub":
-                x = float(arr) if arr.ndim == 0 else -1.0
-                if not (x >= 0 and x.is_integer()):
-                    raise bad(name, f"= {bounded_repr(value)}: must be a whole number >= 0")
-    ig, snaps = parts["integrator"], parts["snapshots"]
-    t, dt = float(ig["t"]), float(ig["dt"])
-    if not 0.0 <= t <= t_end + end_tolerance(t_end):
-        raise bad("integrator.t", f"= {t!r}: must be in [0, time.t_end = {t_end!r}]")
-    if not dt > 0.0:
-        raise bad("integrator.dt", f"= {dt!r}: must be > 0")
-    if not 1 <= int(snaps["count"]) <= int(ig["steps"]) + 1:
-        raise bad("snapshots.count", f"= {int(snaps['count'])}: must be in [1, steps + 1 = {int(ig['steps']) + 1}]")
-    if not 0.0 <= float(snaps["last_time"]) <= t:
-        raise bad("snapshots.last_time", f"= {float(snaps['last_time'])!r}: must be in [0, t = {t!r}]")
-
-
 # ---------------------------------------------------------------- one run
 
 
@@ -352,7 +199,7 @@ class _Run:
         self.path = Path(case.output.path)
         self.ckpt_path = checkpoint_path(self.path)
         self.config_yaml = case.to_yaml()
-        saved, self.wall_before = _load_checkpoint(self.ckpt_path, case) if resume else (None, 0.0)
+        saved, self.wall_before = checkpoint.load(self.ckpt_path, case) if resume else (None, 0.0)
         self.model, X = build_model(case)
         self.model.interrupt_check = stop.check  # SIGTERM honoured between GMRES iterations too
         self.integrator: Integrator = make_integrator(case.time.scheme, self._rhs, X, **_integrator_options(case, self.model))
@@ -408,7 +255,7 @@ class _Run:
             raise self._write_failed(exc) from None
 
     def _reopen(self, saved: dict[str, dict[str, Any]]) -> None:
-        _check_parts(self.ckpt_path, saved, self._parts(), self.case.time.t_end)
+        checkpoint.check_parts(self.ckpt_path, saved, self._parts(), self.case.time.t_end)
         try:
             self._restore(saved)
         except Exception as exc:  # noqa: BLE001 - whatever a damaged state raises, one line
@@ -432,11 +279,11 @@ class _Run:
         are not the ones the checkpoint continues (row `steps` at the checkpoint's t,
         the last snapshot at its time, and at its positions when taken at t)."""
         ig, snaps, path = self.integrator, self.snapshots, self.path
-        stored = _stored_case(data["attrs"].get("config_yaml"))
+        stored = checkpoint.stored_case(data["attrs"].get("config_yaml"))
         if stored is None:
             raise ResumeError(f"{path}: not the checkpoint's run file: no readable config_yaml")
-        diff = _first_difference(_step_defining(self.case.model_dump(mode="json")), _step_defining(stored),
-                                 where="the run file")
+        diff = checkpoint.first_difference(checkpoint.step_defining_of(self.case.model_dump(mode="json")),
+                                           checkpoint.step_defining_of(stored), where="the run file")
         if diff is not None:
             raise ResumeError(f"{path}: not the checkpoint's run file (another case): {diff}")
         t_rows = data["timeseries"]["t"]
@@ -451,11 +298,7 @@ class _Run:
 
     def _save_checkpoint(self, parts: dict[str, dict[str, Any]]) -> None:
         self.writer.flush()  # the rows the checkpoint counts on must be on disk first
-        wall = self.wall_before + time.perf_counter() - self.wall0
-        # steps and t also at the top level: where the checkpoint stands, for whoever watches it
-        header = {"config_yaml": self.config_yaml, "wall_s": wall, "format": _CHECKPOINT_FORMAT,
-                  "steps": parts["integrator"]["steps"], "t": parts["integrator"]["t"]}
-        write_checkpoint(self.ckpt_path, {**_flatten(parts), **header})
+        checkpoint.save(self.ckpt_path, parts, self.config_yaml, self.wall_before + time.perf_counter() - self.wall0)
         self.checkpoints.taken(int(parts["integrator"]["steps"]))
 
     def _accepted(self, trial) -> None:

@@ -58,3 +58,8 @@ class CheckpointSchedule:
 
     def taken(self, steps: int) -> None:
         self.last_steps, self.last_wall = steps, time.perf_counter()
+
+
+def end_tolerance(t_end: float) -> float:
+    """Round-off in the sum of step sizes: t within this of t_end is the end."""
+    return 1e-12 * max(1.0, t_end)

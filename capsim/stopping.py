@@ -22,6 +22,7 @@ from typing import Sequence
 import numpy as np
 
 from capsim.config import Guards, Time
+from capsim.schedules import end_tolerance  # noqa: F401 - a stop rule, kept beside the cadences
 from capsim.observables import is_steady
 
 
@@ -103,6 +104,3 @@ def stop_reason(state: LoopState, time: Time, guards: Guards, row: dict | None, 
     return None
 
 
-def end_tolerance(t_end: float) -> float:
-    """Round-off in the sum of step sizes: t within this of t_end is the end."""
-    return 1e-12 * max(1.0, t_end)

@@ -42,6 +42,9 @@ from capsim.errors import first_line
 from capsim.files import (
     FileIdentity, FileLock, LockedError, StorageError, copy_and_replace, free_bytes, lock_path, room_bytes,
 )
+from capsim.checkpoint import (  # noqa: F401 - the checkpoint's names, as this module offered them
+    CheckpointError, checkpoint_path, read_checkpoint, remove_checkpoint, write_checkpoint,
+)
 from capsim.files import is_run_file  # noqa: F401 - part of this module's reading API
 from capsim.files import mb as _mb
 from capsim.files import tmp_name as _tmp_name
@@ -64,10 +67,6 @@ RESUME_HEADROOM_BYTES = 16 * 2**20
 
 class TrajectoryError(Exception):
     """A trajectory file that cannot be read; the message is one line naming it."""
-
-
-class CheckpointError(Exception):
-    """A restart checkpoint that is missing or cannot be read; one line naming it."""
 
 
 #: room a writer keeps free beyond the largest flush (a snapshot and a chunk of every column),
@@ -552,58 +551,20 @@ def write_error_estimate(path: str | os.PathLike, estimate: dict[str, Any]) -> N
 # ---------------------------------------------------------------- checkpoints
 
 
-def checkpoint_path(trajectory_path: str | os.PathLike) -> Path:
-    """Where the restart checkpoint of a trajectory lives: ``<path>.ckpt.npz``."""
-    return Path(os.fspath(trajectory_path) + ".ckpt.npz")
-
-
 def guard_run_output(path: str | os.PathLike, inputs: list, *, overwrite: bool = False, resume: bool = False) -> None:
     """Refuse (:class:`capsim.files.OutputError`, one line) a run's output path before the
     run: a name capsim keeps for a checkpoint or a lock, a path that cannot be written,
     one of the inputs, or an existing file without `overwrite` (or `resume`); the
     checkpoint and lock beside it must not be inputs either."""
-    from capsim.files import OutputError, check_writable, guard_output
+    from capsim.files import CHECKPOINT_SUFFIX, LOCK_SUFFIX, OutputError, check_writable, guard_output
 
     out = Path(path)
-    if out.name.endswith((".ckpt.npz", ".capsim-lock")):
+    if out.name.endswith((CHECKPOINT_SUFFIX, LOCK_SUFFIX)):
         raise OutputError(f"output path {out}: a name capsim keeps for a run's checkpoint or lock; choose another")
     check_writable(out)
     guard_output(out, inputs, overwrite or resume, option="--overwrite (or --resume to continue it)")
     for derived in (checkpoint_path(out), lock_path(out)):
         guard_output(derived, inputs, True)
-
-
-def write_checkpoint(path: str | os.PathLike, arrays: dict[str, Any]) -> None:
-    """Write arrays and scalars to an .npz atomically: a killed writer leaves the
-    previous checkpoint in place, never half of a new one."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **{key: np.asarray(value) for key, value in arrays.items()})
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except OSError as exc:  # a full disk: the previous checkpoint stays
-        tmp.unlink(missing_ok=True)
-        raise StorageError(_write_failure(path, exc) + "; the previous checkpoint is kept") from None
-
-
-def read_checkpoint(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    source = os.fspath(path)
-    if not os.path.exists(source):
-        raise CheckpointError(f"{source}: no checkpoint (nothing to resume)")
-    try:
-        with np.load(source, allow_pickle=False) as data:
-            return {key: data[key] for key in data.files}
-    except Exception as exc:  # zipfile, ValueError, OSError: all mean a damaged file
-        first = first_line(exc, default="")
-        raise CheckpointError(f"{source}: unreadable checkpoint: {type(exc).__name__}: {first}".rstrip(": ")) from None
-
-
-def remove_checkpoint(path: str | os.PathLike) -> None:
-    Path(path).unlink(missing_ok=True)
-    Path(os.fspath(path) + ".tmp").unlink(missing_ok=True)
 
 
 # ---------------------------------------------------------------- reading

@@ -97,3 +97,42 @@ def test_quantities_and_summary_stay_light():
                  if isinstance(node, (ast.Import, ast.ImportFrom))
                  for alias in (node.names if isinstance(node, ast.Import) else [ast.alias(node.module or "")])}
         assert banned not in names, f"capsim.{module} imports {banned}"
+
+
+def _imported_names(module: str) -> set[str]:
+    tree = ast.parse((PACKAGE / f"{module}.py").read_text())
+    return {alias.name for node in ast.walk(tree) if isinstance(node, (ast.Import, ast.ImportFrom))
+            for alias in (node.names if isinstance(node, ast.Import) else [ast.alias(node.module or "")])}
+
+
+def test_the_cli_is_a_thin_face():
+    """cli.py parses and prints (issue 27): no HDF5, no file naming or renaming of its own, <= 600 lines."""
+    import re
+
+    text = (PACKAGE / "cli.py").read_text()
+    assert not any(name.split(".")[0] == "h5py" for name in _imported_names("cli"))
+    found = [line for line in text.splitlines() if re.search(r"h5py|ckpt|tmp-|rename|replace\(", line)]
+    assert not found, found
+    assert len(text.splitlines()) <= 600
+
+
+def test_only_the_checkpoint_module_knows_the_checkpoint_format():
+    """Its format (the constant, the npz writer) in capsim/checkpoint.py; its name in capsim/files.py."""
+    import re
+
+    for path in PACKAGE.glob("*.py"):
+        text = path.read_text()
+        if path.name != "checkpoint.py":
+            assert not re.search(r"CHECKPOINT_FORMAT|^FORMAT =|np\.savez", text, re.M), path.name
+        if path.name != "files.py":  # the name as a literal of code (documentation may mention it)
+            assert not re.search(r"[\"']\.ckpt\.npz", text), path.name
+
+
+def test_every_writer_uses_the_one_temporary_name():
+    """Temporary files are named by capsim.files.tmp_name alone: no module builds its own."""
+    import re
+
+    for path in PACKAGE.glob("*.py"):
+        if path.name == "files.py":
+            continue
+        assert not re.search(r"\.tmp-|\+ \"\.tmp\"|\.tmp\"\)", path.read_text()), path.name
