@@ -426,6 +426,13 @@ class Time(_Model):
     dt_initial: float = Field(1.0e-3, gt=0)
     max_steps: int = Field(1_000_000, ge=1, strict=True)
     stop_when_steady: bool = Field(False, strict=True)
+    stop_when_settled: bool = Field(
+        False, strict=True,
+        description="stop when the orbit has settled (checked once per unit of kt): the shape steady "
+        "(tank-treading, or rolling along z), regular oscillations, or a tumbling or kayaking orbit with two "
+        "whole periods whose period and Jeffery orbit constant changed by under 1% over the last one "
+        "(capsim.observables.orbit_settled)",
+    )
 
     @model_validator(mode="after")
     def _options_of_the_scheme(self) -> "Time":
