@@ -541,8 +541,8 @@ def classify_orbit(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, director:
     - rolling: the shape steady (is_steady) and the director within ROLLING_TOL of ±z over
       the window (the membrane tank-treads about the vorticity axis); a sphere's
       (r = 1) director is arbitrary, so a sphere is never rolling;
-    - kayaking: the director turning about z (at least one whole orbit of its azimuth in
-      the last half of the run, or the shape tumbling) with its mean folded polar angle
+    - kayaking: the director turning about z (its azimuth advancing by at least π, half
+      an orbit, in the last half of the run, or the shape tumbling) with its mean folded polar angle
       below π/2 − OFF_PLANE_TOL over the window: precessing off the shear plane;
     - tumbling: turning, with the director in the shear plane;
     - steady, oscillating, transient: as classify_motion (tank-treading or swinging in
@@ -563,7 +563,7 @@ def classify_orbit(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, director:
         return out
     late = t >= 0.5 * t[-1]
     phi = np.unwrap(np.arctan2(d[late, 0], d[late, 1]))
-    turning = out["motion"] == "tumbling" or (phi.size >= 2 and np.ptp(phi) >= 2 * np.pi)
+    turning = out["motion"] == "tumbling" or (phi.size >= 2 and np.ptp(phi) >= np.pi)
     if turning:
         off_plane = window_stats(t, folded, out["t_from"], out["t_to"])[0] < np.pi / 2 - OFF_PLANE_TOL
         out["motion"] = "kayaking" if off_plane else "tumbling"
