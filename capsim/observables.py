@@ -482,7 +482,11 @@ def jeffery_orbit_constant(polar: np.ndarray, azimuth: np.ndarray, r: float) -> 
     """C = |tan θ| (r² cos²φ + sin²φ)^½ / r from Jeffery's orbit tan θ = C r / (r² cos²φ + sin²φ)^½
     (θ the polar angle from z, φ the azimuth from y; docs/known_answers.md): constant
     along a rigid spheroid's orbit; 0 rolling along z, ∞ in the shear plane."""
-    return np.abs(np.tan(polar)) * np.sqrt(r**2 * np.cos(azimuth) ** 2 + np.sin(azimuth) ** 2) / r
+    polar = np.asarray(polar, float)
+    with np.errstate(divide="ignore"):
+        # in the plane to round-off (cos θ ~ 1e-17): ∞, not tan's 1e16
+        tan = np.where(np.abs(np.cos(polar)) < 1e-12, np.inf, np.abs(np.tan(polar)))
+    return tan * np.sqrt(r**2 * np.cos(azimuth) ** 2 + np.sin(azimuth) ** 2) / r
 
 
 def orbit_summary(t: np.ndarray, director: np.ndarray, aspect_ratio: float = 1.0) -> dict:
@@ -521,11 +525,16 @@ def orbit_summary(t: np.ndarray, director: np.ndarray, aspect_ratio: float = 1.0
     if passes.size < 3:
         return out
     C = jeffery_orbit_constant(polar, phi, aspect_ratio)
-    means = [window_stats(t, C, a, b)[0] for a, b in zip(passes[:-2:2], passes[2::2])]
+
+    def mean(a, b):
+        sel = (t >= a) & (t <= b)
+        return float("inf") if np.isinf(C[sel]).any() else window_stats(t, C, a, b)[0]
+
+    means = [mean(a, b) for a, b in zip(passes[:-2:2], passes[2::2])]
     out["orbit_period"] = float(passes[-1] - passes[-3])
     out["orbit_periods"] = float(len(means))
     out["orbit_constant_first"], out["orbit_constant"] = float(means[0]), float(means[-1])
-    if len(means) >= 2 and means[0] != 0.0:
+    if len(means) >= 2 and 0.0 < means[0] < np.inf:
         out["orbit_constant_drift"] = float((means[-1] - means[0]) / ((len(means) - 1) * means[0]))
     if passes.size >= 5:
         out["orbit_period_change"] = float(abs((passes[-1] - passes[-3]) - (passes[-3] - passes[-5]))
@@ -541,10 +550,12 @@ def classify_orbit(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, director:
     - rolling: the shape steady (is_steady) and the director within ROLLING_TOL of ±z over
       the window (the membrane tank-treads about the vorticity axis); a sphere's
       (r = 1) director is arbitrary, so a sphere is never rolling;
-    - kayaking: the director turning about z (its azimuth advancing by at least π, half
-      an orbit, in the last half of the run, or the shape tumbling) with its mean folded polar angle
-      below π/2 − OFF_PLANE_TOL over the window: precessing off the shear plane;
-    - tumbling: turning, with the director in the shear plane;
+    - kayaking: the director off the shear plane (its mean folded polar angle below
+      π/2 − OFF_PLANE_TOL over the window) and turning about z (its azimuth advancing by
+      at least π, half an orbit, in the last half of the run, or the shape tumbling);
+    - tumbling: the shape tumbling (classify_motion) with the director in the plane (in
+      the plane a tank-treading membrane carries the director round as well, so the
+      director's turning alone is not tumbling there);
     - steady, oscillating, transient: as classify_motion (tank-treading or swinging in
       the plane; an off-plane director that neither settles on z nor turns is
       transient while it drifts).
@@ -563,9 +574,11 @@ def classify_orbit(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, director:
         return out
     late = t >= 0.5 * t[-1]
     phi = np.unwrap(np.arctan2(d[late, 0], d[late, 1]))
-    turning = out["motion"] == "tumbling" or (phi.size >= 2 and np.ptp(phi) >= np.pi)
-    if turning:
-        off_plane = window_stats(t, folded, out["t_from"], out["t_to"])[0] < np.pi / 2 - OFF_PLANE_TOL
+    off_plane = window_stats(t, folded, out["t_from"], out["t_to"])[0] < np.pi / 2 - OFF_PLANE_TOL
+    # in the plane a tank-treading or swinging membrane carries the director round too:
+    # there the shape alone tells tumbling from swinging
+    director_turning = phi.size >= 2 and np.ptp(phi) >= np.pi
+    if out["motion"] == "tumbling" or (off_plane and director_turning):
         out["motion"] = "kayaking" if off_plane else "tumbling"
     return out
 

@@ -256,9 +256,6 @@ _add("shear_rate_G", "dimensionless shear rate G", "1",
 _add("viscosity_ratio", "viscosity ratio λ", "1", "λ = μ_inside / μ_outside")
 _add("initial_tilt_deg", "initial tilt of the rest shape", "degree",
      "rotation of the rest shape about the z-axis at t = 0")
-_add("initial_axis", "initial symmetry axis of the rest shape", "1",
-     "unit vector [x, y, z] of the rest shape's symmetry axis at t = 0 (unset: [0, 1, 0] turned by "
-     "initial_tilt_deg)")
 _add("aspect_ratio", "rest-shape aspect ratio", "1", "polar / equatorial axis of the rest spheroid")
 _add("level", "mesh subdivision level", "1", "subdivisions of the base polyhedron")
 _add("law", "membrane constitutive law", "", TABLE["membrane_law/name"].definition)
@@ -286,7 +283,7 @@ _add("time_scheme", "time-stepping scheme", "1",
      "flag: 0 rkf23 (Runge-Kutta-Fehlberg 2(3)), 1 rkc (Runge-Kutta-Chebyshev), 2 linearly_implicit "
      "(Rosenbrock-W) (flag_values, flag_meanings)")
 _add("steady_average", "whether the values are averages over a settled motion", "1",
-     "flag: 1 when the motion is steady, oscillating or tumbling, so that the observables are means over "
+     "flag: 1 when the motion is steady, rolling, kayaking, oscillating or tumbling, so that the observables are means over "
      "whole cycles (or the steady window); 0 when the run ended transient or unstable, or did not classify "
      "its motion: the observables are then means over the last quarter of the run (or its last row), not a "
      "settled value — do not average them with the others")

@@ -41,6 +41,8 @@ _FLOATS = ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star",
            # the motion and the window the values are means over
            "period", "D_xy_amplitude", "theta_amplitude", "averaging_t_from", "averaging_t_to",
            "intrinsic_viscosity", "intrinsic_viscosity_std",
+           # the director's orbit (issue 26)
+           "orbit_period", "orbit_constant", "orbit_constant_first", "orbit_constant_drift", "final_polar_angle",
            "D_xy_error_estimate", "theta_error_estimate", "ttf_ratio_error_estimate", "Sxy_star_error_estimate")
 _STRINGS = ("status", "status_reason", "motion")
 #: the context of a run from its resolved case: name -> (dtype, value for a run without a case)
@@ -48,7 +50,7 @@ _CONTEXT = {"level": (np.int64, -1), "mesh_base": (np.int8, -1), "law": (object,
             "skalak_c": (np.float64, np.nan), "psi": (np.float64, np.nan), "bending_modulus": (np.float64, np.nan),
             "time_scheme": (np.int8, -1), "rtol": (np.float64, np.nan), "steady_average": (np.int8, 0)}
 #: motions whose window means are settled values
-_SETTLED = frozenset({"steady", "oscillating", "tumbling"})
+_SETTLED = frozenset({"steady", "rolling", "kayaking", "oscillating", "tumbling"})
 
 _WHERE = "campaign"  # the qualified entries of capsim.quantities for this file
 
