@@ -18,6 +18,7 @@ written as char arrays, categorical values as flag variables (flag_values, flag_
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Iterator, Mapping
 from datetime import datetime, timezone
@@ -144,6 +145,18 @@ def _attrs_for(name: str, dotted: str | None = None) -> dict[str, Any]:
     return attrs
 
 
+def _coordinate(name: str, dotted: str, values: list) -> tuple:
+    """(dim, values, attrs) of a swept case field. A vector-valued field (initial_axis)
+    cannot be a CF coordinate: its coordinate is the index of each value, 0, 1, …, and
+    the attribute ``case_field_values`` lists the values in that order."""
+    attrs = _attrs_for(name, dotted)
+    if any(isinstance(v, (list, tuple)) for v in values):
+        attrs = dict(attrs, case_field_values="; ".join(json.dumps(list(v)) for v in values),
+                     long_name=f"index of the swept {dotted}")
+        return name, np.arange(len(values), dtype=np.int64), attrs
+    return name, np.asarray(values), attrs
+
+
 def summarize_campaign(directory: str | os.PathLike) -> xr.Dataset:
     """One Dataset for a campaign directory written by ``capsim sweep``."""
     directory = Path(directory)
@@ -156,7 +169,7 @@ def summarize_campaign(directory: str | os.PathLike) -> xr.Dataset:
         names = _dim_names(keys)
         dims = tuple(names[k] for k in keys)
         shape = tuple(len(v) for v in campaign.sweep.values())
-        coords = {names[k]: (names[k], np.asarray(campaign.sweep[k]), _attrs_for(names[k], k)) for k in keys}
+        coords = {names[k]: _coordinate(names[k], k, campaign.sweep[k]) for k in keys}
     else:
         keys = list(campaign.sweep) + list(campaign.zip)
         names = _dim_names(keys)
@@ -164,7 +177,7 @@ def summarize_campaign(directory: str | os.PathLike) -> xr.Dataset:
         coords = {"run": ("run", np.asarray(list(index), dtype=object), _attrs_for("run_id"))}
         for k in keys:
             values = [entry["params"][k] for entry in index.values()]
-            coords[names[k]] = ("run", np.asarray(values), _attrs_for(names[k], k))
+            coords[names[k]] = ("run",) + _coordinate(names[k], k, values)[1:]
 
     data: dict[str, np.ndarray] = {name: np.full(shape, np.nan) for name in _FLOATS}
     data.update({name: np.full(shape, "", dtype=object) for name in _STRINGS})
