@@ -296,3 +296,32 @@ def test_jeffery_deviation_shrinks_with_G(tmp_path, kind, polar):
         assert fine["motion"] == "kayaking"
         assert abs(fine["C_error"]) < 0.03
         assert abs(fine["C_error"]) < abs(coarse["C_error"])
+
+
+# ---------------------------------------------------------------- campaign and figure
+
+
+def test_an_orbit_campaign_summarises_and_plots(tmp_path):
+    """A sweep of initial_axis × G (level 0, kt 0.3): the summary indexes the axes (a vector
+    is no CF coordinate) and carries the orbit; plot --kind orbit draws a run."""
+    from capsim.campaign import campaign_from_dict, run_campaign
+    from capsim.plot import plot
+    from capsim.summary import summarize_campaign
+
+    axes = [[0.0, 0.5, 0.866025], [0.0, 1.0, 0.0]]
+    campaign = campaign_from_dict({
+        "name": "orbit-tiny",
+        "base": {"shape": {"kind": "prolate", "aspect_ratio": 2.0}, "mesh": {"level": 0}, "time": {"t_end": 0.3}},
+        "sweep": {"initial_axis": axes, "flow.shear_rate_G": [0.05, 0.1]},
+        "output": {"dir": str(tmp_path / "runs")},
+    })
+    run_campaign(campaign, workers=1)
+    ds = summarize_campaign(tmp_path / "runs")
+    assert list(ds["initial_axis"].values) == [0, 1]
+    assert ds["initial_axis"].attrs["case_field_values"] == "[0.0, 0.5, 0.866025]; [0.0, 1.0, 0.0]"
+    polar = ds["final_polar_angle"].values
+    assert np.all(np.abs(polar[1] - np.pi / 2) < 1e-9)  # in the plane: stays there
+    assert np.all((polar[0] > 0.4) & (polar[0] < 0.7))  # 30° from z, still near it at kt 0.3
+    run = sorted((tmp_path / "runs").glob("*.h5"))[0]
+    fig = plot(str(run), "orbit", tmp_path / "orbit.png")
+    assert len(fig.axes) == 3 and (tmp_path / "orbit.png").read_bytes()[:4] == b"\x89PNG"
