@@ -548,8 +548,9 @@ def classify_orbit(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, director:
 
     - unstable: as classify_motion;
     - rolling: the shape steady (is_steady) and the director within ROLLING_TOL of ±z over
-      the window (the membrane tank-treads about the vorticity axis); a sphere's
-      (r = 1) director is arbitrary, so a sphere is never rolling;
+      the last ``window_fraction`` of the run, whatever came before (the membrane
+      tank-treads about the vorticity axis); a sphere's (r = 1) director is arbitrary,
+      so a sphere is never rolling;
     - kayaking: the director off the shear plane (its mean folded polar angle below
       π/2 − OFF_PLANE_TOL over the window) and turning about z (its azimuth advancing by
       at least π, half an orbit, in the last half of the run, or the shape tumbling);
@@ -567,10 +568,19 @@ def classify_orbit(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, director:
         return out
     polar = np.arccos(np.clip(d[:, 2], -1.0, 1.0))
     folded = np.minimum(polar, np.pi - polar)
+    # rolling first: the shape may have tumbled on its way (classify_motion then says
+    # tumbling for the whole run) before it settled spinning about z
+    t_last = max(float(t[0]), (1.0 - classifier_options.get("window_fraction", 0.25)) * float(t[-1]))
+    last = t >= t_last
+    if (abs(aspect_ratio - 1.0) > 1e-3 and folded[last].max() < ROLLING_TOL
+            and is_steady(t, D_xy, theta, **classifier_options)):
+        nan = float("nan")
+        out.update(motion="rolling", t_from=t_last, t_to=float(t[-1]), period=nan,
+                   D_xy_mean=window_stats(t, D_xy, t_last)[0], theta_mean=window_stats(t, theta, t_last)[0],
+                   D_xy_amplitude=nan, theta_amplitude=nan)
+        return out
     window = t >= out["t_from"] - 1e-12
     if out["motion"] == "steady":
-        if abs(aspect_ratio - 1.0) > 1e-3 and folded[window].max() < ROLLING_TOL:
-            out["motion"] = "rolling"
         return out
     late = t >= 0.5 * t[-1]
     phi = np.unwrap(np.arctan2(d[late, 0], d[late, 1]))
