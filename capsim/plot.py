@@ -685,6 +685,15 @@ def orbit_figure(source):
     d = np.stack([np.asarray(ts[f"director_{c}"], float) for c in "xyz"], axis=1)
     fig = _figure(figsize=(FIGSIZE[0] * 1.25, FIGSIZE[1] * 1.5))
     grid = fig.add_gridspec(2, 2, height_ratios=(1.1, 1.0))
+    # the angles first: the first axes carry the legend outside on the right, as every kind's
+    ax = fig.add_subplot(grid[1, :])
+    polar = np.arccos(np.clip(d[:, 2], -1.0, 1.0))
+    azimuth = np.unwrap(np.arctan2(d[:, 0], d[:, 1]))
+    ax.plot(t, polar / np.pi, "C0-", label=r"polar angle $\theta_p/\pi$ from $z$")
+    ax.plot(t, azimuth / np.pi, "C1-", label=r"azimuth $\varphi/\pi$ from $y$ (unwrapped)")
+    ax.set_xlabel(r"$kt$")
+    ax.set_ylabel(r"angle / $\pi$")
+    ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
     circle = np.linspace(0.0, 2 * np.pi, 181)
     # (horizontal, vertical) components of each view; the hidden axis decides the front
     views = ((0, 1, 2, "seen from +z (shear plane)", "x", "y"), (1, 2, 0, "seen from +x (flow axis)", "y", "z"))
@@ -706,14 +715,6 @@ def orbit_figure(source):
         ax.set_title(title, fontsize="small")
         if k == 1:
             ax.legend(fontsize="x-small", loc="upper left", bbox_to_anchor=(1.02, 1.0))
-    ax = fig.add_subplot(grid[1, :])
-    polar = np.arccos(np.clip(d[:, 2], -1.0, 1.0))
-    azimuth = np.unwrap(np.arctan2(d[:, 0], d[:, 1]))
-    ax.plot(t, polar / np.pi, "C0-", label=r"polar angle $\theta_p/\pi$ from $z$")
-    ax.plot(t, azimuth / np.pi, "C1-", label=r"azimuth $\varphi/\pi$ from $y$ (unwrapped)")
-    ax.set_xlabel(r"$kt$")
-    ax.set_ylabel(r"angle / $\pi$")
-    ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
     _caption(fig, [info])
     return fig
 
