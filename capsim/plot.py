@@ -683,7 +683,7 @@ def orbit_figure(source):
         raise ValueError("the run file has no director (written by capsim since issue 26)")
     t = np.asarray(ts["t"], float)
     d = np.stack([np.asarray(ts[f"director_{c}"], float) for c in "xyz"], axis=1)
-    fig = _figure(figsize=(FIGSIZE[0] * 1.25, FIGSIZE[1] * 1.5))
+    fig = _figure()
     grid = fig.add_gridspec(2, 2, height_ratios=(1.1, 1.0))
     # the angles first: the first axes carry the legend outside on the right, as every kind's
     ax = fig.add_subplot(grid[1, :])

@@ -41,8 +41,11 @@ def jeffery_record(kind: str, polar_deg: float, G: float, level: int, tmp: str, 
     rec = {"kind": kind, "polar_deg": polar_deg, "G": G, "level": level, "r": r,
            "period": s["orbit_period"], "jeffery_period": s["jeffery_period"],
            "period_error": s["orbit_period"] / s["jeffery_period"] - 1.0,
-           "C_first": s["orbit_constant_first"], "C_exact": C_exact if polar_deg != 90 else float("inf"),
+           "C_first": s["orbit_constant_first"], "C_exact": C_exact if polar_deg != 90 else None,
            "final_polar_deg": math.degrees(s["final_polar_angle"]), "motion": s["motion"],
            "steps": s["steps"], "wall_s": wall}
-    rec["C_error"] = rec["C_first"] / C_exact - 1.0 if polar_deg != 90 else float("nan")
+    # in the shear plane C is ∞ (Jeffery), and so is capsim's
+    rec["C_error"] = rec["C_first"] / C_exact - 1.0 if polar_deg != 90 else None
+    if polar_deg == 90:
+        rec["C_first"] = None if s["orbit_constant_first"] == float("inf") else s["orbit_constant_first"]
     return rec

@@ -272,7 +272,7 @@ def _jeffery_run(tmp_path, kind, polar, G, level=2):
 def test_a_stiff_capsule_follows_jefferys_orbit(tmp_path, kind):
     """r = 2 and 0.5, director at 60° from z, G = 5e-4, level 2, one orbit: the period
     and the orbit constant over the first orbit within 3 % of Jeffery's
-    (benchmarks/jeffery_orbits.md: −2.1 % and +0.4 % for C, +0.01 % and −0.18 % for T)."""
+    (docs/known_answers.md: −2.1 % and +0.4 % for C, +0.01 % and −0.18 % for T)."""
     rec = _jeffery_run(tmp_path, kind, 60.0, 5e-4)
     assert rec["motion"] == "kayaking"
     assert abs(rec["period_error"]) < 0.03 and abs(rec["C_error"]) < 0.03, rec
