@@ -153,7 +153,9 @@ _add("N2_star", "normalised second normal stress difference", "1",
 _add("ttf_ratio", "normalised tank-treading frequency", "1",
      "f / f_s, f the frequency at which the material nodes starting in z = 0 circle the centroid in the "
      "xy-plane and f_s = k/(4π) that of a rigid sphere: per step from their mean angular velocity; in a "
-     "summary from their whole revolutions (tt_angle) when there is at least one")
+     "summary from their whole revolutions (tt_angle) when there is at least one. A rest shape turned off the "
+     "plane (initial_axis) has no mesh line on z = 0: the nodes of the band |z| < max|z|/4 (away from the "
+     "z-axis) are followed instead")
 _add("tt_angle", "tank-treading angle", "rad",
      "unwrapped mean angle about the centroid, in the xy-plane, of the nodes starting in z = 0")
 _add("solver_iterations", "iterations of the velocity solve", "1",
