@@ -175,6 +175,26 @@ def test_a_half_run_is_the_full_run_off_the_plane(tmp_path, lam):
     assert d[0, -1] > 0.05
 
 
+def test_an_in_plane_axis_is_the_tilt(tmp_path):
+    """initial_axis (−sin t, cos t, 0) runs the case initial_tilt_deg t (to round-off), with
+    the quarter symmetry that auto finds in the plane."""
+    t = math.radians(30.0)
+    runs = []
+    for name, orientation in (("tilt", {"initial_tilt_deg": 30.0}),
+                              ("axis", {"initial_axis": [-math.sin(t), math.cos(t), 0.0]})):
+        case = _case(tmp_path, name, **{"flow.viscosity_ratio": 5.0, "shape.kind": "oblate",
+                                        "shape.aspect_ratio": 0.6, "time.t_end": 0.3})
+        data = case.model_dump()
+        data.pop("initial_axis")
+        case = case_from_dict({**data, **orientation})
+        assert run_case(case)["status"] == "completed"
+        runs.append(read_trajectory(case.output.path))
+    assert runs[0]["attrs"]["symmetry"] == runs[1]["attrs"]["symmetry"] == "mirror_z+rotation_z"
+    for key in SERIES:
+        np.testing.assert_allclose(runs[1]["timeseries"][key], runs[0]["timeseries"][key], rtol=0, atol=1e-10,
+                                   err_msg=key)
+
+
 def test_a_resumed_off_plane_run_is_the_uninterrupted_one(tmp_path):
     class Interrupt:
         def __call__(self, state):
