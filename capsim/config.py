@@ -303,15 +303,42 @@ DENSE_MAX_NODES = 1100
 BASE_FACES = {"octahedron": 8, "icosahedron": 20}
 
 
+#: mesh.symmetry: the point inversion x -> -x (half) holds for every orientation; the quarter
+#: (mirror z -> -z and rotation by pi about z) only for an axis in the shear plane or along z
+SYMMETRY_MODES = ("auto", "quarter", "half", "none")
+#: the old boolean mesh.symmetry, still read
+_SYMMETRY_FROM_BOOL = {True: "auto", False: "none"}
+
+
+def axis_keeps_quarter_symmetry(axis, tol: float = 1e-12) -> bool:
+    """Whether a head-tail symmetric rest shape with this axis is mapped onto itself by the
+    mirror z -> -z and the rotation by pi about z: the axis in the plane z = 0, or along z."""
+    x, y, z = axis
+    return abs(z) <= tol or math.hypot(x, y) <= tol
+
+
 class Mesh(_Model):
     base: Literal["octahedron", "icosahedron"] = "octahedron"
     level: int = Field(3, ge=0, le=6, strict=True)
-    symmetry: bool = Field(
-        True, strict=True,
-        description="use the symmetries of shear flow and the rest shape: the mirror z -> -z and the "
-        "rotation by pi about z (boundary integrals at a quarter of the nodes; the run file's 'symmetry' "
-        "attribute says which were found); false lets asymmetric modes develop",
+    symmetry: Literal["auto", "quarter", "half", "none"] = Field(
+        "auto",
+        description="symmetries of shear flow and the rest shape used to evaluate the boundary integrals "
+        "at one node of each orbit: quarter = the mirror z -> -z and the rotation by pi about z (a quarter "
+        "of the nodes; needs the rest shape's axis in the shear plane or along z), half = the point "
+        "inversion x -> -x (half of the nodes; any orientation), none = every node (lets asymmetric modes "
+        "develop), auto = the largest that the mesh has; the run file's 'symmetry' attribute says which "
+        "group was used (mirror_z+rotation_z, inversion, none). The old true/false read as auto/none",
     )
+
+    @field_validator("symmetry", mode="before")
+    @classmethod
+    def _symmetry_from_bool(cls, v: Any) -> Any:
+        # runs before _Model's strict check (pydantic runs 'before' validators last-defined first)
+        if isinstance(v, bool):
+            return _SYMMETRY_FROM_BOOL[v]
+        if not isinstance(v, str) or v not in SYMMETRY_MODES:
+            raise ValueError(f"must be one of {', '.join(SYMMETRY_MODES)} (or true/false, read as auto/none)")
+        return v
 
     @property
     def n_nodes(self) -> int:
@@ -413,6 +440,13 @@ class Time(_Model):
     dt_initial: float = Field(1.0e-3, gt=0)
     max_steps: int = Field(1_000_000, ge=1, strict=True)
     stop_when_steady: bool = Field(False, strict=True)
+    stop_when_settled: bool = Field(
+        False, strict=True,
+        description="stop when the orbit has settled (checked once per unit of kt): the shape steady "
+        "(tank-treading, or rolling along z), regular oscillations, or a tumbling or kayaking orbit with two "
+        "whole periods whose period and Jeffery orbit constant changed by under 1% over the last one "
+        "(capsim.observables.orbit_settled)",
+    )
     max_wall_s: Optional[float] = Field(
         None, gt=0, le=1e9,
         description="wall-time limit in seconds: the run stops as 'interrupted' at the first step past it, "
@@ -536,7 +570,18 @@ class Case(_Model):
     shape: Shape = Shape()
     membrane: Membrane = Membrane()
     flow: Flow = Flow()
-    initial_tilt_deg: float = Field(0.0, ge=-90, le=90)
+    initial_tilt_deg: float = Field(
+        0.0, ge=-90, le=90,
+        description="in-plane shorthand for the initial orientation: rotation of the rest shape about z; "
+        "its symmetry axis is then (-sin t, cos t, 0). Give this or initial_axis, not both",
+    )
+    initial_axis: Optional[tuple[float, float, float]] = Field(
+        None,
+        description="direction [x, y, z] of the rest shape's symmetry axis at t = 0 (normalised on load); "
+        "the shape is turned from the y-axis onto it by the smallest rotation (about z when the axis lies "
+        "in the shear plane, so [-sin t, cos t, 0] is initial_tilt_deg t). Unset: [0, 1, 0] turned by "
+        "initial_tilt_deg",
+    )
     mesh: Mesh = Mesh()
     quadrature: Quadrature = Quadrature()
     time: Time = Time()
@@ -568,6 +613,48 @@ class Case(_Model):
         # frozen models: the flow with the computed G, set once while validating
         object.__setattr__(self, "flow", self.flow.model_copy(update={"shear_rate_G": G}))
         return self
+
+    @field_validator("initial_axis", mode="before")
+    @classmethod
+    def _unit_axis(cls, v: Any) -> Any:
+        if v is None:
+            return v
+        ok = isinstance(v, (list, tuple)) and len(v) == 3 and all(
+            isinstance(c, (int, float)) and not isinstance(c, bool) for c in v)
+        if not ok:
+            raise ValueError("must be a list of three numbers [x, y, z]")
+        if not all(math.isfinite(c) for c in v):
+            raise ValueError("must be three finite numbers")
+        norm = math.sqrt(sum(float(c) ** 2 for c in v))
+        if not norm > 1e-12:
+            raise ValueError("must be a nonzero vector (the direction of the rest shape's axis)")
+        if abs(norm - 1.0) <= 1e-15:  # already unit (a resolved case): kept as is, so reloading is exact
+            return tuple(float(c) for c in v)
+        return tuple(float(c) / norm for c in v)
+
+    @model_validator(mode="after")
+    def _one_orientation(self) -> Case:
+        # a resolved case of an axis-only run stores initial_tilt_deg 0: accepted
+        if self.initial_axis is not None and self.initial_tilt_deg != 0.0:
+            raise _FieldProblem(
+                "initial_axis", list(self.initial_axis),
+                f"give initial_axis or initial_tilt_deg (= {self.initial_tilt_deg:g}), not both; remove one",
+            )
+        if self.mesh.symmetry == "quarter" and not axis_keeps_quarter_symmetry(self.axis):
+            raise _FieldProblem(
+                "mesh.symmetry", "quarter",
+                f"needs the rest shape's axis in the shear plane (z = 0) or along z, got initial_axis "
+                f"[{', '.join(f'{c:.6g}' for c in self.axis)}]; use half, auto or none",
+            )
+        return self
+
+    @property
+    def axis(self) -> tuple[float, float, float]:
+        """The rest shape's symmetry axis at t = 0: initial_axis, or y turned by initial_tilt_deg."""
+        if self.initial_axis is not None:
+            return self.initial_axis
+        t = math.radians(self.initial_tilt_deg)
+        return (-math.sin(t), math.cos(t), 0.0)
 
     @model_validator(mode="after")
     def _stage_preconditioner_fits(self) -> Case:

@@ -95,7 +95,8 @@ def warm_up(cases: Sequence) -> None:
         for case in todo:
             tiny = apply_overrides(case, **{
                 "mesh.level": 0, "time.t_end": 2.0 * case.time.dt_initial, "time.max_steps": 2,
-                "time.stop_when_steady": False, "output.path": os.path.join(tmp, "warm.h5"),
+                "time.stop_when_steady": False, "time.stop_when_settled": False,
+                "output.path": os.path.join(tmp, "warm.h5"),
             })
             try:
                 run_case(tiny)

@@ -179,18 +179,34 @@ def rotation_about_z(angle_rad: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+def rotation_onto(axis) -> np.ndarray:
+    """The smallest rotation R with R ŷ = axis (unit): about z when the axis lies in the
+    shear plane (then R = rotation_about_z(t) for axis (−sin t, cos t, 0), as a tilt),
+    else about ŷ × axis (Rodrigues' formula)."""
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    if a[2] == 0.0:
+        return rotation_about_z(np.arctan2(-a[0], a[1]))
+    k = np.array([a[2], 0.0, -a[0]])  # ŷ × a
+    s, c = np.linalg.norm(k), a[1]
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + K + K @ K * ((1.0 - c) / s**2)
+
+
 def rest_shape_mesh(
     kind: str = "sphere",
     base: str = "octahedron",
     level: int = 3,
     tilt_deg: float = 0.0,
+    axis=None,
     **shape_params: float,
 ) -> SurfaceMesh:
     """Rest shape mapped from the unit-sphere mesh, with equal-volume radius 1.
 
     The volume is measured on the discretised (quadratic) surface so that the
     discrete equal-volume radius is 1 to round-off; ``tilt_deg`` then rotates the
-    shape about z, the vorticity axis.
+    shape about z, the vorticity axis, or ``axis`` (a direction; not with a tilt)
+    turns its symmetry axis, y, onto that direction by :func:`rotation_onto`.
     """
     from capsim.geometry import element_geometry, volume_area
 
@@ -201,7 +217,12 @@ def rest_shape_mesh(
     geo = element_geometry(x, sphere.elements, 6)
     volume, _ = volume_area(geo)
     x *= (4.0 * np.pi / 3.0 / volume) ** (1.0 / 3.0)
-    x = x @ rotation_about_z(np.deg2rad(tilt_deg)).T
+    if axis is not None:
+        if tilt_deg != 0.0:
+            raise ValueError("give tilt_deg or axis, not both")
+        x = x @ rotation_onto(axis).T
+    else:
+        x = x @ rotation_about_z(np.deg2rad(tilt_deg)).T
     return SurfaceMesh(x, sphere.elements, sphere.n_vertices)
 
 

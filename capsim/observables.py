@@ -34,6 +34,12 @@ def ellipsoid_axes(geo: ElementGeometry) -> dict:
     i_long = max(in_plane, key=lambda k: axes[k])
     i_short = min(in_plane, key=lambda k: axes[k])
     L, l = axes[i_long], axes[i_short]
+    # the 3-D ellipsoid (issue 26): semi-axes a ≥ b ≥ c and the direction of the longest;
+    # a line has no sign: the first component that is not ~0 is made positive
+    long3 = vec[:, int(np.argmax(axes))].copy()
+    lead = long3[np.flatnonzero(np.abs(long3) > 1e-12)[0]]
+    long3 *= np.sign(lead)
+    a, b, c = np.sort(axes)[::-1]
     v = vec[:, i_long]
     theta = float(np.arctan2(v[1], v[0]))
     if theta > np.pi / 2:
@@ -49,6 +55,10 @@ def ellipsoid_axes(geo: ElementGeometry) -> dict:
         "W": float(axes[out_of_plane]),
         "D_xy": float((L - l) / (L + l)),
         "theta": theta,
+        "ellipsoid_a": float(a),
+        "ellipsoid_b": float(b),
+        "ellipsoid_c": float(c),
+        "long_axis": long3,
     }
 
 
@@ -67,9 +77,72 @@ def step_observables(x: np.ndarray, elements: np.ndarray, geo: ElementGeometry, 
         "axis_L": e["L"],
         "axis_l": e["l"],
         "axis_W": e["W"],
+        "ellipsoid_a": e["ellipsoid_a"],
+        "ellipsoid_b": e["ellipsoid_b"],
+        "ellipsoid_c": e["ellipsoid_c"],
+        "long_axis_x": float(e["long_axis"][0]),
+        "long_axis_y": float(e["long_axis"][1]),
+        "long_axis_z": float(e["long_axis"][2]),
         "min_element_quality": float(vertex_triangle_quality(x, elements).min()),
         "max_principal_stretch": float(max_stretch),
     }
+
+
+# ---------------------------------------------------------------- the material director
+
+
+class MaterialDirector:
+    """The rest shape's symmetry axis a carried by the membrane (issue 26).
+
+    F is the affine map that best carries the rest surface onto the current one in
+    the least-squares sense, weighted by rest area: F = argmin ∫ |x − x̄ − F (X − X̄)|² dS₀,
+    i.e. F = [∫ (x − x̄)(X − X̄)ᵀ dS₀] M₀⁻¹, M₀ = ∫ (X − X̄)(X − X̄)ᵀ dS₀ (bars: material
+    means over dS₀). The director is F a / |F a|: a material quantity (it follows the
+    membrane, so it turns with a tumbling body and circles with a tank-treading
+    membrane), exactly R a for a rigid rotation R whatever the mesh, and a whole-
+    membrane mean of the deformation gradient (not one node's). Integrals at the
+    regular Gauss points of the current geometry, weighted by the rest geometry's."""
+
+    def __init__(self, rest_geometry: ElementGeometry, axis) -> None:
+        X = rest_geometry.points.reshape(-1, 3)
+        w = rest_geometry.weights.ravel()
+        self.w = w / w.sum()
+        Xc = X - self.w @ X
+        M0 = (Xc * self.w[:, None]).T @ Xc
+        a = np.asarray(axis, dtype=np.float64)
+        # F a = Σ w (x − x̄) [(X − X̄) · M₀⁻¹ a]: one weight per Gauss point
+        self.weights = self.w * (Xc @ np.linalg.solve(M0, a / np.linalg.norm(a)))
+
+    def __call__(self, geo: ElementGeometry) -> np.ndarray:
+        x = geo.points.reshape(-1, 3)
+        d = self.weights @ (x - self.w @ x)
+        return d / np.linalg.norm(d)
+
+
+def director_observables(d: np.ndarray) -> dict:
+    """The director, its polar angle from the vorticity axis z, arccos d_z ∈ [0, π], and
+    its azimuth in the shear plane from the gradient axis y towards the flow axis x,
+    atan2(d_x, d_y) ∈ (−π, π] (Jeffery's angles, docs/known_answers.md)."""
+    return {
+        "director_x": float(d[0]),
+        "director_y": float(d[1]),
+        "director_z": float(d[2]),
+        "director_polar_angle": float(np.arccos(np.clip(d[2], -1.0, 1.0))),
+        "director_azimuth": float(np.arctan2(d[0], d[1])),
+    }
+
+
+def rest_aspect_ratio(rest_geometry: ElementGeometry, axis) -> float:
+    """r = axis / equatorial diameter of the rest shape's equivalent ellipsoid: the square
+    root of the ratio of its second moments of volume along a and across it (exact for a
+    spheroid; the equivalent-ellipsoid value for the biconcave disk)."""
+    volume, _ = volume_area(rest_geometry)
+    M = second_moment(rest_geometry, centroid(rest_geometry, volume))
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    along = float(a @ M @ a)
+    across = 0.5 * (float(np.trace(M)) - along)
+    return float(np.sqrt(along / across))
 
 
 # ---------------------------------------------------------------- stresslet
@@ -134,10 +207,15 @@ class TankTreadingTracker:
     ``ttf_ratio`` = |ω| / (k/2), the tank-treading frequency over f_s = k/(4π).
     """
 
-    def __init__(self, rest_positions: np.ndarray, plane_tol: float = 1e-9) -> None:
+    def __init__(self, rest_positions: np.ndarray, plane_tol: float = 1e-9, band: float = 0.25) -> None:
         self.nodes = np.flatnonzero(np.abs(rest_positions[:, 2]) < plane_tol)
         if self.nodes.size == 0:
-            raise ValueError("no rest-shape nodes lie in the plane z = 0 to track tank-treading")
+            # a rest shape turned out of the shear plane (issue 26) has no mesh line on
+            # z = 0: follow the nodes of a band about it instead, away from the z-axis
+            z, rho = np.abs(rest_positions[:, 2]), np.hypot(rest_positions[:, 0], rest_positions[:, 1])
+            self.nodes = np.flatnonzero((z < band * z.max()) & (rho > 0.5 * rho.max()))
+        if self.nodes.size == 0:
+            raise ValueError("no rest-shape nodes lie near the plane z = 0 to track tank-treading")
         self._raw: np.ndarray | None = None
         self._unwrapped: np.ndarray | None = None
 
@@ -196,7 +274,15 @@ def revolution_rate(t: np.ndarray, angle: np.ndarray, t_from: float) -> float | 
 
 # ---------------------------------------------------------------- motion classifier
 
-MOTIONS = ("steady", "oscillating", "tumbling", "transient", "unstable")
+MOTIONS = ("steady", "rolling", "kayaking", "oscillating", "tumbling", "transient", "unstable")
+#: the director counts as along the vorticity axis (rolling) while it stays within this
+#: angle of ±z (rad, ≈ 5.7°), and as off the shear plane (kayaking) while its mean angle
+#: from ±z stays below π/2 − OFF_PLANE_TOL (≈ 80°)
+ROLLING_TOL = 0.1
+OFF_PLANE_TOL = np.deg2rad(10.0)
+#: the orbit has settled (time.stop_when_settled) when the per-period change of the
+#: period and of the orbit constant is below this fraction
+SETTLED_RTOL = 1e-2
 SUMMARY_QUANTITIES = ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star")
 
 
@@ -392,6 +478,141 @@ def classify_motion(
     return out
 
 
+def jeffery_orbit_constant(polar: np.ndarray, azimuth: np.ndarray, r: float) -> np.ndarray:
+    """C = |tan θ| (r² cos²φ + sin²φ)^½ / r from Jeffery's orbit tan θ = C r / (r² cos²φ + sin²φ)^½
+    (θ the polar angle from z, φ the azimuth from y; docs/known_answers.md): constant
+    along a rigid spheroid's orbit; 0 rolling along z, ∞ in the shear plane."""
+    polar = np.asarray(polar, float)
+    with np.errstate(divide="ignore"):
+        # in the plane to round-off (cos θ ~ 1e-17): ∞, not tan's 1e16
+        tan = np.where(np.abs(np.cos(polar)) < 1e-12, np.inf, np.abs(np.tan(polar)))
+    return tan * np.sqrt(r**2 * np.cos(azimuth) ** 2 + np.sin(azimuth) ** 2) / r
+
+
+def orbit_summary(t: np.ndarray, director: np.ndarray, aspect_ratio: float = 1.0) -> dict:
+    """The director's orbit: period, Jeffery's orbit constant and the final polar angle.
+
+    director (n, 3) unit vectors at times t. The azimuth φ = atan2(d_x, d_y), unwrapped,
+    passes through mπ (the director crossing the yz-plane, where it turns fastest) twice
+    per orbit: the period is the time from one passage to the next but one (two half
+    orbits; for a rigid spheroid both halves are alike, T = 2π(r + 1/r)/k).
+    ``orbit_constant_first`` and ``orbit_constant`` are the time means of C over the first
+    and the last whole period, ``orbit_constant_drift`` the relative change of that mean
+    per period ((C_last − C_first) / ((n − 1) C_first) over n whole periods; NaN under two),
+    ``final_polar_angle`` the director's angle from the vorticity axis at the end, folded
+    into [0, π/2] (the axis of a head-tail symmetric shape is a line)."""
+    t = np.asarray(t, float)
+    d = np.asarray(director, float)
+    nan = float("nan")
+    polar = np.arccos(np.clip(d[:, 2], -1.0, 1.0))
+    folded = np.minimum(polar, np.pi - polar)
+    out = {"orbit_period": nan, "orbit_constant": nan, "orbit_constant_first": nan,
+           "orbit_constant_drift": nan, "orbit_periods": 0.0,
+           "final_polar_angle": float(folded[-1]) if t.size else nan, "jeffery_aspect_ratio": float(aspect_ratio),
+           "jeffery_period": float(2.0 * np.pi * (aspect_ratio + 1.0 / aspect_ratio))}
+    if t.size < 3 or not np.all(np.isfinite(d)):
+        return out
+    phi = np.unwrap(np.arctan2(d[:, 0], d[:, 1]))
+    # the shift counts a start exactly on a passage (a director started in the yz-plane)
+    level = np.floor(phi / np.pi - 1e-9)
+    idx = np.flatnonzero(np.diff(level) != 0)
+    passes = []
+    for i in idx:
+        target = max(level[i], level[i + 1]) * np.pi
+        w = (target - phi[i]) / (phi[i + 1] - phi[i])
+        passes.append(t[i] + w * (t[i + 1] - t[i]))
+    passes = np.array(passes)
+    if passes.size < 3:
+        return out
+    C = jeffery_orbit_constant(polar, phi, aspect_ratio)
+
+    def mean(a, b):
+        sel = (t >= a) & (t <= b)
+        return float("inf") if np.isinf(C[sel]).any() else window_stats(t, C, a, b)[0]
+
+    means = [mean(a, b) for a, b in zip(passes[:-2:2], passes[2::2])]
+    out["orbit_period"] = float(passes[-1] - passes[-3])
+    out["orbit_periods"] = float(len(means))
+    out["orbit_constant_first"], out["orbit_constant"] = float(means[0]), float(means[-1])
+    if len(means) >= 2 and 0.0 < means[0] < np.inf:
+        out["orbit_constant_drift"] = float((means[-1] - means[0]) / ((len(means) - 1) * means[0]))
+    if passes.size >= 5:
+        out["orbit_period_change"] = float(abs((passes[-1] - passes[-3]) - (passes[-3] - passes[-5]))
+                                           / (passes[-1] - passes[-3]))
+    return out
+
+
+def classify_orbit(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, director: np.ndarray,
+                   aspect_ratio: float = 1.0, **classifier_options) -> dict:
+    """:func:`classify_motion` of the shape in the shear plane, refined by the director:
+
+    - unstable: as classify_motion;
+    - rolling: the shape steady (is_steady) and the director within ROLLING_TOL of ±z over
+      the last ``window_fraction`` of the run, whatever came before (the membrane
+      tank-treads about the vorticity axis); a sphere's (r = 1) director is arbitrary,
+      so a sphere is never rolling;
+    - kayaking: the director off the shear plane (its mean folded polar angle below
+      π/2 − OFF_PLANE_TOL over the window) and turning about z (its azimuth advancing by
+      at least π, half an orbit, in the last half of the run, or the shape tumbling);
+    - tumbling: the shape tumbling (classify_motion) with the director in the plane (in
+      the plane a tank-treading membrane carries the director round as well, so the
+      director's turning alone is not tumbling there);
+    - steady, oscillating, transient: as classify_motion (tank-treading or swinging in
+      the plane; an off-plane director that neither settles on z nor turns is
+      transient while it drifts).
+    Returns classify_motion's fields with the motion replaced."""
+    out = classify_motion(t, D_xy, theta, **classifier_options)
+    t = np.asarray(t, float)
+    d = np.asarray(director, float)
+    if out["motion"] == "unstable" or t.size < 3 or not np.all(np.isfinite(d)):
+        return out
+    polar = np.arccos(np.clip(d[:, 2], -1.0, 1.0))
+    folded = np.minimum(polar, np.pi - polar)
+    # rolling first: the shape may have tumbled on its way (classify_motion then says
+    # tumbling for the whole run) before it settled spinning about z
+    t_last = max(float(t[0]), (1.0 - classifier_options.get("window_fraction", 0.25)) * float(t[-1]))
+    last = t >= t_last
+    if (abs(aspect_ratio - 1.0) > 1e-3 and folded[last].max() < ROLLING_TOL
+            and is_steady(t, D_xy, theta, **classifier_options)):
+        nan = float("nan")
+        out.update(motion="rolling", t_from=t_last, t_to=float(t[-1]), period=nan,
+                   D_xy_mean=window_stats(t, D_xy, t_last)[0], theta_mean=window_stats(t, theta, t_last)[0],
+                   D_xy_amplitude=nan, theta_amplitude=nan)
+        return out
+    window = t >= out["t_from"] - 1e-12
+    if out["motion"] == "steady":
+        return out
+    late = t >= 0.5 * t[-1]
+    phi = np.unwrap(np.arctan2(d[late, 0], d[late, 1]))
+    off_plane = window_stats(t, folded, out["t_from"], out["t_to"])[0] < np.pi / 2 - OFF_PLANE_TOL
+    # in the plane a tank-treading or swinging membrane carries the director round too:
+    # there the shape alone tells tumbling from swinging
+    director_turning = phi.size >= 2 and np.ptp(phi) >= np.pi
+    if out["motion"] == "tumbling" or (off_plane and director_turning):
+        out["motion"] = "kayaking" if off_plane else "tumbling"
+    return out
+
+
+def orbit_settled(t, D_xy, theta, director, aspect_ratio: float = 1.0) -> bool:
+    """time.stop_when_settled: the motion is steady or rolling (is_steady), or it is a
+    periodic orbit (tumbling, kayaking) with at least two whole periods whose period and
+    orbit constant changed by less than SETTLED_RTOL over the last period (a rigid
+    particle's Jeffery orbit is neutrally stable: it settles at once), or it oscillates
+    (classify_motion's regular cycles)."""
+    motion = classify_orbit(t, D_xy, theta, director, aspect_ratio)["motion"]
+    if motion in ("steady", "rolling", "oscillating"):
+        return True
+    if motion not in ("tumbling", "kayaking"):
+        return False
+    orbit = orbit_summary(t, director, aspect_ratio)
+    change = orbit.get("orbit_period_change", float("nan"))
+    if not change < SETTLED_RTOL:
+        return False
+    drift = orbit["orbit_constant_drift"]
+    # in the shear plane C is infinite: the period alone decides
+    return motion == "tumbling" or abs(drift) < SETTLED_RTOL
+
+
 def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
     """Summary of a run from its time series (t, D_xy, θ, ttf_ratio, tt_angle,
     Sxy_star, N1_star, N2_star): the motion, and the time-mean and standard
@@ -400,7 +621,13 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
     the tracked nodes' angle since the window start (or the second half of the
     run, if earlier) when there is at least one, else from the mean rate."""
     t = np.asarray(series["t"], float)
-    motion = classify_motion(t, series["D_xy"], series["theta"], **classifier_options)
+    aspect_ratio = classifier_options.pop("aspect_ratio", 1.0)
+    director = None
+    if all(f"director_{c}" in series for c in "xyz"):
+        director = np.stack([np.asarray(series[f"director_{c}"], float) for c in "xyz"], axis=1)
+        motion = classify_orbit(t, series["D_xy"], series["theta"], director, aspect_ratio, **classifier_options)
+    else:
+        motion = classify_motion(t, series["D_xy"], series["theta"], **classifier_options)
     t0, t1 = motion["t_from"], motion["t_to"]
     out: dict = {"motion": motion["motion"]}
     for name in SUMMARY_QUANTITIES:
@@ -418,6 +645,10 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
     out["averaging_t_from"], out["averaging_t_to"] = t0, t1
     for key in ("period", "D_xy_mean", "D_xy_amplitude", "theta_mean", "theta_amplitude"):
         out[key] = motion[key]
+    if director is not None:
+        orbit = orbit_summary(t, director, aspect_ratio)
+        orbit.pop("orbit_period_change", None)
+        out.update(orbit)
     return out
 
 
@@ -426,7 +657,7 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
 COMPRESSION_TOL = 1e-10  # in E_s: below round-off of the tension at the rest shape
 
 #: time-series columns that the summary and the stopping rules read back
-HISTORY_COLUMNS = ("t", "dt", "tt_angle", *SUMMARY_QUANTITIES)
+HISTORY_COLUMNS = ("t", "dt", "tt_angle", *SUMMARY_QUANTITIES, "director_x", "director_y", "director_z")
 
 
 class StepObserver:
@@ -438,9 +669,13 @@ class StepObserver:
     ``resume(rows)`` rebuilds the history from the rows already on disk.
     """
 
-    def __init__(self, model, rest_positions: np.ndarray) -> None:
+    def __init__(self, model, rest_positions: np.ndarray, axis=(0.0, 1.0, 0.0)) -> None:
         self.model = model
         self.tracker = TankTreadingTracker(rest_positions)
+        rest_geometry = model.disc.geometry(rest_positions)
+        self.director = MaterialDirector(rest_geometry, axis)
+        #: r of Jeffery's orbit (orbit constant, period) for the run summary
+        self.aspect_ratio = rest_aspect_ratio(rest_geometry, axis)
         self.history: dict[str, list[float]] = {key: [] for key in HISTORY_COLUMNS}
         self.first: dict | None = None
         self.last: dict | None = None
@@ -454,6 +689,7 @@ class StepObserver:
         smax = float(np.max(state.strain.principal_stretches[0]))
         row = {"t": t, "dt": dt, "error_estimate": error}
         row.update(step_observables(y, elements, state.geometry, smax))
+        row.update(director_observables(self.director(state.geometry)))
         # compressive tensions: where a membrane without bending stiffness would wrinkle
         _, tau2 = principal_tensions(state.strain, model.law, model.law_params)
         row["min_tension"] = float(tau2.min()) / model.shear_rate_G

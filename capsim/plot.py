@@ -34,7 +34,7 @@ import numpy as np
 from capsim.membrane import linear_subtriangles
 
 __all__ = [
-    "DPI", "FIGSIZE", "FIGURE_FORMATS", "FIRST_ORDER_G_MAX", "KINDS", "contour_figure", "deformation_figure", "inclination_figure",
+    "DPI", "FIGSIZE", "FIGURE_FORMATS", "FIRST_ORDER_G_MAX", "KINDS", "contour_figure", "orbit_figure", "deformation_figure", "inclination_figure",
     "plot", "relaxation_time", "rheology_figure", "steady_figure", "tensions_figure",
     "trajectory_figure", "xy_section",
 ]
@@ -672,6 +672,53 @@ def _value(ds, dim: str, i: int) -> str:
     return str(i)
 
 
+def orbit_figure(source):
+    """The material director's orbit (issue 26): its path on the unit sphere seen from
+    the vorticity axis z (the shear plane) and from the flow axis x, and its polar
+    angle from z and azimuth from y (Jeffery's θ and φ, unwrapped) against kt."""
+    data = _load_run(source)
+    info = _case_info(data)
+    ts = data["timeseries"]
+    if "director_x" not in ts:
+        raise ValueError("the run file has no director (written by capsim since issue 26)")
+    t = np.asarray(ts["t"], float)
+    d = np.stack([np.asarray(ts[f"director_{c}"], float) for c in "xyz"], axis=1)
+    fig = _figure()
+    grid = fig.add_gridspec(2, 2, height_ratios=(1.1, 1.0))
+    # the angles first: the first axes carry the legend outside on the right, as every kind's
+    ax = fig.add_subplot(grid[1, :])
+    polar = np.arccos(np.clip(d[:, 2], -1.0, 1.0))
+    azimuth = np.unwrap(np.arctan2(d[:, 0], d[:, 1]))
+    ax.plot(t, polar / np.pi, "C0-", label=r"polar angle $\theta_p/\pi$ from $z$")
+    ax.plot(t, azimuth / np.pi, "C1-", label=r"azimuth $\varphi/\pi$ from $y$ (unwrapped)")
+    ax.set_xlabel(r"$kt$")
+    ax.set_ylabel(r"angle / $\pi$")
+    ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    circle = np.linspace(0.0, 2 * np.pi, 181)
+    # (horizontal, vertical) components of each view; the hidden axis decides the front
+    views = ((0, 1, 2, "seen from +z (shear plane)", "x", "y"), (1, 2, 0, "seen from +x (flow axis)", "y", "z"))
+    for k, (h, v, depth, title, hl, vl) in enumerate(views):
+        ax = fig.add_subplot(grid[0, k])
+        ax.plot(np.cos(circle), np.sin(circle), color="0.6", lw=0.8)
+        front = d[:, depth] >= 0
+        ax.plot(np.where(front, d[:, h], np.nan), np.where(front, d[:, v], np.nan), "C0-", lw=1.2,
+                label="front hemisphere")
+        ax.plot(np.where(~front, d[:, h], np.nan), np.where(~front, d[:, v], np.nan), "C0--", lw=0.8,
+                label="back hemisphere")
+        ax.plot(d[:1, h], d[:1, v], "C3o", mfc="none", ms=8, label="kt = 0")
+        ax.plot(d[-1:, h], d[-1:, v], "C3s", ms=5, label=f"kt = {t[-1]:.3g}")
+        ax.set_aspect("equal")
+        ax.set_xlim(-1.1, 1.1)
+        ax.set_ylim(-1.1, 1.1)
+        ax.set_xlabel(f"director ${hl}$")
+        ax.set_ylabel(f"director ${vl}$")
+        ax.set_title(title, fontsize="small")
+        if k == 1:
+            ax.legend(fontsize="x-small", loc="upper left", bbox_to_anchor=(1.02, 1.0))
+    _caption(fig, [info])
+    return fig
+
+
 # ------------------------------------------------------------ dispatcher
 
 # kinds that overlay several runs when given a list of them
@@ -685,6 +732,7 @@ KINDS: dict[str, Callable[..., Any]] = {
     "tensions": tensions_figure,
     "rheology": rheology_figure,
     "steady": steady_figure,
+    "orbit": orbit_figure,
 }
 
 

@@ -95,9 +95,13 @@ _add("error_estimate", "local error estimate of the accepted step", "1",
      "0 on the initial row)")
 _add("D_xy", "Taylor deformation parameter in the xy-plane", "1",
      "(L − l)/(L + l), L and l the longest and shortest semi-axes in the xy-plane (axis_L, axis_l) of the "
-     "equivalent ellipsoid (same second moment of volume)")
+     "equivalent ellipsoid (same second moment of volume); the seed's definition, meant for a shape with an "
+     "axis in the shear plane: when no principal axis is near z (a shape turned off the plane) it describes "
+     "the two axes farthest from z, not the deformation — use ellipsoid_a/b/c then")
 _add("theta", "inclination of the long axis", "rad",
-     "angle from the x-axis (flow direction) to the long axis in the xy-plane, in (−π/2, π/2]")
+     "angle from the x-axis (flow direction) to the long axis in the xy-plane, in (−π/2, π/2]; the seed's "
+     "definition: for a shape turned off the plane it is the inclination of the projected axis (see "
+     "long_axis_x/y/z and director_azimuth)")
 _add("volume", "enclosed volume", "1", "volume V enclosed by the membrane, in units of a³", "a^3")
 _add("area", "surface area", "1", "area S of the membrane, in units of a²", "a^2")
 _add("volume_drift", "relative volume change", "1", "(V − V0)/V0, V0 the volume at t = 0")
@@ -111,6 +115,26 @@ _add("axis_l", "shortest in-plane semi-axis", "1",
      "shorter of the two semi-axes in the xy-plane of the equivalent ellipsoid, in units of a", "a")
 _add("axis_W", "out-of-plane semi-axis", "1",
      "semi-axis of the equivalent ellipsoid closest to the z-axis (vorticity direction), in units of a", "a")
+_add("ellipsoid_a", "longest semi-axis of the equivalent ellipsoid", "1",
+     "largest of the three semi-axes a ≥ b ≥ c of the ellipsoid with the capsule's volume and second moment of "
+     "volume (seed 3.10), in units of a; unlike axis_L and axis_l not tied to the xy-plane", "a")
+_add("ellipsoid_b", "middle semi-axis of the equivalent ellipsoid", "1",
+     "middle semi-axis b of the equivalent ellipsoid, in units of a", "a")
+_add("ellipsoid_c", "shortest semi-axis of the equivalent ellipsoid", "1",
+     "smallest semi-axis c of the equivalent ellipsoid, in units of a", "a")
+for _c in "xyz":
+    _add(f"long_axis_{_c}", f"{_c} component of the longest axis of the equivalent ellipsoid", "1",
+         f"{_c} component of the unit vector along the semi-axis ellipsoid_a; a line has no sign: the first "
+         "component that is not ~0 (x, then y, then z) is positive")
+    _add(f"director_{_c}", f"{_c} component of the material director", "1",
+         f"{_c} component of the rest shape's symmetry axis carried by the membrane: F a/|F a|, a the axis at "
+         "rest (initial_axis), F the rest-area-weighted least-squares affine map of the rest surface onto the "
+         "current one (exactly R a for a rigid rotation R; capsim.observables.MaterialDirector)")
+_add("director_polar_angle", "polar angle of the director", "rad",
+     "angle from the vorticity axis z to the material director, arccos(director_z) ∈ [0, π] (Jeffery's θ)")
+_add("director_azimuth", "azimuth of the director", "rad",
+     "angle in the shear plane from the gradient axis y towards the flow axis x of the director's projection, "
+     "atan2(director_x, director_y) ∈ (−π, π] (Jeffery's φ); undefined while the director is along z")
 _add("min_element_quality", "smallest element quality", "1",
      "minimum over the elements of 4√3·area / Σ edge² of the vertex triangle (1 equilateral, 0 degenerate)")
 _add("max_principal_stretch", "largest principal stretch", "1",
@@ -129,7 +153,9 @@ _add("N2_star", "normalised second normal stress difference", "1",
 _add("ttf_ratio", "normalised tank-treading frequency", "1",
      "f / f_s, f the frequency at which the material nodes starting in z = 0 circle the centroid in the "
      "xy-plane and f_s = k/(4π) that of a rigid sphere: per step from their mean angular velocity; in a "
-     "summary from their whole revolutions (tt_angle) when there is at least one")
+     "summary from their whole revolutions (tt_angle) when there is at least one. A rest shape turned off the "
+     "plane (initial_axis) has no mesh line on z = 0: the nodes of the band |z| < max|z|/4 (away from the "
+     "z-axis) are followed instead")
 _add("tt_angle", "tank-treading angle", "rad",
      "unwrapped mean angle about the centroid, in the xy-plane, of the nodes starting in z = 0")
 _add("solver_iterations", "iterations of the velocity solve", "1",
@@ -170,8 +196,29 @@ _add("n_nodes", "mesh nodes", "1", "number of nodes (vertices and mid-side nodes
 # ---------------------------------------------------------------- summary/ (statistics over the averaging window)
 
 _add("motion", "class of steady motion", "",
-     "as classified by the run: steady, oscillating, tumbling, transient or unstable; empty when the run did "
-     "not classify it")
+     "as classified by the run (capsim.observables.classify_orbit): steady (tank-treading in the plane), rolling "
+     "(director steady along ±z while the membrane tank-treads), kayaking (director precessing about z off the "
+     "plane), oscillating (swinging), tumbling, transient or unstable; empty when the run did not classify it")
+_add("orbit_period", "period of the director's orbit", "1",
+     "time between the director's passages through the yz-plane, one and the next but one (its azimuth "
+     "through mπ): a whole orbit, 2π(r + 1/r) for Jeffery's rigid spheroid; NaN under three passages", "1/k")
+_add("orbit_periods", "whole orbits of the director", "1", "number of whole director orbits in the run")
+_add("orbit_constant", "Jeffery orbit constant over the last orbit", "1",
+     "time mean over the last whole orbit of C = |tan θ| (r² cos²φ + sin²φ)^½ / r (θ director_polar_angle, "
+     "φ director_azimuth, r jeffery_aspect_ratio): constant for a rigid spheroid, 0 rolling, ∞ in the shear "
+     "plane; NaN under one whole orbit")
+_add("orbit_constant_first", "Jeffery orbit constant over the first orbit", "1",
+     "time mean of C over the first whole orbit of the director")
+_add("orbit_constant_drift", "drift of the orbit constant per orbit", "1",
+     "(C_last − C_first) / ((n − 1) C_first) over the n whole orbits' means: the relative change per orbit "
+     "(> 0 towards the shear plane, < 0 towards rolling); NaN under two orbits")
+_add("final_polar_angle", "final angle of the director from the vorticity axis", "rad",
+     "min(θ, π − θ) at the last row, θ = director_polar_angle: 0 rolling along z, π/2 in the shear plane")
+_add("jeffery_aspect_ratio", "aspect ratio r of the rest shape", "1",
+     "axis / equatorial diameter of the rest shape's equivalent ellipsoid, sqrt of the ratio of its second "
+     "moments along and across the axis: the r of Jeffery's orbit (b/a of a spheroid)")
+_add("jeffery_period", "Jeffery period of the rest shape", "1",
+     "2π(r + 1/r), r = jeffery_aspect_ratio: the orbit period of a rigid spheroid of that aspect ratio", "1/k")
 _add("period", "period of the motion", "1",
      "oscillation period, or the time for theta to turn by 2π when tumbling, in units of 1/k; NaN otherwise",
      "1/k")
@@ -238,7 +285,7 @@ _add("time_scheme", "time-stepping scheme", "1",
      "flag: 0 rkf23 (Runge-Kutta-Fehlberg 2(3)), 1 rkc (Runge-Kutta-Chebyshev), 2 linearly_implicit "
      "(Rosenbrock-W) (flag_values, flag_meanings)")
 _add("steady_average", "whether the values are averages over a settled motion", "1",
-     "flag: 1 when the motion is steady, oscillating or tumbling, so that the observables are means over "
+     "flag: 1 when the motion is steady, rolling, kayaking, oscillating or tumbling, so that the observables are means over "
      "whole cycles (or the steady window); 0 when the run ended transient or unstable, or did not classify "
      "its motion: the observables are then means over the last quarter of the run (or its last row), not a "
      "settled value — do not average them with the others")

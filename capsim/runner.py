@@ -203,7 +203,7 @@ class _Run:
         self.model, X = build_model(case)
         self.model.interrupt_check = stop.check  # SIGTERM honoured between GMRES iterations too
         self.integrator: Integrator = make_integrator(case.time.scheme, self._rhs, X, **_integrator_options(case, self.model))
-        self.observer = StepObserver(self.model, X)
+        self.observer = StepObserver(self.model, X, case.axis)
         self.snapshots = SnapshotSchedule(case.output.snapshot_every)
         self.checkpoints = CheckpointSchedule(case.output.checkpoint_every_steps, case.output.checkpoint_every_s)
         self.committed: dict[str, dict[str, Any]] | None = None
@@ -329,7 +329,7 @@ class _Run:
             self._save_checkpoint(self.committed)
         state = LoopState(ig.t, ig.dt, ig.steps, signal=stop.name)
         while (outcome := stop_reason(state, tc, self.case.guards, self.observer.last, self.observer.first,
-                                      self.observer.history)) is None:
+                                      self.observer.history, self.observer.aspect_ratio)) is None:
             trial = ig.attempt(min(tc.t_end, self.snapshots.next_time))
             if trial.accepted:
                 self._accepted(trial)
@@ -400,7 +400,8 @@ class _Run:
             bending_modulus=float(self.case.membrane.bending_modulus),
         )
         self.writer.write_run_record({k: v for k, v in result.record().items() if k != "scheme"})
-        motion = run_summary({k: np.asarray(v) for k, v in self.observer.history.items()})
+        motion = run_summary({k: np.asarray(v) for k, v in self.observer.history.items()},
+                             aspect_ratio=self.observer.aspect_ratio)
         if status == "unstable":
             motion["motion"] = "unstable"
         self.writer.write_summary(motion)

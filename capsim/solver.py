@@ -76,9 +76,30 @@ class FarField:
 
 
 # The symmetries used: diagonal sign maps x → S x (and u → S u). Simple shear and
-# every rest shape here (tilted about z) are invariant under both generators.
+# every rest shape here tilted about z are invariant under MIRROR_Z and ROTATION_Z;
+# under INVERSION (their product) whatever the orientation: u∞(−x) = −u∞(x) for any
+# linear flow, and every rest shape is centred and symmetric under x → −x.
 MIRROR_Z = np.array([1.0, 1.0, -1.0])
 ROTATION_Z = np.array([-1.0, -1.0, 1.0])  # rotation by π about the z-axis
+INVERSION = np.array([-1.0, -1.0, -1.0])  # the point inversion x → −x
+
+#: group name → generators (Discretization.symmetry, the run file's 'symmetry' attribute)
+SYMMETRY_GROUPS = {
+    "mirror_z+rotation_z": [MIRROR_Z, ROTATION_Z],
+    "mirror_z": [MIRROR_Z],
+    "rotation_z": [ROTATION_Z],
+    "inversion": [INVERSION],
+}
+#: mesh.symmetry → the groups tried, largest first. auto keeps the order of the old
+#: boolean setting (quarter, then one of its halves), then the inversion, which every
+#: centred orientation has: an in-plane case is unchanged to the bit.
+SYMMETRY_CANDIDATES = {
+    "auto": ("mirror_z+rotation_z", "mirror_z", "rotation_z", "inversion"),
+    "quarter": ("mirror_z+rotation_z",),
+    "half": ("inversion",),
+    "mirror_z": ("mirror_z",),
+    "none": (),
+}
 
 
 def _symmetry_table(positions: np.ndarray, generators: list[np.ndarray]):
@@ -157,32 +178,36 @@ class Discretization:
         self.mem_phi, self.mem_dxi, self.mem_deta, self.mem_w = mphi, mdxi, mdeta, mw
         self._build_mass_pattern()
         self.targets = np.arange(n_nodes, dtype=np.int64)
-        self.symmetry = "none"  # or "mirror_z", "mirror_z+rotation_z" (enable_symmetry)
+        self.symmetry = "none"  # or a key of SYMMETRY_GROUPS (enable_symmetry)
         fxi, feta, fw = subdivided_rule(self.regular_order, self.near_field_levels)
         fphi, fdxi, fdeta = shape_functions(fxi, feta)
         self.fine_phi, self.fine_dxi, self.fine_deta = (np.ascontiguousarray(a) for a in (fphi, fdxi, fdeta))
         self.fine_w = np.ascontiguousarray(fw)
         self._near: tuple | None = None  # (geometry, offsets, elements) of the last configuration
 
-    def enable_symmetry(self, positions: np.ndarray, rotation: bool = True) -> np.ndarray | None:
-        """Use the symmetries of the problem: the mirror z → −z and, when
-        ``rotation``, the rotation by π about the z-axis, (x, y, z) → (−x, −y, z).
+    def enable_symmetry(self, positions: np.ndarray, rotation: bool = True, mode: str | None = None) -> np.ndarray | None:
+        """Use the symmetries of the problem: the mirror z → −z, the rotation by π
+        about the z-axis, (x, y, z) → (−x, −y, z), and the point inversion x → −x.
 
-        Shear flow (y, 0, 0) and every rest shape here (tilted about z) are
-        invariant under both, and velocities transform as positions do
+        Shear flow (y, 0, 0) and every rest shape tilted about z are invariant under
+        the mirror and the rotation; velocities transform as positions do
         (u → S u, S = diag(1, 1, −1) or diag(−1, −1, 1)). Together with their
-        product (the inversion x → −x) they form a group of four, so the boundary
+        product (the inversion) they form a group of four, so the boundary
         integrals are evaluated at one node of each orbit (about a quarter of the
-        nodes; the seed used both symmetries) and expanded. Uses the largest of
-        {mirror + rotation, mirror, rotation} that the mesh has (an image of
-        every node); ``self.symmetry`` says which ("mirror_z+rotation_z",
-        "mirror_z", "rotation_z" or "none"). Returns the positions made exactly
+        nodes; the seed used both symmetries) and expanded. A rest shape turned
+        out of the shear plane keeps only the inversion (half of the nodes).
+
+        ``mode`` is a key of SYMMETRY_CANDIDATES (the case's mesh.symmetry); without
+        it, ``rotation`` picks the old boolean setting ("auto") or the mirror only.
+        Uses the first group of the mode's list that the mesh has (an image of every
+        node); ``self.symmetry`` says which ("mirror_z+rotation_z", "mirror_z",
+        "rotation_z", "inversion" or "none"). Returns the positions made exactly
         symmetric, or None (and nothing changes) if the mesh has none of them.
         """
-        candidates = [("mirror_z+rotation_z", [MIRROR_Z, ROTATION_Z])] if rotation else []
-        candidates += [("mirror_z", [MIRROR_Z])] + ([("rotation_z", [ROTATION_Z])] if rotation else [])
-        for name, generators in candidates:
-            table = _symmetry_table(positions, generators)
+        if mode is None:
+            mode = "auto" if rotation else "mirror_z"
+        for name in SYMMETRY_CANDIDATES[mode]:
+            table = _symmetry_table(positions, SYMMETRY_GROUPS[name])
             if table is not None:
                 break
         else:
@@ -379,8 +404,7 @@ class CapsuleModel:
             raise ValueError(f"unknown solver method {self.solver_method!r} (allowed: {SOLVER_METHODS})")
         if self.membrane.disc is not self.disc:
             raise ValueError("the membrane force and the model must share one Discretization")
-        signs = {"mirror_z": [MIRROR_Z], "rotation_z": [ROTATION_Z], "mirror_z+rotation_z": [MIRROR_Z, ROTATION_Z]}
-        for g in signs.get(self.disc.symmetry, []):
+        for g in SYMMETRY_GROUPS.get(self.disc.symmetry, []):
             if not self.far_field.is_invariant(g):
                 raise ValueError(f"the far-field flow is not invariant under the mesh symmetry {self.disc.symmetry!r}")
 
@@ -596,7 +620,7 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None) -> tuple[C
     replaces the rebuilt rest shape (a stored one, e.g. for an export; same mesh).
     """
     mesh = rest_shape_mesh(
-        case.shape.kind, case.mesh.base, case.mesh.level, case.initial_tilt_deg,
+        case.shape.kind, case.mesh.base, case.mesh.level, case.initial_tilt_deg, axis=case.initial_axis,
         aspect_ratio=case.shape.aspect_ratio, c0=case.shape.c0, c2=case.shape.c2, c4=case.shape.c4,
     )
     disc = Discretization(
@@ -607,10 +631,12 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None) -> tuple[C
         near_field_levels=case.quadrature.near_field_levels,
     )
     positions = mesh.positions
-    if case.mesh.symmetry:
-        symmetric = disc.enable_symmetry(positions)
+    if case.mesh.symmetry != "none":
+        symmetric = disc.enable_symmetry(positions, mode=case.mesh.symmetry)
         if symmetric is not None:
             positions = symmetric
+        elif case.mesh.symmetry != "auto":
+            raise ValueError(f"mesh.symmetry = {case.mesh.symmetry}: the mesh of this rest shape does not have it")
     rest = positions if rest_positions is None else np.asarray(rest_positions, dtype=np.float64)
     if rest.shape != positions.shape:
         raise ValueError(f"rest positions of shape {rest.shape} for a mesh of {positions.shape[0]} nodes")

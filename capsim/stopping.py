@@ -8,7 +8,8 @@ Rules, in the order they are checked:
 2. the last attempt produced non-finite positions or error → ``unstable``;
 3. after an accepted step: a stability guard (non-finite observables,
    element quality, volume drift, area change, stretch) or a step-size
-   collapse → ``unstable``; the steady state, when asked for → ``completed``;
+   collapse → ``unstable``; the steady state or a settled orbit, when asked for →
+   ``completed``;
 4. the step size below ``time.dt_min`` → ``unstable``;
 5. ``t_end`` reached → ``completed``;
 6. ``time.max_steps`` accepted steps → ``unstable``.
@@ -22,8 +23,8 @@ from typing import Sequence
 import numpy as np
 
 from capsim.config import Guards, Time
+from capsim.observables import is_steady, orbit_settled
 from capsim.schedules import end_tolerance  # noqa: F401 - a stop rule, kept beside the cadences
-from capsim.observables import is_steady
 
 
 @dataclass(frozen=True)
@@ -79,8 +80,17 @@ class LoopState:
     wall_s: float = 0.0               # wall time the run has spent (resumed parts included)
 
 
+def _settled(history: dict[str, list[float]], aspect_ratio: float) -> bool:
+    """orbit_settled, asked once per unit of kt (it reads the whole history)."""
+    t = history["t"]
+    if len(t) < 3 or np.floor(t[-1]) == np.floor(t[-2]):
+        return False
+    director = np.stack([history[f"director_{c}"] for c in "xyz"], axis=1)
+    return orbit_settled(history["t"], history["D_xy"], history["theta"], director, aspect_ratio)
+
+
 def stop_reason(state: LoopState, time: Time, guards: Guards, row: dict | None, row0: dict | None,
-                history: dict[str, list[float]]) -> Stop | None:
+                history: dict[str, list[float]], aspect_ratio: float = 1.0) -> Stop | None:
     """The first rule (module docstring) that ends the run, or None."""
     if state.signal is not None:
         return Stop("interrupted", f"interrupted by {state.signal}")
@@ -93,6 +103,8 @@ def stop_reason(state: LoopState, time: Time, guards: Guards, row: dict | None, 
             return Stop("unstable", f"{violation} {at}")
         if time.stop_when_steady and is_steady(history["t"], history["D_xy"], history["theta"]):
             return Stop("completed", f"steady state reached {at}")
+        if time.stop_when_settled and _settled(history, aspect_ratio):
+            return Stop("completed", f"orbit settled {at}")
     if state.attempted and state.dt < time.dt_min:
         return Stop("unstable", f"guard dt_min: step size collapsed to dt = {state.dt:.3g} < {time.dt_min:g} {at}")
     if state.t >= time.t_end - end_tolerance(time.t_end):

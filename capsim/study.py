@@ -269,7 +269,7 @@ def run_study(
         run_dir = Path(out_dir)
         run_dir.mkdir(parents=True, exist_ok=True)
 
-    base = apply_overrides(case, **{"time.stop_when_steady": False})
+    base = apply_overrides(case, **{"time.stop_when_steady": False, "time.stop_when_settled": False})
     jobs: list[tuple[Case, tuple[int, int, int]]] = []
     for iq, q in enumerate(quads):
         for ir, rtol in enumerate(rtols):
@@ -521,7 +521,7 @@ def error_estimate(case: Case, summary: dict[str, Any], workers: int = 2,
 
     tmp = tempfile.mkdtemp(prefix="capsim-errest-")
     try:
-        base = apply_overrides(case, **{"time.stop_when_steady": False})
+        base = apply_overrides(case, **{"time.stop_when_steady": False, "time.stop_when_settled": False})
         loose_rtol = min(case.time.rtol * rtol_factor, 0.5)
         jobs: list[tuple[Case, str]] = [(apply_overrides(base, **{
             "time.rtol": loose_rtol, "output.path": str(Path(tmp) / "time.h5")}), "time")]

@@ -18,6 +18,7 @@ written as char arrays, categorical values as flag variables (flag_values, flag_
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Iterator, Mapping
 from datetime import datetime, timezone
@@ -41,6 +42,8 @@ _FLOATS = ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star",
            # the motion and the window the values are means over
            "period", "D_xy_amplitude", "theta_amplitude", "averaging_t_from", "averaging_t_to",
            "intrinsic_viscosity", "intrinsic_viscosity_std",
+           # the director's orbit (issue 26)
+           "orbit_period", "orbit_constant", "orbit_constant_first", "orbit_constant_drift", "final_polar_angle",
            "D_xy_error_estimate", "theta_error_estimate", "ttf_ratio_error_estimate", "Sxy_star_error_estimate")
 _STRINGS = ("status", "status_reason", "motion")
 #: the context of a run from its resolved case: name -> (dtype, value for a run without a case)
@@ -48,7 +51,7 @@ _CONTEXT = {"level": (np.int64, -1), "mesh_base": (np.int8, -1), "law": (object,
             "skalak_c": (np.float64, np.nan), "psi": (np.float64, np.nan), "bending_modulus": (np.float64, np.nan),
             "time_scheme": (np.int8, -1), "rtol": (np.float64, np.nan), "steady_average": (np.int8, 0)}
 #: motions whose window means are settled values
-_SETTLED = frozenset({"steady", "oscillating", "tumbling"})
+_SETTLED = frozenset({"steady", "rolling", "kayaking", "oscillating", "tumbling"})
 
 _WHERE = "campaign"  # the qualified entries of capsim.quantities for this file
 
@@ -142,6 +145,18 @@ def _attrs_for(name: str, dotted: str | None = None) -> dict[str, Any]:
     return attrs
 
 
+def _coordinate(name: str, dotted: str, values: list) -> tuple:
+    """(dim, values, attrs) of a swept case field. A vector-valued field (initial_axis)
+    cannot be a CF coordinate: its coordinate is the index of each value, 0, 1, …, and
+    the attribute ``case_field_values`` lists the values in that order."""
+    attrs = _attrs_for(name, dotted)
+    if any(isinstance(v, (list, tuple)) for v in values):
+        attrs = dict(attrs, case_field_values="; ".join(json.dumps(list(v)) for v in values),
+                     long_name=f"index of the swept {dotted}")
+        return name, np.arange(len(values), dtype=np.int64), attrs
+    return name, np.asarray(values), attrs
+
+
 def summarize_campaign(directory: str | os.PathLike) -> xr.Dataset:
     """One Dataset for a campaign directory written by ``capsim sweep``."""
     directory = Path(directory)
@@ -154,7 +169,7 @@ def summarize_campaign(directory: str | os.PathLike) -> xr.Dataset:
         names = _dim_names(keys)
         dims = tuple(names[k] for k in keys)
         shape = tuple(len(v) for v in campaign.sweep.values())
-        coords = {names[k]: (names[k], np.asarray(campaign.sweep[k]), _attrs_for(names[k], k)) for k in keys}
+        coords = {names[k]: _coordinate(names[k], k, campaign.sweep[k]) for k in keys}
     else:
         keys = list(campaign.sweep) + list(campaign.zip)
         names = _dim_names(keys)
@@ -162,7 +177,7 @@ def summarize_campaign(directory: str | os.PathLike) -> xr.Dataset:
         coords = {"run": ("run", np.asarray(list(index), dtype=object), _attrs_for("run_id"))}
         for k in keys:
             values = [entry["params"][k] for entry in index.values()]
-            coords[names[k]] = ("run", np.asarray(values), _attrs_for(names[k], k))
+            coords[names[k]] = ("run",) + _coordinate(names[k], k, values)[1:]
 
     data: dict[str, np.ndarray] = {name: np.full(shape, np.nan) for name in _FLOATS}
     data.update({name: np.full(shape, "", dtype=object) for name in _STRINGS})

@@ -58,8 +58,14 @@ EXPECTED = {
     "case_output_path_true.yaml": f"output.path = True: must be a string, {_BOOL}",
     "case_volume_correction_zero.yaml": "solver.volume_correction = 0: must be true or false",
     "case_volume_correction_quoted.yaml": "solver.volume_correction = 'yes': must be true or false",
-    "case_symmetry_one.yaml": "mesh.symmetry = 1: must be true or false",
-    "case_symmetry_quoted.yaml": "mesh.symmetry = 'true': must be true or false",
+    # issue 26: mesh.symmetry is auto | quarter | half | none (true/false still read as auto/none)
+    "case_symmetry_one.yaml": "mesh.symmetry = 1: must be one of auto, quarter, half, none",
+    "case_symmetry_quoted.yaml": "mesh.symmetry = 'true': must be one of auto, quarter, half, none",
+    "case_axis_zero.yaml": "initial_axis = [0, 0, 0]: must be a nonzero vector",
+    "case_axis_nan.yaml": "initial_axis = [1, nan, 0]: must be three finite numbers",
+    "case_axis_and_tilt.yaml": "initial_axis = [0.0, 0.7071067811865475, 0.7071067811865475]: give initial_axis "
+                               "or initial_tilt_deg (= 30), not both",
+    "case_quarter_off_plane.yaml": "mesh.symmetry = 'quarter': needs the rest shape's axis in the shear plane",
     "case_G_hex_string.yaml": "flow.shear_rate_G = '0x1A': must be a number",
     "case_G_inf_string.yaml": "flow.shear_rate_G = 'inf': must be a number",
     "case_G_list.yaml": "flow.shear_rate_G = [0.1, 0.2]: must be a number",

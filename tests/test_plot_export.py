@@ -66,6 +66,7 @@ EXPECTED_LABELS = {
     "tensions": [(r"polar angle in the $xy$-plane, $\varphi/\pi$", "principal tension $/E_s$")],
     "rheology": [("$kt$", r"$S^*_{xy}$, $N_1^*$, $N_2^*$")],
     "steady": [("", "$D_{xy}$"), ("$G = \\mu k a / E_s$", r"$\theta/\pi$")],
+    "orbit": [("$kt$", r"angle / $\pi$"), ("director $x$", "director $y$"), ("director $y$", "director $z$")],
 }
 
 
