@@ -63,12 +63,21 @@ def one_line(exc: BaseException) -> str:
 
 
 def kernel_kind(case) -> tuple:
-    """What decides which numba kernels a case compiles (and with which signatures)."""
-    m, q = case.membrane, case.quadrature
+    """What decides which numba kernels a case compiles (and with which signatures): the law,
+    traction, λ ≠ 1 and its solver, bending, the near field, the symmetry in use, the time
+    scheme and (linearly implicit) its preconditioner, which compile kernels of their own
+    (the dense one's layer matrices: ~10 s)."""
+    from capsim.config import axis_keeps_quarter_symmetry
+
+    m, q, tc = case.membrane, case.quadrature, case.time
+    symmetry = case.mesh.symmetry
+    if symmetry == "auto":
+        symmetry = "quarter" if axis_keeps_quarter_symmetry(case.axis) else "half"
     return (
         m.law, m.traction, case.flow.viscosity_ratio != 1.0, m.bending_modulus > 0,
-        q.near_field_factor > 0, case.mesh.symmetry,
+        q.near_field_factor > 0, symmetry,
         case.solver.method if case.flow.viscosity_ratio != 1.0 else None,
+        tc.scheme, tc.preconditioner if tc.scheme == "linearly_implicit" else None,
     )
 
 
