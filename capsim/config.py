@@ -22,11 +22,13 @@ from pydantic import (
     Field,
     ValidationError,
     ValidationInfo,
+    create_model,
     field_validator,
     model_validator,
 )
 
 from capsim.errors import bounded_repr, first_line
+from capsim.timestepping import DEFAULT_SCHEME, DENSE_MAX_NODES, SCHEMES  # noqa: F401 - DENSE_MAX_NODES re-exported
 
 __all__ = [
     "load_case_with", "parse_sets",    "case_digest", "step_defining",
@@ -295,9 +297,6 @@ class Flow(_Model):
         return _in_range(v, 1e-3, 1e3, "the double-layer solve's condition number is max(λ, 1/λ)")
 
 
-#: most nodes the dense stage preconditioner takes: it holds a few (3N)² matrices
-#: (76 MB each at level 3, N = 1026) and its LU costs (3N)³/3 multiply-adds
-DENSE_MAX_NODES = 1100
 
 #: faces of each base polyhedron
 BASE_FACES = {"octahedron": 8, "icosahedron": 20}
@@ -369,62 +368,16 @@ class Quadrature(_Model):
     )
 
 
-#: the time options that belong to one scheme (set to another value with another scheme: an error)
-SCHEME_OPTIONS = {
-    "rkc": ("max_stages", "rho_refresh_steps"),
-    "linearly_implicit": ("rosenbrock", "preconditioner", "linear_tol", "linear_max_iter", "jacobian_refresh_steps"),
-}
+#: the time options that belong to one scheme (set to another value with another scheme: an error),
+#: from the scheme registry: each scheme declares its own (capsim.timestepping.register_scheme)
+SCHEME_OPTIONS = {name: tuple(cls.option_fields) for name, cls in SCHEMES.items() if cls.option_fields}
 
 
-class Time(_Model):
-    """Adaptive time stepping (capsim.timestepping); times in units of 1/k."""
+class _TimeCommon(_Model):
+    """Adaptive time stepping (capsim.timestepping); times in units of 1/k.
 
-    # rkf23 stays the default: rkc wins at equal accuracy wherever the membrane is stiff but
-    # loses at lambda = 10 with tumbling (README, "Time stepping"); the demo case uses rkc
-    scheme: Literal["rkf23", "rkc", "linearly_implicit"] = Field(
-        "rkf23",
-        description="rkf23: the seed's Runge-Kutta-Fehlberg 2(3), pinned at the membrane's stability limit "
-        "dt ~ G h; rkc: second-order Runge-Kutta-Chebyshev (Sommeijer, Shampine & Verwer 1998), as many "
-        "stages per step as the stiffness needs, step size from the error estimate alone; "
-        "linearly_implicit: a Rosenbrock-W method (time.rosenbrock) with GMRES stage solves, "
-        "no stability limit",
-    )
-    rosenbrock: Literal["ros34pw2", "ros2"] = Field(
-        "ros34pw2",
-        description="linearly_implicit: ros34pw2, third order, 4 stages (Rang & Angermann 2005); ros2, second "
-        "order, 2 stages (Verwer et al. 1999)",
-    )
-    preconditioner: Literal["local", "dense", "none"] = Field(
-        "local",
-        description="linearly_implicit: preconditioner of the stage solves; local: the membrane's Hessian "
-        "with the single layer as a local drag, factorised once per step; dense: the frozen stage operator "
-        "itself (layer matrices, Hessian, mass matrix) LU-factorised, for meshes of at most "
-        f"{DENSE_MAX_NODES} nodes (level 3 octahedron); both need membrane.traction galerkin; none: plain GMRES",
-    )
-    linear_tol: float = Field(
-        0.1, gt=0, le=1,
-        description="linearly_implicit: a stage solve stops when its error moves the step by at most "
-        "this fraction of rtol",
-    )
-    linear_max_iter: int = Field(
-        300, ge=1, le=10000, strict=True,
-        description="linearly_implicit: GMRES iterations per stage solve before the step is retried smaller",
-    )
-    jacobian_refresh_steps: int = Field(
-        10, ge=1, le=10000, strict=True,
-        description="linearly_implicit: steps between rebuilds of the preconditioner (the membrane Hessian, "
-        "and the layer matrices of preconditioner dense), applied between rebuilds in the frame of the "
-        "capsule's best-fit rotation; the Jacobian-vector products are always those of the current step",
-    )
-    max_stages: int = Field(
-        200, ge=2, le=1000, strict=True,
-        description="rkc: bound of the stages per step; a step that needs more is shortened to what this "
-        "many stages keep stable (the stability interval grows like 0.65 s^2)",
-    )
-    rho_refresh_steps: int = Field(
-        25, ge=1, le=10000, strict=True,
-        description="rkc: accepted steps between estimates of the spectral radius (also redone after a rejection)",
-    )
+    The fields every scheme reads; :data:`Time` adds ``scheme`` and each registered
+    scheme's own options."""
 
     t_end: float = Field(
         10.0, gt=0, description="end time, at least 1e-6 and at least dt_min (else no step is taken)"
@@ -454,11 +407,11 @@ class Time(_Model):
     )
 
     @model_validator(mode="after")
-    def _options_of_the_scheme(self) -> "Time":
-        for scheme, names in SCHEME_OPTIONS.items():
+    def _options_of_the_scheme(self):
+        for scheme, cls in SCHEMES.items():  # the registry as it is now, a scheme added later included
             if scheme == self.scheme:
                 continue
-            for name in names:
+            for name in cls.option_fields:
                 value = getattr(self, name)
                 if name in self.model_fields_set and value != type(self).model_fields[name].default:
                     raise _FieldProblem(name, value,
@@ -497,6 +450,26 @@ class Time(_Model):
             raise ValueError(f"must be in [dt_min, dt_max] = [{lo:g}, {hi:g}]")
         return v
 
+
+
+def _time_model() -> type[_TimeCommon]:
+    """The ``time`` section: the common fields, ``scheme`` (the registry's names) and every
+    registered scheme's options, in the registry's order."""
+    fields: dict[str, Any] = {"scheme": (Literal[tuple(SCHEMES)], Field(
+        DEFAULT_SCHEME,
+        description="; ".join(f"{name}: {cls.description}" for name, cls in SCHEMES.items()),
+    ))}
+    for cls in SCHEMES.values():
+        for name, spec in cls.option_fields.items():
+            if name in fields or name in _TimeCommon.model_fields:
+                raise TypeError(f"time.{name} is declared twice (scheme {cls.name})")
+            fields[name] = spec
+    return create_model("Time", __base__=_TimeCommon, __module__=__name__, **fields)
+
+
+#: the ``time`` section of a case (a pydantic model built from the scheme registry)
+Time = _time_model()
+Time.__doc__ = _TimeCommon.__doc__
 
 class Solver(_Model):
     """Velocity solve for viscosity_ratio != 1 (double layer); unused at lambda = 1."""
@@ -657,21 +630,10 @@ class Case(_Model):
         return (-math.sin(t), math.cos(t), 0.0)
 
     @model_validator(mode="after")
-    def _stage_preconditioner_fits(self) -> Case:
-        t = self.time
-        if t.scheme != "linearly_implicit":
-            return self
-        if t.preconditioner in ("local", "dense") and self.membrane.traction != "galerkin":
-            raise _FieldProblem(
-                "time.preconditioner", t.preconditioner,
-                f"needs membrane.traction: galerkin (got {self.membrane.traction}); use preconditioner: none",
-            )
-        if t.preconditioner == "dense" and self.mesh.n_nodes > DENSE_MAX_NODES:
-            raise _FieldProblem(
-                "time.preconditioner", t.preconditioner,
-                f"takes meshes of at most {DENSE_MAX_NODES} nodes (mesh.level {self.mesh.level} "
-                f"{self.mesh.base} has {self.mesh.n_nodes}); use preconditioner: local",
-            )
+    def _the_scheme_can_run_it(self) -> Case:
+        problem = SCHEMES[self.time.scheme].case_problem(self)  # e.g. a preconditioner the mesh is too large for
+        if problem is not None:
+            raise _FieldProblem(*problem)
         return self
 
     @field_validator("solver")

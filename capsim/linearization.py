@@ -61,9 +61,7 @@ import scipy.linalg
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from capsim.config import DENSE_MAX_NODES
-from capsim.krylov import gmres
-from capsim.timestepping import LinearSolveFailed
+from capsim.krylov import LinearSolveFailed, gmres
 
 __all__ = ["PRECONDITIONERS", "StageSolver", "LinearSolveFailed", "hessian_colouring"]
 
@@ -148,13 +146,13 @@ class StageSolver:
     """
 
     def __init__(self, model, *, preconditioner: str = "local", max_iter: int = 200,
-                 refresh_steps: int = 1) -> None:
+                 refresh_steps: int = 1, max_dense_nodes: int = 1100) -> None:
         if preconditioner not in PRECONDITIONERS:
             raise ValueError(f"unknown preconditioner {preconditioner!r} (allowed: {', '.join(PRECONDITIONERS)})")
         if preconditioner in ("local", "dense") and model.traction_method != "galerkin":
             raise ValueError(f"the {preconditioner} preconditioner needs the galerkin traction method")
-        if preconditioner == "dense" and model.disc.n_nodes > DENSE_MAX_NODES:
-            raise ValueError(f"the dense preconditioner takes at most {DENSE_MAX_NODES} nodes "
+        if preconditioner == "dense" and model.disc.n_nodes > max_dense_nodes:
+            raise ValueError(f"the dense preconditioner takes at most {max_dense_nodes} nodes "
                              f"(this mesh has {model.disc.n_nodes})")
         self.model = model
         self.preconditioner = preconditioner

@@ -23,17 +23,16 @@ import numpy as np
 from capsim import __version__
 from capsim.config import Case
 from capsim.errors import first_line
-from capsim.linearization import StageSolver
 from capsim.membrane import law_attributes
 from capsim.mesh import SurfaceMesh, rest_shape_attributes
 from capsim.observables import StepObserver, run_summary
 from capsim.schedules import CheckpointSchedule, SnapshotSchedule
-from capsim.solver import CapsuleModel, build_model
+from capsim.solver import build_model
 from capsim.stopping import LoopState, Stop, end_tolerance, stop_reason
 from capsim import checkpoint
 from capsim.checkpoint import ResumeError, checkpoint_path, remove_checkpoint
 from capsim.store import FileLock, StorageError, TrajectoryError, TrajectoryWriter
-from capsim.timestepping import Integrator, make_integrator
+from capsim.timestepping import Integrator, build_integrator
 
 __all__ = ["ResumeError", "RunResult", "build_model", "run_case"]
 
@@ -174,22 +173,6 @@ def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool 
 # ---------------------------------------------------------------- one run
 
 
-def _integrator_options(case: Case, model: CapsuleModel) -> dict[str, Any]:
-    tc = case.time
-    options = {"rtol": tc.rtol, "dt_initial": tc.dt_initial, "dt_min": tc.dt_min, "dt_max": tc.dt_max}
-    if tc.scheme == "rkc":
-        # a GMRES velocity (λ ≠ 1) is exact only to its tolerance: probe with a
-        # perturbation whose response stands well above that noise
-        exact = case.flow.viscosity_ratio == 1.0
-        options.update(max_stages=tc.max_stages, rho_refresh_steps=tc.rho_refresh_steps,
-                       probe_scale=1.5e-8 if exact else max(1.5e-8, 100.0 * case.solver.tol))
-    elif tc.scheme == "linearly_implicit":
-        options.update(linear_tol=tc.linear_tol, method=tc.rosenbrock, stage_solver=StageSolver(
-            model, preconditioner=tc.preconditioner, max_iter=tc.linear_max_iter,
-            refresh_steps=tc.jacobian_refresh_steps))
-    return options
-
-
 class _Run:
     """The parts of one run and the loop that drives them."""
 
@@ -202,7 +185,7 @@ class _Run:
         saved, self.wall_before = checkpoint.load(self.ckpt_path, case) if resume else (None, 0.0)
         self.model, X = build_model(case)
         self.model.interrupt_check = stop.check  # SIGTERM honoured between GMRES iterations too
-        self.integrator: Integrator = make_integrator(case.time.scheme, self._rhs, X, **_integrator_options(case, self.model))
+        self.integrator: Integrator = build_integrator(case, self._rhs, X, self.model)
         self.observer = StepObserver(self.model, X, case.axis)
         self.snapshots = SnapshotSchedule(case.output.snapshot_every)
         self.checkpoints = CheckpointSchedule(case.output.checkpoint_every_steps, case.output.checkpoint_every_s)

@@ -42,9 +42,12 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, fields
-from typing import Any, Callable, ClassVar
+from typing import Any, Callable, ClassVar, Literal
 
 import numpy as np
+from pydantic import Field
+
+from capsim.krylov import LinearSolveFailed
 
 #: rhs(y) -> (velocity, auxiliary state of that evaluation, e.g. the membrane state)
 RightHandSide = Callable[[np.ndarray], tuple[np.ndarray, Any]]
@@ -174,10 +177,26 @@ class Trial:
 
 SCHEMES: dict[str, type[Integrator]] = {}
 
+#: the scheme a case gets without time.scheme
+DEFAULT_SCHEME = "rkf23"
+
+#: most nodes the dense stage preconditioner takes: it holds a few (3N)² matrices
+#: (76 MB each at level 3, N = 1026) and its LU costs (3N)³/3 multiply-adds
+DENSE_MAX_NODES = 1100
+
 
 def register_scheme(cls: type[Integrator]) -> type[Integrator]:
+    """Register a scheme under ``cls.name``. Its ``option_fields`` become fields of the case's
+    ``time`` section (capsim.config builds the schema from the registry), its ``description``
+    part of ``time.scheme``'s, its :meth:`Integrator.settings` what it is built with."""
     SCHEMES[cls.name] = cls
     return cls
+
+
+def build_integrator(case: Any, rhs: RightHandSide, y0: np.ndarray, model: Any) -> Integrator:
+    """The integrator of ``case.time.scheme`` for a run of `case` on `model`, starting at ``y0``."""
+    cls = SCHEMES[case.time.scheme]
+    return cls(rhs, y0, **cls.settings(case, model))
 
 
 def make_integrator(name: str, rhs: RightHandSide, y0: np.ndarray, **options: Any) -> Integrator:
@@ -196,7 +215,27 @@ class Integrator:
     auxiliary state; ``attempt(t_stop)`` tries one step that does not pass
     ``t_stop`` and, when it is accepted, advances and evaluates the velocity at
     the new positions (the first stage of the next step).
+
+    A scheme declares what a case may set for it: ``option_fields`` (name →
+    (type, pydantic Field): the schema fragment of ``time.<name>``, its default,
+    bounds and description), ``description`` (its line in ``time.scheme``'s help),
+    :meth:`settings` (its constructor's options from a case and its model) and
+    :meth:`case_problem` (a case it cannot run, as one line).
     """
+
+    option_fields: ClassVar[dict[str, tuple[Any, Any]]] = {}
+    description: ClassVar[str] = ""
+
+    @classmethod
+    def settings(cls, case: Any, model: Any) -> dict[str, Any]:
+        """The constructor's options for a run of `case` on `model` (common: tolerance and step bounds)."""
+        tc = case.time
+        return {"rtol": tc.rtol, "dt_initial": tc.dt_initial, "dt_min": tc.dt_min, "dt_max": tc.dt_max}
+
+    @classmethod
+    def case_problem(cls, case: Any) -> tuple[str, Any, str] | None:
+        """(field, value, what is wrong) for a case this scheme cannot run; None when it can."""
+        return None
 
     name: ClassVar[str]
     order_low: ClassVar[int]
@@ -290,6 +329,8 @@ class EmbeddedRungeKutta(Integrator):
     """The seed's RKF2(3) pair (module docstring); local extrapolation."""
 
     name = "rkf23"
+    description = ("the seed's Runge-Kutta-Fehlberg 2(3), pinned at the membrane's stability limit "
+                   "dt ~ G h")
     tableau: ClassVar[EmbeddedScheme] = RKF23
     order_low = RKF23.order_low
     reference = RKF23.reference
@@ -387,7 +428,29 @@ class RungeKuttaChebyshev(Integrator):
     """
 
     name = "rkc"
+    description = ("second-order Runge-Kutta-Chebyshev (Sommeijer, Shampine & Verwer 1998), as many "
+                   "stages per step as the stiffness needs, step size from the error estimate alone")
+    option_fields = {
+        "max_stages": (int, Field(
+            200, ge=2, le=1000, strict=True,
+            description="rkc: bound of the stages per step; a step that needs more is shortened to what this "
+            "many stages keep stable (the stability interval grows like 0.65 s^2)")),
+        "rho_refresh_steps": (int, Field(
+            25, ge=1, le=10000, strict=True,
+            description="rkc: accepted steps between estimates of the spectral radius (also redone after a "
+            "rejection)")),
+    }
     order_low = 2  # the SSV estimate is O(h³): step-size exponent 1/3
+
+    @classmethod
+    def settings(cls, case: Any, model: Any) -> dict[str, Any]:
+        tc = case.time
+        # a GMRES velocity (λ ≠ 1) is exact only to its tolerance: probe with a
+        # perturbation whose response stands well above that noise
+        exact = case.flow.viscosity_ratio == 1.0
+        return {**super().settings(case, model), "max_stages": tc.max_stages,
+                "rho_refresh_steps": tc.rho_refresh_steps,
+                "probe_scale": 1.5e-8 if exact else max(1.5e-8, 100.0 * case.solver.tol)}
     reference = "Sommeijer, Shampine & Verwer, J. Comput. Appl. Math. 88 (1998) 315-326"
     RHO_SAFETY = 1.2      # the power iteration approaches ρ from below (RKC code)
     RHO_MAX_ITER = 30
@@ -471,10 +534,6 @@ class RungeKuttaChebyshev(Integrator):
 
 
 # ---------------------------------------------------------------- linearly implicit (Rosenbrock-W)
-
-
-class LinearSolveFailed(RuntimeError):
-    """A stage solver missed its tolerance within its iterations (the step is retried smaller)."""
 
 
 class DenseStageSolver:
@@ -590,8 +649,56 @@ class LinearlyImplicit(Integrator):
     """
 
     name = "linearly_implicit"
+    description = "a Rosenbrock-W method (time.rosenbrock) with GMRES stage solves, no stability limit"
+    option_fields = {
+        "rosenbrock": (Literal["ros34pw2", "ros2"], Field(
+            "ros34pw2",
+            description="linearly_implicit: ros34pw2, third order, 4 stages (Rang & Angermann 2005); ros2, "
+            "second order, 2 stages (Verwer et al. 1999)")),
+        "preconditioner": (Literal["local", "dense", "none"], Field(
+            "local",
+            description="linearly_implicit: preconditioner of the stage solves; local: the membrane's Hessian "
+            "with the single layer as a local drag, factorised once per step; dense: the frozen stage operator "
+            "itself (layer matrices, Hessian, mass matrix) LU-factorised, for meshes of at most "
+            f"{DENSE_MAX_NODES} nodes (level 3 octahedron); both need membrane.traction galerkin; none: plain "
+            "GMRES")),
+        "linear_tol": (float, Field(
+            0.1, gt=0, le=1,
+            description="linearly_implicit: a stage solve stops when its error moves the step by at most "
+            "this fraction of rtol")),
+        "linear_max_iter": (int, Field(
+            300, ge=1, le=10000, strict=True,
+            description="linearly_implicit: GMRES iterations per stage solve before the step is retried smaller")),
+        "jacobian_refresh_steps": (int, Field(
+            10, ge=1, le=10000, strict=True,
+            description="linearly_implicit: steps between rebuilds of the preconditioner (the membrane Hessian, "
+            "and the layer matrices of preconditioner dense), applied between rebuilds in the frame of the "
+            "capsule's best-fit rotation; the Jacobian-vector products are always those of the current step")),
+    }
     order_low = 2
     reference = "Rosenbrock-W: ROS34PW2 (Rang & Angermann 2005) or ROS2 (Verwer et al. 1999)"
+
+    @classmethod
+    def settings(cls, case: Any, model: Any) -> dict[str, Any]:
+        from capsim.linearization import StageSolver  # scipy's sparse LU: only for this scheme
+
+        tc = case.time
+        return {**super().settings(case, model), "linear_tol": tc.linear_tol, "method": tc.rosenbrock,
+                "stage_solver": StageSolver(model, preconditioner=tc.preconditioner, max_iter=tc.linear_max_iter,
+                                            refresh_steps=tc.jacobian_refresh_steps,
+                                            max_dense_nodes=DENSE_MAX_NODES)}
+
+    @classmethod
+    def case_problem(cls, case: Any) -> tuple[str, Any, str] | None:
+        pre = case.time.preconditioner
+        if pre in ("local", "dense") and case.membrane.traction != "galerkin":
+            return ("time.preconditioner", pre,
+                    f"needs membrane.traction: galerkin (got {case.membrane.traction}); use preconditioner: none")
+        if pre == "dense" and case.mesh.n_nodes > DENSE_MAX_NODES:
+            return ("time.preconditioner", pre,
+                    f"takes meshes of at most {DENSE_MAX_NODES} nodes (mesh.level {case.mesh.level} "
+                    f"{case.mesh.base} has {case.mesh.n_nodes}); use preconditioner: local")
+        return None
 
     def __init__(self, rhs: RightHandSide, y0: np.ndarray, *, stage_solver: Any = None, linear_tol: float = 0.1,
                  method: str = "ros34pw2", **common: Any) -> None:
