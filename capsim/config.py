@@ -27,6 +27,8 @@ from pydantic import (
 )
 
 from capsim.errors import bounded_repr, first_line
+from capsim.viscosity import REFUSING_SCHEMES, VISCOSITY_MODELS
+from capsim.viscosity import is_active as is_viscous
 
 __all__ = [
     "Case",
@@ -34,6 +36,7 @@ __all__ = [
     "Flow",
     "Guards",
     "Membrane",
+    "MembraneViscosity",
     "Mesh",
     "Output",
     "Physical",
@@ -179,6 +182,40 @@ class Shape(_Model):
         return self
 
 
+class MembraneViscosity(_Model):
+    """Surface viscosity of the membrane as Boussinesq numbers Bq = μ_s/(μ a), μ the outer
+    viscosity (capsim.viscosity; docs/viscous_membrane.md). All zero: a purely elastic
+    membrane, computed exactly as without this block."""
+
+    model: Literal[tuple(VISCOSITY_MODELS)] = Field(  # type: ignore[valid-type]
+        "kelvin_voigt",
+        description="kelvin_voigt: viscous tension 2 mu_s (D - tr(D) P / 2) + mu_d tr(D) P added to the elastic "
+        "one (Barthes-Biesel & Sgaier 1985)",
+    )
+    shear: float = Field(
+        0.0, ge=0, le=1e4,
+        description="surface shear viscosity Bq_s = mu_s / (mu a) (red cell: ~0.3-3); the velocity becomes a "
+        "GMRES solve at every evaluation",
+    )
+    dilatational: float = Field(
+        0.0, ge=0, le=1e4,
+        description="surface dilatational viscosity Bq_d = mu_d / (mu a): isotropic viscous tension mu_d tr(D)",
+    )
+
+    @model_validator(mode="after")
+    def _parameters_of_the_model(self) -> "MembraneViscosity":
+        allowed = VISCOSITY_MODELS[self.model].parameters
+        for name in self.model_fields_set - {"model"}:
+            if name not in allowed:
+                raise _FieldProblem(name, getattr(self, name),
+                                    f"is not a parameter of model: {self.model} (it takes {', '.join(allowed)})")
+        return self
+
+    @property
+    def active(self) -> bool:
+        return is_viscous(self.model_dump())
+
+
 class Membrane(_Model):
     """Constitutive law of the membrane (docs/laws.md)."""
 
@@ -203,6 +240,11 @@ class Membrane(_Model):
         description="bending modulus κ/(E_s a²) of a dihedral-hinge energy relative to the rest shape "
         "(0: none, the seed's membrane); needs traction: galerkin",
     )
+    viscosity: Optional[MembraneViscosity] = Field(
+        None,
+        description="surface viscosity {model, shear, dilatational} as Boussinesq numbers (docs/viscous_membrane.md); "
+        "none: a purely elastic membrane; needs traction: galerkin",
+    )
 
     @model_validator(mode="after")
     def _parameters_of_the_law(self) -> Membrane:
@@ -211,6 +253,15 @@ class Membrane(_Model):
                 value = getattr(self, name)
                 if self.law != law and name in self.model_fields_set and value != default:
                     raise _FieldProblem(name, value, f"applies only to law: {law}, not to law: {self.law}; remove it")
+        return self
+
+    @model_validator(mode="after")
+    def _viscosity_needs_galerkin(self):
+        if self.viscosity is not None and self.viscosity.active and self.traction != "galerkin":
+            raise _FieldProblem(
+                "traction", self.traction,
+                "a viscous membrane (membrane.viscosity) needs traction: galerkin: the viscous traction is a "
+                "Galerkin load (docs/viscous_membrane.md)")
         return self
 
     @model_validator(mode="after")
@@ -548,6 +599,15 @@ class Case(_Model):
             raise _FieldProblem("physical", "…", f"gives G = {G:.3g}, outside (0, 1e6): check the units")
         # frozen models: the flow with the computed G, set once while validating
         object.__setattr__(self, "flow", self.flow.model_copy(update={"shear_rate_G": G}))
+        return self
+
+    @model_validator(mode="after")
+    def _scheme_takes_viscosity(self) -> Case:
+        viscosity = self.membrane.viscosity
+        if viscosity is not None and viscosity.active and self.time.scheme in REFUSING_SCHEMES:
+            raise _FieldProblem("time.scheme", self.time.scheme,
+                                f"cannot run a viscous membrane (membrane.viscosity): "
+                                f"{REFUSING_SCHEMES[self.time.scheme]}")
         return self
 
     @model_validator(mode="after")

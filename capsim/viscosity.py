@@ -1,0 +1,221 @@
+"""Membrane viscosity: a registry of viscous membrane models and their velocity solve.
+
+A viscous membrane adds to the elastic tension a tension that depends on the
+membrane's rate of deformation. In units of E_s (tension) and k (rate), with the
+Boussinesq numbers Bq_s = μ_s/(μa) and Bq_d = μ_d/(μa) (μ the outer viscosity),
+the Kelvin–Voigt membrane (Barthès-Biesel & Sgaier 1985, their eq. 2.6; Yazdani
+& Bagchi 2013; docs/viscous_membrane.md, eq. V1) carries
+
+    T_v = G [2 Bq_s (D − ½ tr(D) P) + Bq_d tr(D) P],   D = ½ P(∇_s u + ∇_s uᵀ)P,
+
+P = I − nn the surface projector. Its traction Δf_v = −∇_s·T_v is linear in the
+membrane velocity u: by virtual power (as the elastic Galerkin traction, seed
+3.4–3.6 replaced by M·Δf = ∂E/∂x) M·Δf_v = G·K u with K the viscous stiffness
+of ``kernels.viscous_membrane_blocks`` (eq. V3). The velocity equation of
+``solver.CapsuleModel.velocity`` (seed 2.11 in capsim's units) gains a term in u,
+
+    A u + SL[M⁻¹K u]/(8π) = u∞ − SL[Δf_e]/(8πG)                     (V4)
+
+(A = I at λ = 1, else the deflated double-layer operator); G cancels from the
+viscous term, which is why the Boussinesq number is the parameter. (V4) is solved
+by GMRES (``capsim.krylov``) at every velocity evaluation, warm-started from the
+last solution, right-preconditioned by the "local drag" approximation
+SL[w] ≈ s w (s the single layer's Rayleigh quotient on white noise at the rest
+shape, where the finest modes, the stiff ones, dominate):
+
+    Z⁻¹ ≈ ( (1+λ)/2 M + s/(8π) K )⁻¹ M        (sparse LU, per evaluation)
+
+Registry: a model is an entry of :data:`VISCOSITY_MODELS` (its parameters, their
+meaning, its source); ``build`` makes its solver. Only the Kelvin–Voigt membrane
+is implemented; the standard linear solid (a Maxwell branch whose stress is
+state) is not (docs/viscous_membrane.md says why).
+
+This module imports no numba at import time (config.py reads the registry).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from capsim.solver import CapsuleModel
+
+
+@dataclass(frozen=True)
+class ViscosityModel:
+    """A registry entry: the model's name, its parameters (Boussinesq numbers,
+    ≥ 0) with their meaning, and its source."""
+
+    name: str
+    parameters: dict
+    reference: str
+
+
+VISCOSITY_MODELS: dict[str, ViscosityModel] = {
+    "kelvin_voigt": ViscosityModel(
+        "kelvin_voigt",
+        {"shear": "surface shear viscosity as a Boussinesq number Bq_s = μ_s/(μ a)",
+         "dilatational": "surface dilatational viscosity Bq_d = μ_d/(μ a) (isotropic viscous tension μ_d tr D)"},
+        "Barthès-Biesel & Sgaier, J. Fluid Mech. 160 (1985) 119-135; Yazdani & Bagchi, J. Fluid Mech. 718 (2013) "
+        "569-595",
+    ),
+}
+
+#: the schemes that cannot take a viscous membrane, and why (config.py refuses them)
+REFUSING_SCHEMES = {
+    "linearly_implicit": "its stage Jacobian (capsim.linearization) leaves out the viscous membrane operator; "
+                         "use scheme rkf23 or rkc",
+}
+
+
+def is_active(params: dict | None) -> bool:
+    """Whether a viscosity block changes anything (every Boussinesq number 0: the elastic code path)."""
+    return bool(params) and any(float(v) > 0.0 for k, v in params.items() if k != "model")
+
+
+class KelvinVoigtMembrane:
+    """The solver of (V4) for one discretisation (module docstring).
+
+    ``stiffness(x)`` is K (sparse, 3N × 3N, node-major); ``solve(model, x, geo,
+    rhs, normals)`` returns u. ``iterations`` counts GMRES iterations over the
+    run (part of the model's checkpoint state).
+    """
+
+    name = "kelvin_voigt"
+
+    def __init__(self, disc, rest_positions: np.ndarray, *, shear: float, dilatational: float = 0.0) -> None:
+        for field_name, v in (("shear", shear), ("dilatational", dilatational)):
+            if not (math.isfinite(v) and v >= 0.0):
+                raise ValueError(f"membrane.viscosity.{field_name} = {v!r}: must be a finite number >= 0")
+        self.disc = disc
+        self.shear = float(shear)
+        self.dilatational = float(dilatational)
+        self.rest_positions = np.ascontiguousarray(rest_positions, dtype=np.float64)
+        e = np.asarray(disc.elements, dtype=np.int64)
+        dof = (3 * e[:, :, None] + np.arange(3)[None, None, :]).reshape(e.shape[0], 18)
+        self._rows = np.repeat(dof, 18, axis=1).ravel()
+        self._cols = np.tile(dof, (1, 18)).ravel()
+        self._drag: float | None = None
+        self.iterations = 0
+        self.solve_time = 0.0
+
+    # -- operators ---------------------------------------------------------------
+    def stiffness(self, x: np.ndarray):
+        """K at configuration x (eq. V3), with c_s = Bq_s and c_d = Bq_d (G cancels, eq. V4)."""
+        import scipy.sparse as sp
+
+        from capsim import kernels
+
+        disc = self.disc
+        blocks = kernels.viscous_membrane_blocks(
+            np.ascontiguousarray(x), disc.elements, disc.mem_dxi, disc.mem_deta, disc.mem_w,
+            self.shear, self.dilatational)
+        n = 3 * disc.n_nodes
+        return sp.csr_matrix((blocks.ravel(), (self._rows, self._cols)), shape=(n, n))
+
+    def dissipation(self, x: np.ndarray, u: np.ndarray) -> float:
+        """uᵀK u = ∫ T_v:D dA / G: the membrane's viscous dissipation rate in units of μ k² a³."""
+        return float(u.ravel() @ (self.stiffness(x) @ u.ravel()))
+
+    def drag_scale(self, model: CapsuleModel) -> float:
+        """s = ⟨v, SL[v]⟩/⟨v, v⟩ at the rest shape for white noise v (fixed seed): computed
+        once, from the rest positions, so that a resumed run uses the same value."""
+        if self._drag is None:
+            disc = self.disc
+            x = self.rest_positions
+            v = np.random.default_rng(12345).standard_normal(x.shape)
+            sl = disc.single_layer(x, disc.geometry(x), np.ascontiguousarray(v[disc.elements]))
+            self._drag = max(float(np.vdot(v, sl)) / float(np.vdot(v, v)), 0.0)
+        return self._drag
+
+    # -- the velocity solve -----------------------------------------------------
+    def solve(self, model: CapsuleModel, x: np.ndarray, geo, rhs: np.ndarray, normals: np.ndarray | None,
+              ) -> np.ndarray:
+        """u of (V4) to the relative residual ``model.solver_tol``; sets the model's
+        ``last_solve_info`` and warm starts, counts its layer applications."""
+        import scipy.sparse as sp
+        from scipy.sparse.linalg import splu
+
+        from capsim.krylov import gmres
+        from capsim.solver import SolverDivergence
+
+        t0 = time.perf_counter()
+        disc, counts, lam = model.disc, model.counts, model.viscosity_ratio
+        K = self.stiffness(x)
+        mass = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr),
+                             shape=(disc.n_nodes, disc.n_nodes))
+        mass_lu = splu(mass.tocsc())
+        double = model.double_layer_operator(x, geo, normals) if lam != 1.0 else None
+        elements = disc.elements
+
+        def apply(u: np.ndarray) -> np.ndarray:
+            density = mass_lu.solve(np.asfortranarray((K @ u.ravel()).reshape(-1, 3)))
+            sl = disc.single_layer(x, geo, np.ascontiguousarray(density[elements]))
+            counts["single_layer_applications"] += 1
+            base = u if double is None else double(u)
+            return base + sl / (8.0 * np.pi)
+
+        # preconditioner: the local-drag approximation of the operator (module docstring)
+        c = self.drag_scale(model) / (8.0 * np.pi)
+        a = 0.5 * (1.0 + lam)
+        mass3 = sp.kron(mass, sp.identity(3), format="csr")
+        pre_lu = splu((a * mass3 + c * K).tocsc())
+
+        def precondition(y: np.ndarray) -> np.ndarray:
+            return pre_lu.solve(mass3 @ y)
+
+        last_u, last_rhs = model._last_velocity, model._last_rhs
+        if last_u is not None and last_u.shape == rhs.shape:
+            guess = last_u
+            if last_rhs is not None and last_rhs.shape == rhs.shape:
+                guess = guess + precondition((rhs - last_rhs).ravel()).reshape(rhs.shape)
+        else:
+            guess = precondition(rhs.ravel()).reshape(rhs.shape)
+        model._last_rhs = rhs
+        bnorm = max(float(np.linalg.norm(rhs)), 1e-300)
+        r = rhs - apply(guess)
+        residual = float(np.linalg.norm(r)) / bnorm
+        u, iterations = guess, 0
+        if residual > model.solver_tol:
+            restart = min(60, model.solver_max_iter)
+            delta, iterations, rnorm = gmres(
+                lambda v: apply(v.reshape(-1, 3)).ravel(), r.ravel(), model.solver_tol * bnorm,
+                precondition=precondition, max_iter=model.solver_max_iter * restart, restart=restart,
+                callback=model.interrupt_check)
+            u = guess + delta.reshape(-1, 3)
+            residual = rnorm / bnorm
+        self.iterations += int(iterations)
+        model.last_solve_info = {"iterations": int(iterations), "residual": residual}
+        if not residual <= 10.0 * model.solver_tol:
+            raise SolverDivergence(
+                f"viscous membrane velocity solve did not converge: residual {residual:.2e} > tol "
+                f"{model.solver_tol:.1e} after {iterations} iterations (Bq_s = {self.shear:g})")
+        model._last_velocity = u
+        if disc.symmetry != "none":  # the sparse and dense products need not treat mirror rows alike
+            u = disc.expand(u[disc.targets])
+        self.solve_time += time.perf_counter() - t0
+        return u
+
+
+def build(disc, rest_positions: np.ndarray, params: dict | None) -> KelvinVoigtMembrane | None:
+    """The viscous membrane of a case's ``membrane.viscosity`` block, or None when it
+    changes nothing (no block, or every Boussinesq number 0: today's elastic path)."""
+    if not is_active(params):
+        return None
+    params = dict(params)
+    name = params.pop("model", "kelvin_voigt")
+    if name not in VISCOSITY_MODELS:
+        raise ValueError(f"unknown membrane viscosity model {name!r} (allowed: {sorted(VISCOSITY_MODELS)})")
+    return KelvinVoigtMembrane(disc, rest_positions, **params)
+
+
+def describe(params: dict | None) -> dict[str, Any]:
+    """The run file's record of the viscosity: model and Boussinesq numbers (zeros when none)."""
+    p = dict(params or {})
+    return {"model": p.get("model", "none") if is_active(p) else "none",
+            "Bq_shear": float(p.get("shear", 0.0)), "Bq_dilatational": float(p.get("dilatational", 0.0))}
