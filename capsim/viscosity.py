@@ -88,7 +88,15 @@ class KelvinVoigtMembrane:
 
     name = "kelvin_voigt"
 
-    def __init__(self, disc, rest_positions: np.ndarray, *, shear: float, dilatational: float = 0.0) -> None:
+    #: preconditioners of the solve: "local" (module docstring) or "none" (plain GMRES, the baseline
+    #: benchmarks/viscous_membrane.py measures it against)
+    PRECONDITIONERS = ("rest", "local", "none")
+
+    def __init__(self, disc, rest_positions: np.ndarray, *, shear: float, dilatational: float = 0.0,
+                 preconditioner: str = "rest") -> None:
+        if preconditioner not in self.PRECONDITIONERS:
+            raise ValueError(f"unknown preconditioner {preconditioner!r} (allowed: {self.PRECONDITIONERS})")
+        self.preconditioner = preconditioner
         for field_name, v in (("shear", shear), ("dilatational", dilatational)):
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"membrane.viscosity.{field_name} = {v!r}: must be a finite number >= 0")
@@ -101,6 +109,7 @@ class KelvinVoigtMembrane:
         self._rows = np.repeat(dof, 18, axis=1).ravel()
         self._cols = np.tile(dof, (1, 18)).ravel()
         self._drag: float | None = None
+        self._rest_factor = None
         self.iterations = 0
         self.solve_time = 0.0
 
@@ -133,6 +142,34 @@ class KelvinVoigtMembrane:
             self._drag = max(float(np.vdot(v, sl)) / float(np.vdot(v, v)), 0.0)
         return self._drag
 
+    def _rest_preconditioner(self, model: CapsuleModel, x: np.ndarray):
+        """The local-drag preconditioner factorised once, at the rest shape, and applied in
+        the frame of the best-fit rotation from the rest nodes to x (Kabsch 1976): a
+        tank-treading membrane carries its nodes round while its shape stays, and K of a
+        rotated mesh is the rotated K. A function of x alone, so a resumed run repeats it."""
+        import scipy.sparse as sp
+        from scipy.sparse.linalg import splu
+
+        from capsim.linearization import best_rotation
+
+        if self._rest_factor is None:
+            disc, X = self.disc, self.rest_positions
+            geo = disc.geometry(X)
+            mass = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr),
+                                 shape=(disc.n_nodes, disc.n_nodes))
+            c = self.drag_scale(model) / (8.0 * np.pi)
+            a = 0.5 * (1.0 + model.viscosity_ratio)
+            mass3 = sp.kron(mass, sp.identity(3), format="csr")
+            self._rest_factor = (splu((a * mass3 + c * self.stiffness(X)).tocsc()), mass3)
+        lu, mass3 = self._rest_factor
+        rot = best_rotation(self.rest_positions, x)
+
+        def precondition(y: np.ndarray) -> np.ndarray:
+            z = lu.solve(mass3 @ (y.reshape(-1, 3) @ rot).ravel())
+            return (z.reshape(-1, 3) @ rot.T).ravel()
+
+        return precondition
+
     # -- the velocity solve -----------------------------------------------------
     def solve(self, model: CapsuleModel, x: np.ndarray, geo, rhs: np.ndarray, normals: np.ndarray | None,
               ) -> np.ndarray:
@@ -160,14 +197,20 @@ class KelvinVoigtMembrane:
             base = u if double is None else double(u)
             return base + sl / (8.0 * np.pi)
 
-        # preconditioner: the local-drag approximation of the operator (module docstring)
-        c = self.drag_scale(model) / (8.0 * np.pi)
-        a = 0.5 * (1.0 + lam)
-        mass3 = sp.kron(mass, sp.identity(3), format="csr")
-        pre_lu = splu((a * mass3 + c * K).tocsc())
+        if self.preconditioner == "local":
+            # the local-drag approximation of the operator (module docstring)
+            c = self.drag_scale(model) / (8.0 * np.pi)
+            a = 0.5 * (1.0 + lam)
+            mass3 = sp.kron(mass, sp.identity(3), format="csr")
+            pre_lu = splu((a * mass3 + c * K).tocsc())
 
-        def precondition(y: np.ndarray) -> np.ndarray:
-            return pre_lu.solve(mass3 @ y)
+            def precondition(y: np.ndarray) -> np.ndarray:
+                return pre_lu.solve(mass3 @ y)
+        elif self.preconditioner == "rest":
+            precondition = self._rest_preconditioner(model, x)
+        else:
+            def precondition(y: np.ndarray) -> np.ndarray:
+                return y
 
         last_u, last_rhs = model._last_velocity, model._last_rhs
         if last_u is not None and last_u.shape == rhs.shape:
@@ -185,7 +228,7 @@ class KelvinVoigtMembrane:
             restart = min(60, model.solver_max_iter)
             delta, iterations, rnorm = gmres(
                 lambda v: apply(v.reshape(-1, 3)).ravel(), r.ravel(), model.solver_tol * bnorm,
-                precondition=precondition, max_iter=model.solver_max_iter * restart, restart=restart,
+                precondition=precondition if self.preconditioner != "none" else None, max_iter=model.solver_max_iter * restart, restart=restart,
                 callback=model.interrupt_check)
             u = guess + delta.reshape(-1, 3)
             residual = rnorm / bnorm
