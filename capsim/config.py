@@ -34,6 +34,7 @@ __all__ = [
     "Case",
     "ConfigError",
     "Flow",
+    "FlowHistory",
     "Guards",
     "Membrane",
     "MembraneViscosity",
@@ -311,6 +312,26 @@ class Physical(_Model):
         return conversion(self.shear_rate, self.viscosity, self.radius, self.surface_modulus, self.shear_modulus)
 
 
+class FlowHistory(_Model):
+    """How the shear flow changes in time (docs/viscous_membrane.md, "Flows that change in time").
+    Times stay in units of 1/k, k the shear rate before any stop."""
+
+    kind: Literal["steady", "stop"] = Field(
+        "steady", description="steady: simple shear throughout; stop: simple shear until kt = stop_time, "
+        "then no flow (the capsule relaxes at rest)")
+    stop_time: Optional[float] = Field(
+        None, gt=0, description="kind: stop only: the kt at which the flow stops, below time.t_end")
+
+    @model_validator(mode="after")
+    def _stop_time_of_the_kind(self) -> "FlowHistory":
+        if self.kind == "stop" and self.stop_time is None:
+            raise _FieldProblem("stop_time", None, "is required with kind: stop (the kt at which the flow stops)")
+        if self.kind != "stop" and self.stop_time is not None:
+            raise _FieldProblem("stop_time", self.stop_time, f"applies only to kind: stop, not to kind: {self.kind}; "
+                                "remove it")
+        return self
+
+
 class Flow(_Model):
     """Simple shear v = (k y, 0, 0); G = mu k a / E_s, viscosity ratio lambda."""
 
@@ -325,6 +346,14 @@ class Flow(_Model):
         "has its spectrum in [min(1, λ), max(1, λ)], so its condition number is max(λ, 1/λ) and the "
         "solve's iterations grow like its square root; beyond 1e3 the capsule is a rigid particle",
     )
+
+    history: Optional[FlowHistory] = Field(
+        None, description="none or {kind: steady}: steady shear; {kind: stop, stop_time: kt}: the flow stops at kt")
+
+    @property
+    def stop_time(self) -> float | None:
+        """The kt at which the flow stops, None for steady shear."""
+        return self.history.stop_time if self.history is not None and self.history.kind == "stop" else None
 
     @field_validator("viscosity_ratio")
     @classmethod
@@ -599,6 +628,14 @@ class Case(_Model):
             raise _FieldProblem("physical", "…", f"gives G = {G:.3g}, outside (0, 1e6): check the units")
         # frozen models: the flow with the computed G, set once while validating
         object.__setattr__(self, "flow", self.flow.model_copy(update={"shear_rate_G": G}))
+        return self
+
+    @model_validator(mode="after")
+    def _flow_stops_before_the_end(self) -> Case:
+        stop = self.flow.stop_time
+        if stop is not None and not stop < self.time.t_end:
+            raise _FieldProblem("flow.history.stop_time", stop,
+                                f"must be < time.t_end = {self.time.t_end:g} (the flow stops during the run)")
         return self
 
     @model_validator(mode="after")

@@ -392,6 +392,29 @@ def classify_motion(
     return out
 
 
+def relaxation_time(t: np.ndarray, D_xy: np.ndarray, t_from: float, floor: float = 1e-6) -> float:
+    """kτ of a capsule relaxing at rest from D_xy(t) after ``t_from``: −1/slope of the
+    least-squares line through ln D_xy (the slow mode of the first-order theory,
+    docs/viscous_membrane.md, once the fast one has decayed); NaN with fewer than 3
+    samples above ``floor`` or a D_xy that does not decay."""
+    t, D = np.asarray(t, float), np.asarray(D_xy, float)
+    sel = (t >= t_from) & (D > floor)
+    if np.count_nonzero(sel) < 3:
+        return float("nan")
+    slope = np.polyfit(t[sel], np.log(D[sel]), 1)[0]
+    return float(-1.0 / slope) if slope < 0 else float("nan")
+
+
+def relaxation_summary(series: dict[str, np.ndarray], stop_time: float) -> dict:
+    """The summary of a run whose flow stopped at ``stop_time`` (flow.history kind stop):
+    the motion is 'relaxing' (a capsule at rest is neither steady in shear nor unstable),
+    the relaxation time is fitted over the last two thirds of the rest."""
+    t = np.asarray(series["t"], float)
+    t_from = stop_time + (float(t[-1]) - stop_time) / 3.0
+    return {"motion": "relaxing", "relaxation_time": relaxation_time(t, series["D_xy"], t_from),
+            "flow_stop_time": float(stop_time)}
+
+
 def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
     """Summary of a run from its time series (t, D_xy, θ, ttf_ratio, tt_angle,
     Sxy_star, N1_star, N2_star): the motion, and the time-mean and standard

@@ -170,8 +170,12 @@ _add("n_nodes", "mesh nodes", "1", "number of nodes (vertices and mid-side nodes
 # ---------------------------------------------------------------- summary/ (statistics over the averaging window)
 
 _add("motion", "class of steady motion", "",
-     "as classified by the run: steady, oscillating, tumbling, transient or unstable; empty when the run did "
-     "not classify it")
+     "as classified by the run: steady, oscillating, tumbling, transient or unstable; relaxing when the flow "
+     "stopped during the run (flow.history kind stop); empty when the run did not classify it")
+_add("relaxation_time", "shape relaxation time at rest", "1",
+     "kτ of the capsule relaxing at rest after the flow stopped: −1/slope of ln D_xy over the last two thirds "
+     "of the rest (the slow mode of docs/viscous_membrane.md), in units of 1/k of the flow before the stop", "1/k")
+_add("flow_stop_time", "time the flow stopped", "1", "kt at which the shear flow stopped (flow.history)", "1/k")
 _add("period", "period of the motion", "1",
      "oscillation period, or the time for theta to turn by 2π when tumbling, in units of 1/k; NaN otherwise",
      "1/k")

@@ -368,6 +368,10 @@ class CapsuleModel:
     # the membrane's viscosity (capsim.viscosity), None for a purely elastic membrane:
     # then the velocity is a solve at every λ (viscosity.py, eq. V4)
     viscous: Any = None
+    # flow.history kind stop: the kt at which the flow stops (None: steady shear); the runner
+    # calls stop_flow() there, and the checkpoint says whether it has (state: "flow_stopped")
+    flow_stop_time: float | None = None
+    flow_stopped: bool = field(default=False, init=False)
     # iterations and relative residual of the last velocity solve (0 at λ = 1)
     last_solve_info: dict = field(default_factory=lambda: {"iterations": 0, "residual": 0.0}, init=False)
     # cumulative work: velocity evaluations and layer applications (each GMRES or
@@ -449,6 +453,8 @@ class CapsuleModel:
         out.update({k: np.array(v, dtype=np.int64) for k, v in self.counts.items()})
         if self.viscous is not None:
             out["viscous_iterations"] = np.array(self.viscous.iterations, dtype=np.int64)
+        if self.flow_stop_time is not None:
+            out["flow_stopped"] = np.array(self.flow_stopped, dtype=np.int64)
         return out
 
     def restore(self, state: dict) -> None:
@@ -456,6 +462,8 @@ class CapsuleModel:
         known = {"warm_traction", "warm_velocity", "warm_rhs", "membrane_evaluations", *COUNTERS}
         if self.viscous is not None:
             known.add("viscous_iterations")
+        if self.flow_stop_time is not None:
+            known.add("flow_stopped")
         unknown = set(state) - known
         if unknown:
             raise ValueError(f"unknown model state entries {sorted(unknown)}")
@@ -470,6 +478,13 @@ class CapsuleModel:
         self.counts = {k: int(state.get(k, 0)) for k in COUNTERS}
         if self.viscous is not None:
             self.viscous.iterations = int(state.get("viscous_iterations", 0))
+        if state.get("flow_stopped"):
+            self.stop_flow()
+
+    def stop_flow(self) -> None:
+        """No undisturbed flow from now on (flow.history kind stop): u∞ = 0."""
+        self.far_field = FarField(((0.0,) * 3,) * 3)
+        self.flow_stopped = True
 
     def velocity(self, x: np.ndarray, state: MembraneState | None = None) -> np.ndarray:
         """Nodal velocities (N_p, 3) at configuration x.
@@ -646,5 +661,6 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None) -> tuple[C
         solver_tol=case.solver.tol,
         solver_max_iter=case.solver.max_iter,
         viscous=viscous,
+        flow_stop_time=case.flow.stop_time,
     )
     return model, rest
