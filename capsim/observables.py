@@ -482,8 +482,12 @@ class StepObserver:
         row["min_tension"] = float(tau2.min()) / model.shear_rate_G
         row["compressed_fraction"] = float(np.mean(tau2 < -COMPRESSION_TOL))
         center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
+        density = state.density
+        if model.viscous is not None:
+            density, viscous_row = self._viscous(y, u, state, center, row["volume"])
+            row.update(viscous_row)
         S_star = particle_stresslet(
-            state.geometry, state.density, u, elements, model.disc.reg_phi, center, row["volume"],
+            state.geometry, density, u, elements, model.disc.reg_phi, center, row["volume"],
             model.shear_rate_G, model.viscosity_ratio,
         )
         row.update(stresslet_observables(S_star))
@@ -493,6 +497,21 @@ class StepObserver:
         row.update({key: float(value) for key, value in work.items()})
         self._remember(row)
         return row
+
+    def _viscous(self, y: np.ndarray, u: np.ndarray, state, center: np.ndarray, volume: float) -> tuple:
+        """A viscous membrane's traction joins the elastic one in the stresslet (Batchelor's
+        surface formula holds for any interfacial force; docs/viscous_membrane.md, eq. V12);
+        its own share of S*_xy, its dissipation rate uᵀK u (μk²a³) and that over the power the
+        flow spends on the particle, S:E (the elastic energy is stored, not dissipated: in a
+        steady state the rest of S:E is the fluids')."""
+        model = self.model
+        elements = model.disc.elements
+        traction = model.viscous.traction(y, state.geometry, u)  # Δf_v/G, units μk
+        density = state.density + model.shear_rate_G * traction[elements]
+        S_v = particle_stresslet(state.geometry, np.ascontiguousarray(traction[elements]), u, elements,
+                                 model.disc.reg_phi, center, volume, 1.0, 1.0)
+        dissipation = float(u.ravel() @ (model.viscous.stiffness(y) @ u.ravel()))
+        return density, {"Sxy_viscous_star": float(S_v[0, 1]), "viscous_dissipation": dissipation}
 
     def _remember(self, row: dict) -> None:
         if self.first is None:

@@ -172,6 +172,14 @@ _add("n_nodes", "mesh nodes", "1", "number of nodes (vertices and mid-side nodes
 _add("motion", "class of steady motion", "",
      "as classified by the run: steady, oscillating, tumbling, transient or unstable; relaxing when the flow "
      "stopped during the run (flow.history kind stop); empty when the run did not classify it")
+_add("Sxy_viscous_star", "viscous membrane share of S*_xy", "1",
+     "the part of S*_xy due to the membrane's viscous traction, (1/(2.5 V)) ∫ Δf_v x dS = ∫ T_v dA/(2.5 V) "
+     "(docs/viscous_membrane.md, eq. V12); included in Sxy_star, N1_star, N2_star; only with membrane.viscosity")
+_add("viscous_dissipation", "membrane viscous dissipation rate", "1",
+     "∫ T_v:D dA, the power the membrane's viscosity dissipates, in units of μ k² a³; in simple shear the power "
+     "the flow spends on the particle is S:E = 2.5 V S*_xy in the same units, and their ratio the viscous "
+     "share of the dissipation (the elastic energy is stored, not dissipated); only with membrane.viscosity",
+     "mu k^2 a^3")
 _add("relaxation_time", "shape relaxation time at rest", "1",
      "kτ of the capsule relaxing at rest after the flow stopped: −1/slope of ln D_xy over the last two thirds "
      "of the rest (the slow mode of docs/viscous_membrane.md), in units of 1/k of the flow before the stop", "1/k")
@@ -339,6 +347,7 @@ SCALES: dict[str, str] = {
     "5/2 mu k V": "particle stresslet of a rigid sphere of the capsule's volume V",
     "E_s a^2": "bending energy (κ)",
     "a^2": "area", "a^3": "volume",
+    "mu k^2 a^3": "power (W): a rate of dissipation or of work of the flow",
 }
 
 

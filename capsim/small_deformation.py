@@ -111,6 +111,29 @@ class LinearCapsule:
         """(D_xy, θ) of the steady tank-treading state."""
         return self.shape(self.steady_state())
 
+    def stresslet_xy(self, x: np.ndarray | None = None) -> tuple[float, float]:
+        """(S*_xy, its viscous-membrane part) in steady shear (default) or at state x (eq. V12):
+        S = ∫ T dA − (1 − λ) ∫ (u n + n u) dS over the unit sphere, with
+        ∫ T dA = (π/15)[(48g + 24k) B − 16k A] for a tension 2g ε + (k − g) tr ε P
+        (elastic: of (A, B) with G_s, K_s; viscous: of (U, V) with μ_s, μ_d) and
+        ∫ (u n + n u) dS = (16π/15) U + (24π/15) V; S* = S/(2.5 · 4π/3). The xy component
+        of a tensor is its S1 coefficient. N1 and N2 are not given: terms quadratic in E
+        enter them at this order (docs/known_answers.md)."""
+        x = self.steady_state() if x is None else x
+        J, f = self.jacobian(shear=True)
+        rate = J @ x + f   # d(A, B)/dt; the corotational rate (U, V) adds the spin back
+        a1, b1, a2, b2 = x
+        U1, V1 = rate[0] + a2, rate[1] + b2  # U = dA/dt − [W, A]: S1 part of −[W, A] is +a2
+
+        def tension(g, k, a, b):
+            return np.pi / 15.0 * ((48.0 * g + 24.0 * k) * b - 16.0 * k * a)
+
+        elastic = tension(1.0 / self.Ca, self.area_over_shear / self.Ca, a1, b1)
+        viscous = tension(self.Bq_shear, self.Bq_dilatational, U1, V1)
+        flux = (1.0 - self.viscosity_ratio) * (16.0 * np.pi / 15.0 * U1 + 24.0 * np.pi / 15.0 * V1)
+        scale = 2.5 * 4.0 * np.pi / 3.0
+        return float((elastic + viscous - flux) / scale), float(viscous / scale)
+
     def relaxation(self, t: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
         """D_xy(t) at rest from x0 (default: the steady shear state), t measured from the stop."""
         x0 = self.steady_state() if x0 is None else x0

@@ -127,6 +127,17 @@ class KelvinVoigtMembrane:
         n = 3 * disc.n_nodes
         return sp.csr_matrix((blocks.ravel(), (self._rows, self._cols)), shape=(n, n))
 
+    def traction(self, x: np.ndarray, geo, u: np.ndarray) -> np.ndarray:
+        """M⁻¹K u at the nodes (N_p, 3): the viscous traction jump Δf_v over G, i.e. in units
+        of μk (times G: in the E_s/a of the elastic Δf). For the observables: one sparse solve."""
+        import scipy.sparse as sp
+        from scipy.sparse.linalg import splu
+
+        disc = self.disc
+        mass = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr),
+                             shape=(disc.n_nodes, disc.n_nodes))
+        return splu(mass.tocsc()).solve(np.asfortranarray((self.stiffness(x) @ u.ravel()).reshape(-1, 3)))
+
     def dissipation(self, x: np.ndarray, u: np.ndarray) -> float:
         """uᵀK u = ∫ T_v:D dA / G: the membrane's viscous dissipation rate in units of μ k² a³."""
         return float(u.ravel() @ (self.stiffness(x) @ u.ravel()))
