@@ -498,6 +498,8 @@ def units(
         None, "--surface-modulus", help="membrane elastic modulus E_s (a drop: surface tension), e.g. '18 uN/m'"),
     shear_modulus: Optional[str] = typer.Option(
         None, "--shear-modulus", help="surface shear modulus G_s = E_s/3 instead of E_s, e.g. '6 uN/m'"),
+    membrane_viscosity: Optional[str] = typer.Option(
+        None, "--membrane-viscosity", help="membrane surface shear viscosity μ_s, e.g. '2.5e-7 N*s/m' (gives Bq)"),
     as_json: bool = typer.Option(False, "--json", help="print a JSON object (G, Ca, time_unit_s, ...)"),
 ) -> None:
     """Physical values to capsim's numbers: G = μka/E_s, Ca = μka/G_s = 3G and the time unit 1/k.
@@ -509,7 +511,8 @@ def units(
     from capsim.units import UnitsError, conversion, parse
 
     given = {"shear_rate": shear_rate, "viscosity": viscosity, "radius": radius,
-             "surface_modulus": surface_modulus, "shear_modulus": shear_modulus}
+             "surface_modulus": surface_modulus, "shear_modulus": shear_modulus,
+             "membrane_viscosity": membrane_viscosity}
     missing = [f"--{k.replace('_', '-')}" for k in ("shear_rate", "viscosity", "radius") if given[k] is None]
     if (surface_modulus is None) == (shear_modulus is None):
         missing.append("--surface-modulus or --shear-modulus (one of the two)" if surface_modulus is None
@@ -522,7 +525,7 @@ def units(
                 parse(value, kind)
             except UnitsError as exc:
                 raise _user_error(f"units: --{kind.replace('_', '-')}: {exc}") from None
-    out = conversion(shear_rate, viscosity, radius, surface_modulus, shear_modulus)
+    out = conversion(shear_rate, viscosity, radius, surface_modulus, shear_modulus, membrane_viscosity)
     if as_json:
         typer.echo(json.dumps(out))
         return
@@ -532,6 +535,9 @@ def units(
     typer.echo(f"E_s = {out['E_s_N_per_m']:.6g} N/m, G_s = {out['G_s_N_per_m']:.6g} N/m, "
                f"velocity unit ka = {out['velocity_m_per_s']:.6g} m/s, tension unit mu k a = "
                f"{out['tension_N_per_m']:.6g} N/m")
+    if "Bq" in out:
+        typer.echo(f"Bq = mu_s / (mu a) = {out['Bq']:.6g}   (membrane.viscosity.shear); membrane time "
+                   f"mu_s / G_s = {out['membrane_time_s']:.6g} s (k tau = Bq Ca = {out['Bq'] * out['Ca']:.6g})")
 
 
 def _version(value: bool) -> None:

@@ -288,8 +288,12 @@ class Physical(_Model):
     shear_modulus: Optional[str] = Field(
         None, description="surface shear modulus G_s = E_s / 3 of the elastic laws, e.g. '6 uN/m'; "
         "or give surface_modulus")
+    membrane_viscosity: Optional[str] = Field(
+        None, description="surface shear viscosity μ_s of the membrane, e.g. '2.5e-7 N*s/m' (red cell); gives "
+        "membrane.viscosity.shear = Bq = μ_s / (μ a), Kelvin–Voigt")
 
-    @field_validator("shear_rate", "viscosity", "radius", "surface_modulus", "shear_modulus", mode="before")
+    @field_validator("shear_rate", "viscosity", "radius", "surface_modulus", "shear_modulus", "membrane_viscosity",
+                     mode="before")
     @classmethod
     def _a_quantity(cls, v: Any, info: ValidationInfo) -> Any:
         from capsim.units import parse
@@ -309,7 +313,8 @@ class Physical(_Model):
         """G, Ca and the time unit (capsim.units.conversion)."""
         from capsim.units import conversion
 
-        return conversion(self.shear_rate, self.viscosity, self.radius, self.surface_modulus, self.shear_modulus)
+        return conversion(self.shear_rate, self.viscosity, self.radius, self.surface_modulus, self.shear_modulus,
+                          self.membrane_viscosity)
 
 
 class FlowHistory(_Model):
@@ -628,6 +633,25 @@ class Case(_Model):
             raise _FieldProblem("physical", "…", f"gives G = {G:.3g}, outside (0, 1e6): check the units")
         # frozen models: the flow with the computed G, set once while validating
         object.__setattr__(self, "flow", self.flow.model_copy(update={"shear_rate_G": G}))
+        return self
+
+    @model_validator(mode="after")
+    def _Bq_from_physical(self) -> Case:
+        if self.physical is None or self.physical.membrane_viscosity is None:
+            return self
+        Bq = self.physical.conversion()["Bq"]
+        given = self.membrane.viscosity
+        if given is not None and "shear" in given.model_fields_set:
+            if not math.isclose(given.shear, Bq, rel_tol=1e-9):  # a resolved case holds both
+                raise _FieldProblem(
+                    "membrane.viscosity.shear", given.shear,
+                    f"give membrane.viscosity.shear or physical.membrane_viscosity, not both (physical gives "
+                    f"Bq = {Bq:.6g}); remove one")
+            return self
+        viscosity = (given or MembraneViscosity()).model_copy(update={"shear": Bq})
+        viscosity = MembraneViscosity.model_validate(viscosity.model_dump())  # its checks, shear now set
+        membrane = Membrane.model_validate({**self.membrane.model_dump(), "viscosity": viscosity.model_dump()})
+        object.__setattr__(self, "membrane", membrane)
         return self
 
     @model_validator(mode="after")

@@ -151,3 +151,36 @@ def test_both_explicit_schemes_agree_and_record_the_solves(tmp_path):
     for ts in runs.values():
         assert np.all(ts["solver_iterations"][1:] >= 1)
         assert np.all(ts["solver_residual"] <= 1e-5)
+
+
+# ---------------------------------------------------------------- physical units
+
+def test_units_give_the_boussinesq_number():
+    """Bq = μ_s/(μ a): 1e-7 / (1.2e-3 × 2.8e-6) = 29.76 (capsim/units.py's red cell), on the CLI,
+    in a physical block (stored beside it, and loading back) and in configs/rbc-viscous.yaml."""
+    import json
+    from pathlib import Path
+
+    import yaml
+
+    from capsim.config import load_case
+
+    hand = 1e-7 / (1.2e-3 * 2.8e-6)
+    args = ["units", "--shear-rate", "100 1/s", "--viscosity", "1.2 mPa*s", "--radius", "2.8 um",
+            "--shear-modulus", "6 uN/m", "--membrane-viscosity", "1e-7 N*s/m"]
+    out = json.loads(CliRunner().invoke(app, args + ["--json"]).stdout)
+    assert out["Bq"] == pytest.approx(hand, rel=1e-12)
+    assert out["membrane_time_s"] == pytest.approx(1e-7 / 6e-6, rel=1e-12)
+    bad = CliRunner().invoke(app, args[:-1] + ["1e-7 N/m"])
+    assert bad.exit_code == 2 and "is not a surface viscosity" in bad.output
+    physical = {"shear_rate": "100 1/s", "viscosity": "1.2 mPa*s", "radius": "2.8 um", "shear_modulus": "6 uN/m",
+                "membrane_viscosity": "1e-7 N*s/m"}
+    case = case_from_dict({"name": "p", "physical": physical})
+    assert case.membrane.viscosity.shear == pytest.approx(hand, rel=1e-12)
+    assert case_from_dict(yaml.safe_load(case.to_yaml())) == case
+    with pytest.raises(ConfigError, match="membrane.viscosity.shear = 3.0: give membrane.viscosity.shear or "
+                                          "physical.membrane_viscosity, not both"):
+        case_from_dict({"name": "p", "physical": physical, "membrane": {"viscosity": {"shear": 3.0}}})
+    preset = load_case(Path(__file__).resolve().parents[1] / "configs" / "rbc-viscous.yaml")
+    assert preset.membrane.viscosity.shear == pytest.approx(hand, rel=1e-12)
+    assert preset.flow.viscosity_ratio == 5.0 and preset.time.scheme == "rkc"
