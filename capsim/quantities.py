@@ -133,7 +133,9 @@ _add("ttf_ratio", "normalised tank-treading frequency", "1",
 _add("tt_angle", "tank-treading angle", "rad",
      "unwrapped mean angle about the centroid, in the xy-plane, of the nodes starting in z = 0")
 _add("solver_iterations", "iterations of the velocity solve", "1",
-     "iterations of the λ ≠ 1 linear solve (GMRES or substitution) at this state; 0 when λ = 1")
+     "iterations of the velocity solve at this state: the λ ≠ 1 double-layer solve (GMRES or substitution), or "
+     "with a viscous membrane the GMRES solve of docs/viscous_membrane.md (V4) at any λ; 0 when the velocity is "
+     "explicit (λ = 1, no membrane viscosity)")
 _add("solver_residual", "relative residual of the velocity solve", "1",
      "relative residual of the λ ≠ 1 linear solve at this state; 0 when λ = 1")
 # cost counters of the time stepping and the solver

@@ -453,6 +453,7 @@ class CapsuleModel:
         out.update({k: np.array(v, dtype=np.int64) for k, v in self.counts.items()})
         if self.viscous is not None:
             out["viscous_iterations"] = np.array(self.viscous.iterations, dtype=np.int64)
+            out["warm_viscous_factor_x"] = copy(self.viscous._factor_x)
         if self.flow_stop_time is not None:
             out["flow_stopped"] = np.array(self.flow_stopped, dtype=np.int64)
         return out
@@ -461,7 +462,7 @@ class CapsuleModel:
         """Undo to a ``state()``: missing warm starts are cleared, missing counters 0."""
         known = {"warm_traction", "warm_velocity", "warm_rhs", "membrane_evaluations", *COUNTERS}
         if self.viscous is not None:
-            known.add("viscous_iterations")
+            known |= {"viscous_iterations", "warm_viscous_factor_x"}
         if self.flow_stop_time is not None:
             known.add("flow_stopped")
         unknown = set(state) - known
@@ -478,6 +479,8 @@ class CapsuleModel:
         self.counts = {k: int(state.get(k, 0)) for k in COUNTERS}
         if self.viscous is not None:
             self.viscous.iterations = int(state.get("viscous_iterations", 0))
+            self.viscous._factor_x = copy("warm_viscous_factor_x")
+            self.viscous._rest_factor = None  # rebuilt where the checkpoint says, at the next solve
         if state.get("flow_stopped"):
             self.stop_flow()
 

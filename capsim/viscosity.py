@@ -90,10 +90,12 @@ class KelvinVoigtMembrane:
 
     #: preconditioners of the solve: "local" (module docstring) or "none" (plain GMRES, the baseline
     #: benchmarks/viscous_membrane.py measures it against)
-    PRECONDITIONERS = ("rest", "local", "none")
+    PRECONDITIONERS = ("frozen", "rest", "local", "none")
+    #: frozen: refactorise where the last solve took more GMRES iterations than this
+    REFRESH_ITERATIONS = 10
 
     def __init__(self, disc, rest_positions: np.ndarray, *, shear: float, dilatational: float = 0.0,
-                 preconditioner: str = "rest") -> None:
+                 preconditioner: str = "frozen") -> None:
         if preconditioner not in self.PRECONDITIONERS:
             raise ValueError(f"unknown preconditioner {preconditioner!r} (allowed: {self.PRECONDITIONERS})")
         self.preconditioner = preconditioner
@@ -110,7 +112,9 @@ class KelvinVoigtMembrane:
         self._cols = np.tile(dof, (1, 18)).ravel()
         self._drag: float | None = None
         self._rest_factor = None
+        self._factor_x: np.ndarray | None = None  # frozen: where the factor is built (None: the rest shape)
         self.iterations = 0
+        self.factorizations = 0  # sparse LUs of a preconditioner (not checkpointed: a benchmark count)
         self.solve_time = 0.0
 
     # -- operators ---------------------------------------------------------------
@@ -154,17 +158,21 @@ class KelvinVoigtMembrane:
         return self._drag
 
     def _rest_preconditioner(self, model: CapsuleModel, x: np.ndarray):
-        """The local-drag preconditioner factorised once, at the rest shape, and applied in
-        the frame of the best-fit rotation from the rest nodes to x (Kabsch 1976): a
-        tank-treading membrane carries its nodes round while its shape stays, and K of a
-        rotated mesh is the rotated K. A function of x alone, so a resumed run repeats it."""
+        """The local-drag preconditioner factorised at the rest shape (``rest``) or where the
+        last refactorisation was (``frozen``), applied in the frame of the best-fit rotation
+        from those nodes to x (Kabsch 1976): a tank-treading membrane carries its nodes
+        round while its shape stays, and K of a rotated mesh is the rotated K. ``frozen``
+        refactorises at the configuration of a solve that took more than REFRESH_ITERATIONS
+        (the shape has moved away); where is part of the checkpoint, so a resumed run
+        rebuilds the same factor."""
         import scipy.sparse as sp
         from scipy.sparse.linalg import splu
 
         from capsim.linearization import best_rotation
 
         if self._rest_factor is None:
-            disc, X = self.disc, self.rest_positions
+            disc = self.disc
+            X = self.rest_positions if self._factor_x is None else self._factor_x
             geo = disc.geometry(X)
             mass = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr),
                                  shape=(disc.n_nodes, disc.n_nodes))
@@ -172,8 +180,9 @@ class KelvinVoigtMembrane:
             a = 0.5 * (1.0 + model.viscosity_ratio)
             mass3 = sp.kron(mass, sp.identity(3), format="csr")
             self._rest_factor = (splu((a * mass3 + c * self.stiffness(X)).tocsc()), mass3)
+            self.factorizations += 1
         lu, mass3 = self._rest_factor
-        rot = best_rotation(self.rest_positions, x)
+        rot = best_rotation(self.rest_positions if self._factor_x is None else self._factor_x, x)
 
         def precondition(y: np.ndarray) -> np.ndarray:
             z = lu.solve(mass3 @ (y.reshape(-1, 3) @ rot).ravel())
@@ -214,10 +223,11 @@ class KelvinVoigtMembrane:
             a = 0.5 * (1.0 + lam)
             mass3 = sp.kron(mass, sp.identity(3), format="csr")
             pre_lu = splu((a * mass3 + c * K).tocsc())
+            self.factorizations += 1
 
             def precondition(y: np.ndarray) -> np.ndarray:
                 return pre_lu.solve(mass3 @ y)
-        elif self.preconditioner == "rest":
+        elif self.preconditioner in ("rest", "frozen"):
             precondition = self._rest_preconditioner(model, x)
         else:
             def precondition(y: np.ndarray) -> np.ndarray:
@@ -244,6 +254,8 @@ class KelvinVoigtMembrane:
             u = guess + delta.reshape(-1, 3)
             residual = rnorm / bnorm
         self.iterations += int(iterations)
+        if self.preconditioner == "frozen" and iterations > self.REFRESH_ITERATIONS:
+            self._factor_x, self._rest_factor = np.array(x, copy=True), None
         model.last_solve_info = {"iterations": int(iterations), "residual": residual}
         if not residual <= 10.0 * model.solver_tol:
             raise SolverDivergence(
