@@ -517,6 +517,12 @@ class CapsuleModel:
         if self.viscous is not None:
             u = self.viscous.solve(self, x, state.geometry, u_explicit, normals)
             self.solver_times["solve"] += time.perf_counter() - t1
+            info = self.last_solve_info
+            if not info["residual"] <= 10.0 * self.solver_tol:
+                raise SolverDivergence(
+                    f"viscous membrane velocity solve did not converge: residual {info['residual']:.2e} > tol "
+                    f"{self.solver_tol:.1e} after {info['iterations']} iterations "
+                    f"(membrane.viscosity.shear = {self.viscous.shear:g})")
         elif lam == 1.0:
             self.last_solve_info = {"iterations": 0, "residual": 0.0}
             u = u_explicit
