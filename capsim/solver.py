@@ -372,6 +372,7 @@ class CapsuleModel:
     # calls stop_flow() there, and the checkpoint says whether it has (state: "flow_stopped")
     flow_stop_time: float | None = None
     flow_stopped: bool = field(default=False, init=False)
+    _flowing: FarField | None = field(default=None, init=False, repr=False)
     # iterations and relative residual of the last velocity solve (0 at λ = 1)
     last_solve_info: dict = field(default_factory=lambda: {"iterations": 0, "residual": 0.0}, init=False)
     # cumulative work: velocity evaluations and layer applications (each GMRES or
@@ -483,9 +484,13 @@ class CapsuleModel:
             self.viscous._rest_factor = None  # rebuilt where the checkpoint says, at the next solve
         if state.get("flow_stopped"):
             self.stop_flow()
+        elif self.flow_stopped:  # undone to a state before the stop
+            self.far_field, self.flow_stopped = self._flowing, False
 
     def stop_flow(self) -> None:
         """No undisturbed flow from now on (flow.history kind stop): u∞ = 0."""
+        if not self.flow_stopped:
+            self._flowing = self.far_field
         self.far_field = FarField(((0.0,) * 3,) * 3)
         self.flow_stopped = True
 

@@ -184,3 +184,44 @@ def test_units_give_the_boussinesq_number():
     preset = load_case(Path(__file__).resolve().parents[1] / "configs" / "rbc-viscous.yaml")
     assert preset.membrane.viscosity.shear == pytest.approx(hand, rel=1e-12)
     assert preset.flow.viscosity_ratio == 5.0 and preset.time.scheme == "rkc"
+
+
+class _InterruptAt:
+    def __init__(self, t: float) -> None:
+        self.t = t
+
+    def __call__(self, state: dict) -> None:
+        if state["t"] >= self.t:
+            raise KeyboardInterrupt
+
+
+@pytest.mark.parametrize("interrupt_at", [0.3, 0.45])
+def test_flow_that_stops_lands_on_the_stop_and_resumes_exactly(tmp_path, interrupt_at):
+    """flow.history kind stop: a step ends at kt = 0.3, the capsule relaxes at rest after
+    it (D_xy falls), the summary says 'relaxing' with a relaxation time; a run interrupted
+    at the stop (the flow not yet stopped in its checkpoint) or after it (stopped) resumes
+    to the uninterrupted run's trajectory."""
+    case = _case(tmp_path, f"stop{interrupt_at}", **{
+        "time.t_end": 0.8, "flow.shear_rate_G": 0.05, "membrane.viscosity": {"shear": 0.5},
+        "flow.history": {"kind": "stop", "stop_time": 0.3}})
+    assert run_case(case, progress=_InterruptAt(interrupt_at))["status"] == "interrupted"
+    resumed = run_case(case, resume=True)
+    reference = run_case(apply_overrides(case, **{"output.path": str(tmp_path / f"ref{interrupt_at}.h5")}))
+    assert resumed["status"] == reference["status"] == "completed"
+    assert reference["motion"] == "relaxing" and reference["relaxation_time"] > 0
+    got, want = read_trajectory(case.output.path), read_trajectory(reference["path"])
+    for key in ("t", "D_xy", "theta", "velocity_evaluations"):
+        np.testing.assert_allclose(got["timeseries"][key], want["timeseries"][key], rtol=0, atol=1e-10, err_msg=key)
+    t, D = want["timeseries"]["t"], want["timeseries"]["D_xy"]
+    i = int(np.argmin(np.abs(t - 0.3)))
+    assert t[i] == pytest.approx(0.3, abs=1e-12)
+    assert D[-1] < 0.5 * D[i] and np.all(np.diff(D[i + 1:]) < 0)
+
+
+def test_stop_time_must_fall_in_the_run():
+    for history, expected in (({"kind": "stop", "stop_time": 2.0}, "flow.history.stop_time = 2.0: must be < time.t_end"),
+                              ({"kind": "stop"}, "flow.history.stop_time = None: is required with kind: stop"),
+                              ({"kind": "steady", "stop_time": 0.5}, "flow.history.stop_time = 0.5: applies only to kind: stop")):
+        with pytest.raises(ConfigError) as err:
+            case_from_dict({"name": "s", "time": {"t_end": 1.0}, "flow": {"history": history}})
+        assert expected in str(err.value), str(err.value)
