@@ -1,25 +1,37 @@
-"""Cost of a viscous membrane (issue 28): the sphere at level 3, G = 0.1, λ = 1, kt 0-4,
+"""Cost of a viscous membrane (issue 28): the sphere at level 3 (kt 0-4) and 4 (kt 0-0.5), G = 0.1, λ = 1,
 elastic against Bq_s = 1 at the same tolerance, per scheme, and the viscous solve's
 preconditioners (capsim.viscosity: frozen, rest, local, none). Counts (velocity evaluations,
 layer applications, GMRES iterations) do not drift with the machine's load; wall time does.
 
-    python benchmarks/viscous_membrane.py            # writes benchmarks/viscous_membrane.{json,md}
+    python benchmarks/viscous_membrane.py      # writes benchmarks/viscous_membrane.{json,md} (~5 min)
 
-Single-threaded (NUMBA_NUM_THREADS=1 is set here before numba loads).
+Single-threaded: capsim's thread policy (capsim.threads) with one thread, and one BLAS
+thread (OPENBLAS/OMP/MKL_NUM_THREADS=1, which that policy does not set): with a
+multi-threaded BLAS on a loaded two-core machine GMRES's short dot products cost more
+than the layer sums (level 4, four viscous solves: 11.7 s against 2.1 s).
 """
 
 from __future__ import annotations
 
 import json
 import os
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):  # before numpy loads BLAS
+    os.environ.setdefault(_name, "1")
+
+from capsim.threads import apply_policy  # noqa: E402 (before numba loads)
+
+apply_policy(1)
 
 HERE = Path(__file__).resolve().parent
+LEVEL4 = [  # the same at level 4, kt 0-0.5
+    ("elastic", "rkf23", 0.0, None),
+    ("Bq 1, frozen", "rkf23", 1.0, "frozen"),
+    ("Bq 1, none", "rkf23", 1.0, "none"),
+]
 CASES = [  # (label, scheme, Bq_s, preconditioner of the viscous solve)
     ("elastic", "rkf23", 0.0, None),
     ("Bq 1, frozen", "rkf23", 1.0, "frozen"),
@@ -66,15 +78,7 @@ def run_one(scheme: str, bq: float, preconditioner: str | None, dilatational: fl
         viscosity.KelvinVoigtMembrane.__init__ = original
 
 
-def main(t_end: float = 4.0, level: int = 3) -> None:
-    run_one("rkf23", 1.0, "frozen", 0.0, 0.05, 1)  # compile the kernels outside the timings
-    rows = []
-    for label, scheme, bq, pre in CASES:
-        dil = 1.0 if "Bq_d" in label else 0.0
-        row = {"case": label, "scheme": scheme, **run_one(scheme, bq, pre, dil, t_end, level)}
-        rows.append(row)
-        print(row, flush=True)
-    (HERE / "viscous_membrane.json").write_text(json.dumps({"t_end": t_end, "level": level, "rows": rows}, indent=1))
+def table(rows: list[dict]) -> list[str]:
     ref = {r["scheme"]: r for r in rows if r["case"] == "elastic"}
     lines = [f"| case | scheme | steps | evaluations | layer applications | GMRES its/eval (max) | sparse LUs | "
              f"wall s | layers / elastic | wall / elastic | D_xy | θ |", "|" + "---|" * 12]
@@ -84,11 +88,27 @@ def main(t_end: float = 4.0, level: int = 3) -> None:
                      f"{r['mean_iterations']:.1f} ({r['max_iterations']}) | {r['factorizations']} | {r['wall_s']:.1f} | "
                      f"{r['layer_applications'] / e['layer_applications']:.2f} | {r['wall_s'] / e['wall_s']:.2f} | "
                      f"{r['D_xy']:.4f} | {r['theta']:.4f} |")
-    (HERE / "viscous_membrane.md").write_text(
-        f"# Cost of a viscous membrane\n\nSphere, thin shell, level {level}, G = 0.1, λ = 1, kt 0–{t_end:g}, "
-        "rtol 1e-4, solver.tol 1e-6, one thread; written by `python benchmarks/viscous_membrane.py`.\n"
-        "Ratios are against the elastic run of the same scheme.\n\n" + "\n".join(lines) + "\n")
+    return lines
+
+
+def main() -> None:
+    run_one("rkf23", 1.0, "frozen", 0.0, 0.05, 1)  # compile the kernels outside the timings
+    out, text = {}, ["# Cost of a viscous membrane", "",
+                     "Sphere, thin shell, G = 0.1, λ = 1, rtol 1e-4, solver.tol 1e-6, one thread (BLAS too); "
+                     "written by `python benchmarks/viscous_membrane.py`. Ratios are against the elastic run of "
+                     "the same scheme; 'sparse LUs' counts the preconditioner's factorisations."]
+    for level, t_end, cases in ((3, 4.0, CASES), (4, 0.5, LEVEL4)):
+        rows = []
+        for label, scheme, bq, pre in cases:
+            dil = 1.0 if "Bq_d" in label else 0.0
+            row = {"case": label, "scheme": scheme, **run_one(scheme, bq, pre, dil, t_end, level)}
+            rows.append(row)
+            print(level, row, flush=True)
+        out[f"level {level}"] = {"t_end": t_end, "rows": rows}
+        text += ["", f"## Level {level}, kt 0–{t_end:g}", "", *table(rows)]
+    (HERE / "viscous_membrane.json").write_text(json.dumps(out, indent=1))
+    (HERE / "viscous_membrane.md").write_text("\n".join(text) + "\n")
 
 
 if __name__ == "__main__":
-    main(*(float(a) for a in sys.argv[1:2]))
+    main()
