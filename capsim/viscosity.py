@@ -23,7 +23,11 @@ last solution, right-preconditioned by the "local drag" approximation
 SL[w] ≈ s w (s the single layer's Rayleigh quotient on white noise at the rest
 shape, where the finest modes, the stiff ones, dominate):
 
-    Z⁻¹ ≈ ( (1+λ)/2 M + s/(8π) K )⁻¹ M        (sparse LU, per evaluation)
+    Z⁻¹ ≈ ( (1+λ)/2 M + s/(8π) K )⁻¹ M
+
+factorised (sparse LU) at the rest shape and again wherever a solve took more than
+REFRESH_ITERATIONS, applied in the frame of the best-fit rotation from the nodes where it
+was factorised ("frozen"; the others, measured against it, in docs/viscous_membrane.md).
 
 Registry: a model is an entry of :data:`VISCOSITY_MODELS` (its parameters, their
 meaning, its source); ``build`` makes its solver. Only the Kelvin–Voigt membrane
@@ -36,32 +40,10 @@ This module imports no numba at import time (config.py reads the registry).
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
-
-@dataclass(frozen=True)
-class ViscosityModel:
-    """A registry entry: the model's name, its parameters (Boussinesq numbers,
-    ≥ 0) with their meaning, and its source."""
-
-    name: str
-    parameters: dict
-    reference: str
-
-
-VISCOSITY_MODELS: dict[str, ViscosityModel] = {
-    "kelvin_voigt": ViscosityModel(
-        "kelvin_voigt",
-        {"shear": "surface shear viscosity as a Boussinesq number Bq_s = μ_s/(μ a)",
-         "dilatational": "surface dilatational viscosity Bq_d = μ_d/(μ a) (isotropic viscous tension μ_d tr D)"},
-        "Barthès-Biesel & Sgaier, J. Fluid Mech. 160 (1985) 119-135; Yazdani & Bagchi, J. Fluid Mech. 718 (2013) "
-        "569-595",
-    ),
-}
 
 #: the schemes that cannot take a viscous membrane, and why (config.py refuses them)
 REFUSING_SCHEMES = {
@@ -85,8 +67,8 @@ class KelvinVoigtMembrane:
 
     name = "kelvin_voigt"
 
-    #: preconditioners of the solve: "local" (module docstring) or "none" (plain GMRES, the baseline
-    #: benchmarks/viscous_membrane.py measures it against)
+    #: preconditioners of the solve (docs/viscous_membrane.md, where benchmarks/viscous_membrane.py's
+    #: measurements chose frozen): frozen, rest, local (module docstring) and none (plain GMRES)
     PRECONDITIONERS = ("frozen", "rest", "local", "none")
     #: frozen: refactorise where the last solve took more GMRES iterations than this
     REFRESH_ITERATIONS = 10
@@ -112,7 +94,6 @@ class KelvinVoigtMembrane:
         self._factor_x: np.ndarray | None = None  # frozen: where the factor is built (None: the rest shape)
         self.iterations = 0
         self.factorizations = 0  # sparse LUs of a preconditioner (not checkpointed: a benchmark count)
-        self.solve_time = 0.0
 
     # -- operators ---------------------------------------------------------------
     def stiffness(self, x: np.ndarray):
@@ -198,7 +179,6 @@ class KelvinVoigtMembrane:
 
         from capsim.krylov import gmres
 
-        t0 = time.perf_counter()
         disc, counts, lam = model.disc, model.counts, model.viscosity_ratio
         K = self.stiffness(x)
         mass = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr),
@@ -246,8 +226,8 @@ class KelvinVoigtMembrane:
             restart = min(60, model.solver_max_iter)
             delta, iterations, rnorm = gmres(
                 lambda v: apply(v.reshape(-1, 3)).ravel(), r.ravel(), model.solver_tol * bnorm,
-                precondition=precondition if self.preconditioner != "none" else None, max_iter=model.solver_max_iter * restart, restart=restart,
-                callback=model.interrupt_check)
+                precondition=None if self.preconditioner == "none" else precondition,
+                max_iter=model.solver_max_iter * restart, restart=restart, callback=model.interrupt_check)
             u = guess + delta.reshape(-1, 3)
             residual = rnorm / bnorm
         self.iterations += int(iterations)
@@ -259,8 +239,30 @@ class KelvinVoigtMembrane:
         model._last_velocity = u
         if disc.symmetry != "none":  # the sparse and dense products need not treat mirror rows alike
             u = disc.expand(u[disc.targets])
-        self.solve_time += time.perf_counter() - t0
         return u
+
+
+@dataclass(frozen=True)
+class ViscosityModel:
+    """A registry entry: the model's name, its parameters (Boussinesq numbers,
+    ≥ 0) with their meaning, its source and the class that solves (V4) with it."""
+
+    name: str
+    parameters: dict
+    reference: str
+    solver: type  # built with (disc, rest_positions, **parameters)
+
+
+VISCOSITY_MODELS: dict[str, ViscosityModel] = {
+    "kelvin_voigt": ViscosityModel(
+        "kelvin_voigt",
+        {"shear": "surface shear viscosity as a Boussinesq number Bq_s = μ_s/(μ a)",
+         "dilatational": "surface dilatational viscosity Bq_d = μ_d/(μ a) (isotropic viscous tension μ_d tr D)"},
+        "Barthès-Biesel & Sgaier, J. Fluid Mech. 160 (1985) 119-135; Yazdani & Bagchi, J. Fluid Mech. 718 (2013) "
+        "569-595",
+        KelvinVoigtMembrane,
+    ),
+}
 
 
 def build(disc, rest_positions: np.ndarray, params: dict | None) -> KelvinVoigtMembrane | None:
@@ -272,11 +274,4 @@ def build(disc, rest_positions: np.ndarray, params: dict | None) -> KelvinVoigtM
     name = params.pop("model", "kelvin_voigt")
     if name not in VISCOSITY_MODELS:
         raise ValueError(f"unknown membrane viscosity model {name!r} (allowed: {sorted(VISCOSITY_MODELS)})")
-    return KelvinVoigtMembrane(disc, rest_positions, **params)
-
-
-def describe(params: dict | None) -> dict[str, Any]:
-    """The run file's record of the viscosity: model and Boussinesq numbers (zeros when none)."""
-    p = dict(params or {})
-    return {"model": p.get("model", "none") if is_active(p) else "none",
-            "Bq_shear": float(p.get("shear", 0.0)), "Bq_dilatational": float(p.get("dilatational", 0.0))}
+    return VISCOSITY_MODELS[name].solver(disc, rest_positions, **params)

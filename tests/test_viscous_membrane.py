@@ -225,3 +225,15 @@ def test_stop_time_must_fall_in_the_run():
         with pytest.raises(ConfigError) as err:
             case_from_dict({"name": "s", "time": {"t_end": 1.0}, "flow": {"history": history}})
         assert expected in str(err.value), str(err.value)
+
+
+def test_viscosity_models_are_the_registry():
+    """The schema's model choices and fields are the registry's (adding a model is one entry)."""
+    from typing import get_args
+
+    from capsim.config import MembraneViscosity
+    from capsim.viscosity import VISCOSITY_MODELS
+
+    assert set(get_args(MembraneViscosity.model_fields["model"].annotation)) == set(VISCOSITY_MODELS)
+    fields = set(MembraneViscosity.model_fields) - {"model"}
+    assert set().union(*(m.parameters for m in VISCOSITY_MODELS.values())) == fields
