@@ -5,10 +5,9 @@ elastic known answers, then capsim's sphere at small G in shear that stops
 relaxation time at rest, S*_xy and its viscous part, for two Bq at λ = 1 and one at
 λ = 5; and the trends.
 
-Tolerances: the elastic first-order check of tests/test_dynamics.py allows 5 % in
-D_xy at level 3; at level 2 (here, for CI time) the elastic λ = 1 sphere itself is
-6 % above 25G/4 at G = 0.01, so D_xy is held to 7 % (level 3 in the slow test: 5 %).
-θ to 1.5° (as there). The relaxation time, fitted over [τ/2, 2τ] after the stop on
+Tolerances: as the elastic first-order check of tests/test_dynamics.py, 5 % in D_xy
+and 1.5° in θ (level 2 here for CI time, level 3 in the slow test), with a weak bending
+modulus that removes the low-G creep (measured: D_xy within 0.6–2.6 %, θ within 0.7°). The relaxation time, fitted over [τ/2, 2τ] after the stop on
 capsim's D_xy(t) and on the theory's, to 3 %. The tank-treading frequency departs
 from f_s only at O(Ca²) in this theory: held within 6 % of 1. S*_xy to 0.01 (the
 theory's rigid-sphere limit is 1 at every λ); its viscous part, O(Bq·Ca) and so as
@@ -28,6 +27,7 @@ from capsim.small_deformation import LinearCapsule
 from capsim.store import read_trajectory
 
 G = 0.01
+KAPPA = 1e-4  # κ/(E_s a²): its effect on the degree-2 shape is O(κ/G_s) ≈ 0.1 %
 
 
 # ---------------------------------------------------------------- the theory itself
@@ -77,7 +77,10 @@ def _run(tmp_path_factory, lam, bq, level=2):
     case = case_from_dict({
         "name": "visc", "mesh": {"level": level},
         "flow": {"shear_rate_G": G, "viscosity_ratio": lam, "history": {"kind": "stop", "stop_time": stop}},
-        "membrane": {"viscosity": {"shear": bq}},
+        # a weak bending modulus removes the creep of a compressed membrane at small G (README,
+        # "Compressed membranes and bending stiffness"; tests/test_bending.py): without it D_xy
+        # drifts up with time and mesh (level 3, Bq_s = 10: +16 % at the stop)
+        "membrane": {"viscosity": {"shear": bq}, "bending_modulus": KAPPA},
         "time": {"t_end": t_end, "scheme": "rkc", "rtol": 1e-5},
         "output": {"path": str(path), "snapshot_every": t_end},
     })
@@ -110,8 +113,9 @@ def runs(tmp_path_factory):
 def test_small_deformation_matches_the_first_order_theory(runs, key):
     got = runs[key]
     D, theta = got["theory"].steady_shear()
-    print(key, got["D"], D, got["theta"], theta, got["ttf"], got["tau"], got["tau_theory"])
-    assert got["D"] == pytest.approx(D, rel=0.07)
+    print(key, got["D"], D, got["theta"], theta, got["ttf"], got["tau"], got["tau_theory"], got["Sxy"],
+          got["theory"].stresslet_xy(), got["Sxy_viscous"])
+    assert got["D"] == pytest.approx(D, rel=0.05)
     assert abs(math.degrees(got["theta"] - theta)) < 1.5
     assert abs(got["ttf"] - 1.0) < 0.06
     assert got["tau"] == pytest.approx(got["tau_theory"], rel=0.03)
