@@ -325,7 +325,8 @@ class FlowHistory(_Model):
         "steady", description="steady: simple shear throughout; stop: simple shear until kt = stop_time, "
         "then no flow (the capsule relaxes at rest)")
     stop_time: Optional[float] = Field(
-        None, gt=0, description="kind: stop only: the kt at which the flow stops, below time.t_end")
+        None, gt=0, description="kind: stop only: the kt at which the flow stops (at or after time.t_end: "
+        "the flow never stops in the run, as in the two-step warm-up copies of a campaign)")
 
     @model_validator(mode="after")
     def _stop_time_of_the_kind(self) -> "FlowHistory":
@@ -652,14 +653,6 @@ class Case(_Model):
         viscosity = MembraneViscosity.model_validate(viscosity.model_dump())  # its checks, shear now set
         membrane = Membrane.model_validate({**self.membrane.model_dump(), "viscosity": viscosity.model_dump()})
         object.__setattr__(self, "membrane", membrane)
-        return self
-
-    @model_validator(mode="after")
-    def _flow_stops_before_the_end(self) -> Case:
-        stop = self.flow.stop_time
-        if stop is not None and not stop < self.time.t_end:
-            raise _FieldProblem("flow.history.stop_time", stop,
-                                f"must be < time.t_end = {self.time.t_end:g} (the flow stops during the run)")
         return self
 
     @model_validator(mode="after")
