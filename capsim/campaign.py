@@ -58,7 +58,7 @@ import sys
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, get_args
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -265,6 +265,8 @@ def _check_dotted(key: str, where: str) -> None:
                 f"{', '.join(model.model_fields)})"
             )
         ann = field.annotation
+        # an optional section (membrane.viscosity, flow.history): the model inside
+        ann = next((a for a in get_args(ann) if isinstance(a, type) and issubclass(a, BaseModel)), ann)
         is_section = isinstance(ann, type) and issubclass(ann, BaseModel)
         last = i == len(parts) - 1
         if is_section and last:

@@ -29,14 +29,18 @@ from pydantic import (
 
 from capsim.errors import bounded_repr, first_line
 from capsim.timestepping import DEFAULT_SCHEME, DENSE_MAX_NODES, SCHEMES  # noqa: F401 - DENSE_MAX_NODES re-exported
+from capsim.viscosity import VISCOSITY_MODELS
+from capsim.viscosity import is_active as is_viscous
 
 __all__ = [
     "load_case_with", "parse_sets",    "case_digest", "step_defining",
     "Case",
     "ConfigError",
     "Flow",
+    "FlowHistory",
     "Guards",
     "Membrane",
+    "MembraneViscosity",
     "Mesh",
     "Output",
     "Physical",
@@ -195,6 +199,40 @@ class Shape(_Model):
         return self
 
 
+class MembraneViscosity(_Model):
+    """Surface viscosity of the membrane as Boussinesq numbers Bq = μ_s/(μ a), μ the outer
+    viscosity (capsim.viscosity; docs/viscous_membrane.md). All zero: a purely elastic
+    membrane, computed exactly as without this block."""
+
+    model: Literal[tuple(VISCOSITY_MODELS)] = Field(  # type: ignore[valid-type]
+        "kelvin_voigt",
+        description="kelvin_voigt: viscous tension 2 mu_s (D - tr(D) P / 2) + mu_d tr(D) P added to the elastic "
+        "one (Barthes-Biesel & Sgaier 1985)",
+    )
+    shear: float = Field(
+        0.0, ge=0, le=1e4,
+        description="surface shear viscosity Bq_s = mu_s / (mu a) (red cell: ~0.3-3); the velocity becomes a "
+        "GMRES solve at every evaluation",
+    )
+    dilatational: float = Field(
+        0.0, ge=0, le=1e4,
+        description="surface dilatational viscosity Bq_d = mu_d / (mu a): isotropic viscous tension mu_d tr(D)",
+    )
+
+    @model_validator(mode="after")
+    def _parameters_of_the_model(self) -> "MembraneViscosity":
+        allowed = VISCOSITY_MODELS[self.model].parameters
+        for name in self.model_fields_set - {"model"}:
+            if name not in allowed:
+                raise _FieldProblem(name, getattr(self, name),
+                                    f"is not a parameter of model: {self.model} (it takes {', '.join(allowed)})")
+        return self
+
+    @property
+    def active(self) -> bool:
+        return is_viscous(self.model_dump())
+
+
 class Membrane(_Model):
     """Constitutive law of the membrane (docs/laws.md)."""
 
@@ -219,6 +257,11 @@ class Membrane(_Model):
         description="bending modulus κ/(E_s a²) of a dihedral-hinge energy relative to the rest shape "
         "(0: none, the seed's membrane); needs traction: galerkin",
     )
+    viscosity: Optional[MembraneViscosity] = Field(
+        None,
+        description="surface viscosity {model, shear, dilatational} as Boussinesq numbers (docs/viscous_membrane.md); "
+        "none: a purely elastic membrane; needs traction: galerkin",
+    )
 
     @model_validator(mode="after")
     def _parameters_of_the_law(self) -> Membrane:
@@ -227,6 +270,15 @@ class Membrane(_Model):
                 value = getattr(self, name)
                 if self.law != law and name in self.model_fields_set and value != default:
                     raise _FieldProblem(name, value, f"applies only to law: {law}, not to law: {self.law}; remove it")
+        return self
+
+    @model_validator(mode="after")
+    def _viscosity_needs_galerkin(self):
+        if self.viscosity is not None and self.viscosity.active and self.traction != "galerkin":
+            raise _FieldProblem(
+                "traction", self.traction,
+                "a viscous membrane (membrane.viscosity) needs traction: galerkin: the viscous traction is a "
+                "Galerkin load (docs/viscous_membrane.md)")
         return self
 
     @model_validator(mode="after")
@@ -252,8 +304,12 @@ class Physical(_Model):
     shear_modulus: Optional[str] = Field(
         None, description="surface shear modulus G_s = E_s / 3 of the elastic laws, e.g. '6 uN/m'; "
         "or give surface_modulus")
+    membrane_viscosity: Optional[str] = Field(
+        None, description="surface shear viscosity μ_s of the membrane, e.g. '2.5e-7 N*s/m' (red cell); gives "
+        "membrane.viscosity.shear = Bq = μ_s / (μ a), Kelvin–Voigt")
 
-    @field_validator("shear_rate", "viscosity", "radius", "surface_modulus", "shear_modulus", mode="before")
+    @field_validator("shear_rate", "viscosity", "radius", "surface_modulus", "shear_modulus", "membrane_viscosity",
+                     mode="before")
     @classmethod
     def _a_quantity(cls, v: Any, info: ValidationInfo) -> Any:
         from capsim.units import parse
@@ -273,7 +329,29 @@ class Physical(_Model):
         """G, Ca and the time unit (capsim.units.conversion)."""
         from capsim.units import conversion
 
-        return conversion(self.shear_rate, self.viscosity, self.radius, self.surface_modulus, self.shear_modulus)
+        return conversion(self.shear_rate, self.viscosity, self.radius, self.surface_modulus, self.shear_modulus,
+                          self.membrane_viscosity)
+
+
+class FlowHistory(_Model):
+    """How the shear flow changes in time (docs/viscous_membrane.md, "Flows that change in time").
+    Times stay in units of 1/k, k the shear rate before any stop."""
+
+    kind: Literal["steady", "stop"] = Field(
+        "steady", description="steady: simple shear throughout; stop: simple shear until kt = stop_time, "
+        "then no flow (the capsule relaxes at rest)")
+    stop_time: Optional[float] = Field(
+        None, gt=0, description="kind: stop only: the kt at which the flow stops (at or after time.t_end: "
+        "the flow never stops in the run, as in the two-step warm-up copies of a campaign)")
+
+    @model_validator(mode="after")
+    def _stop_time_of_the_kind(self) -> "FlowHistory":
+        if self.kind == "stop" and self.stop_time is None:
+            raise _FieldProblem("stop_time", None, "is required with kind: stop (the kt at which the flow stops)")
+        if self.kind != "stop" and self.stop_time is not None:
+            raise _FieldProblem("stop_time", self.stop_time, f"applies only to kind: stop, not to kind: {self.kind}; "
+                                "remove it")
+        return self
 
 
 class Flow(_Model):
@@ -290,6 +368,14 @@ class Flow(_Model):
         "has its spectrum in [min(1, λ), max(1, λ)], so its condition number is max(λ, 1/λ) and the "
         "solve's iterations grow like its square root; beyond 1e3 the capsule is a rigid particle",
     )
+
+    history: Optional[FlowHistory] = Field(
+        None, description="none or {kind: steady}: steady shear; {kind: stop, stop_time: kt}: the flow stops at kt")
+
+    @property
+    def stop_time(self) -> float | None:
+        """The kt at which the flow stops, None for steady shear."""
+        return self.history.stop_time if self.history is not None and self.history.kind == "stop" else None
 
     @field_validator("viscosity_ratio")
     @classmethod
@@ -604,6 +690,25 @@ class Case(_Model):
         if abs(norm - 1.0) <= 1e-15:  # already unit (a resolved case): kept as is, so reloading is exact
             return tuple(float(c) for c in v)
         return tuple(float(c) / norm for c in v)
+
+    @model_validator(mode="after")
+    def _Bq_from_physical(self) -> Case:
+        if self.physical is None or self.physical.membrane_viscosity is None:
+            return self
+        Bq = self.physical.conversion()["Bq"]
+        given = self.membrane.viscosity
+        if given is not None and "shear" in given.model_fields_set:
+            if not math.isclose(given.shear, Bq, rel_tol=1e-9):  # a resolved case holds both
+                raise _FieldProblem(
+                    "membrane.viscosity.shear", given.shear,
+                    f"give membrane.viscosity.shear or physical.membrane_viscosity, not both (physical gives "
+                    f"Bq = {Bq:.6g}); remove one")
+            return self
+        viscosity = (given or MembraneViscosity()).model_copy(update={"shear": Bq})
+        viscosity = MembraneViscosity.model_validate(viscosity.model_dump())  # its checks, shear now set
+        membrane = Membrane.model_validate({**self.membrane.model_dump(), "viscosity": viscosity.model_dump()})
+        object.__setattr__(self, "membrane", membrane)
+        return self
 
     @model_validator(mode="after")
     def _one_orientation(self) -> Case:

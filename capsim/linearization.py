@@ -61,6 +61,7 @@ import scipy.linalg
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
+from capsim.geometry import best_rotation  # noqa: F401 (used here, and re-exported: the viscous solve shares it)
 from capsim.krylov import LinearSolveFailed, gmres
 
 __all__ = ["PRECONDITIONERS", "StageSolver", "LinearSolveFailed", "hessian_colouring"]
@@ -110,14 +111,6 @@ def _directional_difference(f, x: np.ndarray, fx: np.ndarray, v: np.ndarray) -> 
         return np.zeros_like(fx)
     eps = _FD_SCALE * max(1.0, float(np.linalg.norm(x))) / norm
     return (f(x + eps * v) - fx) / eps
-
-
-def best_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The rotation R (3×3) minimising Σ |R (a_i − ā) − (b_i − b̄)|² over the nodes
-    (Kabsch 1976: from the SVD of the cross-covariance, reflections excluded)."""
-    u, _, vt = np.linalg.svd((a - a.mean(axis=0)).T @ (b - b.mean(axis=0)))
-    d = np.sign(np.linalg.det(u @ vt))
-    return (u @ np.diag([1.0, 1.0, d]) @ vt).T
 
 
 @dataclass

@@ -25,7 +25,7 @@ from capsim.config import Case
 from capsim.errors import first_line
 from capsim.membrane import law_attributes
 from capsim.mesh import SurfaceMesh, rest_shape_attributes
-from capsim.observables import StepObserver, run_summary
+from capsim.observables import StepObserver, relaxation_summary, run_summary
 from capsim.schedules import CheckpointSchedule, SnapshotSchedule
 from capsim.solver import build_model
 from capsim.stopping import LoopState, Stop, end_tolerance, stop_reason
@@ -299,6 +299,26 @@ class _Run:
         if self.checkpoints.due(ig.steps):
             self._save_checkpoint(self.committed)
 
+    # -- flows that change in time (flow.history) -----------------------------------
+    def _next_flow_change(self) -> float:
+        """The kt at which the flow changes next (the steps land on it), inf when none."""
+        model = self.model
+        if model.flow_stop_time is None or model.flow_stopped:
+            return float("inf")
+        return model.flow_stop_time
+
+    def _follow_flow_history(self) -> None:
+        """Stop the flow once the run has reached flow.history.stop_time, and evaluate the
+        velocity there again: the step that landed on it carries the sheared velocity
+        (the schemes reuse it as their first stage). Whether it has happened is in the
+        model's checkpoint state, so a resumed run does it exactly once too."""
+        model, ig = self.model, self.integrator
+        if model.flow_stop_time is None or model.flow_stopped:
+            return
+        if ig.t >= model.flow_stop_time - end_tolerance(model.flow_stop_time):
+            model.stop_flow()
+            ig.u, _ = ig.evaluate(ig.y)
+
     # -- the loop ----------------------------------------------------------------
     def _loop(self) -> Stop:
         ig, tc, stop = self.integrator, self.case.time, self.stop
@@ -313,7 +333,8 @@ class _Run:
         state = LoopState(ig.t, ig.dt, ig.steps, signal=stop.name)
         while (outcome := stop_reason(state, tc, self.case.guards, self.observer.last, self.observer.first,
                                       self.observer.history, self.observer.aspect_ratio)) is None:
-            trial = ig.attempt(min(tc.t_end, self.snapshots.next_time))
+            self._follow_flow_history()
+            trial = ig.attempt(min(tc.t_end, self.snapshots.next_time, self._next_flow_change()))
             if trial.accepted:
                 self._accepted(trial)
             state = LoopState(ig.t, ig.dt, ig.steps, signal=stop.name, attempted=True, finite=trial.finite,
@@ -383,8 +404,10 @@ class _Run:
             bending_modulus=float(self.case.membrane.bending_modulus),
         )
         self.writer.write_run_record({k: v for k, v in result.record().items() if k != "scheme"})
-        motion = run_summary({k: np.asarray(v) for k, v in self.observer.history.items()},
-                             aspect_ratio=self.observer.aspect_ratio)
+        series = {k: np.asarray(v) for k, v in self.observer.history.items()}
+        motion = run_summary(series, aspect_ratio=self.observer.aspect_ratio)
+        if self.model.flow_stopped:
+            motion.update(relaxation_summary(series, self.model.flow_stop_time))
         if status == "unstable":
             motion["motion"] = "unstable"
         self.writer.write_summary(motion)

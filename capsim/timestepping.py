@@ -445,9 +445,10 @@ class RungeKuttaChebyshev(Integrator):
     @classmethod
     def settings(cls, case: Any, model: Any) -> dict[str, Any]:
         tc = case.time
-        # a GMRES velocity (λ ≠ 1) is exact only to its tolerance: probe with a
+        # a GMRES velocity (λ ≠ 1, a viscous membrane) is exact only to its tolerance: probe with a
         # perturbation whose response stands well above that noise
-        exact = case.flow.viscosity_ratio == 1.0
+        viscosity = getattr(case.membrane, "viscosity", None)
+        exact = case.flow.viscosity_ratio == 1.0 and not (viscosity is not None and viscosity.active)
         return {**super().settings(case, model), "max_stages": tc.max_stages,
                 "rho_refresh_steps": tc.rho_refresh_steps,
                 "probe_scale": 1.5e-8 if exact else max(1.5e-8, 100.0 * case.solver.tol)}
@@ -690,6 +691,11 @@ class LinearlyImplicit(Integrator):
 
     @classmethod
     def case_problem(cls, case: Any) -> tuple[str, Any, str] | None:
+        viscosity = getattr(case.membrane, "viscosity", None)
+        if viscosity is not None and viscosity.active:
+            return ("time.scheme", cls.name,
+                    "cannot run a viscous membrane (membrane.viscosity): its stage Jacobian "
+                    "(capsim.linearization) leaves out the viscous membrane operator; use scheme rkf23 or rkc")
         pre = case.time.preconditioner
         if pre in ("local", "dense") and case.membrane.traction != "galerkin":
             return ("time.preconditioner", pre,
