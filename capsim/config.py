@@ -495,7 +495,7 @@ class _TimeCommon(_Model):
     @model_validator(mode="after")
     def _options_of_the_scheme(self):
         for scheme, cls in SCHEMES.items():  # the registry as it is now, a scheme added later included
-            if scheme == self.scheme:
+            if scheme == self.scheme or scheme in SCHEMES[self.scheme].uses_options_of:
                 continue
             for name in cls.option_fields:
                 value = getattr(self, name)

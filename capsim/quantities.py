@@ -380,7 +380,7 @@ del _add, _base, _c, _key, _name, _of, _sfx, _what
 #: Categorical quantities written as CF flag variables (integer codes, flag_values, flag_meanings).
 FLAGS: dict[str, tuple[str, ...]] = {
     "mesh_base": ("octahedron", "icosahedron"),
-    "time_scheme": ("rkf23", "rkc", "linearly_implicit"),  # the order of timestepping.SCHEMES
+    "time_scheme": ("rkf23", "rkc", "linearly_implicit", "auto"),  # the order of timestepping.SCHEMES
     "steady_average": ("no", "yes"),
 }
 

@@ -109,6 +109,7 @@ class RunResult(Mapping):
     rejected_steps: int | None = None
     wall_time_s: float | None = None
     scheme: str | None = None
+    scheme_choice: str | None = None
     velocity_evaluations: int | None = None
     layer_applications: int | None = None
     linear_iterations: int | None = None
@@ -227,6 +228,7 @@ class _Run:
         self.writer = TrajectoryWriter(
             self.path, config_yaml=self.config_yaml, elements=elements, rest_positions=X, version=__version__,
             attrs={"n_nodes": X.shape[0], "n_elements": elements.shape[0], "time_scheme": case.time.scheme,
+                   "time_scheme_used": self.integrator.name, "time_scheme_choice": self.integrator.choice,
                    "symmetry": model.disc.symmetry},
         )
         # only now that the new file is in place: a stale one belongs to the run this one replaced
@@ -392,7 +394,7 @@ class _Run:
         result = RunResult(
             status=status, status_reason=reason, path=str(self.path), t=ig.t, steps=ig.steps,
             rejected_steps=ig.rejected, wall_time_s=self.wall_before + time.perf_counter() - self.wall0,
-            scheme=ig.name, velocity_evaluations=int(work["velocity_evaluations"]),
+            scheme=ig.name, scheme_choice=ig.choice or None, velocity_evaluations=int(work["velocity_evaluations"]),
             layer_applications=int(work["layer_applications"]),
             linear_iterations=int(work["linear_iterations"]),
             layer_matrices=int(work["layer_matrices"]),
@@ -403,7 +405,8 @@ class _Run:
             min_tension=last["min_tension"], compressed_fraction=last["compressed_fraction"],
             bending_modulus=float(self.case.membrane.bending_modulus),
         )
-        self.writer.write_run_record({k: v for k, v in result.record().items() if k != "scheme"})
+        self.writer.write_run_record({k: v for k, v in result.record().items()
+                                      if k not in ("scheme", "scheme_choice")})  # both are root attributes
         series = {k: np.asarray(v) for k, v in self.observer.history.items()}
         motion = run_summary(series, aspect_ratio=self.observer.aspect_ratio)
         if self.model.flow_stopped:

@@ -178,7 +178,7 @@ class Trial:
 SCHEMES: dict[str, type[Integrator]] = {}
 
 #: the scheme a case gets without time.scheme
-DEFAULT_SCHEME = "rkf23"
+DEFAULT_SCHEME = "auto"
 
 #: most nodes the dense stage preconditioner takes: it holds a few (3N)² matrices
 #: (76 MB each at level 3, N = 1026) and its LU costs (3N)³/3 multiply-adds
@@ -194,9 +194,13 @@ def register_scheme(cls: type[Integrator]) -> type[Integrator]:
 
 
 def build_integrator(case: Any, rhs: RightHandSide, y0: np.ndarray, model: Any) -> Integrator:
-    """The integrator of ``case.time.scheme`` for a run of `case` on `model`, starting at ``y0``."""
-    cls = SCHEMES[case.time.scheme]
-    return cls(rhs, y0, **cls.settings(case, model))
+    """The integrator of ``case.time.scheme`` for a run of `case` on `model`, starting at ``y0``
+    (a scheme that chooses, ``auto``, resolves to the one it picks; ``choice`` says why)."""
+    cls, choice, spent, case = SCHEMES[case.time.scheme].resolve(case, model, rhs, y0)
+    integrator = cls(rhs, y0, **cls.settings(case, model))
+    integrator.choice = choice
+    integrator.evaluations += spent  # a choice's measurements are part of the run's cost
+    return integrator
 
 
 def make_integrator(name: str, rhs: RightHandSide, y0: np.ndarray, **options: Any) -> Integrator:
@@ -236,6 +240,19 @@ class Integrator:
     def case_problem(cls, case: Any) -> tuple[str, Any, str] | None:
         """(field, value, what is wrong) for a case this scheme cannot run; None when it can."""
         return None
+
+    #: schemes whose options this one reads too (a scheme that picks among them)
+    uses_options_of: ClassVar[tuple[str, ...]] = ()
+    #: whether the scheme steps itself (False: it resolves to another, :meth:`resolve`)
+    stepped: ClassVar[bool] = True
+    #: why this scheme runs (set by :func:`build_integrator`; '' when it was named)
+    choice: str = ""
+
+    @classmethod
+    def resolve(cls, case: Any, model: Any, rhs: RightHandSide, y0: np.ndarray) -> tuple[type, str, int, Any]:
+        """(the scheme that runs, why, velocity evaluations spent choosing, the case it is built
+        from): itself and the case, unless it chooses."""
+        return cls, "", 0, case
 
     name: ClassVar[str]
     order_low: ClassVar[int]
@@ -766,3 +783,85 @@ class LinearlyImplicit(Integrator):
         err = float(np.abs(est).max()) / scale
         finite = bool(np.isfinite(err) and np.all(np.isfinite(y_new)))
         return Trial(finite and err <= 1.0, finite, h, err, evaluations), y_new, False
+
+
+# ---------------------------------------------------------------- the automatic choice
+
+
+@register_scheme
+class Automatic(Integrator):
+    """``time.scheme: auto`` (the default): picks rkf23, rkc or linearly_implicit for a run
+    from what it measures at the start, and is never itself stepped.
+
+    It estimates the spectral radius ρ of the velocity's Jacobian at the rest shape by
+    rkc's power iteration (10-30 evaluations, counted in the run's cost) and sets it
+    against the accuracy-limited step h_acc ≈ H_ACC (rtol / 1e-3)^(1/3), which the
+    stiff cases of benchmarks/stepping.py reach after their transient (kt ~ 0.1 at
+    rtol 1e-3: 20-90 steps over their runs, whichever scheme). rkc needs
+    s ≈ (ρ h_acc / 0.65)^(1/2) stages a step (its stability interval grows like
+    0.65 s²); measured per layer application (benchmarks/time_schemes.md):
+
+    - s ≤ RKF23_STAGES: not stiff; rkf23 (its three evaluations a step are all accuracy);
+    - s up to LINEARLY_IMPLICIT_STAGES: rkc, 1.4-7.6x fewer layer applications than
+      rkf23 in cases (a)-(d), (f), (h), and fewer than the linearly implicit scheme at
+      13 stages a step (case (c));
+    - more (cases (g): 34 stages, (i): 36): linearly_implicit, 2-12x fewer layer
+      applications than rkc there, with the dense preconditioner where the mesh takes it;
+    - λ ≥ TUMBLING_LAMBDA (a capsule that may tumble, case (e)): rkc missed the accuracy
+      target there; linearly_implicit with the dense preconditioner 2x fewer than rkf23.
+
+    The linearly implicit scheme needs the galerkin traction and no viscous membrane;
+    without them the choice falls back to rkc (rkf23 at large λ). The choice is
+    deterministic (same rest shape, same measurement), so a resumed run makes it again.
+    """
+
+    name = "auto"
+    description = ("picks rkf23, rkc or linearly_implicit for the run from the measured spectral radius "
+                   "against the accuracy-limited step, λ and the mesh (the run file says which and why)")
+    uses_options_of = ("rkc", "linearly_implicit")
+    stepped = False
+    order_low = 2
+    reference = "capsim: benchmarks/time_schemes.md"
+    H_ACC = 0.1
+    RKF23_STAGES = 2
+    LINEARLY_IMPLICIT_STAGES = 20
+    TUMBLING_LAMBDA = 8.0
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        raise TypeError("scheme auto resolves to another scheme (build_integrator); it is not stepped itself")
+
+    @classmethod
+    def _implicit_ok(cls, case: Any) -> bool:
+        return LinearlyImplicit.case_problem(case) is None
+
+    @classmethod
+    def _implicit(cls, case: Any) -> Any:
+        """The case with the dense preconditioner where the mesh takes it and the user chose none."""
+        if "preconditioner" in case.time.model_fields_set or case.mesh.n_nodes > DENSE_MAX_NODES:
+            return case
+        dense = case.time.model_copy(update={"preconditioner": "dense"})
+        return case.model_copy(update={"time": dense})
+
+    @classmethod
+    def resolve(cls, case: Any, model: Any, rhs: RightHandSide, y0: np.ndarray) -> tuple[type, str, int, Any]:
+        lam = case.flow.viscosity_ratio
+        implicit = cls._implicit_ok(case)
+        if lam >= cls.TUMBLING_LAMBDA:
+            if implicit:
+                return LinearlyImplicit, f"λ = {lam:g} >= {cls.TUMBLING_LAMBDA:g} (may tumble)", 0, cls._implicit(case)
+            return EmbeddedRungeKutta, (f"λ = {lam:g} >= {cls.TUMBLING_LAMBDA:g} (may tumble); "
+                                        "linearly_implicit cannot run this case"), 0, case
+        probe = RungeKuttaChebyshev(rhs, y0, **RungeKuttaChebyshev.settings(case, model))
+        probe.start()
+        rho = probe.spectral_radius()
+        spent = probe.evaluations
+        h_acc = min(case.time.dt_max, cls.H_ACC * (case.time.rtol / 1e-3) ** (1.0 / 3.0))
+        stages = math.sqrt(max(rho * h_acc, 0.0) / 0.65)
+        measured = (f"ρ = {rho:.3g}, ρ h_acc = {rho * h_acc:.3g} (h_acc = {h_acc:.3g}): rkc would take "
+                    f"~{stages:.0f} stages a step")
+        if stages <= cls.RKF23_STAGES:
+            return EmbeddedRungeKutta, f"not stiff: {measured}", spent, case
+        if stages > cls.LINEARLY_IMPLICIT_STAGES and implicit:
+            return LinearlyImplicit, f"stiff: {measured}", spent, cls._implicit(case)
+        why = "" if implicit or stages <= cls.LINEARLY_IMPLICIT_STAGES else "; linearly_implicit cannot run this case"
+        return RungeKuttaChebyshev, f"moderately stiff: {measured}{why}", spent, case
