@@ -28,6 +28,7 @@ from capsim.mesh import SurfaceMesh, rest_shape_attributes
 from capsim.observables import StepObserver, relaxation_summary, run_summary
 from capsim.schedules import CheckpointSchedule, SnapshotSchedule
 from capsim.solver import build_model
+from capsim.threads import set_run_threads
 from capsim.stopping import LoopState, Stop, end_tolerance, stop_reason
 from capsim import checkpoint
 from capsim.checkpoint import ResumeError, checkpoint_path, remove_checkpoint
@@ -185,6 +186,7 @@ class _Run:
         self.config_yaml = case.to_yaml()
         saved, self.wall_before = checkpoint.load(self.ckpt_path, case) if resume else (None, 0.0)
         self.model, X = build_model(case)
+        set_run_threads(self.model.disc.n_nodes)  # a small mesh runs faster on one thread
         self.model.interrupt_check = stop.check  # SIGTERM honoured between GMRES iterations too
         self.integrator: Integrator = build_integrator(case, self._rhs, X, self.model)
         self.observer = StepObserver(self.model, X, case.axis)

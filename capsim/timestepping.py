@@ -851,10 +851,17 @@ class Automatic(Integrator):
                 return LinearlyImplicit, f"λ = {lam:g} >= {cls.TUMBLING_LAMBDA:g} (may tumble)", 0, cls._implicit(case)
             return EmbeddedRungeKutta, (f"λ = {lam:g} >= {cls.TUMBLING_LAMBDA:g} (may tumble); "
                                         "linearly_implicit cannot run this case"), 0, case
-        probe = RungeKuttaChebyshev(rhs, y0, **RungeKuttaChebyshev.settings(case, model))
-        probe.start()
-        rho = probe.spectral_radius()
-        spent = probe.evaluations
+        # the probe must not change the run: its warm starts are undone (its work stays counted),
+        # so that an auto run is, to the bit, the run of the scheme it picks
+        saved = model.state()
+        try:
+            probe = RungeKuttaChebyshev(rhs, y0, **RungeKuttaChebyshev.settings(case, model))
+            probe.start()
+            rho = probe.spectral_radius()
+            spent = probe.evaluations
+        finally:
+            counters = {k: v for k, v in model.state().items() if not k.startswith("warm_")}
+            model.restore({**saved, **counters})
         h_acc = min(case.time.dt_max, cls.H_ACC * (case.time.rtol / 1e-3) ** (1.0 / 3.0))
         stages = math.sqrt(max(rho * h_acc, 0.0) / 0.65)
         measured = (f"ρ = {rho:.3g}, ρ h_acc = {rho * h_acc:.3g} (h_acc = {h_acc:.3g}): rkc would take "
