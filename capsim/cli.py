@@ -332,7 +332,7 @@ def units(
 
 def _version(value: bool) -> None:
     if value:
-        from capsim import __version__
+        from capsim._version import __version__
 
         typer.echo(f"capsim {__version__}")
         raise typer.Exit()

@@ -48,6 +48,7 @@ from typing import Any, Callable
 import numpy as np
 
 from capsim import kernels
+from capsim.mesh import linear_subtriangles  # noqa: F401 - used here, and offered here as before
 
 Array = np.ndarray
 
@@ -218,16 +219,6 @@ def principal_tensions(strain: VertexStrain, law: MembraneLaw, params: dict) -> 
 # Σ θ_e² |e|²/A_e → (4/3) ∫ ⟨κ_⊥²⟩ dA; on a sphere ⟨κ_⊥²⟩ = H², and (3/2) of it
 # is the Helfrich energy (κ/2) ∫ (2H)² dA (tests/test_bending.py checks 8πκ).
 HINGE_CALIBRATION = 1.5
-
-
-def linear_subtriangles(elements: Array) -> Array:
-    """Each 6-node triangle as its four straight sub-triangles, oriented as the element."""
-    e = np.asarray(elements)
-    v0, v1, v2, m01, m12, m20 = (e[:, i] for i in range(6))
-    return np.concatenate([
-        np.stack([v0, m01, m20], 1), np.stack([m01, v1, m12], 1),
-        np.stack([m20, m12, v2], 1), np.stack([m01, m12, m20], 1),
-    ])
 
 
 def surface_hinges(triangles: Array) -> Array:

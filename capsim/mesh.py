@@ -242,3 +242,13 @@ def rest_shape_attributes(mesh: SurfaceMesh) -> dict:
         "equal_volume_radius": (3.0 * volume / (4.0 * np.pi)) ** (1.0 / 3.0),
         "sphericity": (36.0 * np.pi * volume**2) ** (1.0 / 3.0) / area,
     }
+
+
+def linear_subtriangles(elements: np.ndarray) -> np.ndarray:
+    """Each 6-node triangle as its four straight sub-triangles, oriented as the element."""
+    e = np.asarray(elements)
+    v0, v1, v2, m01, m12, m20 = (e[:, i] for i in range(6))
+    return np.concatenate([
+        np.stack([v0, m01, m20], 1), np.stack([m01, v1, m12], 1),
+        np.stack([m20, m12, v2], 1), np.stack([m01, m12, m20], 1),
+    ])

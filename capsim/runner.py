@@ -20,7 +20,7 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from capsim import __version__
+from capsim._version import __version__
 from capsim.config import Case
 from capsim.errors import first_line
 from capsim.membrane import law_attributes

@@ -314,7 +314,7 @@ def run_study(
     data_vars["status_reason"] = (dims, grid("status_reason", dtype=object, fill="").astype(str),
                                   _attrs("status_reason"))
 
-    from capsim import __version__
+    from capsim._version import __version__
 
     ds = xr.Dataset(
         data_vars,

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from capsim import __version__
+from capsim._version import __version__
 from capsim.campaign import CAMPAIGN_FILE, INDEX_FILE, expand_campaign, load_campaign, load_index
 from capsim.config import Case
 from capsim.quantities import FLAGS, TABLE, attrs_for, case_field_attrs, global_attrs
