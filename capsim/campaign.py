@@ -63,7 +63,7 @@ from typing import Annotated, Any, get_args
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from capsim.config import NAME_MAX, Case, ConfigError, case_from_dict, read_yaml
+from capsim.config import NAME_MAX, Case, ConfigError, StrictModel, case_from_dict, describe_error, read_yaml
 from capsim.errors import bounded_repr, first_line
 from capsim.executor import SigtermAsInterrupt, one_line, run_batch
 from capsim.store import FileLock, StorageError, _tmp_name
@@ -88,8 +88,7 @@ MAX_RUNS = 10_000
 CAMPAIGN_NAME_MAX = 100
 
 
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+_Model = StrictModel  # as strict as a case: unknown fields, NaN/inf and coerced scalars are errors
 
 
 class CampaignOutput(_Model):
@@ -235,13 +234,15 @@ def count_runs(campaign: Campaign) -> int:
 
 
 def _format_error(exc: ValidationError, source: str) -> str:
+    """A campaign's schema error in one line: the case schema's formatter for its fields, in
+    the campaign's words (kept: "FIELD: what (got VALUE)", as the tests and users know them)."""
     parts = []
     for err in exc.errors(include_url=False)[:3]:
         loc = ".".join(p if isinstance(p, str) and len(p) <= 40 else bounded_repr(p, 40) for p in map(str, err["loc"]))
         if err["type"] == "extra_forbidden":
-            owner = Campaign if len(err["loc"]) == 1 else CampaignOutput
-            what = f"unknown field {bounded_repr(str(err['loc'][-1]))} (allowed: {', '.join(owner.model_fields)})"
-        elif err["type"] == "missing":
+            parts.append(describe_error(err, root=Campaign))  # unknown field: the case schema's words
+            continue
+        if err["type"] == "missing":
             what = "required field is missing"
         else:
             what = err["msg"].removeprefix("Value error, ")

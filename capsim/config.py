@@ -1045,9 +1045,9 @@ def _yaml_problem(exc: yaml.YAMLError) -> str:
     return problem
 
 
-def _model_at(loc: tuple) -> type[BaseModel] | None:
-    """The model class that owns the field at `loc` (loc of its parent)."""
-    model: type[BaseModel] = Case
+def _model_at(loc: tuple, root: type[BaseModel] | None = None) -> type[BaseModel] | None:
+    """The model class that owns the field at `loc` (loc of its parent), from `root` (a Case)."""
+    model: type[BaseModel] = Case if root is None else root
     for part in loc:
         field = model.model_fields.get(part) if isinstance(part, str) else None
         ann = field.annotation if field is not None else None
@@ -1093,7 +1093,7 @@ def _dotted(parts) -> str:
     return ".".join(p if isinstance(p, str) and len(p) <= 40 else bounded_repr(p, 40) for p in map(str, parts))
 
 
-def _describe(err: dict) -> str:
+def _describe(err: dict, root: type[BaseModel] | None = None) -> str:
     loc = tuple(err["loc"])
     dotted = _dotted(loc)
     kind = err["type"]
@@ -1102,7 +1102,7 @@ def _describe(err: dict) -> str:
         dotted = _dotted([*loc, problem.field])
         return f"{dotted} = {_show(problem.value)}: {problem.what}"
     if kind == "extra_forbidden":
-        owner = _model_at(loc[:-1])
+        owner = _model_at(loc[:-1], root)
         allowed = ", ".join(owner.model_fields) if owner is not None else "?"
         return f"{dotted}: unknown field {bounded_repr(str(loc[-1]))} (allowed: {allowed})"
     if kind == "missing":
@@ -1120,8 +1120,15 @@ def _describe(err: dict) -> str:
     return f"{dotted} = {_show(err.get('input'))}: {what}"
 
 
-def _format_validation_error(exc: ValidationError, source: str) -> str:
+def format_validation_error(exc: ValidationError, source: str, root: type[BaseModel] | None = None) -> str:
+    """The one line of every schema error (a case's, a campaign's: `root`), at most three problems."""
     errors = exc.errors(include_url=False)
-    shown = "; ".join(_describe(e) for e in errors[:3])
+    shown = "; ".join(_describe(e, root) for e in errors[:3])
     more = f" (and {len(errors) - 3} more)" if len(errors) > 3 else ""
     return " ".join(f"{source}: {shown}{more}".split())
+
+
+_format_validation_error = format_validation_error  # the name this module's callers use
+describe_error = _describe  # one schema problem in words (a campaign's messages use it too)
+#: the strict base of every YAML-loaded model (a case's sections, a campaign)
+StrictModel = _Model
