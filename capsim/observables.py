@@ -431,51 +431,62 @@ def classify_motion(
         out["motion"] = "unstable"
         return out
 
-    defined = D_xy > 1e-3  # θ of a sphere is undefined
-    if np.count_nonzero(defined) >= 2:
-        td = t[defined]
-        th_u = np.unwrap(theta[defined], period=np.pi)
-        if th_u.min() < -np.pi / 2 - 0.05:
-            out["motion"] = "tumbling"
-            # passages through −π/2 − mπ, m = 0, 1, ...
-            level = np.floor((th_u + np.pi / 2) / np.pi)
-            idx = np.flatnonzero(np.diff(level) < 0)
-            passes = []
-            for i in idx:
-                target = (level[i]) * np.pi - np.pi / 2
-                w = (th_u[i] - target) / (th_u[i] - th_u[i + 1])
-                passes.append(td[i] + w * (td[i + 1] - td[i]))
-            if len(passes) >= 2:
-                out["period"] = 2.0 * float(passes[-1] - passes[-2])
-                out["t_from"], out["t_to"] = float(passes[-2]), float(passes[-1])
-            elif len(passes) == 1 and td[-1] > passes[0]:
-                turned = abs(th_u[-1] - (-np.pi / 2))
-                if turned > 0.1:
-                    out["period"] = 2 * np.pi * float(td[-1] - passes[0]) / turned
-            return out
-
+    if _tumbling(t, D_xy, theta, out):
+        return out
     if is_steady(t, D_xy, theta, rtol, theta_tol, window_fraction, min_window):
         out["motion"] = "steady"
         for name, s in (("D_xy", D_xy), ("theta", theta)):
             out[f"{name}_mean"] = window_stats(t, s, out["t_from"])[0]
         return out
+    _oscillating(t, D_xy, theta, rtol, theta_tol, out)
+    return out
 
-    # the last two thirds: the start-up transient of a capsule is a few kt,
-    # and two whole cycles of kT ≈ 10 must fit in a run of a few tens of kt
-    half = t >= t_end / 3.0
+
+def _tumbling(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, out: dict) -> bool:
+    """classify_motion's tumbling: θ, unwrapped, below −π/2 (a continuous clockwise turn);
+    the period from successive passages through −π/2 (mod π), Jeffery's (seed §5). Fills
+    `out` and returns True when it tumbles."""
+    defined = D_xy > 1e-3  # θ of a sphere is undefined
+    if np.count_nonzero(defined) < 2:
+        return False
+    td = t[defined]
+    th_u = np.unwrap(theta[defined], period=np.pi)
+    if not th_u.min() < -np.pi / 2 - 0.05:
+        return False
+    out["motion"] = "tumbling"
+    # passages through −π/2 − mπ, m = 0, 1, ...
+    level = np.floor((th_u + np.pi / 2) / np.pi)
+    passes = []
+    for i in np.flatnonzero(np.diff(level) < 0):
+        target = (level[i]) * np.pi - np.pi / 2
+        w = (th_u[i] - target) / (th_u[i] - th_u[i + 1])
+        passes.append(td[i] + w * (td[i + 1] - td[i]))
+    if len(passes) >= 2:
+        out["period"] = 2.0 * float(passes[-1] - passes[-2])
+        out["t_from"], out["t_to"] = float(passes[-2]), float(passes[-1])
+    elif len(passes) == 1 and td[-1] > passes[0]:
+        turned = abs(th_u[-1] - (-np.pi / 2))
+        if turned > 0.1:
+            out["period"] = 2 * np.pi * float(td[-1] - passes[0]) / turned
+    return True
+
+
+def _oscillating(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, rtol: float, theta_tol: float,
+                 out: dict) -> None:
+    """classify_motion's oscillating: two sustained regular cycles of θ or D_xy over the
+    last two thirds of the run (the start-up transient of a capsule is a few kt, and two
+    whole cycles of kT ≈ 10 must fit in a run of a few tens of kt); fills `out` if so."""
+    half = t >= float(t[-1]) / 3.0
     th_half = np.unwrap(theta[half], period=np.pi)
     scale = max(float(np.abs(D_xy[half]).mean()), 1e-3)
-    osc_theta = _oscillation(t[half], th_half, theta_tol)
-    osc_D = _oscillation(t[half], D_xy[half], rtol * scale)
-    osc = osc_theta or osc_D
-    if osc is not None:
-        out["motion"] = "oscillating"
-        out["period"] = osc["period"]
-        out["t_from"], out["t_to"] = osc["t_from"], osc["t_to"]
-        for name, s in (("D_xy", D_xy[half]), ("theta", th_half)):
-            mean, amp = _cycle_stats(t[half], s, osc["t_from"], osc["last_cycle"])
-            out[f"{name}_mean"], out[f"{name}_amplitude"] = mean, amp
-    return out
+    osc = _oscillation(t[half], th_half, theta_tol) or _oscillation(t[half], D_xy[half], rtol * scale)
+    if osc is None:
+        return
+    out["motion"] = "oscillating"
+    out["period"] = osc["period"]
+    out["t_from"], out["t_to"] = osc["t_from"], osc["t_to"]
+    for name, s in (("D_xy", D_xy[half]), ("theta", th_half)):
+        out[f"{name}_mean"], out[f"{name}_amplitude"] = _cycle_stats(t[half], s, osc["t_from"], osc["last_cycle"])
 
 
 def jeffery_orbit_constant(polar: np.ndarray, azimuth: np.ndarray, r: float) -> np.ndarray:
