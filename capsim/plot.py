@@ -36,7 +36,7 @@ from capsim.membrane import linear_subtriangles
 __all__ = [
     "DPI", "FIGSIZE", "FIGURE_FORMATS", "FIRST_ORDER_G_MAX", "KINDS", "contour_figure", "orbit_figure", "deformation_figure", "inclination_figure",
     "plot", "relaxation_time", "rheology_figure", "steady_figure", "tensions_figure",
-    "trajectory_figure", "xy_section",
+    "section_loops", "trajectory_figure", "xy_section",
 ]
 
 FIGSIZE = (6.4, 4.8)  # inches
@@ -327,81 +327,190 @@ def _quadratic_shape(xi: np.ndarray, eta: np.ndarray) -> np.ndarray:
                      4 * l0 * xi, 4 * xi * eta, 4 * eta * l0], axis=-1)
 
 
-def _curved_crossings(x: np.ndarray, elements: np.ndarray, z0: float, values, m: int):
-    """Points (and values) where the curved quadratic surface meets z = z0: each element's
-    parameter triangle is cut into m² small ones; on each of their edges z is a quadratic
-    in the edge parameter (the map is quadratic), solved exactly; the point is the map's."""
-    e = np.asarray(elements)
+def _parameter_grid(m: int):
+    """The m² small triangles of the parameter triangle: grid points (P, 2) in (ξ, η), their
+    edges (L, 2), each small triangle's three edges (T, 3), and for each edge where it lies
+    on the element's boundary: (element edge 0/1/2 or −1 inside, its index along that edge
+    counted from the edge's first corner)."""
     grid = [(i, j) for j in range(m + 1) for i in range(m + 1 - j)]
     index = {ij: k for k, ij in enumerate(grid)}
-    edges = []
+    edge_index: dict[tuple[int, int], int] = {}
+    edges: list[tuple[int, int]] = []
+
+    def edge(p, q):
+        key = (min(p, q), max(p, q))
+        if key not in edge_index:
+            edge_index[key] = len(edges)
+            edges.append(key)
+        return edge_index[key]
+
+    triangles = []
     for (i, j) in grid:
-        for di, dj in ((1, 0), (0, 1)):
-            if (i + di, j + dj) in index:
-                edges.append((index[(i, j)], index[(i + di, j + dj)]))
         if (i + 1, j) in index and (i, j + 1) in index:
-            edges.append((index[(i + 1, j)], index[(i, j + 1)]))
-    uv = np.array(grid, dtype=np.float64) / m
-    a, b = np.array(edges).T
-    uva, uvb = uv[a], uv[b]
-    xe = x[e]                                          # (E, 6, 3)
-    N = _quadratic_shape(uv[:, 0], uv[:, 1])           # (P, 6)
-    z = np.einsum("pk,ek->ep", N, xe[:, :, 2]) - z0    # (E, P)
-    za, zb = z[:, a], z[:, b]
-    cross = (za >= 0.0) != (zb >= 0.0)
-    el, ed = np.nonzero(cross)
+            a, b, c = index[(i, j)], index[(i + 1, j)], index[(i, j + 1)]
+            triangles.append((edge(a, b), edge(b, c), edge(c, a)))
+        if (i + 1, j + 1) in index:
+            a, b, c = index[(i + 1, j)], index[(i + 1, j + 1)], index[(i, j + 1)]
+            triangles.append((edge(a, b), edge(b, c), edge(c, a)))
+    on_side = []
+    for a, b in edges:
+        (ia, ja), (ib, jb) = grid[a], grid[b]
+        if ja == jb == 0:                       # side 0 → 1 (η = 0), counted from corner 0
+            on_side.append((0, min(ia, ib)))
+        elif ia + ja == ib + jb == m:           # side 1 → 2, counted from corner 1
+            on_side.append((1, min(ja, jb)))
+        elif ia == ib == 0:                     # side 2 → 0, counted from corner 2
+            on_side.append((2, min(m - ja, m - jb)))
+        else:
+            on_side.append((-1, 0))
+    return np.array(grid, dtype=np.float64) / m, np.array(edges), np.array(triangles), on_side
+
+
+_SIDE_CORNERS = ((0, 1), (1, 2), (2, 0))
+
+
+def section_loops(x: np.ndarray, elements: np.ndarray, z0: float = 0.0, values=None,
+                  m: int = SECTION_SUBDIVISIONS) -> list[tuple[np.ndarray, np.ndarray | None]]:
+    """The closed curves where the curved surface meets the plane z = z0, traced along the mesh.
+
+    Each quadratic element's parameter triangle is cut into m² small triangles; z is
+    evaluated on the curved element at their corners; a small triangle whose corners lie
+    on both sides of the plane holds one piece of the cut, from one of its edges to
+    another (marching triangles). The crossing on an edge is the root of z along it (a
+    quadratic in the edge parameter, the map being quadratic), mapped to the surface. An
+    edge on an element's side is named by its side's two corner nodes and its place along
+    the side, so the pieces of neighbouring elements join exactly; the pieces are then
+    chained into closed loops. Nothing is ordered by angle, so a cut that is not
+    star-shaped (a deformed red cell's S) is drawn as it is. Points with z within
+    1e-12 × the size of the plane count as on it, and on-plane counts as above, so every
+    crossing is seen the same way from both sides.
+
+    Returns [(points (n, 3), values (n, ...) or None)], each loop counter-clockwise seen
+    from +z, not repeating its first point, longest loop first.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    e = np.asarray(elements)
+    uv, edges, triangles, on_side = _parameter_grid(m)
+    xe = x[e]                                              # (E, 6, 3)
+    N = _quadratic_shape(uv[:, 0], uv[:, 1])               # (P, 6)
+    z = np.einsum("pk,ek->ep", N, xe[:, :, 2]) - z0        # (E, P)
+    z[np.abs(z) <= 1e-12 * max(1.0, float(np.abs(x).max()))] = 0.0
+    above = z >= 0.0
+    edge_cross = above[:, edges[:, 0]] != above[:, edges[:, 1]]          # (E, L)
+    tri_cross = edge_cross[:, triangles]                                  # (E, T, 3)
+    el, tr = np.nonzero(tri_cross.any(axis=2))
     if el.size == 0:
-        return np.empty((0, 3)), None
-    mid = 0.5 * (uva[ed] + uvb[ed])
+        raise ValueError(f"the surface does not meet the plane z = {z0:g}")
+
+    def name(element: int, local_edge: int) -> tuple[int, int, int]:
+        side, k = on_side[local_edge]
+        if side < 0:
+            return (-1 - element, local_edge, 0)
+        c0, c1 = (int(e[element, c]) for c in _SIDE_CORNERS[side])
+        return (c0, c1, k) if c0 < c1 else (c1, c0, m - 1 - k)
+
+    neighbours: dict[tuple, list[tuple]] = {}
+    where: dict[tuple, tuple[int, int]] = {}
+    for element, t in zip(el.tolist(), tr.tolist()):
+        ends = [triangles[t, j] for j in range(3) if tri_cross[element, t, j]]
+        a, b = (name(element, int(le)) for le in ends)
+        where.setdefault(a, (element, int(ends[0])))
+        where.setdefault(b, (element, int(ends[1])))
+        neighbours.setdefault(a, []).append(b)
+        neighbours.setdefault(b, []).append(a)
+    bad = [k for k, v in neighbours.items() if len(v) != 2]
+    if bad:
+        raise ValueError(f"the cut z = {z0:g} is not a set of closed curves ({len(bad)} open ends): "
+                         "is the surface closed?")
+    keys = list(where)
+    at_el = np.array([where[k][0] for k in keys])
+    at_ed = np.array([where[k][1] for k in keys])
+    pts, vals = _edge_crossings(xe, e, z, z0, uv, edges, at_el, at_ed, values)
+    position = {k: i for i, k in enumerate(keys)}
+
+    loops = []
+    seen: set = set()
+    for start in keys:
+        if start in seen:
+            continue
+        chain, previous, here = [], None, start
+        while here not in seen:
+            seen.add(here)
+            chain.append(position[here])
+            a, b = neighbours[here]
+            previous, here = here, (b if a == previous else a)
+        idx = np.array(chain)
+        # a crossing exactly at a grid point is found on several edges: keep it once
+        step = np.linalg.norm(np.diff(pts[idx], axis=0, append=pts[idx[:1]]), axis=1)
+        idx = idx[step > 1e-12 * max(1.0, float(np.abs(x).max()))] if (step > 0).any() else idx
+        p = pts[idx]
+        if _shoelace(p) < 0.0:
+            idx = idx[::-1]
+        loops.append((pts[idx], vals[idx] if vals is not None else None))
+    loops.sort(key=lambda loop: -_perimeter(loop[0]))
+    return loops
+
+
+def _edge_crossings(xe, e, z, z0, uv, edges, el, ed, values):
+    """Points (and values) where z = 0 on the small edges `ed` of elements `el`."""
+    a, b = edges[ed, 0], edges[ed, 1]
+    uva, uvb = uv[a], uv[b]
+    z0e, z1e = z[el, a], z[el, b]
+    mid = 0.5 * (uva + uvb)
     zm = np.einsum("ck,ck->c", _quadratic_shape(mid[:, 0], mid[:, 1]), xe[el, :, 2]) - z0
-    z0e, z1e = za[el, ed], zb[el, ed]
     # z(s) = z0 + B s + A s², through z(0), z(1/2), z(1)
     B = -3.0 * z0e + 4.0 * zm - z1e
     A = 2.0 * z0e - 4.0 * zm + 2.0 * z1e
-    s_lin = z0e / (z0e - z1e)
     with np.errstate(invalid="ignore", divide="ignore"):
+        s_lin = np.where(z0e == z1e, 0.0, z0e / (z0e - z1e))
         disc = np.sqrt(np.maximum(B * B - 4.0 * A * z0e, 0.0))
-        r1 = (-B + disc) / (2.0 * A)
-        r2 = (-B - disc) / (2.0 * A)
-    roots = np.stack([r1, r2], 1)
+        roots = np.stack([(-B + disc) / (2.0 * A), (-B - disc) / (2.0 * A)], 1)
     ok = np.isfinite(roots) & (roots >= -1e-12) & (roots <= 1 + 1e-12)
     dist = np.where(ok, np.abs(roots - s_lin[:, None]), np.inf)
     best = np.take_along_axis(roots, np.argmin(dist, 1)[:, None], 1)[:, 0]
     straight = np.abs(A) <= 1e-12 * (np.abs(B) + np.abs(z0e) + np.abs(z1e))
     s = np.clip(np.where(straight | ~np.isfinite(np.min(dist, 1)), s_lin, best), 0.0, 1.0)
-    at = uva[ed] + s[:, None] * (uvb[ed] - uva[ed])
-    Nc = _quadratic_shape(at[:, 0], at[:, 1])          # (C, 6)
+    at = uva + s[:, None] * (uvb - uva)
+    Nc = _quadratic_shape(at[:, 0], at[:, 1])
     pts = np.einsum("ck,ckd->cd", Nc, xe[el])
     pts[:, 2] = z0
     vals = None
     if values is not None:
         v = np.asarray(values, dtype=np.float64)
-        ve = v[e[el]]                                  # (C, 6, ...)
-        vals = np.einsum("ck,ck...->c...", Nc, ve)
+        vals = np.einsum("ck,ck...->c...", Nc, v[e[el]])
     return pts, vals
+
+
+def _shoelace(p: np.ndarray) -> float:
+    """Signed area enclosed by the closed polygon p (n, ≥2) in the xy-plane (> 0 counter-clockwise)."""
+    x, y = p[:, 0], p[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+
+def _perimeter(p: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(p, axis=0, append=p[:1]), axis=1).sum())
 
 
 def xy_section(
     x: np.ndarray, elements: np.ndarray, z0: float = 0.0, values: np.ndarray | None = None,
     curved: bool = False,
 ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Points where the surface meets the plane z = z0, ordered by angle about their mean.
+    """Points where the surface meets the plane z = z0.
 
-    Default (``curved=False``): the quadratic triangles are split into four
+    ``curved=True`` (what the figures use): the longest closed curve of
+    :func:`section_loops`, traced along the curved elements in order (right for
+    any shape, convex or not), values interpolated with the quadratic shape
+    functions; the figures draw every loop.
+    Default (``curved=False``, a coarse check): the quadratic triangles are split into four
     straight ones and each edge that crosses the plane contributes one point
     (nodes exactly on the plane count as above it, so every crossing is found
-    once); ``values`` (N_p, ...) are interpolated linearly to the points.
-    ``curved=True`` (what the figures use): the cut of the curved elements
-    themselves, :data:`SECTION_SUBDIVISIONS` points per element edge, values
-    interpolated with the quadratic shape functions.
+    once), ordered by angle about their mean, which is right only for a star-shaped
+    cut; ``values`` (N_p, ...) are interpolated linearly to the points.
     Returns (points (n, 3), values (n, ...)).
     """
     x = np.asarray(x, dtype=np.float64)
     if curved:
-        pts, vals = _curved_crossings(x, elements, z0, values, SECTION_SUBDIVISIONS)
-        if len(pts) == 0:
-            raise ValueError(f"the surface does not meet the plane z = {z0:g}")
-        return _merge_and_order(pts, vals)
+        return section_loops(x, elements, z0, values)[0]
     tri = linear_subtriangles(elements)
     edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
     edges = np.unique(np.sort(edges, axis=1), axis=0)
@@ -434,6 +543,17 @@ def _merge_and_order(pts: np.ndarray, vals):
     return pts[order], (vals[order] if vals is not None else None)
 
 
+def _arc_length_from_largest_x(p: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """s/L along a closed loop (counter-clockwise, from its point of largest x, ending where it
+    began) and the values there: a coordinate that stays monotone on any cut, unlike the
+    polar angle, which doubles back on a cut that is not star-shaped."""
+    start = int(np.argmax(p[:, 0]))
+    p, v = np.roll(p, -start, axis=0), np.roll(v, -start, axis=0)
+    p, v = _closed(p), _closed(v)
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+    return s / s[-1], v
+
+
 def _closed(p: np.ndarray) -> np.ndarray:
     return np.concatenate([p, p[:1]])
 
@@ -453,9 +573,9 @@ def contour_figure(source, times: Sequence[float] | None = None, z0: float = 0.0
     fig = _figure()
     ax = fig.add_subplot()
     for j, k in enumerate(idx):
-        p, _ = xy_section(data["positions"][k], data["elements"], z0, curved=True)
-        p = _closed(p)
-        ax.plot(p[:, 0], p[:, 1], color=f"C{j % 10}", label=f"kt = {snap_t[k]:.3g}")
+        for n, (p, _) in enumerate(section_loops(data["positions"][k], data["elements"], z0)):
+            p = _closed(p)
+            ax.plot(p[:, 0], p[:, 1], color=f"C{j % 10}", label=f"kt = {snap_t[k]:.3g}" if n == 0 else None)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(r"$x/a$")
     ax.set_ylabel(r"$y/a$")
@@ -487,11 +607,12 @@ def trajectory_figure(source, node: int | None = None, direction: Sequence[float
     ax = fig.add_subplot()
     for k, style, label in ((0, "0.6", "surface, first snapshot"), (len(pos) - 1, "0.3", "surface, last snapshot")):
         try:
-            p, _ = xy_section(pos[k], data["elements"], curved=True)
+            loops = section_loops(pos[k], data["elements"])
         except ValueError:
             continue
-        p = _closed(p)
-        ax.plot(p[:, 0], p[:, 1], color=style, lw=0.8, ls="--", label=label)
+        for n, (p, _) in enumerate(loops):
+            p = _closed(p)
+            ax.plot(p[:, 0], p[:, 1], color=style, lw=0.8, ls="--", label=label if n == 0 else None)
     ax.plot(path[:, 0], path[:, 1], "C3.-", label=f"node {node}")
     ax.plot(path[:1, 0], path[:1, 1], "C3o", mfc="none", ms=9, label=f"kt = {data['snapshot_t'][0]:.3g}")
     ax.set_aspect("equal", adjustable="datalim")
@@ -505,7 +626,8 @@ def trajectory_figure(source, node: int | None = None, direction: Sequence[float
 
 def tensions_figure(source, t: float | None = None, z0: float = 0.0):
     """Principal tensions τ1 ≥ τ2 (units E_s) along the xy-plane section at the
-    snapshot nearest `t` (default: the last), against the polar angle φ/π."""
+    snapshot nearest `t` (default: the last), against the arc length along the section
+    (the polar angle doubles back on a cut that is not star-shaped)."""
     from capsim.export import membrane_fields, model_for
 
     data = _load_run(source)
@@ -515,17 +637,14 @@ def tensions_figure(source, t: float | None = None, z0: float = 0.0):
     fields = membrane_fields(model_for(data), x)
     values = np.stack([fields["principal_tension_1"], fields["principal_tension_2"]], axis=1)
     p, v = xy_section(x, data["elements"], z0, values, curved=True)
-    c = p.mean(axis=0)
-    phi = np.mod(np.arctan2(p[:, 1] - c[1], p[:, 0] - c[0]), 2.0 * math.pi)
-    order = np.argsort(phi)
-    phi, v = phi[order], v[order]
+    s, v = _arc_length_from_largest_x(p, v)
     fig = _figure()
     ax = fig.add_subplot()
-    ax.plot(phi / math.pi, v[:, 0], "C0.-", label=r"$\tau_1$")
-    ax.plot(phi / math.pi, v[:, 1], "C1.-", label=r"$\tau_2$")
+    ax.plot(s, v[:, 0], "C0.-", label=r"$\tau_1$")
+    ax.plot(s, v[:, 1], "C1.-", label=r"$\tau_2$")
     ax.axhline(0.0, color="0.7", lw=0.8)
-    ax.set_xlim(0.0, 2.0)
-    ax.set_xlabel(r"polar angle in the $xy$-plane, $\varphi/\pi$")
+    ax.set_xlim(0.0, 1.0)
+    ax.set_xlabel(r"arc length along the $xy$-section from its largest $x$, $s/L$ (counter-clockwise)")
     ax.set_ylabel(r"principal tension $/E_s$")
     _caption(fig, [info], extra=f"kt = {data['snapshot_t'][k]:.3g}")
     _legend(ax)

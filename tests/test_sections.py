@@ -1,0 +1,74 @@
+"""Sections of non-convex shapes are traced along the mesh (issue 30, finding 1)."""
+
+import numpy as np
+import pytest
+
+from capsim.mesh import rest_shape_mesh, rotation_about_z, unit_sphere_mesh
+from capsim.plot import _arc_length_from_largest_x, _shoelace, section_loops, xy_section
+
+
+def _segments_cross(p: np.ndarray) -> int:
+    """How many pairs of non-adjacent segments of the closed polygon p cross."""
+    a, b = p[:, :2], np.roll(p[:, :2], -1, axis=0)
+    n = len(a)
+
+    def orient(p, q, r):
+        return np.sign((q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1]) - (q[..., 1] - p[..., 1]) * (r[..., 0] - p[..., 0]))
+
+    A, B = a[:, None], b[:, None]
+    C, D = a[None, :], b[None, :]
+    crossing = (orient(A, B, C) * orient(A, B, D) < 0) & (orient(C, D, A) * orient(C, D, B) < 0)
+    i, j = np.triu_indices(n, 2)
+    adjacent = (j - i == 1) | ((i == 0) & (j == n - 1))
+    return int(crossing[i[~adjacent], j[~adjacent]].sum())
+
+
+@pytest.fixture(scope="module")
+def s_shaped_red_cell():
+    """A biconcave cell (axis y) bent into an S in the shear plane and turned by 20°, as a
+    red cell at λ = 5 is: y → y + β sin(πx/R) keeps every area of the z = 0 plane, so
+    its cut encloses the rest cut's area, R² ∫ √(1−s²)(c0 + c2 s² + c4 s⁴) ds over [−1, 1]
+    = R² π (c0/2 + c2/8 + c4/16) (R: the rim radius, the mesh's largest x at rest)."""
+    mesh = rest_shape_mesh("biconcave", level=2)
+    x = mesh.positions.copy()
+    R = float(x[:, 0].max())
+    x[:, 1] += 0.35 * np.sin(np.pi * x[:, 0] / R)
+    x = x @ rotation_about_z(np.deg2rad(20.0)).T
+    area = R**2 * np.pi * (0.207 / 2 + 2.003 / 8 - 1.123 / 16)
+    return x, mesh.elements, area
+
+
+def test_an_s_shaped_cut_is_traced_not_zig_zagged(s_shaped_red_cell):
+    x, elements, area = s_shaped_red_cell
+    p, v = xy_section(x, elements, 0.0, values=x[:, 0], curved=True)
+    assert _segments_cross(p) == 0  # no segment crosses the interior (the old angle order: many)
+    assert _shoelace(p) == pytest.approx(area, rel=0.01)
+    assert np.linalg.norm(np.diff(p, axis=0, append=p[:1]), axis=1).max() < 0.15  # a sixth of an element side
+    assert np.allclose(v, p[:, 0])
+    # the cut is not star-shaped about its mean: ordering by angle would have crossed itself
+    c = p.mean(axis=0)
+    by_angle = p[np.argsort(np.arctan2(p[:, 1] - c[1], p[:, 0] - c[0]))]
+    assert _segments_cross(by_angle) > 0
+
+
+def test_sections_are_closed_loops_with_the_right_areas():
+    sphere = unit_sphere_mesh("octahedron", 3)
+    for z0 in (0.0, 0.3, -0.7):
+        loops = section_loops(sphere.positions, sphere.elements, z0)
+        assert len(loops) == 1
+        p, _ = loops[0]
+        assert _shoelace(p) == pytest.approx(np.pi * (1 - z0**2), rel=1e-3)  # counter-clockwise
+        assert np.allclose(p[:, 2], z0)
+    # two caps of a dumbbell-like cut: a biconcave disk with its axis along z cut near the rim
+    disk = rest_shape_mesh("biconcave", level=2, axis=(0.0, 0.0, 1.0))
+    top = disk.positions[:, 2].max()
+    with pytest.raises(ValueError, match="does not meet"):
+        section_loops(disk.positions, disk.elements, 1.01 * top)
+
+
+def test_tensions_run_along_the_arc_length():
+    s = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    p = np.stack([np.cos(s + 1.0), np.sin(s + 1.0), 0 * s], 1)
+    arc, v = _arc_length_from_largest_x(p, p[:, :1])
+    assert arc[0] == 0.0 and arc[-1] == 1.0 and np.all(np.diff(arc) > 0)
+    assert v[0, 0] == v[-1, 0] == p[:, 0].max()
