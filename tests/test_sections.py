@@ -35,20 +35,33 @@ def s_shaped_red_cell():
     x[:, 1] += 0.35 * np.sin(np.pi * x[:, 0] / R)
     x = x @ rotation_about_z(np.deg2rad(20.0)).T
     area = R**2 * np.pi * (0.207 / 2 + 2.003 / 8 - 1.123 / 16)
-    return x, mesh.elements, area
+    # the exact cut, densely: half-thickness R/2 √(1−s²)(c0 + c2 s² + c4 s⁴) at x = R s, bent and turned
+    s = np.cos(np.linspace(0.0, np.pi, 20001))
+    h = 0.5 * R * np.sqrt(1.0 - s**2) * (0.207 + 2.003 * s**2 - 1.123 * s**4)
+    xs = np.concatenate([R * s, R * s])
+    ys = np.concatenate([h, -h]) + 0.35 * np.sin(np.pi * xs / R)
+    exact = np.stack([xs, ys, 0 * xs], 1) @ rotation_about_z(np.deg2rad(20.0)).T
+    return x, mesh.elements, area, exact[:, :2]
+
+
+def _far_from(points: np.ndarray, curve: np.ndarray) -> np.ndarray:
+    """Distance of each point (n, 2) from the densely sampled curve (m, 2)."""
+    return np.sqrt(((points[:, None, :] - curve[None, :, :]) ** 2).sum(-1)).min(axis=1)
 
 
 def test_an_s_shaped_cut_is_traced_not_zig_zagged(s_shaped_red_cell):
-    x, elements, area = s_shaped_red_cell
+    x, elements, area, exact = s_shaped_red_cell
     p, v = xy_section(x, elements, 0.0, values=x[:, 0], curved=True)
-    assert _segments_cross(p) == 0  # no segment crosses the interior (the old angle order: many)
+    midpoints = 0.5 * (p[:, :2] + np.roll(p[:, :2], -1, axis=0))
+    assert _far_from(midpoints, exact).max() < 0.02  # no segment cuts across the cell
+    assert _segments_cross(p) == 0
     assert _shoelace(p) == pytest.approx(area, rel=0.01)
     assert np.linalg.norm(np.diff(p, axis=0, append=p[:1]), axis=1).max() < 0.15  # a sixth of an element side
     assert np.allclose(v, p[:, 0])
-    # the cut is not star-shaped about its mean: ordering by angle would have crossed itself
+    # the cut is not star-shaped about its mean: ordering by angle cuts across the cell
     c = p.mean(axis=0)
     by_angle = p[np.argsort(np.arctan2(p[:, 1] - c[1], p[:, 0] - c[0]))]
-    assert _segments_cross(by_angle) > 0
+    assert _far_from(0.5 * (by_angle[:, :2] + np.roll(by_angle[:, :2], -1, axis=0)), exact).max() > 0.1
 
 
 def test_sections_are_closed_loops_with_the_right_areas():
@@ -59,7 +72,7 @@ def test_sections_are_closed_loops_with_the_right_areas():
         p, _ = loops[0]
         assert _shoelace(p) == pytest.approx(np.pi * (1 - z0**2), rel=1e-3)  # counter-clockwise
         assert np.allclose(p[:, 2], z0)
-    # two caps of a dumbbell-like cut: a biconcave disk with its axis along z cut near the rim
+    # a plane above the surface meets nothing: an error, not an empty figure
     disk = rest_shape_mesh("biconcave", level=2, axis=(0.0, 0.0, 1.0))
     top = disk.positions[:, 2].max()
     with pytest.raises(ValueError, match="does not meet"):
