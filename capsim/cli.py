@@ -152,7 +152,8 @@ def run(
     level: Optional[int] = typer.Option(None, "--level", help="override mesh.level"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress line"),
     resume: bool = typer.Option(
-        False, "--resume", help="continue an interrupted run from the checkpoint beside its output"
+        False, "--resume", help="continue an interrupted run from the checkpoint beside its output, "
+        "or extend a completed one to a later --t-end (appended to the same file)"
     ),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing file at the output path"),
     sets: Optional[list[str]] = typer.Option(None, "--set", metavar="FIELD=VALUE", help=_SET_HELP),
@@ -166,6 +167,8 @@ def run(
     capsim run configs/sphere.yaml --set mesh.level=2 --set time.scheme=rkc -o runs/s.h5
 
     capsim run configs/sphere.yaml --resume   (after an interruption)
+
+    capsim run configs/sphere.yaml --resume --t-end 12   (a completed run, extended to kt = 12)
     """
     case = _load(
         case_path,

@@ -32,7 +32,7 @@ from capsim.solver import CapsuleModel, build_model
 from capsim.stopping import LoopState, Stop, end_tolerance, stop_reason
 from capsim import checkpoint
 from capsim.checkpoint import ResumeError, checkpoint_path, remove_checkpoint
-from capsim.store import FileLock, StorageError, TrajectoryError, TrajectoryWriter
+from capsim.store import FileLock, StorageError, TrajectoryError, TrajectoryWriter, read_end_state
 from capsim.timestepping import Integrator, make_integrator
 
 __all__ = ["ResumeError", "RunResult", "build_model", "run_case"]
@@ -199,7 +199,8 @@ class _Run:
         self.path = Path(case.output.path)
         self.ckpt_path = checkpoint_path(self.path)
         self.config_yaml = case.to_yaml()
-        saved, self.wall_before = checkpoint.load(self.ckpt_path, case) if resume else (None, 0.0)
+        self.extending = False  # resumed from a completed run's end state to a later t_end
+        saved, self.wall_before = self._saved_state(case) if resume else (None, 0.0)
         self.model, X = build_model(case)
         self.model.interrupt_check = stop.check  # SIGTERM honoured between GMRES iterations too
         self.integrator: Integrator = make_integrator(case.time.scheme, self._rhs, X, **_integrator_options(case, self.model))
@@ -211,6 +212,15 @@ class _Run:
             self._reopen(saved)
         else:
             self._create(X)
+
+    def _saved_state(self, case: Case) -> tuple[dict[str, dict[str, Any]], float]:
+        """What --resume continues from: the checkpoint of an interrupted run or, where there
+        is none, the end state of a run that reached its t_end (then extended to case.time.t_end)."""
+        blob = None if self.ckpt_path.exists() else read_end_state(self.path)
+        if blob is None:
+            return checkpoint.load(self.ckpt_path, case)
+        self.extending = True
+        return checkpoint.load_end_state(blob, self.path, case)
 
     # -- parts ----------------------------------------------------------------
     def _rhs(self, x: np.ndarray):
@@ -271,6 +281,7 @@ class _Run:
         if stored_version and stored_version != __version__:  # the rows after the cut are this version's
             attrs["resumed_from_version"] = stored_version
         self.writer.set_attrs(**attrs)
+        self.writer.drop_end_state()
         self.observer.resume(self.writer.steps())
         self.committed = saved
 
@@ -282,8 +293,10 @@ class _Run:
         stored = checkpoint.stored_case(data["attrs"].get("config_yaml"))
         if stored is None:
             raise ResumeError(f"{path}: not the checkpoint's run file: no readable config_yaml")
-        diff = checkpoint.first_difference(checkpoint.step_defining_of(self.case.model_dump(mode="json")),
-                                           checkpoint.step_defining_of(stored), where="the run file")
+        now, then = checkpoint.step_defining_of(self.case.model_dump(mode="json")), checkpoint.step_defining_of(stored)
+        if self.extending:
+            now, then = checkpoint.without_t_end(now), checkpoint.without_t_end(then)
+        diff = checkpoint.first_difference(now, then, where="the run file")
         if diff is not None:
             raise ResumeError(f"{path}: not the checkpoint's run file (another case): {diff}")
         t_rows = data["timeseries"]["t"]
@@ -406,6 +419,8 @@ class _Run:
             motion["motion"] = "unstable"
         self.writer.write_summary(motion)
         self.writer.set_attrs(motion=motion["motion"])
+        if status == "completed" and not outcome.reason:  # reached t_end: it can be extended
+            self.writer.write_end_state(checkpoint.end_state_bytes(self.committed, self.config_yaml, result.wall_time_s))
         self.writer.close(status, reason)
         return replace(result, summary=motion)
 
