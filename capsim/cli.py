@@ -203,7 +203,7 @@ def run(
             progress.finish()
     from capsim.display import print_summary
 
-    print_summary(summary, title=case.name)
+    print_summary({**summary, "shear_rate_G": case.flow.shear_rate_G}, title=case.name)
     if error_estimate and summary.get("status") == "completed":
         from capsim.study import run_error_estimate
 
