@@ -457,6 +457,7 @@ def plot(
     no_theory: bool = typer.Option(False, "--no-theory", help="leave out the first-order theory"),
     unwrap: bool = typer.Option(False, "--unwrap", help="inclination: continue θ through ±π/2 (default: break the line there)"),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing file that is not a figure of this format"),
+    x: Optional[str] = typer.Option(None, "--x", help="steady: the swept field on the axis (default shear_rate_G, else the first numeric one)"),
 ) -> None:
     """Write a figure (PNG, PDF or SVG) of a run, or of a campaign summary for --kind steady.
 
@@ -474,7 +475,7 @@ def plot(
 
     try:
         out = _files_call(write_figure, paths, kind.value, output, overwrite=overwrite, dpi=dpi,
-                          theory=not no_theory, unwrap=unwrap, times=times, node=node)
+                          theory=not no_theory, unwrap=unwrap, times=times, node=node, x=x)
     except FigureError as exc:
         raise _user_error(str(exc)) from None
     typer.echo(str(out))

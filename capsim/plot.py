@@ -657,49 +657,82 @@ def tensions_figure(source, t: float | None = None, z0: float = 0.0):
 RHEOLOGY_SUMMARY = ("ttf_ratio", "Sxy_star", "N1_star", "N2_star")
 
 
-def steady_figure(source, theory: bool = True):
-    """Steady D_xy and θ/π against G from a campaign summary (netCDF or Dataset).
+#: axis labels of swept fields (others: the field's name)
+SWEPT_LABELS = {"shear_rate_G": r"$G = \mu k a / E_s$", "viscosity_ratio": r"viscosity ratio $\lambda$",
+                "initial_tilt_deg": "initial tilt (deg)", "bending_modulus": r"bending modulus $\kappa/(E_s a^2)$",
+                "capillary_number": r"$\mathrm{Ca} = \mu k a / G_s$"}
+#: not swept fields, though they are coordinates of a summary
+_NOT_SWEPT = ("run", "run_id")
 
-    When the summary holds the tank-treading frequency and the stresslet (as
-    `capsim summarize` writes them), a second column shows TTF/f_s (seed fig. 11)
-    and S*_xy, N1*, N2* (fig. 13) against G, with their G → 0 limits.
+
+def steady_figure(source, theory: bool = True, x: str | None = None):
+    """Steady D_xy and θ/π against a swept field (default G, else the first numeric one)
+    from a campaign summary (netCDF or Dataset), grid or zip.
+
+    Only settled runs (``steady_average`` = 1) are points, joined per combination of the
+    other swept values, with the window's standard deviation as error bars; the others
+    (transient, unstable, not completed) are drawn as grey × without a line and counted in
+    the caption, which says what was left out. When the summary holds the tank-treading
+    frequency and the stresslet (as `capsim summarize` writes them), a second column shows
+    TTF/f_s (seed fig. 11) and S*_xy, N1*, N2* (fig. 13), with their G → 0 limits.
     """
     import xarray as xr
 
-    if isinstance(source, xr.Dataset):
-        ds = source
-    else:
-        ds = xr.load_dataset(source)
-    for name in ("D_xy", "theta", "shear_rate_G"):
+    ds = source if isinstance(source, xr.Dataset) else xr.load_dataset(source)
+    for name in ("D_xy", "theta"):
         if name not in ds.variables:
             raise ValueError(f"the summary has no '{name}' (is it a capsim summarize output?)")
+    swept = _swept_fields(ds)
+    numeric = [f for f in swept if np.asarray(ds[f].values).dtype.kind in "iuf"]
+    if x is None:
+        x = "shear_rate_G" if "shear_rate_G" in numeric else (numeric[0] if numeric else None)
+        if x is None:
+            raise ValueError(f"the summary sweeps no numeric field to draw against (swept: {', '.join(swept) or 'none'})")
+    elif x not in numeric:
+        raise ValueError(f"--x {x!r}: not a numeric swept field of the summary (allowed: {', '.join(numeric) or 'none'})")
     rheology = all(name in ds.variables for name in RHEOLOGY_SUMMARY) and bool(
         np.isfinite(np.asarray(ds["Sxy_star"].values, dtype=np.float64)).any()
     )
+    names = ("D_xy", "theta") + (RHEOLOGY_SUMMARY if rheology else ())
+    cells = _summary_cells(ds, names, swept)
     if rheology:
         fig = _figure(figsize=(1.8 * FIGSIZE[0], FIGSIZE[1]))
         (ax_d, ax_f), (ax_t, ax_s) = fig.subplots(2, 2, sharex=True)
     else:
         fig = _figure(figsize=(FIGSIZE[0], FIGSIZE[1]))
         ax_d, ax_t = fig.subplots(2, 1, sharex=True)
-    groups = _steady_groups(ds, ("D_xy", "theta") + (RHEOLOGY_SUMMARY if rheology else ()))
-    for j, (label, G, values) in enumerate(groups):
-        order = np.argsort(G)
+    panels = [(ax_d, "D_xy", 1.0, "o-", None), (ax_t, "theta", math.pi, "o-", None)]
+    if rheology:
+        panels += [(ax_f, "ttf_ratio", 1.0, "o-", None), (ax_s, "Sxy_star", 1.0, "o-", r"$S^*_{xy}$"),
+                   (ax_s, "N1_star", 1.0, "s--", r"$N_1^*$"), (ax_s, "N2_star", 1.0, "^:", r"$N_2^*$")]
+    others = [f for f in swept if f != x]
+    groups: dict[tuple, list[dict]] = {}
+    for cell in cells:
+        groups.setdefault(tuple(cell["swept"][f] for f in others), []).append(cell)
+    unsettled = [c for c in cells if not c["settled"]]
+    for j, (key, members) in enumerate(groups.items()):
+        label = ", ".join(f"{_short(f)} = {_shown(v)}" for f, v in zip(others, key)) or "capsim"
+        settled = sorted((c for c in members if c["settled"]), key=lambda c: c["swept"][x])
+        xs = np.array([float(c["swept"][x]) for c in settled])
         color = f"C{j % 10}"
-        ax_d.plot(G[order], values["D_xy"][order], "o-", color=color, label=label or "capsim")
-        ax_t.plot(G[order], values["theta"][order] / math.pi, "o-", color=color, label=label or "capsim")
-        if rheology:
-            ax_f.plot(G[order], values["ttf_ratio"][order], "o-", color=color, label=label or "capsim")
-            ax_s.plot(G[order], values["Sxy_star"][order], "o-", color=color,
-                      label=r"$S^*_{xy}$" if j == 0 else None)
-            ax_s.plot(G[order], values["N1_star"][order], "s--", color=color,
-                      label=r"$N_1^*$" if j == 0 else None)
-            ax_s.plot(G[order], values["N2_star"][order], "^:", color=color,
-                      label=r"$N_2^*$" if j == 0 else None)
-    G_all = np.asarray(ds["shear_rate_G"].values, dtype=np.float64).ravel()
+        for ax, name, scale, style, series in panels:
+            y = np.array([c["values"][name] for c in settled], dtype=np.float64) / scale
+            err = np.array([c["std"].get(name, np.nan) for c in settled], dtype=np.float64) / scale
+            first_series = ax is not ax_s if rheology else True
+            ax.plot(xs, y, style, color=color, ms=4,
+                    label=(label if first_series else (series if j == 0 else None)))
+            if np.isfinite(err).any():
+                ax.errorbar(xs, y, yerr=np.where(np.isfinite(err), err, 0.0), fmt="none", ecolor=color,
+                            elinewidth=0.8, capsize=2)
+    if unsettled:
+        ux = np.array([float(c["swept"][x]) for c in unsettled])
+        for ax, name, scale, _, _ in panels[:2]:
+            uy = np.array([c["values"][name] for c in unsettled], dtype=np.float64) / scale
+            ax.plot(ux, uy, "x", color="0.55", ms=5, label="not settled: not a steady value")
+    x_all = np.array([float(c["swept"][x]) for c in cells])
     context = _summary_context(ds)
-    if theory and G_all.size and context.get("shape", "sphere") == "sphere":
-        g = np.linspace(0.0, float(np.nanmax(G_all)), 50)
+    if theory and x == "shear_rate_G" and x_all.size and context.get("shape", "sphere") == "sphere":
+        g = np.linspace(0.0, float(np.nanmax(x_all)), 50)
         small = g[g <= 0.12]  # first order: D_xy ≪ 1; further out it only squashes the data
         ax_d.plot(small, 25.0 / 4.0 * small, "k--", lw=1, label=r"first order, $25G/4$")
         ax_t.plot(small, np.full_like(small, 0.25), "k--", lw=1, label=r"first order, $\pi/4$")
@@ -709,21 +742,79 @@ def steady_figure(source, theory: bool = True):
             ax_s.plot(small, 19.0 * small, "k:", lw=1, label=r"$N_1^* \approx 19G$")
     ax_d.set_ylabel(r"$D_{xy}$")
     ax_t.set_ylabel(r"$\theta/\pi$")
-    ax_t.set_xlabel(r"$G = \mu k a / E_s$")
+    ax_t.set_xlabel(SWEPT_LABELS.get(x, x))
     _legend(ax_d)
     if rheology:
         ax_f.set_ylabel(r"TTF $/ f_s$")
         ax_s.set_ylabel(r"$S^*_{xy}$, $N_1^*$, $N_2^*$")
-        ax_s.set_xlabel(r"$G = \mu k a / E_s$")
+        ax_s.set_xlabel(SWEPT_LABELS.get(x, x))
         _legend(ax_f)
         _legend(ax_s)
     else:
         _legend(ax_t)
     title = str(ds.attrs.get("title", ""))
     parts = [context[k] for k in ("shape", "law", "lam", "mesh") if context.get(k)]
-    if parts or title:
-        fig.supxlabel((f"{title}: " if title else "") + ", ".join(parts), fontsize="small", color="0.25")
+    text = (f"{title}: " if title else "") + ", ".join(parts)
+    note = _left_out_note(cells, unsettled)
+    fig.supxlabel("\n".join(t for t in (text, note) if t), fontsize="small", color="0.25")
+    fig.steady_note = note  # what the figure says it left out, for callers and tests
     return fig
+
+
+def _left_out_note(cells: list[dict], unsettled: list[dict]) -> str:
+    """Error bars: window std; and which runs are no steady values, and why."""
+    text = "points: settled runs (window mean; error bars: its standard deviation)"
+    if not unsettled:
+        return text
+    why: dict[str, int] = {}
+    for c in unsettled:
+        why[c["why"]] = why.get(c["why"], 0) + 1
+    reasons = ", ".join(f"{n} {w}" for w, n in why.items())
+    return f"{text}; × : {len(unsettled)} of {len(cells)} runs not settled ({reasons}), no line drawn through them"
+
+
+def _swept_fields(ds) -> list[str]:
+    """The swept fields of a summary: its dimensions with coordinates (a grid) or the
+    coordinates along its run dimension (a zip campaign)."""
+    dims = ds["D_xy"].dims
+    out = [d for d in dims if d in ds.coords and d not in _NOT_SWEPT]
+    out += [n for n, c in ds.coords.items() if n not in dims and n not in _NOT_SWEPT and c.dims
+            and set(c.dims) <= set(dims) and n not in out]
+    return out
+
+
+def _summary_cells(ds, names: tuple[str, ...], swept: list[str]) -> list[dict]:
+    """One record per run of a summary: its swept values, values, window stds and whether
+    it is a steady value (``steady_average`` = 1; a summary without that variable: status
+    completed, or every run when it has no status either)."""
+    dims = ds["D_xy"].dims
+
+    def at(name: str, index: dict):
+        var = ds[name]
+        value = var.isel({d: index[d] for d in var.dims if d in index}).values
+        return value.item() if np.ndim(value) == 0 else value
+
+    cells = []
+    for idx in np.ndindex(*(ds.sizes[d] for d in dims)):
+        index = dict(zip(dims, idx))
+        status = str(at("status", index)) if "status" in ds.variables else "completed"
+        if "steady_average" in ds.variables:
+            settled = bool(int(at("steady_average", index)))
+        else:
+            settled = status == "completed"
+        motion = str(at("motion", index)) if "motion" in ds.variables else ""
+        why = "" if settled else (status if status != "completed" else (motion or "transient") + " motion")
+        cells.append({
+            "swept": {f: at(f, index) for f in swept},
+            "values": {n: float(at(n, index)) for n in names},
+            "std": {n: float(at(f"{n}_std", index)) for n in names if f"{n}_std" in ds.variables},
+            "settled": settled, "why": why,
+        })
+    return cells
+
+
+def _shown(v) -> str:
+    return f"{v:g}" if isinstance(v, (float, np.floating, int, np.integer)) else str(v)
 
 
 def _summary_context(ds) -> dict[str, str]:
@@ -754,41 +845,8 @@ def _summary_context(ds) -> dict[str, str]:
     return out
 
 
-def _steady_groups(ds, names: tuple[str, ...] = ("D_xy", "theta")) -> list[tuple[str, np.ndarray, dict]]:
-    """One (label, G, {name: values}) series per combination of the other swept values."""
-    first = ds[names[0]]
-    if "shear_rate_G" in first.dims:
-        others = [d for d in first.dims if d != "shear_rate_G"]
-        arrays = {n: ds[n].transpose(*others, "shear_rate_G") for n in names}
-        G = np.asarray(ds["shear_rate_G"].values, dtype=np.float64)
-        out = []
-        for index in np.ndindex(*(ds.sizes[d] for d in others)):
-            sel = dict(zip(others, index))
-            label = ", ".join(f"{_short(d)} = {_value(ds, d, i)}" for d, i in sel.items())
-            out.append((label, G, {n: np.asarray(a.isel(sel).values, float) for n, a in arrays.items()}))
-        return out
-    # 'run' dimension: group by the other coordinates on it.
-    dim = first.dims[0]
-    G = np.asarray(ds["shear_rate_G"].values, dtype=np.float64)
-    others = [name for name, c in ds.coords.items() if c.dims == (dim,) and name not in (dim, "shear_rate_G", "run_id")]
-    keys = [tuple(np.asarray(ds[name].values)[i] for name in others) for i in range(ds.sizes[dim])]
-    out = []
-    for key in dict.fromkeys(keys):
-        mask = np.array([k == key for k in keys])
-        label = ", ".join(f"{_short(n)} = {v}" for n, v in zip(others, key))
-        out.append((label, G[mask], {n: np.asarray(ds[n].values, float)[mask] for n in names}))
-    return out
-
-
 def _short(name: str) -> str:
     return {"viscosity_ratio": "λ", "shear_rate_G": "G", "initial_tilt_deg": "tilt"}.get(name, name)
-
-
-def _value(ds, dim: str, i: int) -> str:
-    if dim in ds.coords:
-        v = np.asarray(ds[dim].values)[i]
-        return f"{v:g}" if isinstance(v, (float, np.floating)) else str(v)
-    return str(i)
 
 
 def orbit_figure(source):
@@ -917,7 +975,7 @@ class FigureError(ValueError):
 
 def write_figure(paths: Sequence[str | os.PathLike], kind: str, output: str | os.PathLike | None = None, *,
                  overwrite: bool = False, dpi: float | None = None, theory: bool = True, unwrap: bool = False,
-                 times: Sequence[float] | None = None, node: int | None = None) -> Path:
+                 times: Sequence[float] | None = None, node: int | None = None, x: str | None = None) -> Path:
     """`capsim plot`: draw `kind` of one run (several overlaid for :data:`OVERLAY_KINDS`, a
     summary for 'steady') into `output` (default :func:`default_output`), through the output
     guards and a temporary file renamed into place. Raises FigureError, or
@@ -958,6 +1016,10 @@ def write_figure(paths: Sequence[str | os.PathLike], kind: str, output: str | os
         options["t"] = times[-1]
     if kind == "trajectory" and node is not None:
         options["node"] = node
+    if x is not None:
+        if kind != "steady":
+            raise FigureError(f"--x {x!r}: only for --kind steady (the swept field on its axis)")
+        options["x"] = x
     source: Any = [str(p) for p in paths] if len(paths) > 1 else path
 
     def draw(tmp: Path) -> None:

@@ -248,9 +248,9 @@ def test_steady_groups_runs_of_a_non_grid_summary():
     )
     fig = plot(ds, "steady")
     lines = {line.get_label(): line for line in fig.axes[0].get_lines()}
-    assert list(lines) == ["λ = 1.0", "λ = 5.0", "first order, $25G/4$"]
-    assert list(lines["λ = 1.0"].get_xdata()) == [0.05, 0.1]
-    assert list(lines["λ = 1.0"].get_ydata()) == [0.1, 0.2]
+    assert list(lines) == ["λ = 1", "λ = 5", "first order, $25G/4$"]  # as a grid labels them
+    assert list(lines["λ = 1"].get_xdata()) == [0.05, 0.1]
+    assert list(lines["λ = 1"].get_ydata()) == [0.1, 0.2]
 
 
 def test_steady_adds_tank_treading_and_stresslet_panels_when_summarised(summary_nc, tmp_path):
