@@ -122,20 +122,86 @@ def _caption(fig, infos: Sequence[dict[str, Any]], extra: str = "") -> str:
     else:
         per_run = [dict(_caption_parts(i)) for i in infos]
         parts = [v for k, v in per_run[0].items() if all(p[k] == v for p in per_run)]
-        if len(infos) == 1 and infos[0].get("name"):
-            parts.insert(0, infos[0]["name"] + ":")
-        text = ", ".join(parts).replace(":,", ":") + (f"; {extra}" if extra and parts else extra)
+        # not the case's name: a name such as 'sphere-G0.1' says nothing true after --set G=0.05;
+        # the caption is the resolved case's values
+        text = ", ".join(parts) + (f"; {extra}" if extra and parts else extra)
     if text:
-        fig.supxlabel(text, fontsize="small", color="0.25")
+        _supxlabel(fig, text)
     return text
 
 
+def _supxlabel(fig, text: str) -> None:
+    """The caption under the axes, wrapped to the figure's width (its lines kept)."""
+    import textwrap
+
+    fig.caption = text  # unwrapped, for a change of size
+    width = max(40, int(fig.get_figwidth() * 15))  # characters of 'small' text per line
+    fig.supxlabel("\n".join(textwrap.fill(line, width) for line in text.split("\n")), fontsize="small", color="0.25")
+
+
 def _legend(ax, **kwargs):
-    """The legend outside the axes, on the right, where it hides no data."""
+    """A legend for `ax`; :func:`place_legends` puts it where it covers no data."""
     handles, _ = ax.get_legend_handles_labels()
     if not handles:
         return None
-    return ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, fontsize="small", **kwargs)
+    return ax.legend(loc=_INSIDE[0], fontsize="small", **kwargs)
+
+
+#: where a legend may sit inside its axes, tried in this order
+_INSIDE = ("upper right", "upper left", "lower right", "lower left", "upper center", "lower center",
+           "center right", "center left")
+#: a legend keeps this many pixels (at the figure's dpi) from any drawn data
+_LEGEND_CLEARANCE_PX = 3.0
+
+
+def place_legends(fig) -> None:
+    """Put each legend inside its axes at the first spot where it covers no drawn data
+    (no line vertex, no point between vertices, no marker, no error bar); only where no
+    spot is free, outside on the right, which narrows the axes by the legend's width and
+    no more. Done at the figure's final size (after ``--size``)."""
+    for ax in fig.axes:
+        legend = ax.get_legend()
+        if legend is None:
+            continue
+        kwargs = {"fontsize": "small"}
+        for loc in _INSIDE:
+            legend.remove()
+            legend = ax.legend(loc=loc, **kwargs)
+            fig.draw_without_rendering()
+            if not legend_covers_data(ax, legend):
+                break
+        else:
+            legend.remove()
+            ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, **kwargs)
+    fig.draw_without_rendering()
+
+
+def legend_covers_data(ax, legend) -> bool:
+    """Whether the legend's box (grown by :data:`_LEGEND_CLEARANCE_PX`) holds any point of
+    the drawn data of `ax`, its lines sampled between vertices as well."""
+    box = legend.get_window_extent().padded(_LEGEND_CLEARANCE_PX)
+    for xy in _drawn_paths(ax):
+        if len(xy) and np.any((xy[:, 0] >= box.x0) & (xy[:, 0] <= box.x1) & (xy[:, 1] >= box.y0) & (xy[:, 1] <= box.y1)):
+            return True
+    return False
+
+
+def _drawn_paths(ax):
+    """Display coordinates of every line of `ax` (densely sampled) and of its collections."""
+    for line in ax.get_lines():
+        xy = line.get_transform().transform(np.column_stack([line.get_xdata(), line.get_ydata()]).astype(float))
+        xy = xy[np.all(np.isfinite(xy), axis=1)]
+        if line.get_linestyle() not in ("None", "", " ") and len(xy) > 1:
+            s = np.linspace(0.0, 1.0, 25)[:, None, None]
+            xy = (xy[:-1][None] * (1 - s) + xy[1:][None] * s).reshape(-1, 2)
+        yield xy
+    for collection in ax.collections:
+        for path in collection.get_paths():
+            v = collection.get_transform().transform(path.vertices)
+            if len(v) > 1:
+                s = np.linspace(0.0, 1.0, 25)[:, None, None]
+                v = (v[:-1][None] * (1 - s) + v[1:][None] * s).reshape(-1, 2)
+            yield v[np.all(np.isfinite(v), axis=1)]
 
 
 def _theory_applies(info: dict[str, Any]) -> bool:
@@ -756,21 +822,21 @@ def steady_figure(source, theory: bool = True, x: str | None = None):
     parts = [context[k] for k in ("shape", "law", "lam", "mesh") if context.get(k)]
     text = (f"{title}: " if title else "") + ", ".join(parts)
     note = _left_out_note(cells, unsettled)
-    fig.supxlabel("\n".join(t for t in (text, note) if t), fontsize="small", color="0.25")
+    _supxlabel(fig, "\n".join(t for t in (text, note) if t))
     fig.steady_note = note  # what the figure says it left out, for callers and tests
     return fig
 
 
 def _left_out_note(cells: list[dict], unsettled: list[dict]) -> str:
     """Error bars: window std; and which runs are no steady values, and why."""
-    text = "points: settled runs (window mean; error bars: its standard deviation)"
+    text = "points: settled runs, window mean ± its standard deviation"
     if not unsettled:
         return text
     why: dict[str, int] = {}
     for c in unsettled:
         why[c["why"]] = why.get(c["why"], 0) + 1
     reasons = ", ".join(f"{n} {w}" for w, n in why.items())
-    return f"{text}; × : {len(unsettled)} of {len(cells)} runs not settled ({reasons}), no line drawn through them"
+    return f"{text}; ×: {len(unsettled)} of {len(cells)} runs not settled ({reasons}), no line through them"
 
 
 def _swept_fields(ds) -> list[str]:
@@ -923,10 +989,12 @@ def figure_format(output: str | os.PathLike) -> str:
 
 
 def plot(source, kind: str, output: str | os.PathLike | None = None, *, dpi: float | None = None,
-         fmt: str | None = None, **options: Any):
-    """Draw figure `kind` of a run (or, for 'steady', a campaign summary); save it
+         fmt: str | None = None, size: tuple[float, float] | None = None, **options: Any):
+    """Draw figure `kind` of a run (or, for 'steady', a campaign summary) at ``size``
+    (W, H inches; default the kind's), legends placed by :func:`place_legends`; save it
     when `output` is given, as the format its suffix names (or ``fmt``) at ``dpi``
-    (default :data:`DPI`). Returns the Figure."""
+    (default :data:`DPI`), fonts embedded as TrueType (Type 42) in a PDF and text kept as
+    text in an SVG (:data:`JOURNAL_RC`). Returns the Figure."""
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {', '.join(KINDS)}, got {kind!r}")
     if fmt is None and output is not None:
@@ -935,14 +1003,44 @@ def plot(source, kind: str, output: str | os.PathLike | None = None, *, dpi: flo
         raise ValueError(f"format must be one of {', '.join(FIGURE_FORMATS)}, got {fmt!r}")
     if dpi is not None and not (math.isfinite(dpi) and 10 <= dpi <= 2400):
         raise ValueError(f"--dpi {dpi:g}: must be in [10, 2400]")
+    if size is not None:
+        size = parse_size(size)
     if kind == "steady":
         _refuse_run_file(source)
     fig = KINDS[kind](source, **options)
+    if size is not None:
+        fig.set_size_inches(size)
+        if getattr(fig, "caption", ""):
+            _supxlabel(fig, fig.caption)  # wrapped anew to the new width
+    place_legends(fig)
     if output is not None:
+        import matplotlib
+
         output = Path(output)
         output.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(output, format=fmt, dpi=dpi or DPI, metadata=_metadata(fmt))
+        with matplotlib.rc_context(JOURNAL_RC):
+            fig.savefig(output, format=fmt, dpi=dpi or DPI, metadata=_metadata(fmt))
     return fig
+
+
+#: what journals ask of vector figures: TrueType (Type 42) fonts embedded in PDF and
+#: PostScript (many refuse Type 3), and SVG text as <text> elements, not paths
+JOURNAL_RC = {"pdf.fonttype": 42, "ps.fonttype": 42, "svg.fonttype": "none"}
+#: the range ``--size`` accepts, in inches (a column is about 3.3 in, a page 7 in)
+SIZE_RANGE = (1.0, 30.0)
+
+
+def parse_size(size) -> tuple[float, float]:
+    """(W, H) in inches from 'W,H' or a pair; ValueError (one line) for anything else."""
+    text = size if isinstance(size, str) else ",".join(str(v) for v in size)
+    try:
+        w, h = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"--size {text!r}: must be W,H in inches, e.g. 3.3,2.5") from None
+    lo, hi = SIZE_RANGE
+    if not (lo <= w <= hi and lo <= h <= hi):
+        raise ValueError(f"--size {text!r}: W and H must be in [{lo:g}, {hi:g}] inches")
+    return w, h
 
 
 def _metadata(fmt: str) -> dict[str, Any]:

@@ -34,7 +34,7 @@ def test_transient_runs_are_no_curve_and_the_figure_says_so():
     crosses = [line for line in fig.axes[0].get_lines() if line.get_label().startswith("not settled")]
     assert len(crosses) == 1 and len(crosses[0].get_xdata()) == 4
     assert "4 of 4 runs not settled (4 transient motion)" in fig.steady_note
-    assert fig.steady_note in fig._supxlabel.get_text()
+    assert fig.steady_note in fig.caption and fig._supxlabel.get_text().replace("\n", " ").endswith(fig.steady_note)
 
 
 def test_settled_runs_carry_the_window_spread_as_error_bars():
