@@ -458,6 +458,8 @@ def plot(
     unwrap: bool = typer.Option(False, "--unwrap", help="inclination: continue θ through ±π/2 (default: break the line there)"),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing file that is not a figure of this format"),
     x: Optional[str] = typer.Option(None, "--x", help="steady: the swept field on the axis (default shear_rate_G, else the first numeric one)"),
+    size: Optional[str] = typer.Option(None, "--size", metavar="W,H", help="figure size in inches, e.g. 3.3,2.5 (default 6.4,4.8)"),
+    labels: Optional[list[str]] = typer.Option(None, "--label", help="legend label of each overlaid run, once per PATH in order"),
 ) -> None:
     """Write a figure (PNG, PDF or SVG) of a run, or of a campaign summary for --kind steady.
 
@@ -475,7 +477,7 @@ def plot(
 
     try:
         out = _files_call(write_figure, paths, kind.value, output, overwrite=overwrite, dpi=dpi,
-                          theory=not no_theory, unwrap=unwrap, times=times, node=node, x=x)
+                          theory=not no_theory, unwrap=unwrap, times=times, node=node, x=x, size=size, labels=labels)
     except FigureError as exc:
         raise _user_error(str(exc)) from None
     typer.echo(str(out))

@@ -159,9 +159,14 @@ def place_legends(fig) -> None:
     (no line vertex, no point between vertices, no marker, no error bar); only where no
     spot is free, outside on the right, which narrows the axes by the legend's width and
     no more. Done at the figure's final size (after ``--size``)."""
+    fig.draw_without_rendering()  # the final limits
     for ax in fig.axes:
         legend = ax.get_legend()
         if legend is None:
+            continue
+        _unlabel_out_of_view(ax)
+        if not ax.get_legend_handles_labels()[0]:
+            legend.remove()
             continue
         kwargs = {"fontsize": "small"}
         for loc in _INSIDE:
@@ -174,6 +179,21 @@ def place_legends(fig) -> None:
             legend.remove()
             ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, **kwargs)
     fig.draw_without_rendering()
+
+
+def _unlabel_out_of_view(ax) -> None:
+    """A line with no point inside the axes' view (a theory curve above the data's range)
+    leaves the legend: an entry for what the reader cannot see misleads."""
+    (x0, x1), (y0, y1) = sorted(ax.get_xlim()), sorted(ax.get_ylim())
+    for line in ax.get_lines():
+        label = line.get_label()
+        if label.startswith("_"):
+            continue
+        x, y = np.asarray(line.get_xdata(), float), np.asarray(line.get_ydata(), float)
+        if line.get_transform() != ax.transData:  # axhline: x in axes units
+            x = np.full_like(y, x0)
+        if x.size and not np.any((x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)):
+            line.set_label("_" + label)
 
 
 def legend_covers_data(ax, legend) -> bool:
@@ -256,6 +276,19 @@ def _run_label(info: dict[str, Any], shape_in_caption: bool = False) -> str:
     return f"{shape}G = {info['G']:g}, λ = {info['lam']:g}{bending}"
 
 
+def _distinct(labels: list[str], infos: list[dict], runs: list) -> list[str]:
+    """Labels that tell overlaid runs apart: where two are equal, what else differs between
+    the runs (law, mesh, from the caption's parts), else the file's name."""
+    if len(set(labels)) == len(labels):
+        return labels
+    parts = [dict(_caption_parts(i)) if i else {} for i in infos]
+    keys = [k for k in ("law", "mesh", "shape") if len({p.get(k) for p in parts}) > 1]
+    out = [", ".join([label] + [p[k] for k in keys if k in p]) for label, p in zip(labels, parts)]
+    if len(set(out)) < len(out):
+        out = [f"{label} ({Path(str(run)).stem})" if not isinstance(run, dict) else label for label, run in zip(out, runs)]
+    return out
+
+
 def theta_for_plot(t: np.ndarray, theta: np.ndarray, D: np.ndarray, unwrap: bool = False) -> np.ndarray:
     """θ with NaN where it is not defined (D_xy below THETA_MIN_D of the run's largest,
     e.g. a sphere at kt = 0) and, unless ``unwrap``, NaN inserted where θ wraps
@@ -281,8 +314,8 @@ def theta_for_plot(t: np.ndarray, theta: np.ndarray, D: np.ndarray, unwrap: bool
     return t, theta
 
 
-def _plot_runs(ax, source, name: str, scale: float = 1.0,
-               unwrap: bool = False) -> list[tuple[dict, np.ndarray, np.ndarray, str]]:
+def _plot_runs(ax, source, name: str, scale: float = 1.0, unwrap: bool = False,
+               labels: Sequence[str] | None = None) -> list[tuple[dict, np.ndarray, np.ndarray, str]]:
     """Series ``name`` (divided by ``scale``) against kt: one run in black, several
     in colours labelled by what differs between them. θ is drawn only where
     defined and broken (or unwrapped) at ±π/2. Returns (case info, t, values,
@@ -296,6 +329,10 @@ def _plot_runs(ax, source, name: str, scale: float = 1.0,
     only_shape = not same_shape and all(i for i in infos) and all(
         (i["G"], i["lam"], i.get("bending")) == (infos[0]["G"], infos[0]["lam"], infos[0].get("bending"))
         for i in infos)
+    if labels is not None and len(labels) != len(runs):
+        raise ValueError(f"--label given {len(labels)} times for {len(runs)} runs: give one per PATH, in order")
+    auto = ["capsim"] if single else [_shape_text(i) if only_shape else _run_label(i, same_shape) for i in infos]
+    labels = list(labels) if labels is not None else _distinct(auto, infos, runs)
     drawn = []
     for i, (data, info) in enumerate(zip(loaded, infos)):
         t, values = _series(data, "t"), _series(data, name)
@@ -303,14 +340,13 @@ def _plot_runs(ax, source, name: str, scale: float = 1.0,
             t, values = theta_for_plot(t, values, _series(data, "D_xy"), unwrap=unwrap)
         values = values / scale
         color = "k" if single else f"C{i % 10}"
-        label = "capsim" if single else (_shape_text(info) if only_shape else _run_label(info, same_shape))
-        ax.plot(t, values, "-", color=color, label=label)
+        ax.plot(t, values, "-", color=color, label=labels[i])
         drawn.append((info, t, values, "C0" if single else color))
     _caption(ax.figure, [info for info, *_ in drawn])
     return drawn
 
 
-def deformation_figure(source, theory: bool = True):
+def deformation_figure(source, theory: bool = True, labels: Sequence[str] | None = None):
     """D_xy(t) with the first-order transient D∞(1 − e^{−t/τ}) and D∞.
 
     Several runs (a list) are overlaid in colours, each with its own theory curve
@@ -318,7 +354,7 @@ def deformation_figure(source, theory: bool = True):
     """
     fig = _figure()
     ax = fig.add_subplot()
-    drawn = _plot_runs(ax, source, "D_xy")
+    drawn = _plot_runs(ax, source, "D_xy", labels=labels)
     single = len(drawn) == 1
     for i, (info, t, D, color) in enumerate(drawn):
         if not (theory and _theory_applies(info)):
@@ -339,13 +375,13 @@ def deformation_figure(source, theory: bool = True):
     return fig
 
 
-def inclination_figure(source, theory: bool = True, unwrap: bool = False):
+def inclination_figure(source, theory: bool = True, unwrap: bool = False, labels: Sequence[str] | None = None):
     """θ/π against kt (several runs overlaid when given a list), with the first-order
     π/4 when one of the runs is a small-deformation sphere. θ is left out where it
     is undefined and broken where it wraps at ±π/2 (``unwrap``: continued instead)."""
     fig = _figure()
     ax = fig.add_subplot()
-    drawn = _plot_runs(ax, source, "theta", math.pi, unwrap=unwrap)
+    drawn = _plot_runs(ax, source, "theta", math.pi, unwrap=unwrap, labels=labels)
     if theory and any(_theory_applies(info) for info, *_ in drawn):
         ax.axhline(0.25, color="C0" if len(drawn) == 1 else "k", ls="--", lw=1,
                    label=r"first order, $\theta = \pi/4$")
@@ -1073,7 +1109,8 @@ class FigureError(ValueError):
 
 def write_figure(paths: Sequence[str | os.PathLike], kind: str, output: str | os.PathLike | None = None, *,
                  overwrite: bool = False, dpi: float | None = None, theory: bool = True, unwrap: bool = False,
-                 times: Sequence[float] | None = None, node: int | None = None, x: str | None = None) -> Path:
+                 times: Sequence[float] | None = None, node: int | None = None, x: str | None = None,
+                 size: str | None = None, labels: Sequence[str] | None = None) -> Path:
     """`capsim plot`: draw `kind` of one run (several overlaid for :data:`OVERLAY_KINDS`, a
     summary for 'steady') into `output` (default :func:`default_output`), through the output
     guards and a temporary file renamed into place. Raises FigureError, or
@@ -1114,6 +1151,18 @@ def write_figure(paths: Sequence[str | os.PathLike], kind: str, output: str | os
         options["t"] = times[-1]
     if kind == "trajectory" and node is not None:
         options["node"] = node
+    if labels:
+        if kind not in OVERLAY_KINDS:
+            raise FigureError(f"--label: only for runs overlaid by --kind {' or '.join(OVERLAY_KINDS)}, not {kind}")
+        if len(labels) != len(paths):
+            raise FigureError(f"--label given {len(labels)} times for {len(paths)} runs: give one per PATH, in order")
+        options["labels"] = list(labels)
+    figure_size = None
+    if size is not None:
+        try:
+            figure_size = parse_size(size)
+        except ValueError as exc:
+            raise FigureError(str(exc)) from None
     if x is not None:
         if kind != "steady":
             raise FigureError(f"--x {x!r}: only for --kind steady (the swept field on its axis)")
@@ -1127,7 +1176,7 @@ def write_figure(paths: Sequence[str | os.PathLike], kind: str, output: str | os
         from capsim.store import TrajectoryError
 
         try:
-            plt.close(plot(source, kind, tmp, dpi=dpi, fmt=fmt, **options))
+            plt.close(plot(source, kind, tmp, dpi=dpi, fmt=fmt, size=figure_size, **options))
         except (TrajectoryError, ConfigError, ValueError, KeyError) as exc:
             raise FigureError(first_line(exc)) from None
         except OSError:
