@@ -252,6 +252,16 @@ def _format_error(exc: ValidationError, source: str) -> str:
     return " ".join(f"{source}: {'; '.join(parts)}".split())
 
 
+def _section_model(annotation: Any) -> type[BaseModel] | None:
+    """The model of a section field, an optional one (``physical``) included; None for a leaf."""
+    import typing
+
+    for candidate in (annotation, *typing.get_args(annotation)):
+        if isinstance(candidate, type) and issubclass(candidate, BaseModel):
+            return candidate
+    return None
+
+
 def _check_dotted(key: str, where: str) -> None:
     """Refuse a dotted path that is not a leaf field of a Case."""
     model: type[BaseModel] = Case
@@ -264,8 +274,8 @@ def _check_dotted(key: str, where: str) -> None:
                 f"{where}: {bounded_repr(key)} is not a case field ({bounded_repr(owner)[1:-1]} has: "
                 f"{', '.join(model.model_fields)})"
             )
-        ann = field.annotation
-        is_section = isinstance(ann, type) and issubclass(ann, BaseModel)
+        ann = _section_model(field.annotation)
+        is_section = ann is not None
         last = i == len(parts) - 1
         if is_section and last:
             raise ConfigError(f"{where}: {key!r} is a section; sweep one of its fields ({', '.join(ann.model_fields)})")

@@ -953,6 +953,11 @@ def apply_overrides(case: Case, **dotted: Any) -> Case:
         case.output.path == Output().path.replace("{name}", case.name)
     ):
         data["output"]["path"] = Output().path
+    if any(key.startswith("physical.") for key in dotted) and "flow.shear_rate_G" not in dotted:
+        # G is what the physical values give: computed anew from them, not the old value kept
+        data["flow"].pop("shear_rate_G", None)
+        if data.get("physical") is None:
+            data["physical"] = {}  # a case without the block gets one from the --set values
     for key, value in dotted.items():
         parts = key.split(".")
         node = data

@@ -762,7 +762,9 @@ RHEOLOGY_SUMMARY = ("ttf_ratio", "Sxy_star", "N1_star", "N2_star")
 #: axis labels of swept fields (others: the field's name)
 SWEPT_LABELS = {"shear_rate_G": r"$G = \mu k a / E_s$", "viscosity_ratio": r"viscosity ratio $\lambda$",
                 "initial_tilt_deg": "initial tilt (deg)", "bending_modulus": r"bending modulus $\kappa/(E_s a^2)$",
-                "capillary_number": r"$\mathrm{Ca} = \mu k a / G_s$"}
+                "capillary_number": r"$\mathrm{Ca} = \mu k a / G_s$", "shear_rate": "shear rate $k$ (1/s)",
+                "viscosity": r"viscosity $\mu$ (Pa s)", "radius": "radius $a$ (m)",
+                "shear_modulus": "shear modulus $G_s$ (N/m)", "surface_modulus": "modulus $E_s$ (N/m)"}
 #: not swept fields, though they are coordinates of a summary
 _NOT_SWEPT = ("run", "run_id")
 
@@ -815,6 +817,8 @@ def steady_figure(source, theory: bool = True, x: str | None = None):
     for j, (key, members) in enumerate(groups.items()):
         label = ", ".join(f"{_short(f)} = {_shown(v)}" for f, v in zip(others, key)) or "capsim"
         settled = sorted((c for c in members if c["settled"]), key=lambda c: c["swept"][x])
+        if not settled:
+            continue  # nothing of this group is a result: its runs are the grey ×
         xs = np.array([float(c["swept"][x]) for c in settled])
         color = f"C{j % 10}"
         for ax, name, scale, style, series in panels:
