@@ -123,3 +123,38 @@ def test_rbc_preset_resolves_with_its_documented_G():
     assert case.flow.shear_rate_G == pytest.approx(G, rel=1e-12) == pytest.approx(0.0448, rel=1e-12)
     assert case.membrane.bending_modulus == pytest.approx(1.8e-19 / (3 * 2.5e-6 * 2.8e-6 ** 2), rel=0.01)
     assert (case.membrane.law, case.membrane.skalak_c, case.flow.viscosity_ratio) == ("skalak", 10.0, 5.0)
+
+
+# ---------------------------------------------------------------- issue 30: physical values set and swept
+
+
+def test_set_a_physical_value_on_the_red_cell_recomputes_G():
+    from capsim.config import apply_overrides
+
+    case = load_case(ROOT / "configs" / "rbc.yaml")
+    half = apply_overrides(case, **{"physical.shear_rate": "50 1/s"})
+    # G = μka/E_s = 1.2e-3 · 50 · 2.8e-6 / (3 · 2.5e-6) = 0.0224 (the preset, at 100 1/s: 0.0448)
+    assert half.flow.shear_rate_G == pytest.approx(1.2e-3 * 50 * 2.8e-6 / 7.5e-6, rel=1e-12)
+    assert case.flow.shear_rate_G == pytest.approx(2 * half.flow.shear_rate_G, rel=1e-12)
+    result = runner.invoke(app, ["validate", str(ROOT / "configs" / "sphere.yaml"), "--set", "physical.shear_rate=50 1/s"])
+    assert result.exit_code == 2 and len(result.stderr.strip().splitlines()) == 1
+    assert "physical.viscosity: required field is missing" in result.stderr
+
+
+def test_a_sweep_over_a_physical_value_has_an_SI_coordinate(tmp_path):
+    from capsim.campaign import campaign_from_dict, expand_campaign
+    from capsim.summary import _coordinate
+
+    base = {"physical": {"shear_rate": "100 1/s", "viscosity": "1.2 mPa*s", "radius": "2.8 um",
+                         "shear_modulus": "2.5 uN/m"}, "mesh": {"level": 0}}
+    campaign = campaign_from_dict({"name": "rates", "base": base, "sweep": {"physical.shear_rate": ["50 1/s", "0.1 1/ms"]},
+                                   "output": {"dir": str(tmp_path / "out")}})
+    G = [load_G(spec) for spec in expand_campaign(campaign)]
+    assert G == pytest.approx([1.2e-3 * 50 * 2.8e-6 / 7.5e-6, 1.2e-3 * 100 * 2.8e-6 / 7.5e-6], rel=1e-12)
+    name, values, attrs = _coordinate("shear_rate", "physical.shear_rate", ["50 1/s", "0.1 1/ms"])
+    assert list(values) == pytest.approx([50.0, 100.0]) and attrs["units"] == "1/s"
+    assert attrs["case_field_values"] == "50 1/s; 0.1 1/ms"
+
+
+def load_G(spec) -> float:
+    return yaml.safe_load(spec.case_yaml)["flow"]["shear_rate_G"]
