@@ -85,3 +85,71 @@ def test_tensions_run_along_the_arc_length():
     arc, v = _arc_length_from_largest_x(p, p[:, :1])
     assert arc[0] == 0.0 and arc[-1] == 1.0 and np.all(np.diff(arc) > 0)
     assert v[0, 0] == v[-1, 0] == p[:, 0].max()
+
+
+def _cut_area_from_flat_pieces(x: np.ndarray, elements: np.ndarray, n: int = 8, rows: int = 800) -> float:
+    """Area of the z = 0 cut measured without ordering anything: every curved element split
+    into n² flat triangles, each crossing triangle's straight piece of the cut collected,
+    and the area summed as chords along rows y = const (the crossings of a row sorted in x,
+    pairs inside)."""
+    from capsim.plot import _quadratic_shape
+
+    grid = [(i, j) for j in range(n + 1) for i in range(n + 1 - j)]
+    index = {ij: k for k, ij in enumerate(grid)}
+    tris = []
+    for (i, j) in grid:
+        if (i + 1, j) in index and (i, j + 1) in index:
+            tris.append((index[(i, j)], index[(i + 1, j)], index[(i, j + 1)]))
+        if (i + 1, j + 1) in index:
+            tris.append((index[(i + 1, j)], index[(i + 1, j + 1)], index[(i, j + 1)]))
+    uv = np.array(grid, float) / n
+    pts = np.einsum("pk,ekd->epd", _quadratic_shape(uv[:, 0], uv[:, 1]), x[elements]).reshape(-1, 3)
+    offset = (np.arange(len(elements)) * len(grid))[:, None, None]
+    tri = (np.array(tris)[None] + offset).reshape(-1, 3)
+    z = pts[:, 2]
+    segments = []
+    for a, b, c in tri:
+        ends = []
+        for p, q in ((a, b), (b, c), (c, a)):
+            if (z[p] >= 0) != (z[q] >= 0):
+                s = z[p] / (z[p] - z[q])
+                ends.append(pts[p, :2] + s * (pts[q, :2] - pts[p, :2]))
+        if len(ends) == 2:
+            segments.append(ends)
+    seg = np.array(segments)                                   # (S, 2, 2)
+    y0, y1 = seg[:, :, 1].min(), seg[:, :, 1].max()
+    ys = y0 + (np.arange(rows) + 0.5) * (y1 - y0) / rows
+    area = 0.0
+    for y in ys:
+        ya, yb = seg[:, 0, 1], seg[:, 1, 1]
+        hit = (ya >= y) != (yb >= y)
+        t = (y - ya[hit]) / (yb[hit] - ya[hit])
+        xs = np.sort(seg[hit, 0, 0] + t * (seg[hit, 1, 0] - seg[hit, 0, 0]))
+        area += float((xs[1::2] - xs[0::2]).sum())
+    return area * (y1 - y0) / rows
+
+
+@pytest.fixture(scope="module")
+def red_cell_at_lambda_5(tmp_path_factory):
+    """configs/rbc.yaml at level 2 (λ = 5, Skalak, bending), run to kt = 4: its cut is an S."""
+    from capsim.config import apply_overrides, load_case
+    from capsim.runner import run_case
+    from capsim.store import read_trajectory
+
+    path = tmp_path_factory.mktemp("rbc") / "rbc.h5"
+    case = apply_overrides(load_case("configs/rbc.yaml"), **{
+        "mesh.level": 2, "time.t_end": 4.0, "output.path": str(path), "output.snapshot_every": 4.0})
+    assert run_case(case)["status"] == "completed"
+    data = read_trajectory(path)
+    return np.asarray(data["positions"][-1]), np.asarray(data["elements"])
+
+
+def test_a_red_cell_deformed_at_lambda_5_is_traced_with_the_mesh_area(red_cell_at_lambda_5):
+    x, elements = red_cell_at_lambda_5
+    p, _ = xy_section(x, elements, 0.0, curved=True)
+    assert _segments_cross(p) == 0
+    assert _shoelace(p) == pytest.approx(_cut_area_from_flat_pieces(x, elements), rel=0.01)
+    # not star-shaped: the angle order about the mean would have enclosed another area
+    c = p.mean(axis=0)
+    by_angle = p[np.argsort(np.arctan2(p[:, 1] - c[1], p[:, 0] - c[0]))]
+    assert abs(_shoelace(by_angle) / _cut_area_from_flat_pieces(x, elements) - 1.0) > 0.02
