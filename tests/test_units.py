@@ -158,3 +158,22 @@ def test_a_sweep_over_a_physical_value_has_an_SI_coordinate(tmp_path):
 
 def load_G(spec) -> float:
     return yaml.safe_load(spec.case_yaml)["flow"]["shear_rate_G"]
+
+
+def test_capillary_number_and_physical_bending_give_G_and_kappa_by_hand():
+    from capsim.config import apply_overrides
+
+    sphere = case_from_dict({"name": "ca", "flow": {"capillary_number": 0.3}})
+    assert sphere.flow.shear_rate_G == pytest.approx(0.1, rel=1e-12)  # G = Ca/3 (G_s = E_s/3)
+    drop = case_from_dict({"name": "ca", "flow": {"capillary_number": 0.3}, "membrane": {"law": "surface_tension"}})
+    assert drop.flow.shear_rate_G == pytest.approx(0.3, rel=1e-12)  # a drop: Ca = μka/γ = G
+    assert apply_overrides(sphere, **{"flow.capillary_number": 0.6}).flow.shear_rate_G == pytest.approx(0.2)
+    with pytest.raises(ConfigError, match="give flow.shear_rate_G or flow.capillary_number, not both"):
+        case_from_dict({"name": "ca", "flow": {"capillary_number": 0.3, "shear_rate_G": 0.2}})
+    # κ = 1.8e-19 J, E_s = 3 × 2.5 uN/m, a = 2.8 um: κ/(E_s a²) = 1.8e-19 / (7.5e-6 × 7.84e-12) = 3.0612e-3
+    rbc = apply_overrides(load_case(ROOT / "configs" / "rbc.yaml"), **{"physical.bending_modulus": "1.8e-19 J"})
+    assert rbc.membrane.bending_modulus == pytest.approx(1.8e-19 / (7.5e-6 * 2.8e-6**2), rel=1e-12)
+    assert apply_overrides(rbc, **{"time.t_end": 1.0}).membrane.bending_modulus == rbc.membrane.bending_modulus
+    result = runner.invoke(app, ["validate", str(ROOT / "configs" / "rbc.yaml"), "--set", "physical.bending_modulus=2 m"])
+    assert result.exit_code == 2 and len(result.stderr.strip().splitlines()) == 1
+    assert "physical.bending_modulus = '2 m': '2 m' is not an energy (a bending modulus)" in result.stderr
