@@ -746,9 +746,9 @@ def tensions_figure(source, t: float | None = None, z0: float = 0.0):
     ax.plot(s, v[:, 1], "C1.-", label=r"$\tau_2$")
     ax.axhline(0.0, color="0.7", lw=0.8)
     ax.set_xlim(0.0, 1.0)
-    ax.set_xlabel(r"arc length along the $xy$-section from its largest $x$, $s/L$ (counter-clockwise)")
+    ax.set_xlabel(r"arc length along the section, $s/L$")  # from its largest x, counter-clockwise (caption)
     ax.set_ylabel(r"principal tension $/E_s$")
-    _caption(fig, [info], extra=f"kt = {data['snapshot_t'][k]:.3g}")
+    _caption(fig, [info], extra=f"kt = {data['snapshot_t'][k]:.3g}; s from the section's largest x, counter-clockwise")
     _legend(ax)
     return fig
 

@@ -63,7 +63,7 @@ EXPECTED_LABELS = {
     "inclination": [("$kt$", r"$\theta/\pi$")],
     "contour": [("$x/a$", "$y/a$")],
     "trajectory": [("$x/a$", "$y/a$")],
-    "tensions": [(r"arc length along the $xy$-section from its largest $x$, $s/L$ (counter-clockwise)", "principal tension $/E_s$")],
+    "tensions": [(r"arc length along the section, $s/L$", "principal tension $/E_s$")],
     "rheology": [("$kt$", r"$S^*_{xy}$, $N_1^*$, $N_2^*$")],
     "steady": [("", "$D_{xy}$"), ("$G = \\mu k a / E_s$", r"$\theta/\pi$")],
     "orbit": [("$kt$", r"angle / $\pi$"), ("director $x$", "director $y$"), ("director $y$", "director $z$")],
