@@ -58,7 +58,7 @@ import sys
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, get_args
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -252,16 +252,6 @@ def _format_error(exc: ValidationError, source: str) -> str:
     return " ".join(f"{source}: {'; '.join(parts)}".split())
 
 
-def _section_model(annotation: Any) -> type[BaseModel] | None:
-    """The model of a section field, an optional one (``physical``) included; None for a leaf."""
-    import typing
-
-    for candidate in (annotation, *typing.get_args(annotation)):
-        if isinstance(candidate, type) and issubclass(candidate, BaseModel):
-            return candidate
-    return None
-
-
 def _check_dotted(key: str, where: str) -> None:
     """Refuse a dotted path that is not a leaf field of a Case."""
     model: type[BaseModel] = Case
@@ -274,8 +264,10 @@ def _check_dotted(key: str, where: str) -> None:
                 f"{where}: {bounded_repr(key)} is not a case field ({bounded_repr(owner)[1:-1]} has: "
                 f"{', '.join(model.model_fields)})"
             )
-        ann = _section_model(field.annotation)
-        is_section = ann is not None
+        ann = field.annotation
+        # an optional section (membrane.viscosity, flow.history): the model inside
+        ann = next((a for a in get_args(ann) if isinstance(a, type) and issubclass(a, BaseModel)), ann)
+        is_section = isinstance(ann, type) and issubclass(ann, BaseModel)
         last = i == len(parts) - 1
         if is_section and last:
             raise ConfigError(f"{where}: {key!r} is a section; sweep one of its fields ({', '.join(ann.model_fields)})")

@@ -302,6 +302,8 @@ def units(
         None, "--surface-modulus", help="membrane elastic modulus E_s (a drop: surface tension), e.g. '18 uN/m'"),
     shear_modulus: Optional[str] = typer.Option(
         None, "--shear-modulus", help="surface shear modulus G_s = E_s/3 instead of E_s, e.g. '6 uN/m'"),
+    membrane_viscosity: Optional[str] = typer.Option(
+        None, "--membrane-viscosity", help="membrane surface shear viscosity μ_s, e.g. '2.5e-7 N*s/m' (gives Bq)"),
     as_json: bool = typer.Option(False, "--json", help="print a JSON object (G, Ca, time_unit_s, ...)"),
 ) -> None:
     """Physical values to capsim's numbers: G = μka/E_s, Ca = μka/G_s = 3G and the time unit 1/k.
@@ -313,7 +315,8 @@ def units(
     from capsim.units import UnitsError, conversion, describe_conversion, parse
 
     given = {"shear_rate": shear_rate, "viscosity": viscosity, "radius": radius,
-             "surface_modulus": surface_modulus, "shear_modulus": shear_modulus}
+             "surface_modulus": surface_modulus, "shear_modulus": shear_modulus,
+             "membrane_viscosity": membrane_viscosity}
     missing = [_option(k) for k in ("shear_rate", "viscosity", "radius") if given[k] is None]
     if (surface_modulus is None) == (shear_modulus is None):
         missing.append("--surface-modulus or --shear-modulus (one of the two)" if surface_modulus is None
@@ -326,7 +329,7 @@ def units(
                 parse(value, kind)
             except UnitsError as exc:
                 raise _user_error(f"units: {_option(kind)}: {exc}") from None
-    out = conversion(shear_rate, viscosity, radius, surface_modulus, shear_modulus)
+    out = conversion(shear_rate, viscosity, radius, surface_modulus, shear_modulus, membrane_viscosity)
     typer.echo(json.dumps(out) if as_json else describe_conversion(out))
 
 

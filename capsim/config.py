@@ -22,19 +22,25 @@ from pydantic import (
     Field,
     ValidationError,
     ValidationInfo,
+    create_model,
     field_validator,
     model_validator,
 )
 
 from capsim.errors import bounded_repr, first_line
+from capsim.timestepping import DEFAULT_SCHEME, DENSE_MAX_NODES, SCHEMES  # noqa: F401 - DENSE_MAX_NODES re-exported
+from capsim.viscosity import VISCOSITY_MODELS
+from capsim.viscosity import is_active as is_viscous
 
 __all__ = [
     "load_case_with", "parse_sets",    "case_digest", "step_defining",
     "Case",
     "ConfigError",
     "Flow",
+    "FlowHistory",
     "Guards",
     "Membrane",
+    "MembraneViscosity",
     "Mesh",
     "Output",
     "Physical",
@@ -193,6 +199,40 @@ class Shape(_Model):
         return self
 
 
+class MembraneViscosity(_Model):
+    """Surface viscosity of the membrane as Boussinesq numbers Bq = μ_s/(μ a), μ the outer
+    viscosity (capsim.viscosity; docs/viscous_membrane.md). All zero: a purely elastic
+    membrane, computed exactly as without this block."""
+
+    model: Literal[tuple(VISCOSITY_MODELS)] = Field(  # type: ignore[valid-type]
+        "kelvin_voigt",
+        description="kelvin_voigt: viscous tension 2 mu_s (D - tr(D) P / 2) + mu_d tr(D) P added to the elastic "
+        "one (Barthes-Biesel & Sgaier 1985)",
+    )
+    shear: float = Field(
+        0.0, ge=0, le=1e4,
+        description="surface shear viscosity Bq_s = mu_s / (mu a) (red cell: ~0.3-3); the velocity becomes a "
+        "GMRES solve at every evaluation",
+    )
+    dilatational: float = Field(
+        0.0, ge=0, le=1e4,
+        description="surface dilatational viscosity Bq_d = mu_d / (mu a): isotropic viscous tension mu_d tr(D)",
+    )
+
+    @model_validator(mode="after")
+    def _parameters_of_the_model(self) -> "MembraneViscosity":
+        allowed = VISCOSITY_MODELS[self.model].parameters
+        for name in self.model_fields_set - {"model"}:
+            if name not in allowed:
+                raise _FieldProblem(name, getattr(self, name),
+                                    f"is not a parameter of model: {self.model} (it takes {', '.join(allowed)})")
+        return self
+
+    @property
+    def active(self) -> bool:
+        return is_viscous(self.model_dump())
+
+
 class Membrane(_Model):
     """Constitutive law of the membrane (docs/laws.md)."""
 
@@ -217,6 +257,11 @@ class Membrane(_Model):
         description="bending modulus κ/(E_s a²) of a dihedral-hinge energy relative to the rest shape "
         "(0: none, the seed's membrane); needs traction: galerkin",
     )
+    viscosity: Optional[MembraneViscosity] = Field(
+        None,
+        description="surface viscosity {model, shear, dilatational} as Boussinesq numbers (docs/viscous_membrane.md); "
+        "none: a purely elastic membrane; needs traction: galerkin",
+    )
 
     @model_validator(mode="after")
     def _parameters_of_the_law(self) -> Membrane:
@@ -225,6 +270,15 @@ class Membrane(_Model):
                 value = getattr(self, name)
                 if self.law != law and name in self.model_fields_set and value != default:
                     raise _FieldProblem(name, value, f"applies only to law: {law}, not to law: {self.law}; remove it")
+        return self
+
+    @model_validator(mode="after")
+    def _viscosity_needs_galerkin(self):
+        if self.viscosity is not None and self.viscosity.active and self.traction != "galerkin":
+            raise _FieldProblem(
+                "traction", self.traction,
+                "a viscous membrane (membrane.viscosity) needs traction: galerkin: the viscous traction is a "
+                "Galerkin load (docs/viscous_membrane.md)")
         return self
 
     @model_validator(mode="after")
@@ -250,8 +304,12 @@ class Physical(_Model):
     shear_modulus: Optional[str] = Field(
         None, description="surface shear modulus G_s = E_s / 3 of the elastic laws, e.g. '6 uN/m'; "
         "or give surface_modulus")
+    membrane_viscosity: Optional[str] = Field(
+        None, description="surface shear viscosity μ_s of the membrane, e.g. '2.5e-7 N*s/m' (red cell); gives "
+        "membrane.viscosity.shear = Bq = μ_s / (μ a), Kelvin–Voigt")
 
-    @field_validator("shear_rate", "viscosity", "radius", "surface_modulus", "shear_modulus", "bending_modulus",
+    @field_validator("shear_rate", "viscosity", "radius", "surface_modulus", "shear_modulus", "membrane_viscosity",
+                     "bending_modulus",
                      mode="before")
     @classmethod
     def _a_quantity(cls, v: Any, info: ValidationInfo) -> Any:
@@ -283,7 +341,29 @@ class Physical(_Model):
         """G, Ca and the time unit (capsim.units.conversion)."""
         from capsim.units import conversion
 
-        return conversion(self.shear_rate, self.viscosity, self.radius, self.surface_modulus, self.shear_modulus)
+        return conversion(self.shear_rate, self.viscosity, self.radius, self.surface_modulus, self.shear_modulus,
+                          self.membrane_viscosity)
+
+
+class FlowHistory(_Model):
+    """How the shear flow changes in time (docs/viscous_membrane.md, "Flows that change in time").
+    Times stay in units of 1/k, k the shear rate before any stop."""
+
+    kind: Literal["steady", "stop"] = Field(
+        "steady", description="steady: simple shear throughout; stop: simple shear until kt = stop_time, "
+        "then no flow (the capsule relaxes at rest)")
+    stop_time: Optional[float] = Field(
+        None, gt=0, description="kind: stop only: the kt at which the flow stops (at or after time.t_end: "
+        "the flow never stops in the run, as in the two-step warm-up copies of a campaign)")
+
+    @model_validator(mode="after")
+    def _stop_time_of_the_kind(self) -> "FlowHistory":
+        if self.kind == "stop" and self.stop_time is None:
+            raise _FieldProblem("stop_time", None, "is required with kind: stop (the kt at which the flow stops)")
+        if self.kind != "stop" and self.stop_time is not None:
+            raise _FieldProblem("stop_time", self.stop_time, f"applies only to kind: stop, not to kind: {self.kind}; "
+                                "remove it")
+        return self
 
 
 class Flow(_Model):
@@ -307,15 +387,20 @@ class Flow(_Model):
         "solve's iterations grow like its square root; beyond 1e3 the capsule is a rigid particle",
     )
 
+    history: Optional[FlowHistory] = Field(
+        None, description="none or {kind: steady}: steady shear; {kind: stop, stop_time: kt}: the flow stops at kt")
+
+    @property
+    def stop_time(self) -> float | None:
+        """The kt at which the flow stops, None for steady shear."""
+        return self.history.stop_time if self.history is not None and self.history.kind == "stop" else None
+
     @field_validator("viscosity_ratio")
     @classmethod
     def _lambda_conditioning(cls, v: float) -> float:
         return _in_range(v, 1e-3, 1e3, "the double-layer solve's condition number is max(λ, 1/λ)")
 
 
-#: most nodes the dense stage preconditioner takes: it holds a few (3N)² matrices
-#: (76 MB each at level 3, N = 1026) and its LU costs (3N)³/3 multiply-adds
-DENSE_MAX_NODES = 1100
 
 #: faces of each base polyhedron
 BASE_FACES = {"octahedron": 8, "icosahedron": 20}
@@ -387,62 +472,16 @@ class Quadrature(_Model):
     )
 
 
-#: the time options that belong to one scheme (set to another value with another scheme: an error)
-SCHEME_OPTIONS = {
-    "rkc": ("max_stages", "rho_refresh_steps"),
-    "linearly_implicit": ("rosenbrock", "preconditioner", "linear_tol", "linear_max_iter", "jacobian_refresh_steps"),
-}
+#: the time options that belong to one scheme (set to another value with another scheme: an error),
+#: from the scheme registry: each scheme declares its own (capsim.timestepping.register_scheme)
+SCHEME_OPTIONS = {name: tuple(cls.option_fields) for name, cls in SCHEMES.items() if cls.option_fields}
 
 
-class Time(_Model):
-    """Adaptive time stepping (capsim.timestepping); times in units of 1/k."""
+class _TimeCommon(_Model):
+    """Adaptive time stepping (capsim.timestepping); times in units of 1/k.
 
-    # rkf23 stays the default: rkc wins at equal accuracy wherever the membrane is stiff but
-    # loses at lambda = 10 with tumbling (README, "Time stepping"); the demo case uses rkc
-    scheme: Literal["rkf23", "rkc", "linearly_implicit"] = Field(
-        "rkf23",
-        description="rkf23: the seed's Runge-Kutta-Fehlberg 2(3), pinned at the membrane's stability limit "
-        "dt ~ G h; rkc: second-order Runge-Kutta-Chebyshev (Sommeijer, Shampine & Verwer 1998), as many "
-        "stages per step as the stiffness needs, step size from the error estimate alone; "
-        "linearly_implicit: a Rosenbrock-W method (time.rosenbrock) with GMRES stage solves, "
-        "no stability limit",
-    )
-    rosenbrock: Literal["ros34pw2", "ros2"] = Field(
-        "ros34pw2",
-        description="linearly_implicit: ros34pw2, third order, 4 stages (Rang & Angermann 2005); ros2, second "
-        "order, 2 stages (Verwer et al. 1999)",
-    )
-    preconditioner: Literal["local", "dense", "none"] = Field(
-        "local",
-        description="linearly_implicit: preconditioner of the stage solves; local: the membrane's Hessian "
-        "with the single layer as a local drag, factorised once per step; dense: the frozen stage operator "
-        "itself (layer matrices, Hessian, mass matrix) LU-factorised, for meshes of at most "
-        f"{DENSE_MAX_NODES} nodes (level 3 octahedron); both need membrane.traction galerkin; none: plain GMRES",
-    )
-    linear_tol: float = Field(
-        0.1, gt=0, le=1,
-        description="linearly_implicit: a stage solve stops when its error moves the step by at most "
-        "this fraction of rtol",
-    )
-    linear_max_iter: int = Field(
-        300, ge=1, le=10000, strict=True,
-        description="linearly_implicit: GMRES iterations per stage solve before the step is retried smaller",
-    )
-    jacobian_refresh_steps: int = Field(
-        10, ge=1, le=10000, strict=True,
-        description="linearly_implicit: steps between rebuilds of the preconditioner (the membrane Hessian, "
-        "and the layer matrices of preconditioner dense), applied between rebuilds in the frame of the "
-        "capsule's best-fit rotation; the Jacobian-vector products are always those of the current step",
-    )
-    max_stages: int = Field(
-        200, ge=2, le=1000, strict=True,
-        description="rkc: bound of the stages per step; a step that needs more is shortened to what this "
-        "many stages keep stable (the stability interval grows like 0.65 s^2)",
-    )
-    rho_refresh_steps: int = Field(
-        25, ge=1, le=10000, strict=True,
-        description="rkc: accepted steps between estimates of the spectral radius (also redone after a rejection)",
-    )
+    The fields every scheme reads; :data:`Time` adds ``scheme`` and each registered
+    scheme's own options."""
 
     t_end: float = Field(
         10.0, gt=0, description="end time, at least 1e-6 and at least dt_min (else no step is taken)"
@@ -472,11 +511,11 @@ class Time(_Model):
     )
 
     @model_validator(mode="after")
-    def _options_of_the_scheme(self) -> "Time":
-        for scheme, names in SCHEME_OPTIONS.items():
-            if scheme == self.scheme:
+    def _options_of_the_scheme(self):
+        for scheme, cls in SCHEMES.items():  # the registry as it is now, a scheme added later included
+            if scheme == self.scheme or scheme in SCHEMES[self.scheme].uses_options_of:
                 continue
-            for name in names:
+            for name in cls.option_fields:
                 value = getattr(self, name)
                 if name in self.model_fields_set and value != type(self).model_fields[name].default:
                     raise _FieldProblem(name, value,
@@ -515,6 +554,26 @@ class Time(_Model):
             raise ValueError(f"must be in [dt_min, dt_max] = [{lo:g}, {hi:g}]")
         return v
 
+
+
+def _time_model() -> type[_TimeCommon]:
+    """The ``time`` section: the common fields, ``scheme`` (the registry's names) and every
+    registered scheme's options, in the registry's order."""
+    fields: dict[str, Any] = {"scheme": (Literal[tuple(SCHEMES)], Field(
+        DEFAULT_SCHEME,
+        description="; ".join(f"{name}: {cls.description}" for name, cls in SCHEMES.items()),
+    ))}
+    for cls in SCHEMES.values():
+        for name, spec in cls.option_fields.items():
+            if name in fields or name in _TimeCommon.model_fields:
+                raise TypeError(f"time.{name} is declared twice (scheme {cls.name})")
+            fields[name] = spec
+    return create_model("Time", __base__=_TimeCommon, __module__=__name__, **fields)
+
+
+#: the ``time`` section of a case (a pydantic model built from the scheme registry)
+Time = _time_model()
+Time.__doc__ = _TimeCommon.__doc__
 
 class Solver(_Model):
     """Velocity solve for viscosity_ratio != 1 (double layer); unused at lambda = 1."""
@@ -685,6 +744,25 @@ class Case(_Model):
         return tuple(float(c) / norm for c in v)
 
     @model_validator(mode="after")
+    def _Bq_from_physical(self) -> Case:
+        if self.physical is None or self.physical.membrane_viscosity is None:
+            return self
+        Bq = self.physical.conversion()["Bq"]
+        given = self.membrane.viscosity
+        if given is not None and "shear" in given.model_fields_set:
+            if not math.isclose(given.shear, Bq, rel_tol=1e-9):  # a resolved case holds both
+                raise _FieldProblem(
+                    "membrane.viscosity.shear", given.shear,
+                    f"give membrane.viscosity.shear or physical.membrane_viscosity, not both (physical gives "
+                    f"Bq = {Bq:.6g}); remove one")
+            return self
+        viscosity = (given or MembraneViscosity()).model_copy(update={"shear": Bq})
+        viscosity = MembraneViscosity.model_validate(viscosity.model_dump())  # its checks, shear now set
+        membrane = Membrane.model_validate({**self.membrane.model_dump(), "viscosity": viscosity.model_dump()})
+        object.__setattr__(self, "membrane", membrane)
+        return self
+
+    @model_validator(mode="after")
     def _one_orientation(self) -> Case:
         # a resolved case of an axis-only run stores initial_tilt_deg 0: accepted
         if self.initial_axis is not None and self.initial_tilt_deg != 0.0:
@@ -709,21 +787,10 @@ class Case(_Model):
         return (-math.sin(t), math.cos(t), 0.0)
 
     @model_validator(mode="after")
-    def _stage_preconditioner_fits(self) -> Case:
-        t = self.time
-        if t.scheme != "linearly_implicit":
-            return self
-        if t.preconditioner in ("local", "dense") and self.membrane.traction != "galerkin":
-            raise _FieldProblem(
-                "time.preconditioner", t.preconditioner,
-                f"needs membrane.traction: galerkin (got {self.membrane.traction}); use preconditioner: none",
-            )
-        if t.preconditioner == "dense" and self.mesh.n_nodes > DENSE_MAX_NODES:
-            raise _FieldProblem(
-                "time.preconditioner", t.preconditioner,
-                f"takes meshes of at most {DENSE_MAX_NODES} nodes (mesh.level {self.mesh.level} "
-                f"{self.mesh.base} has {self.mesh.n_nodes}); use preconditioner: local",
-            )
+    def _the_scheme_can_run_it(self) -> Case:
+        problem = SCHEMES[self.time.scheme].case_problem(self)  # e.g. a preconditioner the mesh is too large for
+        if problem is not None:
+            raise _FieldProblem(*problem)
         return self
 
     @field_validator("solver")

@@ -353,6 +353,7 @@ def summary_rows(summary: dict[str, Any]) -> list[tuple[str, str]]:
         ("N1*", _mean_std(summary, "N1_star")),
         ("N2*", _mean_std(summary, "N2_star")),
         ("scheme", summary.get("scheme")),
+        ("scheme chosen because", summary.get("scheme_choice")),
         ("steps", fmt(summary.get("steps"), "d")),
         ("velocity evaluations", fmt(summary.get("velocity_evaluations"), "d")),
         ("layer applications", fmt(summary.get("layer_applications"), "d")),

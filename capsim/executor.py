@@ -66,7 +66,7 @@ def kernel_kind(case) -> tuple:
     """What decides which numba kernels a case compiles (and with which signatures): the law,
     traction, λ ≠ 1 and its solver, bending, the near field, the symmetry in use, the time
     scheme and (linearly implicit) its preconditioner, which compile kernels of their own
-    (the dense one's layer matrices: ~10 s)."""
+    (the dense one's layer matrices: ~10 s), and the membrane's viscosity model."""
     from capsim.config import axis_keeps_quarter_symmetry
 
     m, q, tc = case.membrane, case.quadrature, case.time
@@ -78,6 +78,7 @@ def kernel_kind(case) -> tuple:
         q.near_field_factor > 0, symmetry,
         case.solver.method if case.flow.viscosity_ratio != 1.0 else None,
         tc.scheme, tc.preconditioner if tc.scheme == "linearly_implicit" else None,
+        m.viscosity.model if m.viscosity is not None and m.viscosity.active else None,
     )
 
 

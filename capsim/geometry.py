@@ -106,3 +106,13 @@ def vertex_triangle_quality(x: np.ndarray, elements: np.ndarray) -> np.ndarray:
     area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
     s = ((b - a) ** 2).sum(1) + ((c - b) ** 2).sum(1) + ((a - c) ** 2).sum(1)
     return 4.0 * np.sqrt(3.0) * area / s
+
+
+def best_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The rotation R (3×3) minimising Σ |R (a_i − ā) − (b_i − b̄)|² over the nodes
+    (Kabsch 1976: from the SVD of the cross-covariance, reflections excluded). The
+    preconditioners of capsim.linearization and capsim.viscosity are applied in the frame
+    of the rotation from the nodes where they were built."""
+    u, _, vt = np.linalg.svd((a - a.mean(axis=0)).T @ (b - b.mean(axis=0)))
+    d = np.sign(np.linalg.det(u @ vt))
+    return (u @ np.diag([1.0, 1.0, d]) @ vt).T

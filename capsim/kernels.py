@@ -1092,3 +1092,72 @@ def layer_matrix(
             _layer_element(out, i, x0, y0, z0, xe, elements[e], e, fine_phi, fine_dxi, fine_deta, fine_w,
                            double, 1.0)
     return out
+
+
+# ---------------------------------------------------------------- membrane viscosity
+
+@njit(**_JIT)
+def viscous_membrane_blocks(x, elements, dxi, deta, w, c_shear, c_dil):
+    """Element blocks of the viscous stiffness K of a Kelvin–Voigt membrane
+    (docs/viscous_membrane.md, eq. V3): (K u)_a = ∫ τ(u)·g_a dA with the viscous
+    tension τ = 2 c_s (D − ½ tr D P) + c_d tr D P, D = ½ P(∇_s u + ∇_s uᵀ)P and
+    g_a = t^α ∂φ_a/∂ξ_α the surface gradient of shape function a (t^α the dual
+    basis of the current tangents). Substituting ∇_s u = Σ_b g_b ⊗ u_b gives the
+    3 × 3 block of nodes (a, b),
+
+        K_ab = ∫ [c_s (g_b ⊗ g_a + (g_a·g_b) P) + (c_d − c_s) g_a ⊗ g_b] dA,
+
+    symmetric (K_ba = K_abᵀ) and positive semidefinite: uᵀK u = ∫ τ(u):D(u) dA is
+    twice the dissipation. Returns (N_e, 18, 18), row 3a + i, column 3b + j.
+    """
+    ne = elements.shape[0]
+    nq = w.shape[0]
+    out = np.zeros((ne, 18, 18))
+    g = np.empty((6, 3))
+    for e in range(ne):
+        for q in range(nq):
+            a0 = 0.0
+            a1 = 0.0
+            a2 = 0.0
+            b0 = 0.0
+            b1 = 0.0
+            b2 = 0.0
+            for k in range(6):
+                node = elements[e, k]
+                a0 += dxi[q, k] * x[node, 0]
+                a1 += dxi[q, k] * x[node, 1]
+                a2 += dxi[q, k] * x[node, 2]
+                b0 += deta[q, k] * x[node, 0]
+                b1 += deta[q, k] * x[node, 1]
+                b2 += deta[q, k] * x[node, 2]
+            g11 = a0 * a0 + a1 * a1 + a2 * a2
+            g12 = a0 * b0 + a1 * b1 + a2 * b2
+            g22 = b0 * b0 + b1 * b1 + b2 * b2
+            detg = g11 * g22 - g12 * g12
+            jac = np.sqrt(detg)
+            d10 = (g22 * a0 - g12 * b0) / detg
+            d11 = (g22 * a1 - g12 * b1) / detg
+            d12 = (g22 * a2 - g12 * b2) / detg
+            d20 = (g11 * b0 - g12 * a0) / detg
+            d21 = (g11 * b1 - g12 * a1) / detg
+            d22 = (g11 * b2 - g12 * a2) / detg
+            n0 = (a1 * b2 - a2 * b1) / jac
+            n1 = (a2 * b0 - a0 * b2) / jac
+            n2 = (a0 * b1 - a1 * b0) / jac
+            nn = (n0, n1, n2)
+            for k in range(6):
+                g[k, 0] = dxi[q, k] * d10 + deta[q, k] * d20
+                g[k, 1] = dxi[q, k] * d11 + deta[q, k] * d21
+                g[k, 2] = dxi[q, k] * d12 + deta[q, k] * d22
+            s = w[q] * jac
+            cs = s * c_shear
+            cd = s * (c_dil - c_shear)
+            for ka in range(6):
+                for kb in range(6):
+                    dot = g[ka, 0] * g[kb, 0] + g[ka, 1] * g[kb, 1] + g[ka, 2] * g[kb, 2]
+                    for i in range(3):
+                        for j in range(3):
+                            proj = (1.0 if i == j else 0.0) - nn[i] * nn[j]
+                            out[e, 3 * ka + i, 3 * kb + j] += (cs * (g[kb, i] * g[ka, j] + dot * proj)
+                                                               + cd * g[ka, i] * g[kb, j])
+    return out

@@ -12,6 +12,10 @@ from typing import Callable
 import numpy as np
 import scipy.linalg
 
+
+class LinearSolveFailed(RuntimeError):
+    """A stage solver missed its tolerance within its iterations (the step is retried smaller)."""
+
 __all__ = ["gmres"]
 
 

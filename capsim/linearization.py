@@ -61,9 +61,8 @@ import scipy.linalg
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from capsim.config import DENSE_MAX_NODES
-from capsim.krylov import gmres
-from capsim.timestepping import LinearSolveFailed
+from capsim.geometry import best_rotation  # noqa: F401 (used here, and re-exported: the viscous solve shares it)
+from capsim.krylov import LinearSolveFailed, gmres
 
 __all__ = ["PRECONDITIONERS", "StageSolver", "LinearSolveFailed", "hessian_colouring"]
 
@@ -114,14 +113,6 @@ def _directional_difference(f, x: np.ndarray, fx: np.ndarray, v: np.ndarray) -> 
     return (f(x + eps * v) - fx) / eps
 
 
-def best_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The rotation R (3×3) minimising Σ |R (a_i − ā) − (b_i − b̄)|² over the nodes
-    (Kabsch 1976: from the SVD of the cross-covariance, reflections excluded)."""
-    u, _, vt = np.linalg.svd((a - a.mean(axis=0)).T @ (b - b.mean(axis=0)))
-    d = np.sign(np.linalg.det(u @ vt))
-    return (u @ np.diag([1.0, 1.0, d]) @ vt).T
-
-
 @dataclass
 class _Frozen:
     """Everything frozen at x_n for the step."""
@@ -148,13 +139,13 @@ class StageSolver:
     """
 
     def __init__(self, model, *, preconditioner: str = "local", max_iter: int = 200,
-                 refresh_steps: int = 1) -> None:
+                 refresh_steps: int = 1, max_dense_nodes: int = 1100) -> None:
         if preconditioner not in PRECONDITIONERS:
             raise ValueError(f"unknown preconditioner {preconditioner!r} (allowed: {', '.join(PRECONDITIONERS)})")
         if preconditioner in ("local", "dense") and model.traction_method != "galerkin":
             raise ValueError(f"the {preconditioner} preconditioner needs the galerkin traction method")
-        if preconditioner == "dense" and model.disc.n_nodes > DENSE_MAX_NODES:
-            raise ValueError(f"the dense preconditioner takes at most {DENSE_MAX_NODES} nodes "
+        if preconditioner == "dense" and model.disc.n_nodes > max_dense_nodes:
+            raise ValueError(f"the dense preconditioner takes at most {max_dense_nodes} nodes "
                              f"(this mesh has {model.disc.n_nodes})")
         self.model = model
         self.preconditioner = preconditioner

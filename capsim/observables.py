@@ -613,6 +613,29 @@ def orbit_settled(t, D_xy, theta, director, aspect_ratio: float = 1.0) -> bool:
     return motion == "tumbling" or abs(drift) < SETTLED_RTOL
 
 
+def relaxation_time(t: np.ndarray, D_xy: np.ndarray, t_from: float, floor: float = 1e-6) -> float:
+    """kτ of a capsule relaxing at rest from D_xy(t) after ``t_from``: −1/slope of the
+    least-squares line through ln D_xy (the slow mode of the first-order theory,
+    docs/viscous_membrane.md, once the fast one has decayed); NaN with fewer than 3
+    samples above ``floor`` or a D_xy that does not decay."""
+    t, D = np.asarray(t, float), np.asarray(D_xy, float)
+    sel = (t >= t_from) & (D > floor)
+    if np.count_nonzero(sel) < 3:
+        return float("nan")
+    slope = np.polyfit(t[sel], np.log(D[sel]), 1)[0]
+    return float(-1.0 / slope) if slope < 0 else float("nan")
+
+
+def relaxation_summary(series: dict[str, np.ndarray], stop_time: float) -> dict:
+    """The summary of a run whose flow stopped at ``stop_time`` (flow.history kind stop):
+    the motion is 'relaxing' (a capsule at rest is neither steady in shear nor unstable),
+    the relaxation time is fitted over the last two thirds of the rest."""
+    t = np.asarray(series["t"], float)
+    t_from = stop_time + (float(t[-1]) - stop_time) / 3.0
+    return {"motion": "relaxing", "relaxation_time": relaxation_time(t, series["D_xy"], t_from),
+            "flow_stop_time": float(stop_time)}
+
+
 def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
     """Summary of a run from its time series (t, D_xy, θ, ttf_ratio, tt_angle,
     Sxy_star, N1_star, N2_star): the motion, and the time-mean and standard
@@ -695,8 +718,12 @@ class StepObserver:
         row["min_tension"] = float(tau2.min()) / model.shear_rate_G
         row["compressed_fraction"] = float(np.mean(tau2 < -COMPRESSION_TOL))
         center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
+        density = state.density
+        if model.viscous is not None:
+            density, viscous_row = self._viscous(y, u, state, center, row["volume"])
+            row.update(viscous_row)
         S_star = particle_stresslet(
-            state.geometry, state.density, u, elements, model.disc.reg_phi, center, row["volume"],
+            state.geometry, density, u, elements, model.disc.reg_phi, center, row["volume"],
             model.shear_rate_G, model.viscosity_ratio,
         )
         row.update(stresslet_observables(S_star))
@@ -706,6 +733,21 @@ class StepObserver:
         row.update({key: float(value) for key, value in work.items()})
         self._remember(row)
         return row
+
+    def _viscous(self, y: np.ndarray, u: np.ndarray, state, center: np.ndarray, volume: float) -> tuple:
+        """A viscous membrane's traction joins the elastic one in the stresslet (Batchelor's
+        surface formula holds for any interfacial force; docs/viscous_membrane.md, eq. V12);
+        its own share of S*_xy, its dissipation rate uᵀK u (μk²a³) and that over the power the
+        flow spends on the particle, S:E (the elastic energy is stored, not dissipated: in a
+        steady state the rest of S:E is the fluids')."""
+        model = self.model
+        elements = model.disc.elements
+        traction = model.viscous.traction(y, state.geometry, u)  # Δf_v/G, units μk
+        density = state.density + model.shear_rate_G * traction[elements]
+        S_v = particle_stresslet(state.geometry, np.ascontiguousarray(traction[elements]), u, elements,
+                                 model.disc.reg_phi, center, volume, 1.0, 1.0)
+        dissipation = float(u.ravel() @ (model.viscous.stiffness(y) @ u.ravel()))
+        return density, {"Sxy_viscous_star": float(S_v[0, 1]), "viscous_dissipation": dissipation}
 
     def _remember(self, row: dict) -> None:
         if self.first is None:

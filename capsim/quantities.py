@@ -159,7 +159,9 @@ _add("ttf_ratio", "normalised tank-treading frequency", "1",
 _add("tt_angle", "tank-treading angle", "rad",
      "unwrapped mean angle about the centroid, in the xy-plane, of the nodes starting in z = 0")
 _add("solver_iterations", "iterations of the velocity solve", "1",
-     "iterations of the λ ≠ 1 linear solve (GMRES or substitution) at this state; 0 when λ = 1")
+     "iterations of the velocity solve at this state: the λ ≠ 1 double-layer solve (GMRES or substitution), or "
+     "with a viscous membrane the GMRES solve of docs/viscous_membrane.md (V4) at any λ; 0 when the velocity is "
+     "explicit (λ = 1, no membrane viscosity)")
 _add("solver_residual", "relative residual of the velocity solve", "1",
      "relative residual of the λ ≠ 1 linear solve at this state; 0 when λ = 1")
 # cost counters of the time stepping and the solver
@@ -201,7 +203,8 @@ _add("n_nodes", "mesh nodes", "1", "number of nodes (vertices and mid-side nodes
 _add("motion", "class of steady motion", "",
      "as classified by the run (capsim.observables.classify_orbit): steady (tank-treading in the plane), rolling "
      "(director steady along ±z while the membrane tank-treads), kayaking (director precessing about z off the "
-     "plane), oscillating (swinging), tumbling, transient or unstable; empty when the run did not classify it")
+     "plane), oscillating (swinging), tumbling, transient or unstable; relaxing when the flow stopped during the run (flow.history kind stop); empty when "
+     "the run did not classify it")
 _add("orbit_period", "period of the director's orbit", "1",
      "time between the director's passages through the yz-plane, one and the next but one (its azimuth "
      "through mπ): a whole orbit, 2π(r + 1/r) for Jeffery's rigid spheroid; NaN under three passages", "1/k")
@@ -222,6 +225,18 @@ _add("jeffery_aspect_ratio", "aspect ratio r of the rest shape", "1",
      "moments along and across the axis: the r of Jeffery's orbit (b/a of a spheroid)")
 _add("jeffery_period", "Jeffery period of the rest shape", "1",
      "2π(r + 1/r), r = jeffery_aspect_ratio: the orbit period of a rigid spheroid of that aspect ratio", "1/k")
+_add("Sxy_viscous_star", "viscous membrane share of S*_xy", "1",
+     "the part of S*_xy due to the membrane's viscous traction, (1/(2.5 V)) ∫ Δf_v x dS = ∫ T_v dA/(2.5 V) "
+     "(docs/viscous_membrane.md, eq. V12); included in Sxy_star, N1_star, N2_star; only with membrane.viscosity")
+_add("viscous_dissipation", "membrane viscous dissipation rate", "1",
+     "∫ T_v:D dA, the power the membrane's viscosity dissipates, in units of μ k² a³; in simple shear the power "
+     "the flow spends on the particle is S:E = 2.5 V S*_xy in the same units, and their ratio the viscous "
+     "share of the dissipation (the elastic energy is stored, not dissipated); only with membrane.viscosity",
+     "mu k^2 a^3")
+_add("relaxation_time", "shape relaxation time at rest", "1",
+     "kτ of the capsule relaxing at rest after the flow stopped: −1/slope of ln D_xy over the last two thirds "
+     "of the rest (the slow mode of docs/viscous_membrane.md), in units of 1/k of the flow before the stop", "1/k")
+_add("flow_stop_time", "time the flow stopped", "1", "kt at which the shear flow stopped (flow.history)", "1/k")
 _add("period", "period of the motion", "1",
      "oscillation period, or the time for theta to turn by 2π when tumbling, in units of 1/k; NaN otherwise",
      "1/k")
@@ -368,7 +383,7 @@ del _add, _base, _c, _key, _name, _of, _sfx, _what
 #: Categorical quantities written as CF flag variables (integer codes, flag_values, flag_meanings).
 FLAGS: dict[str, tuple[str, ...]] = {
     "mesh_base": ("octahedron", "icosahedron"),
-    "time_scheme": ("rkf23", "rkc", "linearly_implicit"),  # the order of timestepping.SCHEMES
+    "time_scheme": ("rkf23", "rkc", "linearly_implicit", "auto"),  # the order of timestepping.SCHEMES
     "steady_average": ("no", "yes"),
 }
 
@@ -385,6 +400,7 @@ SCALES: dict[str, str] = {
     "5/2 mu k V": "particle stresslet of a rigid sphere of the capsule's volume V",
     "E_s a^2": "bending energy (κ)",
     "a^2": "area", "a^3": "volume",
+    "mu k^2 a^3": "power (W): a rate of dissipation or of work of the flow",
 }
 
 

@@ -23,17 +23,17 @@ import numpy as np
 from capsim import __version__
 from capsim.config import Case
 from capsim.errors import first_line
-from capsim.linearization import StageSolver
 from capsim.membrane import law_attributes
 from capsim.mesh import SurfaceMesh, rest_shape_attributes
-from capsim.observables import StepObserver, run_summary
+from capsim.observables import StepObserver, relaxation_summary, run_summary
 from capsim.schedules import CheckpointSchedule, SnapshotSchedule
-from capsim.solver import CapsuleModel, build_model
+from capsim.solver import build_model
+from capsim.threads import set_run_threads
 from capsim.stopping import LoopState, Stop, end_tolerance, stop_reason
 from capsim import checkpoint
 from capsim.checkpoint import ResumeError, checkpoint_path, remove_checkpoint
 from capsim.store import FileLock, StorageError, TrajectoryError, TrajectoryWriter, read_end_state
-from capsim.timestepping import Integrator, make_integrator
+from capsim.timestepping import Integrator, build_integrator
 
 __all__ = ["ResumeError", "RunResult", "build_model", "run_case"]
 
@@ -110,6 +110,7 @@ class RunResult(Mapping):
     rejected_steps: int | None = None
     wall_time_s: float | None = None
     scheme: str | None = None
+    scheme_choice: str | None = None
     velocity_evaluations: int | None = None
     layer_applications: int | None = None
     linear_iterations: int | None = None
@@ -174,22 +175,6 @@ def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool 
 # ---------------------------------------------------------------- one run
 
 
-def _integrator_options(case: Case, model: CapsuleModel) -> dict[str, Any]:
-    tc = case.time
-    options = {"rtol": tc.rtol, "dt_initial": tc.dt_initial, "dt_min": tc.dt_min, "dt_max": tc.dt_max}
-    if tc.scheme == "rkc":
-        # a GMRES velocity (λ ≠ 1) is exact only to its tolerance: probe with a
-        # perturbation whose response stands well above that noise
-        exact = case.flow.viscosity_ratio == 1.0
-        options.update(max_stages=tc.max_stages, rho_refresh_steps=tc.rho_refresh_steps,
-                       probe_scale=1.5e-8 if exact else max(1.5e-8, 100.0 * case.solver.tol))
-    elif tc.scheme == "linearly_implicit":
-        options.update(linear_tol=tc.linear_tol, method=tc.rosenbrock, stage_solver=StageSolver(
-            model, preconditioner=tc.preconditioner, max_iter=tc.linear_max_iter,
-            refresh_steps=tc.jacobian_refresh_steps))
-    return options
-
-
 class _Run:
     """The parts of one run and the loop that drives them."""
 
@@ -202,8 +187,9 @@ class _Run:
         self.extending = False  # resumed from a completed run's end state to a later t_end
         saved, self.wall_before = self._saved_state(case) if resume else (None, 0.0)
         self.model, X = build_model(case)
+        set_run_threads(self.model.disc.n_nodes)  # a small mesh runs faster on one thread
         self.model.interrupt_check = stop.check  # SIGTERM honoured between GMRES iterations too
-        self.integrator: Integrator = make_integrator(case.time.scheme, self._rhs, X, **_integrator_options(case, self.model))
+        self.integrator: Integrator = build_integrator(case, self._rhs, X, self.model)
         self.observer = StepObserver(self.model, X, case.axis)
         self.snapshots = SnapshotSchedule(case.output.snapshot_every)
         self.checkpoints = CheckpointSchedule(case.output.checkpoint_every_steps, case.output.checkpoint_every_s)
@@ -254,6 +240,7 @@ class _Run:
         self.writer = TrajectoryWriter(
             self.path, config_yaml=self.config_yaml, elements=elements, rest_positions=X, version=__version__,
             attrs={"n_nodes": X.shape[0], "n_elements": elements.shape[0], "time_scheme": case.time.scheme,
+                   "time_scheme_used": self.integrator.name, "time_scheme_choice": self.integrator.choice,
                    "symmetry": model.disc.symmetry},
         )
         # only now that the new file is in place: a stale one belongs to the run this one replaced
@@ -329,6 +316,26 @@ class _Run:
         if self.checkpoints.due(ig.steps):
             self._save_checkpoint(self.committed)
 
+    # -- flows that change in time (flow.history) -----------------------------------
+    def _next_flow_change(self) -> float:
+        """The kt at which the flow changes next (the steps land on it), inf when none."""
+        model = self.model
+        if model.flow_stop_time is None or model.flow_stopped:
+            return float("inf")
+        return model.flow_stop_time
+
+    def _follow_flow_history(self) -> None:
+        """Stop the flow once the run has reached flow.history.stop_time, and evaluate the
+        velocity there again: the step that landed on it carries the sheared velocity
+        (the schemes reuse it as their first stage). Whether it has happened is in the
+        model's checkpoint state, so a resumed run does it exactly once too."""
+        model, ig = self.model, self.integrator
+        if model.flow_stop_time is None or model.flow_stopped:
+            return
+        if ig.t >= model.flow_stop_time - end_tolerance(model.flow_stop_time):
+            model.stop_flow()
+            ig.u, _ = ig.evaluate(ig.y)
+
     # -- the loop ----------------------------------------------------------------
     def _loop(self) -> Stop:
         ig, tc, stop = self.integrator, self.case.time, self.stop
@@ -343,7 +350,8 @@ class _Run:
         state = LoopState(ig.t, ig.dt, ig.steps, signal=stop.name)
         while (outcome := stop_reason(state, tc, self.case.guards, self.observer.last, self.observer.first,
                                       self.observer.history, self.observer.aspect_ratio)) is None:
-            trial = ig.attempt(min(tc.t_end, self.snapshots.next_time))
+            self._follow_flow_history()
+            trial = ig.attempt(min(tc.t_end, self.snapshots.next_time, self._next_flow_change()))
             if trial.accepted:
                 self._accepted(trial)
             state = LoopState(ig.t, ig.dt, ig.steps, signal=stop.name, attempted=True, finite=trial.finite,
@@ -401,7 +409,7 @@ class _Run:
         result = RunResult(
             status=status, status_reason=reason, path=str(self.path), t=ig.t, steps=ig.steps,
             rejected_steps=ig.rejected, wall_time_s=self.wall_before + time.perf_counter() - self.wall0,
-            scheme=ig.name, velocity_evaluations=int(work["velocity_evaluations"]),
+            scheme=ig.name, scheme_choice=ig.choice or None, velocity_evaluations=int(work["velocity_evaluations"]),
             layer_applications=int(work["layer_applications"]),
             linear_iterations=int(work["linear_iterations"]),
             layer_matrices=int(work["layer_matrices"]),
@@ -412,9 +420,12 @@ class _Run:
             min_tension=last["min_tension"], compressed_fraction=last["compressed_fraction"],
             bending_modulus=float(self.case.membrane.bending_modulus),
         )
-        self.writer.write_run_record({k: v for k, v in result.record().items() if k != "scheme"})
-        motion = run_summary({k: np.asarray(v) for k, v in self.observer.history.items()},
-                             aspect_ratio=self.observer.aspect_ratio)
+        self.writer.write_run_record({k: v for k, v in result.record().items()
+                                      if k not in ("scheme", "scheme_choice")})  # both are root attributes
+        series = {k: np.asarray(v) for k, v in self.observer.history.items()}
+        motion = run_summary(series, aspect_ratio=self.observer.aspect_ratio)
+        if self.model.flow_stopped:
+            motion.update(relaxation_summary(series, self.model.flow_stop_time))
         if status == "unstable":
             motion["motion"] = "unstable"
         self.writer.write_summary(motion)

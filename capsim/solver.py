@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -28,6 +28,7 @@ from capsim.krylov import gmres
 from capsim.membrane import TRACTION_METHODS, MembraneForce, MembraneState, get_law  # noqa: F401 (re-exported)
 from capsim.mesh import node_element_incidence, rest_shape_mesh
 from capsim.quadrature import NODE_XI, NODE_ETA, gauss_legendre_01, singular_rules, subdivided_rule, triangle_rule
+from capsim.viscosity import build as build_viscous
 
 if TYPE_CHECKING:
     from capsim.config import Case
@@ -389,6 +390,14 @@ class CapsuleModel:
     # the velocity solve: the dense stage preconditioner's LU of A at the start of the step
     double_layer_preconditioner: Callable[[np.ndarray], np.ndarray] | None = field(
         default=None, repr=False, compare=False)
+    # the membrane's viscosity (capsim.viscosity), None for a purely elastic membrane:
+    # then the velocity is a solve at every λ (viscosity.py, eq. V4)
+    viscous: Any = None
+    # flow.history kind stop: the kt at which the flow stops (None: steady shear); the runner
+    # calls stop_flow() there, and the checkpoint says whether it has (state: "flow_stopped")
+    flow_stop_time: float | None = None
+    flow_stopped: bool = field(default=False, init=False)
+    _flowing: FarField | None = field(default=None, init=False, repr=False)
     # iterations and relative residual of the last velocity solve (0 at λ = 1)
     last_solve_info: dict = field(default_factory=lambda: {"iterations": 0, "residual": 0.0}, init=False)
     # cumulative work: velocity evaluations and layer applications (each GMRES or
@@ -467,11 +476,21 @@ class CapsuleModel:
             "membrane_evaluations": np.array(self.membrane.evaluations, dtype=np.int64),
         }
         out.update({k: np.array(v, dtype=np.int64) for k, v in self.counts.items()})
+        if self.viscous is not None:
+            out["viscous_iterations"] = np.array(self.viscous.iterations, dtype=np.int64)
+            out["warm_viscous_factor_x"] = copy(self.viscous._factor_x)
+        if self.flow_stop_time is not None:
+            out["flow_stopped"] = np.array(self.flow_stopped, dtype=np.int64)
         return out
 
     def restore(self, state: dict) -> None:
         """Undo to a ``state()``: missing warm starts are cleared, missing counters 0."""
-        unknown = set(state) - {"warm_traction", "warm_velocity", "warm_rhs", "membrane_evaluations", *COUNTERS}
+        known = {"warm_traction", "warm_velocity", "warm_rhs", "membrane_evaluations", *COUNTERS}
+        if self.viscous is not None:
+            known |= {"viscous_iterations", "warm_viscous_factor_x"}
+        if self.flow_stop_time is not None:
+            known.add("flow_stopped")
+        unknown = set(state) - known
         if unknown:
             raise ValueError(f"unknown model state entries {sorted(unknown)}")
 
@@ -483,6 +502,21 @@ class CapsuleModel:
         self._last_velocity = copy("warm_velocity")
         self._last_rhs = copy("warm_rhs")
         self.counts = {k: int(state.get(k, 0)) for k in COUNTERS}
+        if self.viscous is not None:
+            self.viscous.iterations = int(state.get("viscous_iterations", 0))
+            self.viscous._factor_x = copy("warm_viscous_factor_x")
+            self.viscous._rest_factor = None  # rebuilt where the checkpoint says, at the next solve
+        if state.get("flow_stopped"):
+            self.stop_flow()
+        elif self.flow_stopped:  # undone to a state before the stop
+            self.far_field, self.flow_stopped = self._flowing, False
+
+    def stop_flow(self) -> None:
+        """No undisturbed flow from now on (flow.history kind stop): u∞ = 0."""
+        if not self.flow_stopped:
+            self._flowing = self.far_field
+        self.far_field = FarField(((0.0,) * 3,) * 3)
+        self.flow_stopped = True
 
     def velocity(self, x: np.ndarray, state: MembraneState | None = None) -> np.ndarray:
         """Nodal velocities (N_p, 3) at configuration x.
@@ -509,7 +543,16 @@ class CapsuleModel:
         u_explicit = self.far_field(x) - sl / (8.0 * np.pi * self.shear_rate_G)
         needs_normals = lam != 1.0 or self.volume_correction
         normals = self.disc.nodal_normals(x) if needs_normals else None
-        if lam == 1.0:
+        if self.viscous is not None:
+            u = self.viscous.solve(self, x, state.geometry, u_explicit, normals)
+            self.solver_times["solve"] += time.perf_counter() - t1
+            info = self.last_solve_info
+            if not info["residual"] <= 10.0 * self.solver_tol:
+                raise SolverDivergence(
+                    f"viscous membrane velocity solve did not converge: residual {info['residual']:.2e} > tol "
+                    f"{self.solver_tol:.1e} after {info['iterations']} iterations "
+                    f"(membrane.viscosity.shear = {self.viscous.shear:g})")
+        elif lam == 1.0:
             self.last_solve_info = {"iterations": 0, "residual": 0.0}
             u = u_explicit
         else:
@@ -646,6 +689,8 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None) -> tuple[C
         bending_modulus=case.membrane.bending_modulus,
         traction_method=case.membrane.traction,
     )
+    viscosity = case.membrane.viscosity
+    viscous = build_viscous(disc, rest, None if viscosity is None else viscosity.model_dump())
     model = CapsuleModel(
         disc=disc,
         membrane=forces,
@@ -655,5 +700,7 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None) -> tuple[C
         solver_method=case.solver.method,
         solver_tol=case.solver.tol,
         solver_max_iter=case.solver.max_iter,
+        viscous=viscous,
+        flow_stop_time=case.flow.stop_time,
     )
     return model, rest

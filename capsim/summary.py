@@ -108,6 +108,9 @@ def read_run(path: str | os.PathLike) -> dict[str, Any] | None:
         case = None
     if case is not None:
         record.update(_context(case))
+        used = str(attrs.get("time_scheme_used", ""))
+        if used in FLAGS["time_scheme"]:  # the scheme that ran (auto's choice), not the one asked for
+            record["time_scheme"] = _flag("time_scheme", used)
     return record
 
 

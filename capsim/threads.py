@@ -265,3 +265,28 @@ def policy_attrs() -> dict[str, str | int]:
         "openblas_thread_timeout": env.get(ENV_BLAS_TIMEOUT) or "unset",
         "thread_policy_user_env": ", ".join(user),
     }
+
+
+#: full-mesh nodes from which a run's parallel kernels use every thread they were given: below it
+#: one thread (measured on the demo, level 3 = 1026 nodes with quarter symmetry: one thread
+#: 3.6 s, two 4.0 s, a second thread's fork-join cost outweighs its share of ~1 ms of
+#: sums; level 4 = 4098 nodes: two threads 1.18x faster per evaluation; issue 29, README "Threads")
+PARALLEL_MIN_NODES = 2000
+
+
+def threads_for_work(n_nodes: int, available: int) -> int:
+    """The threads a run of `n_nodes` (full mesh) uses out of `available`: one below
+    :data:`PARALLEL_MIN_NODES`, else all of them."""
+    return max(1, available) if n_nodes >= PARALLEL_MIN_NODES else 1
+
+
+def set_run_threads(n_nodes: int) -> int | None:
+    """Set numba's thread count for a run by its work (:func:`threads_for_work`), unless
+    the user chose it (``NUMBA_NUM_THREADS``); returns the count set, None when left."""
+    if _user_value(ENV_THREADS, os.environ) is not None:
+        return None
+    import numba
+
+    n = threads_for_work(n_nodes, numba.config.NUMBA_NUM_THREADS)
+    numba.set_num_threads(n)
+    return n

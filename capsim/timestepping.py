@@ -42,9 +42,12 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, fields
-from typing import Any, Callable, ClassVar
+from typing import Any, Callable, ClassVar, Literal
 
 import numpy as np
+from pydantic import Field
+
+from capsim.krylov import LinearSolveFailed
 
 #: rhs(y) -> (velocity, auxiliary state of that evaluation, e.g. the membrane state)
 RightHandSide = Callable[[np.ndarray], tuple[np.ndarray, Any]]
@@ -174,10 +177,30 @@ class Trial:
 
 SCHEMES: dict[str, type[Integrator]] = {}
 
+#: the scheme a case gets without time.scheme
+DEFAULT_SCHEME = "auto"
+
+#: most nodes the dense stage preconditioner takes: it holds a few (3N)² matrices
+#: (76 MB each at level 3, N = 1026) and its LU costs (3N)³/3 multiply-adds
+DENSE_MAX_NODES = 1100
+
 
 def register_scheme(cls: type[Integrator]) -> type[Integrator]:
+    """Register a scheme under ``cls.name``. Its ``option_fields`` become fields of the case's
+    ``time`` section (capsim.config builds the schema from the registry), its ``description``
+    part of ``time.scheme``'s, its :meth:`Integrator.settings` what it is built with."""
     SCHEMES[cls.name] = cls
     return cls
+
+
+def build_integrator(case: Any, rhs: RightHandSide, y0: np.ndarray, model: Any) -> Integrator:
+    """The integrator of ``case.time.scheme`` for a run of `case` on `model`, starting at ``y0``
+    (a scheme that chooses, ``auto``, resolves to the one it picks; ``choice`` says why)."""
+    cls, choice, spent, case = SCHEMES[case.time.scheme].resolve(case, model, rhs, y0)
+    integrator = cls(rhs, y0, **cls.settings(case, model))
+    integrator.choice = choice
+    integrator.evaluations += spent  # a choice's measurements are part of the run's cost
+    return integrator
 
 
 def make_integrator(name: str, rhs: RightHandSide, y0: np.ndarray, **options: Any) -> Integrator:
@@ -196,7 +219,40 @@ class Integrator:
     auxiliary state; ``attempt(t_stop)`` tries one step that does not pass
     ``t_stop`` and, when it is accepted, advances and evaluates the velocity at
     the new positions (the first stage of the next step).
+
+    A scheme declares what a case may set for it: ``option_fields`` (name →
+    (type, pydantic Field): the schema fragment of ``time.<name>``, its default,
+    bounds and description), ``description`` (its line in ``time.scheme``'s help),
+    :meth:`settings` (its constructor's options from a case and its model) and
+    :meth:`case_problem` (a case it cannot run, as one line).
     """
+
+    option_fields: ClassVar[dict[str, tuple[Any, Any]]] = {}
+    description: ClassVar[str] = ""
+
+    @classmethod
+    def settings(cls, case: Any, model: Any) -> dict[str, Any]:
+        """The constructor's options for a run of `case` on `model` (common: tolerance and step bounds)."""
+        tc = case.time
+        return {"rtol": tc.rtol, "dt_initial": tc.dt_initial, "dt_min": tc.dt_min, "dt_max": tc.dt_max}
+
+    @classmethod
+    def case_problem(cls, case: Any) -> tuple[str, Any, str] | None:
+        """(field, value, what is wrong) for a case this scheme cannot run; None when it can."""
+        return None
+
+    #: schemes whose options this one reads too (a scheme that picks among them)
+    uses_options_of: ClassVar[tuple[str, ...]] = ()
+    #: whether the scheme steps itself (False: it resolves to another, :meth:`resolve`)
+    stepped: ClassVar[bool] = True
+    #: why this scheme runs (set by :func:`build_integrator`; '' when it was named)
+    choice: str = ""
+
+    @classmethod
+    def resolve(cls, case: Any, model: Any, rhs: RightHandSide, y0: np.ndarray) -> tuple[type, str, int, Any]:
+        """(the scheme that runs, why, velocity evaluations spent choosing, the case it is built
+        from): itself and the case, unless it chooses."""
+        return cls, "", 0, case
 
     name: ClassVar[str]
     order_low: ClassVar[int]
@@ -290,6 +346,8 @@ class EmbeddedRungeKutta(Integrator):
     """The seed's RKF2(3) pair (module docstring); local extrapolation."""
 
     name = "rkf23"
+    description = ("the seed's Runge-Kutta-Fehlberg 2(3), pinned at the membrane's stability limit "
+                   "dt ~ G h")
     tableau: ClassVar[EmbeddedScheme] = RKF23
     order_low = RKF23.order_low
     reference = RKF23.reference
@@ -387,7 +445,30 @@ class RungeKuttaChebyshev(Integrator):
     """
 
     name = "rkc"
+    description = ("second-order Runge-Kutta-Chebyshev (Sommeijer, Shampine & Verwer 1998), as many "
+                   "stages per step as the stiffness needs, step size from the error estimate alone")
+    option_fields = {
+        "max_stages": (int, Field(
+            200, ge=2, le=1000, strict=True,
+            description="rkc: bound of the stages per step; a step that needs more is shortened to what this "
+            "many stages keep stable (the stability interval grows like 0.65 s^2)")),
+        "rho_refresh_steps": (int, Field(
+            25, ge=1, le=10000, strict=True,
+            description="rkc: accepted steps between estimates of the spectral radius (also redone after a "
+            "rejection)")),
+    }
     order_low = 2  # the SSV estimate is O(h³): step-size exponent 1/3
+
+    @classmethod
+    def settings(cls, case: Any, model: Any) -> dict[str, Any]:
+        tc = case.time
+        # a GMRES velocity (λ ≠ 1, a viscous membrane) is exact only to its tolerance: probe with a
+        # perturbation whose response stands well above that noise
+        viscosity = getattr(case.membrane, "viscosity", None)
+        exact = case.flow.viscosity_ratio == 1.0 and not (viscosity is not None and viscosity.active)
+        return {**super().settings(case, model), "max_stages": tc.max_stages,
+                "rho_refresh_steps": tc.rho_refresh_steps,
+                "probe_scale": 1.5e-8 if exact else max(1.5e-8, 100.0 * case.solver.tol)}
     reference = "Sommeijer, Shampine & Verwer, J. Comput. Appl. Math. 88 (1998) 315-326"
     RHO_SAFETY = 1.2      # the power iteration approaches ρ from below (RKC code)
     RHO_MAX_ITER = 30
@@ -471,10 +552,6 @@ class RungeKuttaChebyshev(Integrator):
 
 
 # ---------------------------------------------------------------- linearly implicit (Rosenbrock-W)
-
-
-class LinearSolveFailed(RuntimeError):
-    """A stage solver missed its tolerance within its iterations (the step is retried smaller)."""
 
 
 class DenseStageSolver:
@@ -590,8 +667,61 @@ class LinearlyImplicit(Integrator):
     """
 
     name = "linearly_implicit"
+    description = "a Rosenbrock-W method (time.rosenbrock) with GMRES stage solves, no stability limit"
+    option_fields = {
+        "rosenbrock": (Literal["ros34pw2", "ros2"], Field(
+            "ros34pw2",
+            description="linearly_implicit: ros34pw2, third order, 4 stages (Rang & Angermann 2005); ros2, "
+            "second order, 2 stages (Verwer et al. 1999)")),
+        "preconditioner": (Literal["local", "dense", "none"], Field(
+            "local",
+            description="linearly_implicit: preconditioner of the stage solves; local: the membrane's Hessian "
+            "with the single layer as a local drag, factorised once per step; dense: the frozen stage operator "
+            "itself (layer matrices, Hessian, mass matrix) LU-factorised, for meshes of at most "
+            f"{DENSE_MAX_NODES} nodes (level 3 octahedron); both need membrane.traction galerkin; none: plain "
+            "GMRES")),
+        "linear_tol": (float, Field(
+            0.1, gt=0, le=1,
+            description="linearly_implicit: a stage solve stops when its error moves the step by at most "
+            "this fraction of rtol")),
+        "linear_max_iter": (int, Field(
+            300, ge=1, le=10000, strict=True,
+            description="linearly_implicit: GMRES iterations per stage solve before the step is retried smaller")),
+        "jacobian_refresh_steps": (int, Field(
+            10, ge=1, le=10000, strict=True,
+            description="linearly_implicit: steps between rebuilds of the preconditioner (the membrane Hessian, "
+            "and the layer matrices of preconditioner dense), applied between rebuilds in the frame of the "
+            "capsule's best-fit rotation; the Jacobian-vector products are always those of the current step")),
+    }
     order_low = 2
     reference = "Rosenbrock-W: ROS34PW2 (Rang & Angermann 2005) or ROS2 (Verwer et al. 1999)"
+
+    @classmethod
+    def settings(cls, case: Any, model: Any) -> dict[str, Any]:
+        from capsim.linearization import StageSolver  # scipy's sparse LU: only for this scheme
+
+        tc = case.time
+        return {**super().settings(case, model), "linear_tol": tc.linear_tol, "method": tc.rosenbrock,
+                "stage_solver": StageSolver(model, preconditioner=tc.preconditioner, max_iter=tc.linear_max_iter,
+                                            refresh_steps=tc.jacobian_refresh_steps,
+                                            max_dense_nodes=DENSE_MAX_NODES)}
+
+    @classmethod
+    def case_problem(cls, case: Any) -> tuple[str, Any, str] | None:
+        viscosity = getattr(case.membrane, "viscosity", None)
+        if viscosity is not None and viscosity.active:
+            return ("time.scheme", cls.name,
+                    "cannot run a viscous membrane (membrane.viscosity): its stage Jacobian "
+                    "(capsim.linearization) leaves out the viscous membrane operator; use scheme rkf23 or rkc")
+        pre = case.time.preconditioner
+        if pre in ("local", "dense") and case.membrane.traction != "galerkin":
+            return ("time.preconditioner", pre,
+                    f"needs membrane.traction: galerkin (got {case.membrane.traction}); use preconditioner: none")
+        if pre == "dense" and case.mesh.n_nodes > DENSE_MAX_NODES:
+            return ("time.preconditioner", pre,
+                    f"takes meshes of at most {DENSE_MAX_NODES} nodes (mesh.level {case.mesh.level} "
+                    f"{case.mesh.base} has {case.mesh.n_nodes}); use preconditioner: local")
+        return None
 
     def __init__(self, rhs: RightHandSide, y0: np.ndarray, *, stage_solver: Any = None, linear_tol: float = 0.1,
                  method: str = "ros34pw2", **common: Any) -> None:
@@ -653,3 +783,92 @@ class LinearlyImplicit(Integrator):
         err = float(np.abs(est).max()) / scale
         finite = bool(np.isfinite(err) and np.all(np.isfinite(y_new)))
         return Trial(finite and err <= 1.0, finite, h, err, evaluations), y_new, False
+
+
+# ---------------------------------------------------------------- the automatic choice
+
+
+@register_scheme
+class Automatic(Integrator):
+    """``time.scheme: auto`` (the default): picks rkf23, rkc or linearly_implicit for a run
+    from what it measures at the start, and is never itself stepped.
+
+    It estimates the spectral radius ρ of the velocity's Jacobian at the rest shape by
+    rkc's power iteration (10-30 evaluations, counted in the run's cost) and sets it
+    against the accuracy-limited step h_acc ≈ H_ACC (rtol / 1e-3)^(1/3), which the
+    stiff cases of benchmarks/stepping.py reach after their transient (kt ~ 0.1 at
+    rtol 1e-3: 20-90 steps over their runs, whichever scheme). rkc needs
+    s ≈ (ρ h_acc / 0.65)^(1/2) stages a step (its stability interval grows like
+    0.65 s²); measured per layer application (benchmarks/time_schemes.md):
+
+    - s ≤ RKF23_STAGES: not stiff; rkf23 (its three evaluations a step are all accuracy);
+    - s up to LINEARLY_IMPLICIT_STAGES: rkc, 1.4-7.6x fewer layer applications than
+      rkf23 in cases (a)-(d), (f), (h), and fewer than the linearly implicit scheme at
+      13 stages a step (case (c));
+    - more (cases (g): 34 stages, (i): 36): linearly_implicit, 2-12x fewer layer
+      applications than rkc there, with the dense preconditioner where the mesh takes it;
+    - λ ≥ TUMBLING_LAMBDA (a capsule that may tumble, case (e)): rkc missed the accuracy
+      target there; linearly_implicit with the dense preconditioner 2x fewer than rkf23.
+
+    The linearly implicit scheme needs the galerkin traction and no viscous membrane;
+    without them the choice falls back to rkc (rkf23 at large λ). The choice is
+    deterministic (same rest shape, same measurement), so a resumed run makes it again.
+    """
+
+    name = "auto"
+    description = ("picks rkf23, rkc or linearly_implicit for the run from the measured spectral radius "
+                   "against the accuracy-limited step, λ and the mesh (the run file says which and why)")
+    uses_options_of = ("rkc", "linearly_implicit")
+    stepped = False
+    order_low = 2
+    reference = "capsim: benchmarks/time_schemes.md"
+    H_ACC = 0.1
+    RKF23_STAGES = 2
+    LINEARLY_IMPLICIT_STAGES = 20
+    TUMBLING_LAMBDA = 8.0
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        raise TypeError("scheme auto resolves to another scheme (build_integrator); it is not stepped itself")
+
+    @classmethod
+    def _implicit_ok(cls, case: Any) -> bool:
+        return LinearlyImplicit.case_problem(case) is None
+
+    @classmethod
+    def _implicit(cls, case: Any) -> Any:
+        """The case with the dense preconditioner where the mesh takes it and the user chose none."""
+        if "preconditioner" in case.time.model_fields_set or case.mesh.n_nodes > DENSE_MAX_NODES:
+            return case
+        dense = case.time.model_copy(update={"preconditioner": "dense"})
+        return case.model_copy(update={"time": dense})
+
+    @classmethod
+    def resolve(cls, case: Any, model: Any, rhs: RightHandSide, y0: np.ndarray) -> tuple[type, str, int, Any]:
+        lam = case.flow.viscosity_ratio
+        implicit = cls._implicit_ok(case)
+        if lam >= cls.TUMBLING_LAMBDA:
+            if implicit:
+                return LinearlyImplicit, f"λ = {lam:g} >= {cls.TUMBLING_LAMBDA:g} (may tumble)", 0, cls._implicit(case)
+            return EmbeddedRungeKutta, (f"λ = {lam:g} >= {cls.TUMBLING_LAMBDA:g} (may tumble); "
+                                        "linearly_implicit cannot run this case"), 0, case
+        # the probe must not change the run: its warm starts are undone (its work stays counted),
+        # so that an auto run is, to the bit, the run of the scheme it picks
+        saved = model.state()
+        try:
+            probe = RungeKuttaChebyshev(rhs, y0, **RungeKuttaChebyshev.settings(case, model))
+            probe.start()
+            rho = probe.spectral_radius()
+            spent = probe.evaluations
+        finally:
+            counters = {k: v for k, v in model.state().items() if not k.startswith("warm_")}
+            model.restore({**saved, **counters})
+        h_acc = min(case.time.dt_max, cls.H_ACC * (case.time.rtol / 1e-3) ** (1.0 / 3.0))
+        stages = math.sqrt(max(rho * h_acc, 0.0) / 0.65)
+        measured = (f"ρ = {rho:.3g}, ρ h_acc = {rho * h_acc:.3g} (h_acc = {h_acc:.3g}): rkc would take "
+                    f"~{stages:.0f} stages a step")
+        if stages <= cls.RKF23_STAGES:
+            return EmbeddedRungeKutta, f"not stiff: {measured}", spent, case
+        if stages > cls.LINEARLY_IMPLICIT_STAGES and implicit:
+            return LinearlyImplicit, f"stiff: {measured}", spent, cls._implicit(case)
+        why = "" if implicit or stages <= cls.LINEARLY_IMPLICIT_STAGES else "; linearly_implicit cannot run this case"
+        return RungeKuttaChebyshev, f"moderately stiff: {measured}{why}", spent, case

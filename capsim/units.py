@@ -11,6 +11,9 @@ Worked examples (tests/test_units.py checks them):
 
 - a red blood cell: k = 100 1/s, μ = 1.2 mPa·s, a = 2.8 μm, G_s = 6 μN/m →
   Ca = 1.2e-3 × 100 × 2.8e-6 / 6e-6 = 0.056, G = Ca / 3 = 0.018667, 1/k = 0.01 s;
+- its membrane viscosity μ_s = 1e-7 N·s/m (the low end of the 0.5–5 × 10⁻⁷ N·s/m
+  quoted for red cells; configs/rbc-viscous.yaml) in that fluid:
+  Bq = μ_s/(μ a) = 1e-7 / (1.2e-3 × 2.8e-6) = 29.76, membrane time μ_s/G_s = 0.0167 s;
 - an alginate capsule: k = 10 1/s, μ = 1 Pa·s (silicone oil), a = 1 mm,
   E_s = 0.1 N/m → G = 1 × 10 × 1e-3 / 0.1 = 0.1, Ca = 0.3, 1/k = 0.1 s.
 
@@ -40,6 +43,7 @@ KINDS: dict[str, tuple[str, str, str]] = {
     "surface_modulus": ("N/m", "a surface modulus (force / length)", "18 uN/m"),
     "shear_modulus": ("N/m", "a surface modulus (force / length)", "6 uN/m"),
     "bending_modulus": ("J", "an energy (a bending modulus)", "1.8e-19 J"),
+    "membrane_viscosity": ("N*s/m", "a surface viscosity (force × time / length)", "2.5e-7 N*s/m"),
 }
 
 
@@ -105,13 +109,16 @@ def parse(text: Any, kind: str) -> float:
 
 
 def conversion(shear_rate: Any, viscosity: Any, radius: Any, surface_modulus: Any = None,
-               shear_modulus: Any = None) -> dict[str, float]:
+               shear_modulus: Any = None, membrane_viscosity: Any = None) -> dict[str, float]:
     """G = μ k a / E_s, Ca = μ k a / G_s = 3 G and the time unit 1/k (s) from physical values.
 
     Give the membrane's elastic modulus E_s (``surface_modulus``; for a drop, the
     surface tension) or its surface shear modulus G_s (``shear_modulus``), not both.
     Returns ``{"G", "Ca", "time_unit_s", "E_s_N_per_m", "G_s_N_per_m", "velocity_m_per_s",
-    "tension_N_per_m"}``.
+    "tension_N_per_m"}``, and with the membrane's surface shear viscosity μ_s
+    (``membrane_viscosity``) its Boussinesq number ``Bq`` = μ_s/(μ a)
+    (``membrane.viscosity.shear``) and the membrane's viscoelastic time μ_s/G_s
+    (``membrane_time_s``; kτ = Bq·Ca in units of 1/k).
     """
     if (surface_modulus is None) == (shear_modulus is None):
         raise UnitsError("give the surface modulus E_s or the shear modulus G_s (one of the two)")
@@ -125,10 +132,14 @@ def conversion(shear_rate: Any, viscosity: Any, radius: Any, surface_modulus: An
         g_s = parse(shear_modulus, "shear_modulus")
         e_s = g_s / SHEAR_OVER_ELASTIC_MODULUS
     tension = mu * k * a
-    return {
+    out = {
         "G": tension / e_s, "Ca": tension / g_s, "time_unit_s": 1.0 / k,
         "E_s_N_per_m": e_s, "G_s_N_per_m": g_s, "velocity_m_per_s": k * a, "tension_N_per_m": tension,
     }
+    if membrane_viscosity is not None:
+        mu_s = parse(membrane_viscosity, "membrane_viscosity")
+        out.update(Bq=mu_s / (mu * a), membrane_viscosity_N_s_per_m=mu_s, membrane_time_s=mu_s / g_s)
+    return out
 
 
 def describe_conversion(out: dict[str, float]) -> str:
@@ -140,4 +151,6 @@ def describe_conversion(out: dict[str, float]) -> str:
         f"E_s = {out['E_s_N_per_m']:.6g} N/m, G_s = {out['G_s_N_per_m']:.6g} N/m, "
         f"velocity unit ka = {out['velocity_m_per_s']:.6g} m/s, tension unit mu k a = "
         f"{out['tension_N_per_m']:.6g} N/m",
-    ])
+    ] + ([f"Bq = mu_s / (mu a) = {out['Bq']:.6g}   (membrane.viscosity.shear); membrane time "
+          f"mu_s / G_s = {out['membrane_time_s']:.6g} s (k tau = Bq Ca = {out['Bq'] * out['Ca']:.6g})"]
+         if "Bq" in out else []))

@@ -89,6 +89,12 @@ def written(tmp_path_factory):
     })
     summary = run_case(case)
     write_error_estimate(case.output.path, error_estimate(case, summary, workers=1))
+    # a viscous membrane in a flow that stops: its columns and the relaxation summary
+    run_case(case_from_dict({
+        "name": "qv", "mesh": {"level": 1}, "time": {"t_end": 0.05},
+        "flow": {"history": {"kind": "stop", "stop_time": 0.02}}, "membrane": {"viscosity": {"shear": 1.0}},
+        "output": {"path": str(tmp / "viscous.h5"), "snapshot_every": 0.05},
+    }))
 
     campaign = campaign_from_dict({
         "name": "q", "base": {"shape": {"kind": "prolate"}, "time": {"t_end": 0.02}},
@@ -110,7 +116,7 @@ def written(tmp_path_factory):
                                  "output": {"path": str(tmp / "unused.h5")}})
     study = write_study(run_study(study_case, levels=[0, 1], rtols=[1e-3], workers=1, out_dir=tmp / "study"),
                         tmp / "study.nc")
-    run_files = [tmp / "run.h5", *sorted((tmp / "campaign").glob("*.h5"))]
+    run_files = [tmp / "run.h5", tmp / "viscous.h5", *sorted((tmp / "campaign").glob("*.h5"))]
     return case, summary, run_files, nc, study
 
 

@@ -120,3 +120,44 @@ def test_cli_parameters_accept_exactly_the_registries():
     assert _click_choices("plot", "kind") == tuple(plot.KINDS)
     assert _click_choices("export", "fmt") == tuple(export.FORMATS)
     assert _click_choices("study", "reference") == tuple(study.REFERENCES)
+
+
+def test_a_scheme_declares_its_options_and_builds_itself():
+    """Adding a time scheme is one class in capsim.timestepping (issue 27): its option
+    fields become time.<option> in the schema, its settings are what it is built with."""
+    from pydantic import Field
+
+    from capsim import config, timestepping
+
+    @timestepping.register_scheme
+    class Demo(timestepping.EmbeddedRungeKutta):
+        name = "demo_scheme"
+        description = "a test scheme"
+        option_fields = {"demo_knob": (int, Field(3, ge=1, strict=True, description="demo_scheme: a knob"))}
+
+        @classmethod
+        def settings(cls, case, model):
+            assert case.time.demo_knob == 7
+            return super().settings(case, model)
+
+    try:
+        time_model = config._time_model()
+        assert "demo_knob" in time_model.model_fields and "demo_scheme" in str(time_model.model_fields["scheme"])
+        t = time_model(scheme="demo_scheme", demo_knob=7)
+        assert t.demo_knob == 7
+        with pytest.raises(Exception, match="applies only to scheme: demo_scheme"):
+            time_model(scheme="rkf23", demo_knob=7)
+    finally:
+        del timestepping.SCHEMES["demo_scheme"]
+    assert config.SCHEME_OPTIONS == {name: tuple(cls.option_fields) for name, cls in timestepping.SCHEMES.items()
+                                     if cls.option_fields}
+
+
+def test_the_runner_names_no_scheme():
+    from pathlib import Path
+
+    import capsim.runner
+    from capsim.timestepping import SCHEMES
+
+    text = Path(capsim.runner.__file__).read_text()
+    assert not [name for name in SCHEMES if f'"{name}"' in text or f"'{name}'" in text]

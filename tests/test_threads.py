@@ -96,10 +96,17 @@ def _cli_run(tmp_path, env):
 def test_cli_run_gets_the_policy(tmp_path):
     attrs, stderr = _cli_run(tmp_path, clean_env())
     assert attrs["numba_threading_layer"] == chosen_layer()
-    assert attrs["numba_num_threads"] == threads.usable_cores()
+    # a level-0 mesh runs on one thread (issue 29: threads chosen by the work), out of the cores given
+    assert attrs["numba_num_threads"] == threads.threads_for_work(int(attrs["n_nodes"]), threads.usable_cores()) == 1
     assert attrs["omp_wait_policy"] == "PASSIVE"
     assert attrs["thread_policy_user_env"] == ""
     assert "threads:" not in stderr
+
+
+def test_threads_follow_the_work():
+    assert threads.threads_for_work(1026, 2) == 1  # level 3: one thread is faster
+    assert threads.threads_for_work(4098, 2) == 2  # level 4: two threads 1.18x faster per evaluation
+    assert threads.threads_for_work(4098, 0) == 1
 
 
 def test_cli_run_users_variables_override_the_policy(tmp_path):

@@ -73,7 +73,7 @@ def test_rkc_is_stable_at_100_times_the_rkf23_limit():
     assert np.abs(z).max() > 1e6
 
 
-@pytest.mark.parametrize("name", sorted(SCHEMES))
+@pytest.mark.parametrize("name", sorted(n for n, cls in SCHEMES.items() if cls.stepped))  # auto resolves to one
 def test_every_scheme_follows_the_exact_solution(name):
     integ = make_integrator(name, lambda y: (linear(y), None), Y0, rtol=1e-5, dt_initial=1e-5,
                             dt_min=1e-12, dt_max=1.0)

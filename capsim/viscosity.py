@@ -1,0 +1,270 @@
+"""Membrane viscosity: a registry of viscous membrane models and their velocity solve.
+
+A viscous membrane adds to the elastic tension a tension that depends on the
+membrane's rate of deformation. In units of E_s (tension) and k (rate), with the
+Boussinesq numbers Bq_s = μ_s/(μa) and Bq_d = μ_d/(μa) (μ the outer viscosity),
+the Kelvin–Voigt membrane (Barthès-Biesel & Sgaier 1985, their eq. 2.6; Yazdani
+& Bagchi 2013; docs/viscous_membrane.md, eq. V1) carries
+
+    T_v = G [2 Bq_s (D − ½ tr(D) P) + Bq_d tr(D) P],   D = ½ P(∇_s u + ∇_s uᵀ)P,
+
+P = I − nn the surface projector. Its traction Δf_v = −∇_s·T_v is linear in the
+membrane velocity u: by virtual power (as the elastic Galerkin traction, seed
+3.4–3.6 replaced by M·Δf = ∂E/∂x) M·Δf_v = G·K u with K the viscous stiffness
+of ``kernels.viscous_membrane_blocks`` (eq. V3). The velocity equation of
+``solver.CapsuleModel.velocity`` (seed 2.11 in capsim's units) gains a term in u,
+
+    A u + SL[M⁻¹K u]/(8π) = u∞ − SL[Δf_e]/(8πG)                     (V4)
+
+(A = I at λ = 1, else the deflated double-layer operator); G cancels from the
+viscous term, which is why the Boussinesq number is the parameter. (V4) is solved
+by GMRES (``capsim.krylov``) at every velocity evaluation, warm-started from the
+last solution, right-preconditioned by the "local drag" approximation
+SL[w] ≈ s w (s the single layer's Rayleigh quotient on white noise at the rest
+shape, where the finest modes, the stiff ones, dominate):
+
+    Z⁻¹ ≈ ( (1+λ)/2 M + s/(8π) K )⁻¹ M
+
+factorised (sparse LU) at the rest shape and again wherever a solve took more than
+REFRESH_ITERATIONS, applied in the frame of the best-fit rotation from the nodes where it
+was factorised ("frozen"; the others, measured against it, in docs/viscous_membrane.md).
+
+Registry: a model is an entry of :data:`VISCOSITY_MODELS` (its parameters, their
+meaning, its source); ``build`` makes its solver. Only the Kelvin–Voigt membrane
+is implemented; the standard linear solid (a Maxwell branch whose stress is
+state) is not (docs/viscous_membrane.md says why).
+
+This module imports no numba at import time (config.py reads the registry).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def is_active(params: dict | None) -> bool:
+    """Whether a viscosity block changes anything (every Boussinesq number 0: the elastic code path)."""
+    return bool(params) and any(float(v) > 0.0 for k, v in params.items() if k != "model")
+
+
+class KelvinVoigtMembrane:
+    """The solver of (V4) for one discretisation (module docstring).
+
+    ``stiffness(x)`` is K (sparse, 3N × 3N, node-major); ``solve(model, x, geo,
+    rhs, normals)`` returns u. ``iterations`` counts GMRES iterations over the
+    run (part of the model's checkpoint state).
+    """
+
+    name = "kelvin_voigt"
+
+    #: preconditioners of the solve (docs/viscous_membrane.md, where benchmarks/viscous_membrane.py's
+    #: measurements chose frozen): frozen, rest, local (module docstring) and none (plain GMRES)
+    PRECONDITIONERS = ("frozen", "rest", "local", "none")
+    #: frozen: refactorise where the last solve took more GMRES iterations than this
+    REFRESH_ITERATIONS = 10
+
+    def __init__(self, disc, rest_positions: np.ndarray, *, shear: float, dilatational: float = 0.0,
+                 preconditioner: str = "frozen") -> None:
+        if preconditioner not in self.PRECONDITIONERS:
+            raise ValueError(f"unknown preconditioner {preconditioner!r} (allowed: {self.PRECONDITIONERS})")
+        self.preconditioner = preconditioner
+        for field_name, v in (("shear", shear), ("dilatational", dilatational)):
+            if not (math.isfinite(v) and v >= 0.0):
+                raise ValueError(f"membrane.viscosity.{field_name} = {v!r}: must be a finite number >= 0")
+        self.disc = disc
+        self.shear = float(shear)
+        self.dilatational = float(dilatational)
+        self.rest_positions = np.ascontiguousarray(rest_positions, dtype=np.float64)
+        e = np.asarray(disc.elements, dtype=np.int64)
+        dof = (3 * e[:, :, None] + np.arange(3)[None, None, :]).reshape(e.shape[0], 18)
+        self._rows = np.repeat(dof, 18, axis=1).ravel()
+        self._cols = np.tile(dof, (1, 18)).ravel()
+        self._drag: float | None = None
+        self._rest_factor = None
+        self._factor_x: np.ndarray | None = None  # frozen: where the factor is built (None: the rest shape)
+        self.iterations = 0
+        self.factorizations = 0  # sparse LUs of a preconditioner (not checkpointed: a benchmark count)
+
+    # -- operators ---------------------------------------------------------------
+    def stiffness(self, x: np.ndarray):
+        """K at configuration x (eq. V3), with c_s = Bq_s and c_d = Bq_d (G cancels, eq. V4)."""
+        import scipy.sparse as sp
+
+        from capsim.kernels import viscous_membrane_blocks
+
+        disc = self.disc
+        blocks = viscous_membrane_blocks(
+            np.ascontiguousarray(x), disc.elements, disc.mem_dxi, disc.mem_deta, disc.mem_w,
+            self.shear, self.dilatational)
+        n = 3 * disc.n_nodes
+        return sp.csr_matrix((blocks.ravel(), (self._rows, self._cols)), shape=(n, n))
+
+    def traction(self, x: np.ndarray, geo, u: np.ndarray) -> np.ndarray:
+        """M⁻¹K u at the nodes (N_p, 3): the viscous traction jump Δf_v over G, i.e. in units
+        of μk (times G: in the E_s/a of the elastic Δf). For the observables: one sparse solve."""
+        import scipy.sparse as sp
+        from scipy.sparse.linalg import splu
+
+        disc = self.disc
+        mass = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr),
+                             shape=(disc.n_nodes, disc.n_nodes))
+        return splu(mass.tocsc()).solve(np.asfortranarray((self.stiffness(x) @ u.ravel()).reshape(-1, 3)))
+
+    def dissipation(self, x: np.ndarray, u: np.ndarray) -> float:
+        """uᵀK u = ∫ T_v:D dA / G: the membrane's viscous dissipation rate in units of μ k² a³."""
+        return float(u.ravel() @ (self.stiffness(x) @ u.ravel()))
+
+    def drag_scale(self, model: "CapsuleModel") -> float:
+        """s = ⟨v, SL[v]⟩/⟨v, v⟩ at the rest shape for white noise v (fixed seed): computed
+        once, from the rest positions, so that a resumed run uses the same value."""
+        if self._drag is None:
+            disc = self.disc
+            x = self.rest_positions
+            v = np.random.default_rng(12345).standard_normal(x.shape)
+            sl = disc.single_layer(x, disc.geometry(x), np.ascontiguousarray(v[disc.elements]))
+            self._drag = max(float(np.vdot(v, sl)) / float(np.vdot(v, v)), 0.0)
+        return self._drag
+
+    def _rest_preconditioner(self, model: "CapsuleModel", x: np.ndarray):
+        """The local-drag preconditioner factorised at the rest shape (``rest``) or where the
+        last refactorisation was (``frozen``), applied in the frame of the best-fit rotation
+        from those nodes to x (Kabsch 1976): a tank-treading membrane carries its nodes
+        round while its shape stays, and K of a rotated mesh is the rotated K. ``frozen``
+        refactorises at the configuration of a solve that took more than REFRESH_ITERATIONS
+        (the shape has moved away); where is part of the checkpoint, so a resumed run
+        rebuilds the same factor."""
+        import scipy.sparse as sp
+        from scipy.sparse.linalg import splu
+
+        from capsim.geometry import best_rotation
+
+        if self._rest_factor is None:
+            disc = self.disc
+            X = self.rest_positions if self._factor_x is None else self._factor_x
+            geo = disc.geometry(X)
+            mass = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr),
+                                 shape=(disc.n_nodes, disc.n_nodes))
+            c = self.drag_scale(model) / (8.0 * np.pi)
+            a = 0.5 * (1.0 + model.viscosity_ratio)
+            mass3 = sp.kron(mass, sp.identity(3), format="csr")
+            self._rest_factor = (splu((a * mass3 + c * self.stiffness(X)).tocsc()), mass3)
+            self.factorizations += 1
+        lu, mass3 = self._rest_factor
+        rot = best_rotation(self.rest_positions if self._factor_x is None else self._factor_x, x)
+
+        def precondition(y: np.ndarray) -> np.ndarray:
+            z = lu.solve(mass3 @ (y.reshape(-1, 3) @ rot).ravel())
+            return (z.reshape(-1, 3) @ rot.T).ravel()
+
+        return precondition
+
+    # -- the velocity solve -----------------------------------------------------
+    def solve(self, model: "CapsuleModel", x: np.ndarray, geo, rhs: np.ndarray, normals: np.ndarray | None,
+              ) -> np.ndarray:
+        """u of (V4) to the relative residual ``model.solver_tol``; sets the model's
+        ``last_solve_info`` (the model raises when the residual missed the tolerance) and
+        warm starts, counts its layer applications."""
+        import scipy.sparse as sp
+        from scipy.sparse.linalg import splu
+
+        from capsim.krylov import gmres
+
+        disc, counts, lam = model.disc, model.counts, model.viscosity_ratio
+        K = self.stiffness(x)
+        mass = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr),
+                             shape=(disc.n_nodes, disc.n_nodes))
+        mass_lu = splu(mass.tocsc())
+        double = model.double_layer_operator(x, geo, normals) if lam != 1.0 else None
+        elements = disc.elements
+
+        def apply(u: np.ndarray) -> np.ndarray:
+            density = mass_lu.solve(np.asfortranarray((K @ u.ravel()).reshape(-1, 3)))
+            sl = disc.single_layer(x, geo, np.ascontiguousarray(density[elements]))
+            counts["single_layer_applications"] += 1
+            base = u if double is None else double(u)
+            return base + sl / (8.0 * np.pi)
+
+        if self.preconditioner == "local":
+            # the local-drag approximation of the operator (module docstring)
+            c = self.drag_scale(model) / (8.0 * np.pi)
+            a = 0.5 * (1.0 + lam)
+            mass3 = sp.kron(mass, sp.identity(3), format="csr")
+            pre_lu = splu((a * mass3 + c * K).tocsc())
+            self.factorizations += 1
+
+            def precondition(y: np.ndarray) -> np.ndarray:
+                return pre_lu.solve(mass3 @ y)
+        elif self.preconditioner in ("rest", "frozen"):
+            precondition = self._rest_preconditioner(model, x)
+        else:
+            def precondition(y: np.ndarray) -> np.ndarray:
+                return y
+
+        last_u, last_rhs = model._last_velocity, model._last_rhs
+        if last_u is not None and last_u.shape == rhs.shape:
+            guess = last_u
+            if last_rhs is not None and last_rhs.shape == rhs.shape:
+                guess = guess + precondition((rhs - last_rhs).ravel()).reshape(rhs.shape)
+        else:
+            guess = precondition(rhs.ravel()).reshape(rhs.shape)
+        model._last_rhs = rhs
+        bnorm = max(float(np.linalg.norm(rhs)), 1e-300)
+        r = rhs - apply(guess)
+        residual = float(np.linalg.norm(r)) / bnorm
+        u, iterations = guess, 0
+        if residual > model.solver_tol:
+            restart = min(60, model.solver_max_iter)
+            delta, iterations, rnorm = gmres(
+                lambda v: apply(v.reshape(-1, 3)).ravel(), r.ravel(), model.solver_tol * bnorm,
+                precondition=None if self.preconditioner == "none" else precondition,
+                max_iter=model.solver_max_iter * restart, restart=restart, callback=model.interrupt_check)
+            u = guess + delta.reshape(-1, 3)
+            residual = rnorm / bnorm
+        self.iterations += int(iterations)
+        if self.preconditioner == "frozen" and iterations > self.REFRESH_ITERATIONS:
+            self._factor_x, self._rest_factor = np.array(x, copy=True), None
+        model.last_solve_info = {"iterations": int(iterations), "residual": residual}
+        if not residual <= 10.0 * model.solver_tol:  # the model raises SolverDivergence
+            return u
+        model._last_velocity = u
+        if disc.symmetry != "none":  # the sparse and dense products need not treat mirror rows alike
+            u = disc.expand(u[disc.targets])
+        return u
+
+
+@dataclass(frozen=True)
+class ViscosityModel:
+    """A registry entry: the model's name, its parameters (Boussinesq numbers,
+    ≥ 0) with their meaning, its source and the class that solves (V4) with it."""
+
+    name: str
+    parameters: dict
+    reference: str
+    solver: type  # built with (disc, rest_positions, **parameters)
+
+
+VISCOSITY_MODELS: dict[str, ViscosityModel] = {
+    "kelvin_voigt": ViscosityModel(
+        "kelvin_voigt",
+        {"shear": "surface shear viscosity as a Boussinesq number Bq_s = μ_s/(μ a)",
+         "dilatational": "surface dilatational viscosity Bq_d = μ_d/(μ a) (isotropic viscous tension μ_d tr D)"},
+        "Barthès-Biesel & Sgaier, J. Fluid Mech. 160 (1985) 119-135; Yazdani & Bagchi, J. Fluid Mech. 718 (2013) "
+        "569-595",
+        KelvinVoigtMembrane,
+    ),
+}
+
+
+def build(disc, rest_positions: np.ndarray, params: dict | None) -> KelvinVoigtMembrane | None:
+    """The viscous membrane of a case's ``membrane.viscosity`` block, or None when it
+    changes nothing (no block, or every Boussinesq number 0: today's elastic path)."""
+    if not is_active(params):
+        return None
+    params = dict(params)
+    name = params.pop("model", "kelvin_voigt")
+    if name not in VISCOSITY_MODELS:
+        raise ValueError(f"unknown membrane viscosity model {name!r} (allowed: {sorted(VISCOSITY_MODELS)})")
+    return VISCOSITY_MODELS[name].solver(disc, rest_positions, **params)

@@ -1,0 +1,239 @@
+"""A viscous (Kelvin–Voigt) membrane (issue 28): the viscous stiffness against the
+analytic dissipation on a sphere, the velocity solve against a dense solve, the
+schema's one-line refusals, Bq = 0 bit for bit, a resumed run, both explicit schemes.
+The small-deformation theory and the trends are in tests/test_viscous_theory.py."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from typer.testing import CliRunner
+
+from capsim.cli import app
+from capsim.config import ConfigError, apply_overrides, case_from_dict
+from capsim.runner import run_case
+from capsim.solver import build_model
+from capsim.store import read_trajectory
+
+
+def _case(tmp_path, name="v", **dotted):
+    case = case_from_dict({"name": name, "mesh": {"level": 1}, "flow": {"shear_rate_G": 0.1},
+                           "time": {"t_end": 1.0}, "output": {"path": str(tmp_path / f"{name}.h5")}})
+    return apply_overrides(case, **dotted)
+
+
+# ---------------------------------------------------------------- the operator
+
+@pytest.mark.parametrize("level, tol", [(2, 5e-4), (3, 3e-5)])
+def test_dissipation_of_a_straining_sphere_is_the_analytic_one(level, tol):
+    """u = E·x on the unit sphere: D = PEP, tr D = −n·E·n, and with ∫ n_i n_j = 4π/3 δ_ij,
+    ∫ n_i n_j n_k n_l = 4π/15 (δδ + δδ + δδ): uᵀK u = ∫ τ:D dA = (16π/5 Bq_s + 8π/15 Bq_d) E:E
+    (docs/viscous_membrane.md, eq. V6); rigid motions dissipate nothing. Fourth order in h."""
+    case = case_from_dict({"name": "k", "mesh": {"level": level},
+                           "membrane": {"viscosity": {"shear": 1.0, "dilatational": 0.5}}})
+    model, X = build_model(case)
+    E = np.array([[0.0, 0.5, 0.0], [0.5, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    exact = (16 * np.pi / 5 * 1.0 + 8 * np.pi / 15 * 0.5) * float(np.sum(E * E))
+    assert model.viscous.dissipation(X, X @ E.T) == pytest.approx(exact, rel=tol)
+    rigid = np.cross([0.3, -0.2, 1.0], X) + np.array([1.0, 2.0, 3.0])
+    assert abs(model.viscous.dissipation(X, rigid)) < 1e-10
+    K = model.viscous.stiffness(X)
+    assert abs(K - K.T).max() < 1e-12
+
+
+def test_velocity_solves_the_viscous_boundary_integral_equation():
+    """u + SL[M⁻¹K u]/(8π) = u∞ − SL[Δf]/(8πG) (eq. V4), checked against a dense solve built
+    from the single-layer matrix, at a deformed state, λ = 1."""
+    case = case_from_dict({"name": "d", "mesh": {"level": 1}, "flow": {"shear_rate_G": 0.1},
+                           "solver": {"tol": 1e-11, "volume_correction": False},
+                           "membrane": {"viscosity": {"shear": 2.0, "dilatational": 0.3}}})
+    model, X = build_model(case)
+    x = X * np.array([1.1, 1 / 1.1, 1.0])
+    state = model.membrane(x)
+    u = model.velocity(x, state)
+    disc, geo = model.disc, state.geometry
+    n = disc.n_nodes
+    S = disc.layer_matrix(x, geo, "single")
+    mass = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr), shape=(n, n))
+    minv_k = sp.linalg.spsolve(sp.kron(mass, sp.identity(3), format="csc"), model.viscous.stiffness(x).tocsc())
+    rhs = model.far_field(x).ravel() - S @ state.traction.ravel() / (8 * np.pi * 0.1)
+    want = np.linalg.solve(np.eye(3 * n) + S @ minv_k.toarray() / (8 * np.pi), rhs).reshape(-1, 3)
+    np.testing.assert_allclose(u, want, rtol=0, atol=1e-8 * np.abs(want).max())
+    assert model.last_solve_info["iterations"] > 0
+
+
+# ---------------------------------------------------------------- the schema
+
+@pytest.mark.parametrize("membrane, extra, expected", [
+    ({"viscosity": {"shear": -1.0}}, {}, "membrane.viscosity.shear = -1.0: must be >= 0"),
+    ({"viscosity": {"shear": ".inf"}}, {}, "membrane.viscosity.shear = '.inf': must be a number"),
+    ({"viscosity": {"dilatational": "nan"}}, {}, "membrane.viscosity.dilatational = 'nan': must be a number"),
+    ({"viscosity": {"shear": 1.0, "relaxation_time": 2.0}}, {},
+     "membrane.viscosity.relaxation_time: unknown field 'relaxation_time' (allowed: model, shear, dilatational)"),
+    ({"viscosity": {"model": "maxwell", "shear": 1.0}}, {}, "membrane.viscosity.model = 'maxwell': must be one of"),
+    ({"viscosity": {"shear": 1.0}, "traction": "contour"}, {},
+     "membrane.traction = 'contour': a viscous membrane (membrane.viscosity) needs traction: galerkin"),
+    ({"viscosity": {"shear": 1.0}}, {"time": {"scheme": "linearly_implicit"}},
+     "time.scheme = 'linearly_implicit': cannot run a viscous membrane (membrane.viscosity): its stage Jacobian"),
+])
+def test_bad_viscosity_is_one_line_naming_the_field(membrane, extra, expected):
+    with pytest.raises(ConfigError) as err:
+        case_from_dict({"name": "bad", "membrane": membrane, **extra})
+    message = str(err.value)
+    assert expected in message and "\n" not in message
+
+
+def test_cli_refuses_a_bad_viscosity_with_exit_2(tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text("name: bad\nmembrane:\n  viscosity:\n    shear: -0.5\n")
+    result = CliRunner().invoke(app, ["run", str(path), "-q"])
+    assert result.exit_code == 2
+    errors = [ln for ln in result.output.splitlines() if ln.startswith("error:")]
+    assert len(errors) == 1 and "membrane.viscosity.shear = -0.5: must be >= 0" in errors[0]
+    assert "Traceback" not in result.output
+    assert not (tmp_path / "runs").exists()
+
+
+# ---------------------------------------------------------------- runs
+
+def test_zero_viscosity_is_todays_trajectory_bit_for_bit(tmp_path):
+    """A viscosity block of zeros takes the elastic code path: positions, D_xy and the
+    work counters equal those of a case without the block, to the bit."""
+    plain = run_case(_case(tmp_path, "plain", **{"time.t_end": 0.5}))
+    zero = run_case(_case(tmp_path, "zero", **{"time.t_end": 0.5,
+                                               "membrane.viscosity": {"shear": 0.0, "dilatational": 0.0}}))
+    a, b = read_trajectory(plain["path"]), read_trajectory(zero["path"])
+    for key in ("t", "D_xy", "theta", "Sxy_star", "layer_applications", "solver_iterations"):
+        assert np.array_equal(a["timeseries"][key], b["timeseries"][key]), key
+    assert np.array_equal(a["positions"], b["positions"])
+
+
+class _InterruptAfter:
+    def __init__(self, steps: int) -> None:
+        self.steps = steps
+
+    def __call__(self, state: dict) -> None:
+        if state["step"] >= self.steps:
+            raise KeyboardInterrupt
+
+
+@pytest.mark.parametrize("scheme", ["rkf23", "rkc"])
+def test_resumed_viscous_run_repeats_the_uninterrupted_one(tmp_path, scheme):
+    """The GMRES warm starts and the iteration counter are in the checkpoint; the
+    preconditioner is a function of the positions alone."""
+    extra = {"time.rho_refresh_steps": 3} if scheme == "rkc" else {}
+    case = _case(tmp_path, f"r{scheme}", **{"time.scheme": scheme, "time.t_end": 0.6,
+                                            "membrane.viscosity": {"shear": 1.0}, **extra})
+    assert run_case(case, progress=_InterruptAfter(4))["status"] == "interrupted"
+    resumed = run_case(case, resume=True)
+    reference = run_case(apply_overrides(case, **{"output.path": str(tmp_path / f"ref{scheme}.h5")}))
+    assert resumed["status"] == reference["status"] == "completed"
+    assert resumed["steps"] == reference["steps"]
+    got, want = read_trajectory(case.output.path), read_trajectory(reference["path"])
+    for key in ("t", "D_xy", "theta", "solver_iterations", "layer_applications", "velocity_evaluations"):
+        np.testing.assert_allclose(got["timeseries"][key], want["timeseries"][key], rtol=0, atol=1e-10, err_msg=key)
+    np.testing.assert_allclose(got["positions"][-1], want["positions"][-1], rtol=0, atol=1e-10)
+
+
+def test_both_explicit_schemes_agree_and_record_the_solves(tmp_path):
+    """rkf23 and rkc on the same viscous case (λ = 5, so the solve holds the double layer
+    too) agree to their tolerance; every step records the GMRES iterations of its solve."""
+    runs = {}
+    for scheme in ("rkf23", "rkc"):
+        case = _case(tmp_path, f"s{scheme}", **{"time.scheme": scheme, "time.t_end": 1.0, "time.rtol": 1e-5,
+                                                "flow.viscosity_ratio": 5.0, "membrane.viscosity": {"shear": 1.0}})
+        assert run_case(case)["status"] == "completed"
+        runs[scheme] = read_trajectory(case.output.path)["timeseries"]
+    a, b = runs["rkf23"], runs["rkc"]
+    assert a["D_xy"][-1] == pytest.approx(b["D_xy"][-1], rel=2e-3)
+    assert a["theta"][-1] == pytest.approx(b["theta"][-1], abs=2e-3)
+    for ts in runs.values():
+        assert np.all(ts["solver_iterations"][1:] >= 1)
+        assert np.all(ts["solver_residual"] <= 1e-5)
+
+
+# ---------------------------------------------------------------- physical units
+
+def test_units_give_the_boussinesq_number():
+    """Bq = μ_s/(μ a): 1e-7 / (1.2e-3 × 2.8e-6) = 29.76 (capsim/units.py's red cell), on the CLI,
+    in a physical block (stored beside it, and loading back) and in configs/rbc-viscous.yaml."""
+    import json
+    from pathlib import Path
+
+    import yaml
+
+    from capsim.config import load_case
+
+    hand = 1e-7 / (1.2e-3 * 2.8e-6)
+    args = ["units", "--shear-rate", "100 1/s", "--viscosity", "1.2 mPa*s", "--radius", "2.8 um",
+            "--shear-modulus", "6 uN/m", "--membrane-viscosity", "1e-7 N*s/m"]
+    out = json.loads(CliRunner().invoke(app, args + ["--json"]).stdout)
+    assert out["Bq"] == pytest.approx(hand, rel=1e-12)
+    assert out["membrane_time_s"] == pytest.approx(1e-7 / 6e-6, rel=1e-12)
+    bad = CliRunner().invoke(app, args[:-1] + ["1e-7 N/m"])
+    assert bad.exit_code == 2 and "is not a surface viscosity" in bad.output
+    physical = {"shear_rate": "100 1/s", "viscosity": "1.2 mPa*s", "radius": "2.8 um", "shear_modulus": "6 uN/m",
+                "membrane_viscosity": "1e-7 N*s/m"}
+    case = case_from_dict({"name": "p", "physical": physical})
+    assert case.membrane.viscosity.shear == pytest.approx(hand, rel=1e-12)
+    assert case_from_dict(yaml.safe_load(case.to_yaml())) == case
+    with pytest.raises(ConfigError, match="membrane.viscosity.shear = 3.0: give membrane.viscosity.shear or "
+                                          "physical.membrane_viscosity, not both"):
+        case_from_dict({"name": "p", "physical": physical, "membrane": {"viscosity": {"shear": 3.0}}})
+    preset = load_case(Path(__file__).resolve().parents[1] / "configs" / "rbc-viscous.yaml")
+    assert preset.membrane.viscosity.shear == pytest.approx(hand, rel=1e-12)
+    assert preset.flow.viscosity_ratio == 5.0 and preset.time.scheme == "rkc"
+
+
+class _InterruptAt:
+    def __init__(self, t: float) -> None:
+        self.t = t
+
+    def __call__(self, state: dict) -> None:
+        if state["t"] >= self.t:
+            raise KeyboardInterrupt
+
+
+@pytest.mark.parametrize("interrupt_at", [0.3, 0.45])
+def test_flow_that_stops_lands_on_the_stop_and_resumes_exactly(tmp_path, interrupt_at):
+    """flow.history kind stop: a step ends at kt = 0.3, the capsule relaxes at rest after
+    it (D_xy falls), the summary says 'relaxing' with a relaxation time; a run interrupted
+    at the stop (the flow not yet stopped in its checkpoint) or after it (stopped) resumes
+    to the uninterrupted run's trajectory."""
+    case = _case(tmp_path, f"stop{interrupt_at}", **{
+        "time.t_end": 0.8, "flow.shear_rate_G": 0.05, "membrane.viscosity": {"shear": 0.5},
+        "flow.history": {"kind": "stop", "stop_time": 0.3}})
+    assert run_case(case, progress=_InterruptAt(interrupt_at))["status"] == "interrupted"
+    resumed = run_case(case, resume=True)
+    reference = run_case(apply_overrides(case, **{"output.path": str(tmp_path / f"ref{interrupt_at}.h5")}))
+    assert resumed["status"] == reference["status"] == "completed"
+    assert reference["motion"] == "relaxing" and reference["relaxation_time"] > 0
+    got, want = read_trajectory(case.output.path), read_trajectory(reference["path"])
+    for key in ("t", "D_xy", "theta", "velocity_evaluations"):
+        np.testing.assert_allclose(got["timeseries"][key], want["timeseries"][key], rtol=0, atol=1e-10, err_msg=key)
+    t, D = want["timeseries"]["t"], want["timeseries"]["D_xy"]
+    i = int(np.argmin(np.abs(t - 0.3)))
+    assert t[i] == pytest.approx(0.3, abs=1e-12)
+    assert D[-1] < 0.5 * D[i] and np.all(np.diff(D[i + 1:]) < 0)
+
+
+def test_stop_time_is_one_line_when_wrong():
+    for history, expected in (({"kind": "stop", "stop_time": -1.0}, "flow.history.stop_time = -1.0: must be > 0"),
+                              ({"kind": "stop"}, "flow.history.stop_time = None: is required with kind: stop"),
+                              ({"kind": "steady", "stop_time": 0.5}, "flow.history.stop_time = 0.5: applies only to kind: stop")):
+        with pytest.raises(ConfigError) as err:
+            case_from_dict({"name": "s", "time": {"t_end": 1.0}, "flow": {"history": history}})
+        assert expected in str(err.value), str(err.value)
+
+
+def test_viscosity_models_are_the_registry():
+    """The schema's model choices and fields are the registry's (adding a model is one entry)."""
+    from typing import get_args
+
+    from capsim.config import MembraneViscosity
+    from capsim.viscosity import VISCOSITY_MODELS
+
+    assert set(get_args(MembraneViscosity.model_fields["model"].annotation)) == set(VISCOSITY_MODELS)
+    fields = set(MembraneViscosity.model_fields) - {"model"}
+    assert set().union(*(m.parameters for m in VISCOSITY_MODELS.values())) == fields
