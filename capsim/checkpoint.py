@@ -28,7 +28,8 @@ from capsim.files import CHECKPOINT_SUFFIX, StorageError, tmp_name, write_failur
 from capsim.schedules import end_tolerance
 
 __all__ = [
-    "FORMAT", "PARTS", "CheckpointError", "ResumeError", "check_parts", "checkpoint_path", "first_difference",
+    "FORMAT", "PARTS", "CheckpointError", "ResumeError", "check_parts", "checkpoint_path", "end_state_bytes",
+    "first_difference", "load_end_state", "without_t_end",
     "load", "read_checkpoint", "remove_checkpoint", "save", "step_defining_of", "stored_case", "write_checkpoint",
 ]
 
@@ -156,13 +157,54 @@ def load(path: Path, case: Case) -> tuple[dict[str, dict[str, Any]], float]:
         saved = read_checkpoint(path)
     except CheckpointError as exc:
         raise ResumeError(str(exc)) from None
+    return _validated(saved, path, case, extending=False)
+
+
+def end_state_bytes(parts: dict[str, dict[str, Any]], config_yaml: str, wall_s: float) -> bytes:
+    """The state of a run that reached its t_end, in the checkpoint's format, as the bytes
+    the run file keeps (dataset ``end_state``) so that ``--resume --t-end T`` can extend it."""
+    import io
+
+    buffer = io.BytesIO()
+    np.savez(buffer, **{key: np.asarray(value) for key, value in {**flatten(parts), **_header(parts, config_yaml, wall_s)}.items()})
+    return buffer.getvalue()
+
+
+def load_end_state(blob: bytes, path: Path, case: Case) -> tuple[dict[str, dict[str, Any]], float]:
+    """The parts of a completed run's end state (:func:`end_state_bytes`) to extend it to
+    ``case.time.t_end``: the same checks as :func:`load`, except that t_end may differ
+    and must lie beyond where the run stopped."""
+    import io
+
+    try:
+        with np.load(io.BytesIO(blob), allow_pickle=False) as data:
+            saved = {key: data[key] for key in data.files}
+    except Exception as exc:  # noqa: BLE001 - a damaged blob, one line
+        raise ResumeError(f"{path}: unreadable end state: {type(exc).__name__}: {first_line(exc, default='')}") from None
+    parts, wall = _validated(saved, path, case, extending=True)
+    t_stop = float(parts["integrator"]["t"])
+    if not case.time.t_end > t_stop + end_tolerance(t_stop):
+        raise ResumeError(f"{path}: the run already reached kt = {t_stop:g}; time.t_end = {case.time.t_end:g} "
+                          f"must be later to extend it (--t-end)")
+    return parts, wall
+
+
+def without_t_end(case: dict) -> dict:
+    """A resolved case with its time.t_end dropped: what an extended run must share with its start."""
+    return {**case, "time": {k: v for k, v in (case.get("time") or {}).items() if k != "t_end"}}
+
+
+def _validated(saved: dict[str, Any], path: Path, case: Case, *, extending: bool) -> tuple[dict[str, dict[str, Any]], float]:
     fmt = np.asarray(saved.get("format", -1))
     if fmt.shape != () or fmt.dtype.kind not in "iu" or int(fmt) != FORMAT or "config_yaml" not in saved:
         raise ResumeError(f"{path}: not a capsim checkpoint of format {FORMAT}")
     saved_case = stored_case(saved["config_yaml"])
     if saved_case is None:
         raise ResumeError(f"{path}: bad checkpoint: config_yaml is not a case (not a YAML mapping)")
-    diff = first_difference(step_defining_of(case.model_dump(mode="json")), step_defining_of(saved_case))
+    now, then = step_defining_of(case.model_dump(mode="json")), step_defining_of(saved_case)
+    if extending:
+        now, then = without_t_end(now), without_t_end(then)
+    diff = first_difference(now, then)
     if diff is not None:
         raise ResumeError(f"{path}: belongs to another case: {diff}")
     wall = _header_number(saved, "wall_s", path)
@@ -226,7 +268,10 @@ def check_parts(path: Path, parts: dict[str, dict[str, Any]], fresh: dict[str, d
 
 def save(path: str | os.PathLike, parts: dict[str, dict[str, Any]], config_yaml: str, wall_s: float) -> None:
     """Write the run's parts with the header (case, wall time, format, steps and t)."""
+    write_checkpoint(path, {**flatten(parts), **_header(parts, config_yaml, wall_s)})
+
+
+def _header(parts: dict[str, dict[str, Any]], config_yaml: str, wall_s: float) -> dict[str, Any]:
     # steps and t also at the top level: where the checkpoint stands, for whoever watches it
-    header = {"config_yaml": config_yaml, "wall_s": wall_s, "format": FORMAT,
-              "steps": parts["integrator"]["steps"], "t": parts["integrator"]["t"]}
-    write_checkpoint(path, {**flatten(parts), **header})
+    return {"config_yaml": config_yaml, "wall_s": wall_s, "format": FORMAT,
+            "steps": parts["integrator"]["steps"], "t": parts["integrator"]["t"]}

@@ -152,7 +152,8 @@ def run(
     level: Optional[int] = typer.Option(None, "--level", help="override mesh.level"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress line"),
     resume: bool = typer.Option(
-        False, "--resume", help="continue an interrupted run from the checkpoint beside its output"
+        False, "--resume", help="continue an interrupted run from the checkpoint beside its output, "
+        "or extend a completed one to a later --t-end (appended to the same file)"
     ),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing file at the output path"),
     sets: Optional[list[str]] = typer.Option(None, "--set", metavar="FIELD=VALUE", help=_SET_HELP),
@@ -166,6 +167,8 @@ def run(
     capsim run configs/sphere.yaml --set mesh.level=2 --set time.scheme=rkc -o runs/s.h5
 
     capsim run configs/sphere.yaml --resume   (after an interruption)
+
+    capsim run configs/sphere.yaml --resume --t-end 12   (a completed run, extended to kt = 12)
     """
     case = _load(
         case_path,
@@ -200,7 +203,7 @@ def run(
             progress.finish()
     from capsim.display import print_summary
 
-    print_summary(summary, title=case.name)
+    print_summary({**summary, "shear_rate_G": case.flow.shear_rate_G}, title=case.name)
     if error_estimate and summary.get("status") == "completed":
         from capsim.study import run_error_estimate
 
@@ -457,6 +460,9 @@ def plot(
     no_theory: bool = typer.Option(False, "--no-theory", help="leave out the first-order theory"),
     unwrap: bool = typer.Option(False, "--unwrap", help="inclination: continue θ through ±π/2 (default: break the line there)"),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing file that is not a figure of this format"),
+    x: Optional[str] = typer.Option(None, "--x", help="steady: the swept field on the axis (default shear_rate_G, else the first numeric one)"),
+    size: Optional[str] = typer.Option(None, "--size", metavar="W,H", help="figure size in inches, e.g. 3.3,2.5 (default 6.4,4.8)"),
+    labels: Optional[list[str]] = typer.Option(None, "--label", help="legend label of each overlaid run, once per PATH in order"),
 ) -> None:
     """Write a figure (PNG, PDF or SVG) of a run, or of a campaign summary for --kind steady.
 
@@ -474,7 +480,7 @@ def plot(
 
     try:
         out = _files_call(write_figure, paths, kind.value, output, overwrite=overwrite, dpi=dpi,
-                          theory=not no_theory, unwrap=unwrap, times=times, node=node)
+                          theory=not no_theory, unwrap=unwrap, times=times, node=node, x=x, size=size, labels=labels)
     except FigureError as exc:
         raise _user_error(str(exc)) from None
     typer.echo(str(out))

@@ -309,6 +309,7 @@ class Physical(_Model):
         "membrane.viscosity.shear = Bq = μ_s / (μ a), Kelvin–Voigt")
 
     @field_validator("shear_rate", "viscosity", "radius", "surface_modulus", "shear_modulus", "membrane_viscosity",
+                     "bending_modulus",
                      mode="before")
     @classmethod
     def _a_quantity(cls, v: Any, info: ValidationInfo) -> Any:
@@ -324,6 +325,17 @@ class Physical(_Model):
             given = "not both" if self.surface_modulus is not None else "one of the two"
             raise ValueError(f"give surface_modulus (E_s) or shear_modulus (G_s), {given}")
         return self
+
+    bending_modulus: Optional[str] = Field(
+        None, description="membrane bending modulus κ, e.g. '1.8e-19 J'; membrane.bending_modulus is then "
+        "computed as κ/(E_s a²)")
+
+    def bending_modulus_scaled(self) -> float:
+        """κ/(E_s a²) from the physical κ, E_s (or 3 G_s) and a."""
+        from capsim.units import parse
+
+        E_s = self.conversion()["E_s_N_per_m"]
+        return parse(self.bending_modulus, "bending_modulus") / (E_s * parse(self.radius, "radius") ** 2)
 
     def conversion(self) -> dict[str, float]:
         """G, Ca and the time unit (capsim.units.conversion)."""
@@ -361,6 +373,12 @@ class Flow(_Model):
         0.1, gt=0,
         description="G = μ k a / E_s; or give the case's `physical` block (then G is computed from it "
         "and stored here)",
+    )
+    capillary_number: Optional[float] = Field(
+        None, gt=0,
+        description="Ca = μ k a / G_s, as papers that scale by the shear modulus G_s quote it; instead of "
+        "shear_rate_G, which is then computed: G = Ca/3 for the elastic laws (G_s = E_s/3), G = Ca for "
+        "surface_tension (a drop: Ca = μka/γ)",
     )
     viscosity_ratio: float = Field(
         1.0, gt=0,
@@ -653,6 +671,40 @@ class Case(_Model):
         "which is then computed and stored (giving both is an error, unless flow.shear_rate_G is the "
         "value they give, as in a resolved case)",
     )
+
+    @model_validator(mode="after")
+    def _G_from_capillary_number(self) -> Case:
+        Ca = self.flow.capillary_number
+        if Ca is None:
+            return self
+        if self.physical is not None:
+            raise _FieldProblem("flow.capillary_number", Ca, "give flow.capillary_number or physical, not both; remove one")
+        from capsim.units import SHEAR_OVER_ELASTIC_MODULUS
+
+        G = Ca * (1.0 if self.membrane.law == "surface_tension" else SHEAR_OVER_ELASTIC_MODULUS)
+        if "shear_rate_G" in self.flow.model_fields_set:
+            # a resolved case holds both: accepted when they agree
+            if not math.isclose(self.flow.shear_rate_G, G, rel_tol=1e-9):
+                raise _FieldProblem("flow.shear_rate_G", self.flow.shear_rate_G,
+                                    f"give flow.shear_rate_G or flow.capillary_number, not both "
+                                    f"(Ca = {Ca:g} gives G = {G:.6g}); remove one")
+            return self
+        object.__setattr__(self, "flow", self.flow.model_copy(update={"shear_rate_G": G}))
+        return self
+
+    @model_validator(mode="after")
+    def _bending_from_physical(self) -> Case:
+        if self.physical is None or self.physical.bending_modulus is None:
+            return self
+        kappa = self.physical.bending_modulus_scaled()
+        if "bending_modulus" in self.membrane.model_fields_set:
+            if not math.isclose(self.membrane.bending_modulus, kappa, rel_tol=1e-9):
+                raise _FieldProblem("membrane.bending_modulus", self.membrane.bending_modulus,
+                                    f"give membrane.bending_modulus or physical.bending_modulus, not both "
+                                    f"(physical gives κ/(E_s a²) = {kappa:.6g}); remove one")
+            return self
+        object.__setattr__(self, "membrane", self.membrane.model_copy(update={"bending_modulus": kappa}))
+        return self
 
     @model_validator(mode="after")
     def _G_from_physical(self) -> Case:
@@ -1009,6 +1061,15 @@ def load_case_with(path: str | os.PathLike, sets: list[str] | None = None, **ove
         raise ConfigError(f"{path}: --set/options: {text[len(prefix):] if text.startswith(prefix) else text}") from None
 
 
+#: field (or section) set → the field computed from it, dropped from the old case when the
+#: first is set and the second is not (``--set physical.shear_rate=50 1/s`` gives a new G)
+DERIVED_FIELDS = {
+    "physical": "flow.shear_rate_G",
+    "flow.capillary_number": "flow.shear_rate_G",
+    "physical.bending_modulus": "membrane.bending_modulus",
+}
+
+
 def apply_overrides(case: Case, **dotted: Any) -> Case:
     """A re-validated copy of `case` with dotted fields replaced.
 
@@ -1020,6 +1081,13 @@ def apply_overrides(case: Case, **dotted: Any) -> Case:
         case.output.path == Output().path.replace("{name}", case.name)
     ):
         data["output"]["path"] = Output().path
+    for given, derived in DERIVED_FIELDS.items():
+        # a derived value is computed anew from what it derives from, not the old one kept
+        if any(key == given or key.startswith(given + ".") for key in dotted) and derived not in dotted:
+            section, field = derived.split(".")
+            data[section].pop(field, None)
+    if any(key.startswith("physical.") for key in dotted) and data.get("physical") is None:
+        data["physical"] = {}  # a case without the block gets one from the --set values
     for key, value in dotted.items():
         parts = key.split(".")
         node = data

@@ -320,7 +320,11 @@ def _compression(summary: dict[str, Any]) -> str | None:
     frac, low = summary.get("compressed_fraction"), summary.get("min_tension")
     if not isinstance(frac, float):
         return None
-    text = f"{100 * frac:.0f} % (smallest tension {low:.3g} μka)"
+    G = summary.get("shear_rate_G")
+    # one tension scale on every screen: E_s, as the tension figure and the export (the stored
+    # min_tension is in μka = E_s/G); μka only where G is not known
+    shown = f"{low * G:.3g} E_s" if isinstance(G, (int, float)) and G > 0 else f"{low:.3g} μka"
+    text = f"{100 * frac:.0f} % (smallest tension {shown})"
     if frac > 0.05:
         if summary.get("bending_modulus", 0.0) > 0:
             text += f": held by the bending modulus {summary['bending_modulus']:g}; check mesh convergence"
@@ -339,7 +343,8 @@ def summary_rows(summary: dict[str, Any]) -> list[tuple[str, str]]:
         ("reason", summary.get("status_reason") or None),
         ("t", fmt(summary.get("t"), "g")),
         ("motion", summary.get("motion")),
-        ("averaged over kt", f"[{window[0]:.4g}, {window[1]:.4g}]" if None not in window else None),
+        ("averaged over kt", f"[{window[0]:.4g}, {window[1]:.4g}] (mean ± standard deviation over this window)"
+         if None not in window else None),
         ("period kT", fmt(period, ".4g") if isinstance(period, float) and math.isfinite(period) else None),
         ("D_xy", _mean_std(summary, "D_xy")),
         ("theta/pi", _mean_std(summary, "theta", math.pi)),

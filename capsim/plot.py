@@ -36,7 +36,7 @@ from capsim.mesh import linear_subtriangles  # numba-free: figures need no kerne
 __all__ = [
     "DPI", "FIGSIZE", "FIGURE_FORMATS", "FIRST_ORDER_G_MAX", "KINDS", "contour_figure", "orbit_figure", "deformation_figure", "inclination_figure",
     "plot", "relaxation_time", "rheology_figure", "steady_figure", "tensions_figure",
-    "trajectory_figure", "xy_section",
+    "section_loops", "trajectory_figure", "xy_section",
 ]
 
 FIGSIZE = (6.4, 4.8)  # inches
@@ -122,20 +122,106 @@ def _caption(fig, infos: Sequence[dict[str, Any]], extra: str = "") -> str:
     else:
         per_run = [dict(_caption_parts(i)) for i in infos]
         parts = [v for k, v in per_run[0].items() if all(p[k] == v for p in per_run)]
-        if len(infos) == 1 and infos[0].get("name"):
-            parts.insert(0, infos[0]["name"] + ":")
-        text = ", ".join(parts).replace(":,", ":") + (f"; {extra}" if extra and parts else extra)
+        # not the case's name: a name such as 'sphere-G0.1' says nothing true after --set G=0.05;
+        # the caption is the resolved case's values
+        text = ", ".join(parts) + (f"; {extra}" if extra and parts else extra)
     if text:
-        fig.supxlabel(text, fontsize="small", color="0.25")
+        _supxlabel(fig, text)
     return text
 
 
+def _supxlabel(fig, text: str) -> None:
+    """The caption under the axes, wrapped to the figure's width (its lines kept)."""
+    import textwrap
+
+    fig.caption = text  # unwrapped, for a change of size
+    width = max(40, int(fig.get_figwidth() * 15))  # characters of 'small' text per line
+    fig.supxlabel("\n".join(textwrap.fill(line, width) for line in text.split("\n")), fontsize="small", color="0.25")
+
+
 def _legend(ax, **kwargs):
-    """The legend outside the axes, on the right, where it hides no data."""
+    """A legend for `ax`; :func:`place_legends` puts it where it covers no data."""
     handles, _ = ax.get_legend_handles_labels()
     if not handles:
         return None
-    return ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, fontsize="small", **kwargs)
+    return ax.legend(loc=_INSIDE[0], fontsize="small", **kwargs)
+
+
+#: where a legend may sit inside its axes, tried in this order
+_INSIDE = ("upper right", "upper left", "lower right", "lower left", "upper center", "lower center",
+           "center right", "center left")
+#: a legend keeps this many pixels (at the figure's dpi) from any drawn data
+_LEGEND_CLEARANCE_PX = 3.0
+
+
+def place_legends(fig) -> None:
+    """Put each legend inside its axes at the first spot where it covers no drawn data
+    (no line vertex, no point between vertices, no marker, no error bar); only where no
+    spot is free, outside on the right, which narrows the axes by the legend's width and
+    no more. Done at the figure's final size (after ``--size``)."""
+    fig.draw_without_rendering()  # the final limits
+    for ax in fig.axes:
+        legend = ax.get_legend()
+        if legend is None:
+            continue
+        _unlabel_out_of_view(ax)
+        if not ax.get_legend_handles_labels()[0]:
+            legend.remove()
+            continue
+        kwargs = {"fontsize": "small"}
+        for loc in _INSIDE:
+            legend.remove()
+            legend = ax.legend(loc=loc, **kwargs)
+            fig.draw_without_rendering()
+            if not legend_covers_data(ax, legend):
+                break
+        else:
+            legend.remove()
+            ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, **kwargs)
+    fig.draw_without_rendering()
+
+
+def _unlabel_out_of_view(ax) -> None:
+    """A line with no point inside the axes' view (a theory curve above the data's range)
+    leaves the legend: an entry for what the reader cannot see misleads."""
+    (x0, x1), (y0, y1) = sorted(ax.get_xlim()), sorted(ax.get_ylim())
+    for line in ax.get_lines():
+        label = line.get_label()
+        if label.startswith("_"):
+            continue
+        x, y = np.asarray(line.get_xdata(), float), np.asarray(line.get_ydata(), float)
+        if line.get_transform() != ax.transData:  # axhline: x in axes units
+            x = np.full_like(y, x0)
+        if x.size and not np.any((x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)):
+            line.set_label("_" + label)
+
+
+def legend_covers_data(ax, legend) -> bool:
+    """Whether the legend's box (grown by :data:`_LEGEND_CLEARANCE_PX`) holds any point of
+    the drawn data of `ax`, its lines sampled between vertices as well."""
+    box = legend.get_window_extent().padded(_LEGEND_CLEARANCE_PX)
+    for xy in _drawn_paths(ax):
+        if len(xy) and np.any((xy[:, 0] >= box.x0) & (xy[:, 0] <= box.x1) & (xy[:, 1] >= box.y0) & (xy[:, 1] <= box.y1)):
+            return True
+    return False
+
+
+def _drawn_paths(ax):
+    """Display coordinates of every line of `ax` (densely sampled) and of its collections."""
+    for line in ax.get_lines():
+        xy = line.get_transform().transform(np.column_stack([line.get_xdata(), line.get_ydata()]).astype(float))
+        xy = xy[np.all(np.isfinite(xy), axis=1)]
+        if line.get_linestyle() not in ("None", "", " ") and len(xy) > 1:
+            s = np.linspace(0.0, 1.0, 25)[:, None, None]
+            xy = (xy[:-1][None] * (1 - s) + xy[1:][None] * s).reshape(-1, 2)
+        yield xy
+    for collection in ax.collections:
+        for path in collection.get_paths():
+            v = collection.get_transform().transform(path.vertices)
+            if len(v) > 1:
+                s = np.linspace(0.0, 1.0, 25)[:, None, None]
+                v = (v[:-1][None] * (1 - s) + v[1:][None] * s).reshape(-1, 2)
+            yield v[np.all(np.isfinite(v), axis=1)]
 
 
 def _theory_applies(info: dict[str, Any]) -> bool:
@@ -190,6 +276,19 @@ def _run_label(info: dict[str, Any], shape_in_caption: bool = False) -> str:
     return f"{shape}G = {info['G']:g}, λ = {info['lam']:g}{bending}"
 
 
+def _distinct(labels: list[str], infos: list[dict], runs: list) -> list[str]:
+    """Labels that tell overlaid runs apart: where two are equal, what else differs between
+    the runs (law, mesh, from the caption's parts), else the file's name."""
+    if len(set(labels)) == len(labels):
+        return labels
+    parts = [dict(_caption_parts(i)) if i else {} for i in infos]
+    keys = [k for k in ("law", "mesh", "shape") if len({p.get(k) for p in parts}) > 1]
+    out = [", ".join([label] + [p[k] for k in keys if k in p]) for label, p in zip(labels, parts)]
+    if len(set(out)) < len(out):
+        out = [f"{label} ({Path(str(run)).stem})" if not isinstance(run, dict) else label for label, run in zip(out, runs)]
+    return out
+
+
 def theta_for_plot(t: np.ndarray, theta: np.ndarray, D: np.ndarray, unwrap: bool = False) -> np.ndarray:
     """θ with NaN where it is not defined (D_xy below THETA_MIN_D of the run's largest,
     e.g. a sphere at kt = 0) and, unless ``unwrap``, NaN inserted where θ wraps
@@ -215,8 +314,8 @@ def theta_for_plot(t: np.ndarray, theta: np.ndarray, D: np.ndarray, unwrap: bool
     return t, theta
 
 
-def _plot_runs(ax, source, name: str, scale: float = 1.0,
-               unwrap: bool = False) -> list[tuple[dict, np.ndarray, np.ndarray, str]]:
+def _plot_runs(ax, source, name: str, scale: float = 1.0, unwrap: bool = False,
+               labels: Sequence[str] | None = None) -> list[tuple[dict, np.ndarray, np.ndarray, str]]:
     """Series ``name`` (divided by ``scale``) against kt: one run in black, several
     in colours labelled by what differs between them. θ is drawn only where
     defined and broken (or unwrapped) at ±π/2. Returns (case info, t, values,
@@ -230,6 +329,10 @@ def _plot_runs(ax, source, name: str, scale: float = 1.0,
     only_shape = not same_shape and all(i for i in infos) and all(
         (i["G"], i["lam"], i.get("bending")) == (infos[0]["G"], infos[0]["lam"], infos[0].get("bending"))
         for i in infos)
+    if labels is not None and len(labels) != len(runs):
+        raise ValueError(f"--label given {len(labels)} times for {len(runs)} runs: give one per PATH, in order")
+    auto = ["capsim"] if single else [_shape_text(i) if only_shape else _run_label(i, same_shape) for i in infos]
+    labels = list(labels) if labels is not None else _distinct(auto, infos, runs)
     drawn = []
     for i, (data, info) in enumerate(zip(loaded, infos)):
         t, values = _series(data, "t"), _series(data, name)
@@ -237,14 +340,13 @@ def _plot_runs(ax, source, name: str, scale: float = 1.0,
             t, values = theta_for_plot(t, values, _series(data, "D_xy"), unwrap=unwrap)
         values = values / scale
         color = "k" if single else f"C{i % 10}"
-        label = "capsim" if single else (_shape_text(info) if only_shape else _run_label(info, same_shape))
-        ax.plot(t, values, "-", color=color, label=label)
+        ax.plot(t, values, "-", color=color, label=labels[i])
         drawn.append((info, t, values, "C0" if single else color))
     _caption(ax.figure, [info for info, *_ in drawn])
     return drawn
 
 
-def deformation_figure(source, theory: bool = True):
+def deformation_figure(source, theory: bool = True, labels: Sequence[str] | None = None):
     """D_xy(t) with the first-order transient D∞(1 − e^{−t/τ}) and D∞.
 
     Several runs (a list) are overlaid in colours, each with its own theory curve
@@ -252,7 +354,7 @@ def deformation_figure(source, theory: bool = True):
     """
     fig = _figure()
     ax = fig.add_subplot()
-    drawn = _plot_runs(ax, source, "D_xy")
+    drawn = _plot_runs(ax, source, "D_xy", labels=labels)
     single = len(drawn) == 1
     for i, (info, t, D, color) in enumerate(drawn):
         if not (theory and _theory_applies(info)):
@@ -273,13 +375,13 @@ def deformation_figure(source, theory: bool = True):
     return fig
 
 
-def inclination_figure(source, theory: bool = True, unwrap: bool = False):
+def inclination_figure(source, theory: bool = True, unwrap: bool = False, labels: Sequence[str] | None = None):
     """θ/π against kt (several runs overlaid when given a list), with the first-order
     π/4 when one of the runs is a small-deformation sphere. θ is left out where it
     is undefined and broken where it wraps at ±π/2 (``unwrap``: continued instead)."""
     fig = _figure()
     ax = fig.add_subplot()
-    drawn = _plot_runs(ax, source, "theta", math.pi, unwrap=unwrap)
+    drawn = _plot_runs(ax, source, "theta", math.pi, unwrap=unwrap, labels=labels)
     if theory and any(_theory_applies(info) for info, *_ in drawn):
         ax.axhline(0.25, color="C0" if len(drawn) == 1 else "k", ls="--", lw=1,
                    label=r"first order, $\theta = \pi/4$")
@@ -327,81 +429,190 @@ def _quadratic_shape(xi: np.ndarray, eta: np.ndarray) -> np.ndarray:
                      4 * l0 * xi, 4 * xi * eta, 4 * eta * l0], axis=-1)
 
 
-def _curved_crossings(x: np.ndarray, elements: np.ndarray, z0: float, values, m: int):
-    """Points (and values) where the curved quadratic surface meets z = z0: each element's
-    parameter triangle is cut into m² small ones; on each of their edges z is a quadratic
-    in the edge parameter (the map is quadratic), solved exactly; the point is the map's."""
-    e = np.asarray(elements)
+def _parameter_grid(m: int):
+    """The m² small triangles of the parameter triangle: grid points (P, 2) in (ξ, η), their
+    edges (L, 2), each small triangle's three edges (T, 3), and for each edge where it lies
+    on the element's boundary: (element edge 0/1/2 or −1 inside, its index along that edge
+    counted from the edge's first corner)."""
     grid = [(i, j) for j in range(m + 1) for i in range(m + 1 - j)]
     index = {ij: k for k, ij in enumerate(grid)}
-    edges = []
+    edge_index: dict[tuple[int, int], int] = {}
+    edges: list[tuple[int, int]] = []
+
+    def edge(p, q):
+        key = (min(p, q), max(p, q))
+        if key not in edge_index:
+            edge_index[key] = len(edges)
+            edges.append(key)
+        return edge_index[key]
+
+    triangles = []
     for (i, j) in grid:
-        for di, dj in ((1, 0), (0, 1)):
-            if (i + di, j + dj) in index:
-                edges.append((index[(i, j)], index[(i + di, j + dj)]))
         if (i + 1, j) in index and (i, j + 1) in index:
-            edges.append((index[(i + 1, j)], index[(i, j + 1)]))
-    uv = np.array(grid, dtype=np.float64) / m
-    a, b = np.array(edges).T
-    uva, uvb = uv[a], uv[b]
-    xe = x[e]                                          # (E, 6, 3)
-    N = _quadratic_shape(uv[:, 0], uv[:, 1])           # (P, 6)
-    z = np.einsum("pk,ek->ep", N, xe[:, :, 2]) - z0    # (E, P)
-    za, zb = z[:, a], z[:, b]
-    cross = (za >= 0.0) != (zb >= 0.0)
-    el, ed = np.nonzero(cross)
+            a, b, c = index[(i, j)], index[(i + 1, j)], index[(i, j + 1)]
+            triangles.append((edge(a, b), edge(b, c), edge(c, a)))
+        if (i + 1, j + 1) in index:
+            a, b, c = index[(i + 1, j)], index[(i + 1, j + 1)], index[(i, j + 1)]
+            triangles.append((edge(a, b), edge(b, c), edge(c, a)))
+    on_side = []
+    for a, b in edges:
+        (ia, ja), (ib, jb) = grid[a], grid[b]
+        if ja == jb == 0:                       # side 0 → 1 (η = 0), counted from corner 0
+            on_side.append((0, min(ia, ib)))
+        elif ia + ja == ib + jb == m:           # side 1 → 2, counted from corner 1
+            on_side.append((1, min(ja, jb)))
+        elif ia == ib == 0:                     # side 2 → 0, counted from corner 2
+            on_side.append((2, min(m - ja, m - jb)))
+        else:
+            on_side.append((-1, 0))
+    return np.array(grid, dtype=np.float64) / m, np.array(edges), np.array(triangles), on_side
+
+
+_SIDE_CORNERS = ((0, 1), (1, 2), (2, 0))
+
+
+def section_loops(x: np.ndarray, elements: np.ndarray, z0: float = 0.0, values=None,
+                  m: int = SECTION_SUBDIVISIONS) -> list[tuple[np.ndarray, np.ndarray | None]]:
+    """The closed curves where the curved surface meets the plane z = z0, traced along the mesh.
+
+    Each quadratic element's parameter triangle is cut into m² small triangles; z is
+    evaluated on the curved element at their corners; a small triangle whose corners lie
+    on both sides of the plane holds one piece of the cut, from one of its edges to
+    another (marching triangles). The crossing on an edge is the root of z along it (a
+    quadratic in the edge parameter, the map being quadratic), mapped to the surface. An
+    edge on an element's side is named by its side's two corner nodes and its place along
+    the side, so the pieces of neighbouring elements join exactly; the pieces are then
+    chained into closed loops. Nothing is ordered by angle, so a cut that is not
+    star-shaped (a deformed red cell's S) is drawn as it is. Points with z within
+    1e-12 × the size of the plane count as on it, and on-plane counts as above, so every
+    crossing is seen the same way from both sides.
+
+    Returns [(points (n, 3), values (n, ...) or None)], each loop counter-clockwise seen
+    from +z, not repeating its first point, longest loop first.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    e = np.asarray(elements)
+    uv, edges, triangles, on_side = _parameter_grid(m)
+    xe = x[e]                                              # (E, 6, 3)
+    N = _quadratic_shape(uv[:, 0], uv[:, 1])               # (P, 6)
+    z = np.einsum("pk,ek->ep", N, xe[:, :, 2]) - z0        # (E, P)
+    z[np.abs(z) <= 1e-12 * max(1.0, float(np.abs(x).max()))] = 0.0
+    above = z >= 0.0
+    edge_cross = above[:, edges[:, 0]] != above[:, edges[:, 1]]          # (E, L)
+    tri_cross = edge_cross[:, triangles]                                  # (E, T, 3)
+    el, tr = np.nonzero(tri_cross.any(axis=2))
     if el.size == 0:
-        return np.empty((0, 3)), None
-    mid = 0.5 * (uva[ed] + uvb[ed])
+        raise ValueError(f"the surface does not meet the plane z = {z0:g}")
+
+    def name(element: int, local_edge: int) -> tuple[int, int, int]:
+        side, k = on_side[local_edge]
+        if side < 0:
+            return (-1 - element, local_edge, 0)
+        c0, c1 = (int(e[element, c]) for c in _SIDE_CORNERS[side])
+        return (c0, c1, k) if c0 < c1 else (c1, c0, m - 1 - k)
+
+    neighbours: dict[tuple, list[tuple]] = {}
+    where: dict[tuple, tuple[int, int]] = {}
+    for element, t in zip(el.tolist(), tr.tolist()):
+        ends = [triangles[t, j] for j in range(3) if tri_cross[element, t, j]]
+        a, b = (name(element, int(le)) for le in ends)
+        where.setdefault(a, (element, int(ends[0])))
+        where.setdefault(b, (element, int(ends[1])))
+        neighbours.setdefault(a, []).append(b)
+        neighbours.setdefault(b, []).append(a)
+    bad = [k for k, v in neighbours.items() if len(v) != 2]
+    if bad:
+        raise ValueError(f"the cut z = {z0:g} is not a set of closed curves ({len(bad)} open ends): "
+                         "is the surface closed?")
+    keys = list(where)
+    at_el = np.array([where[k][0] for k in keys])
+    at_ed = np.array([where[k][1] for k in keys])
+    pts, vals = _edge_crossings(xe, e, z, z0, uv, edges, at_el, at_ed, values)
+    position = {k: i for i, k in enumerate(keys)}
+
+    loops = []
+    seen: set = set()
+    for start in keys:
+        if start in seen:
+            continue
+        chain, previous, here = [], None, start
+        while here not in seen:
+            seen.add(here)
+            chain.append(position[here])
+            a, b = neighbours[here]
+            previous, here = here, (b if a == previous else a)
+        idx = np.array(chain)
+        # a crossing exactly at a grid point is found on several edges: keep it once
+        step = np.linalg.norm(np.diff(pts[idx], axis=0, append=pts[idx[:1]]), axis=1)
+        idx = idx[step > 1e-12 * max(1.0, float(np.abs(x).max()))] if (step > 0).any() else idx
+        p = pts[idx]
+        if _shoelace(p) < 0.0:
+            idx = idx[::-1]
+        loops.append((pts[idx], vals[idx] if vals is not None else None))
+    loops.sort(key=lambda loop: -_perimeter(loop[0]))
+    return loops
+
+
+def _edge_crossings(xe, e, z, z0, uv, edges, el, ed, values):
+    """Points (and values) where z = 0 on the small edges `ed` of elements `el`."""
+    a, b = edges[ed, 0], edges[ed, 1]
+    uva, uvb = uv[a], uv[b]
+    z0e, z1e = z[el, a], z[el, b]
+    mid = 0.5 * (uva + uvb)
     zm = np.einsum("ck,ck->c", _quadratic_shape(mid[:, 0], mid[:, 1]), xe[el, :, 2]) - z0
-    z0e, z1e = za[el, ed], zb[el, ed]
     # z(s) = z0 + B s + A s², through z(0), z(1/2), z(1)
     B = -3.0 * z0e + 4.0 * zm - z1e
     A = 2.0 * z0e - 4.0 * zm + 2.0 * z1e
-    s_lin = z0e / (z0e - z1e)
     with np.errstate(invalid="ignore", divide="ignore"):
+        s_lin = np.where(z0e == z1e, 0.0, z0e / (z0e - z1e))
         disc = np.sqrt(np.maximum(B * B - 4.0 * A * z0e, 0.0))
-        r1 = (-B + disc) / (2.0 * A)
-        r2 = (-B - disc) / (2.0 * A)
-    roots = np.stack([r1, r2], 1)
+        roots = np.stack([(-B + disc) / (2.0 * A), (-B - disc) / (2.0 * A)], 1)
     ok = np.isfinite(roots) & (roots >= -1e-12) & (roots <= 1 + 1e-12)
     dist = np.where(ok, np.abs(roots - s_lin[:, None]), np.inf)
     best = np.take_along_axis(roots, np.argmin(dist, 1)[:, None], 1)[:, 0]
     straight = np.abs(A) <= 1e-12 * (np.abs(B) + np.abs(z0e) + np.abs(z1e))
     s = np.clip(np.where(straight | ~np.isfinite(np.min(dist, 1)), s_lin, best), 0.0, 1.0)
-    at = uva[ed] + s[:, None] * (uvb[ed] - uva[ed])
-    Nc = _quadratic_shape(at[:, 0], at[:, 1])          # (C, 6)
+    at = uva + s[:, None] * (uvb - uva)
+    Nc = _quadratic_shape(at[:, 0], at[:, 1])
     pts = np.einsum("ck,ckd->cd", Nc, xe[el])
     pts[:, 2] = z0
     vals = None
     if values is not None:
         v = np.asarray(values, dtype=np.float64)
-        ve = v[e[el]]                                  # (C, 6, ...)
-        vals = np.einsum("ck,ck...->c...", Nc, ve)
+        vals = np.einsum("ck,ck...->c...", Nc, v[e[el]])
     return pts, vals
+
+
+def _shoelace(p: np.ndarray) -> float:
+    """Signed area enclosed by the closed polygon p (n, ≥2) in the xy-plane (> 0 counter-clockwise)."""
+    x, y = p[:, 0], p[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+
+def _perimeter(p: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(p, axis=0, append=p[:1]), axis=1).sum())
 
 
 def xy_section(
     x: np.ndarray, elements: np.ndarray, z0: float = 0.0, values: np.ndarray | None = None,
     curved: bool = False,
 ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Points where the surface meets the plane z = z0, ordered by angle about their mean.
+    """Points where the surface meets the plane z = z0.
 
-    Default (``curved=False``): the quadratic triangles are split into four
+    ``curved=True`` (what the figures use): the longest closed curve of
+    :func:`section_loops`, traced along the curved elements in order (right for
+    any shape, convex or not), values interpolated with the quadratic shape
+    functions; the figures draw every loop.
+    Default (``curved=False``, a coarse check): the quadratic triangles are split into four
     straight ones and each edge that crosses the plane contributes one point
     (nodes exactly on the plane count as above it, so every crossing is found
-    once); ``values`` (N_p, ...) are interpolated linearly to the points.
-    ``curved=True`` (what the figures use): the cut of the curved elements
-    themselves, :data:`SECTION_SUBDIVISIONS` points per element edge, values
-    interpolated with the quadratic shape functions.
+    once), ordered by angle about their mean, which is right only for a star-shaped
+    cut; ``values`` (N_p, ...) are interpolated linearly to the points.
     Returns (points (n, 3), values (n, ...)).
     """
     x = np.asarray(x, dtype=np.float64)
     if curved:
-        pts, vals = _curved_crossings(x, elements, z0, values, SECTION_SUBDIVISIONS)
-        if len(pts) == 0:
-            raise ValueError(f"the surface does not meet the plane z = {z0:g}")
-        return _merge_and_order(pts, vals)
+        return section_loops(x, elements, z0, values)[0]
     tri = linear_subtriangles(elements)
     edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
     edges = np.unique(np.sort(edges, axis=1), axis=0)
@@ -434,6 +645,17 @@ def _merge_and_order(pts: np.ndarray, vals):
     return pts[order], (vals[order] if vals is not None else None)
 
 
+def _arc_length_from_largest_x(p: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """s/L along a closed loop (counter-clockwise, from its point of largest x, ending where it
+    began) and the values there: a coordinate that stays monotone on any cut, unlike the
+    polar angle, which doubles back on a cut that is not star-shaped."""
+    start = int(np.argmax(p[:, 0]))
+    p, v = np.roll(p, -start, axis=0), np.roll(v, -start, axis=0)
+    p, v = _closed(p), _closed(v)
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+    return s / s[-1], v
+
+
 def _closed(p: np.ndarray) -> np.ndarray:
     return np.concatenate([p, p[:1]])
 
@@ -453,9 +675,9 @@ def contour_figure(source, times: Sequence[float] | None = None, z0: float = 0.0
     fig = _figure()
     ax = fig.add_subplot()
     for j, k in enumerate(idx):
-        p, _ = xy_section(data["positions"][k], data["elements"], z0, curved=True)
-        p = _closed(p)
-        ax.plot(p[:, 0], p[:, 1], color=f"C{j % 10}", label=f"kt = {snap_t[k]:.3g}")
+        for n, (p, _) in enumerate(section_loops(data["positions"][k], data["elements"], z0)):
+            p = _closed(p)
+            ax.plot(p[:, 0], p[:, 1], color=f"C{j % 10}", label=f"kt = {snap_t[k]:.3g}" if n == 0 else None)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(r"$x/a$")
     ax.set_ylabel(r"$y/a$")
@@ -487,11 +709,12 @@ def trajectory_figure(source, node: int | None = None, direction: Sequence[float
     ax = fig.add_subplot()
     for k, style, label in ((0, "0.6", "surface, first snapshot"), (len(pos) - 1, "0.3", "surface, last snapshot")):
         try:
-            p, _ = xy_section(pos[k], data["elements"], curved=True)
+            loops = section_loops(pos[k], data["elements"])
         except ValueError:
             continue
-        p = _closed(p)
-        ax.plot(p[:, 0], p[:, 1], color=style, lw=0.8, ls="--", label=label)
+        for n, (p, _) in enumerate(loops):
+            p = _closed(p)
+            ax.plot(p[:, 0], p[:, 1], color=style, lw=0.8, ls="--", label=label if n == 0 else None)
     ax.plot(path[:, 0], path[:, 1], "C3.-", label=f"node {node}")
     ax.plot(path[:1, 0], path[:1, 1], "C3o", mfc="none", ms=9, label=f"kt = {data['snapshot_t'][0]:.3g}")
     ax.set_aspect("equal", adjustable="datalim")
@@ -505,7 +728,8 @@ def trajectory_figure(source, node: int | None = None, direction: Sequence[float
 
 def tensions_figure(source, t: float | None = None, z0: float = 0.0):
     """Principal tensions τ1 ≥ τ2 (units E_s) along the xy-plane section at the
-    snapshot nearest `t` (default: the last), against the polar angle φ/π."""
+    snapshot nearest `t` (default: the last), against the arc length along the section
+    (the polar angle doubles back on a cut that is not star-shaped)."""
     from capsim.export import membrane_fields, model_for
 
     data = _load_run(source)
@@ -515,19 +739,16 @@ def tensions_figure(source, t: float | None = None, z0: float = 0.0):
     fields = membrane_fields(model_for(data), x)
     values = np.stack([fields["principal_tension_1"], fields["principal_tension_2"]], axis=1)
     p, v = xy_section(x, data["elements"], z0, values, curved=True)
-    c = p.mean(axis=0)
-    phi = np.mod(np.arctan2(p[:, 1] - c[1], p[:, 0] - c[0]), 2.0 * math.pi)
-    order = np.argsort(phi)
-    phi, v = phi[order], v[order]
+    s, v = _arc_length_from_largest_x(p, v)
     fig = _figure()
     ax = fig.add_subplot()
-    ax.plot(phi / math.pi, v[:, 0], "C0.-", label=r"$\tau_1$")
-    ax.plot(phi / math.pi, v[:, 1], "C1.-", label=r"$\tau_2$")
+    ax.plot(s, v[:, 0], "C0.-", label=r"$\tau_1$")
+    ax.plot(s, v[:, 1], "C1.-", label=r"$\tau_2$")
     ax.axhline(0.0, color="0.7", lw=0.8)
-    ax.set_xlim(0.0, 2.0)
-    ax.set_xlabel(r"polar angle in the $xy$-plane, $\varphi/\pi$")
+    ax.set_xlim(0.0, 1.0)
+    ax.set_xlabel(r"arc length along the section, $s/L$")  # from its largest x, counter-clockwise (caption)
     ax.set_ylabel(r"principal tension $/E_s$")
-    _caption(fig, [info], extra=f"kt = {data['snapshot_t'][k]:.3g}")
+    _caption(fig, [info], extra=f"kt = {data['snapshot_t'][k]:.3g}; s from the section's largest x, counter-clockwise")
     _legend(ax)
     return fig
 
@@ -538,49 +759,86 @@ def tensions_figure(source, t: float | None = None, z0: float = 0.0):
 RHEOLOGY_SUMMARY = ("ttf_ratio", "Sxy_star", "N1_star", "N2_star")
 
 
-def steady_figure(source, theory: bool = True):
-    """Steady D_xy and θ/π against G from a campaign summary (netCDF or Dataset).
+#: axis labels of swept fields (others: the field's name)
+SWEPT_LABELS = {"shear_rate_G": r"$G = \mu k a / E_s$", "viscosity_ratio": r"viscosity ratio $\lambda$",
+                "initial_tilt_deg": "initial tilt (deg)", "bending_modulus": r"bending modulus $\kappa/(E_s a^2)$",
+                "capillary_number": r"$\mathrm{Ca} = \mu k a / G_s$", "shear_rate": "shear rate $k$ (1/s)",
+                "viscosity": r"viscosity $\mu$ (Pa s)", "radius": "radius $a$ (m)",
+                "shear_modulus": "shear modulus $G_s$ (N/m)", "surface_modulus": "modulus $E_s$ (N/m)"}
+#: not swept fields, though they are coordinates of a summary
+_NOT_SWEPT = ("run", "run_id")
 
-    When the summary holds the tank-treading frequency and the stresslet (as
-    `capsim summarize` writes them), a second column shows TTF/f_s (seed fig. 11)
-    and S*_xy, N1*, N2* (fig. 13) against G, with their G → 0 limits.
+
+def steady_figure(source, theory: bool = True, x: str | None = None):
+    """Steady D_xy and θ/π against a swept field (default G, else the first numeric one)
+    from a campaign summary (netCDF or Dataset), grid or zip.
+
+    Only settled runs (``steady_average`` = 1) are points, joined per combination of the
+    other swept values, with the window's standard deviation as error bars; the others
+    (transient, unstable, not completed) are drawn as grey × without a line and counted in
+    the caption, which says what was left out. When the summary holds the tank-treading
+    frequency and the stresslet (as `capsim summarize` writes them), a second column shows
+    TTF/f_s (seed fig. 11) and S*_xy, N1*, N2* (fig. 13), with their G → 0 limits.
     """
     import xarray as xr
 
-    if isinstance(source, xr.Dataset):
-        ds = source
-    else:
-        ds = xr.load_dataset(source)
-    for name in ("D_xy", "theta", "shear_rate_G"):
+    ds = source if isinstance(source, xr.Dataset) else xr.load_dataset(source)
+    for name in ("D_xy", "theta"):
         if name not in ds.variables:
             raise ValueError(f"the summary has no '{name}' (is it a capsim summarize output?)")
+    swept = _swept_fields(ds)
+    numeric = [f for f in swept if np.asarray(ds[f].values).dtype.kind in "iuf"]
+    if x is None:
+        x = "shear_rate_G" if "shear_rate_G" in numeric else (numeric[0] if numeric else None)
+        if x is None:
+            raise ValueError(f"the summary sweeps no numeric field to draw against (swept: {', '.join(swept) or 'none'})")
+    elif x not in numeric:
+        raise ValueError(f"--x {x!r}: not a numeric swept field of the summary (allowed: {', '.join(numeric) or 'none'})")
     rheology = all(name in ds.variables for name in RHEOLOGY_SUMMARY) and bool(
         np.isfinite(np.asarray(ds["Sxy_star"].values, dtype=np.float64)).any()
     )
+    names = ("D_xy", "theta") + (RHEOLOGY_SUMMARY if rheology else ())
+    cells = _summary_cells(ds, names, swept)
     if rheology:
         fig = _figure(figsize=(1.8 * FIGSIZE[0], FIGSIZE[1]))
         (ax_d, ax_f), (ax_t, ax_s) = fig.subplots(2, 2, sharex=True)
     else:
         fig = _figure(figsize=(FIGSIZE[0], FIGSIZE[1]))
         ax_d, ax_t = fig.subplots(2, 1, sharex=True)
-    groups = _steady_groups(ds, ("D_xy", "theta") + (RHEOLOGY_SUMMARY if rheology else ()))
-    for j, (label, G, values) in enumerate(groups):
-        order = np.argsort(G)
+    panels = [(ax_d, "D_xy", 1.0, "o-", None), (ax_t, "theta", math.pi, "o-", None)]
+    if rheology:
+        panels += [(ax_f, "ttf_ratio", 1.0, "o-", None), (ax_s, "Sxy_star", 1.0, "o-", r"$S^*_{xy}$"),
+                   (ax_s, "N1_star", 1.0, "s--", r"$N_1^*$"), (ax_s, "N2_star", 1.0, "^:", r"$N_2^*$")]
+    others = [f for f in swept if f != x]
+    groups: dict[tuple, list[dict]] = {}
+    for cell in cells:
+        groups.setdefault(tuple(cell["swept"][f] for f in others), []).append(cell)
+    unsettled = [c for c in cells if not c["settled"]]
+    for j, (key, members) in enumerate(groups.items()):
+        label = ", ".join(f"{_short(f)} = {_shown(v)}" for f, v in zip(others, key)) or "capsim"
+        settled = sorted((c for c in members if c["settled"]), key=lambda c: c["swept"][x])
+        if not settled:
+            continue  # nothing of this group is a result: its runs are the grey ×
+        xs = np.array([float(c["swept"][x]) for c in settled])
         color = f"C{j % 10}"
-        ax_d.plot(G[order], values["D_xy"][order], "o-", color=color, label=label or "capsim")
-        ax_t.plot(G[order], values["theta"][order] / math.pi, "o-", color=color, label=label or "capsim")
-        if rheology:
-            ax_f.plot(G[order], values["ttf_ratio"][order], "o-", color=color, label=label or "capsim")
-            ax_s.plot(G[order], values["Sxy_star"][order], "o-", color=color,
-                      label=r"$S^*_{xy}$" if j == 0 else None)
-            ax_s.plot(G[order], values["N1_star"][order], "s--", color=color,
-                      label=r"$N_1^*$" if j == 0 else None)
-            ax_s.plot(G[order], values["N2_star"][order], "^:", color=color,
-                      label=r"$N_2^*$" if j == 0 else None)
-    G_all = np.asarray(ds["shear_rate_G"].values, dtype=np.float64).ravel()
+        for ax, name, scale, style, series in panels:
+            y = np.array([c["values"][name] for c in settled], dtype=np.float64) / scale
+            err = np.array([c["std"].get(name, np.nan) for c in settled], dtype=np.float64) / scale
+            first_series = ax is not ax_s if rheology else True
+            ax.plot(xs, y, style, color=color, ms=4,
+                    label=(label if first_series else (series if j == 0 else None)))
+            if np.isfinite(err).any():
+                ax.errorbar(xs, y, yerr=np.where(np.isfinite(err), err, 0.0), fmt="none", ecolor=color,
+                            elinewidth=0.8, capsize=2)
+    if unsettled:
+        ux = np.array([float(c["swept"][x]) for c in unsettled])
+        for ax, name, scale, _, _ in panels[:2]:
+            uy = np.array([c["values"][name] for c in unsettled], dtype=np.float64) / scale
+            ax.plot(ux, uy, "x", color="0.55", ms=5, label="not settled: not a steady value")
+    x_all = np.array([float(c["swept"][x]) for c in cells])
     context = _summary_context(ds)
-    if theory and G_all.size and context.get("shape", "sphere") == "sphere":
-        g = np.linspace(0.0, float(np.nanmax(G_all)), 50)
+    if theory and x == "shear_rate_G" and x_all.size and context.get("shape", "sphere") == "sphere":
+        g = np.linspace(0.0, float(np.nanmax(x_all)), 50)
         small = g[g <= 0.12]  # first order: D_xy ≪ 1; further out it only squashes the data
         ax_d.plot(small, 25.0 / 4.0 * small, "k--", lw=1, label=r"first order, $25G/4$")
         ax_t.plot(small, np.full_like(small, 0.25), "k--", lw=1, label=r"first order, $\pi/4$")
@@ -590,21 +848,79 @@ def steady_figure(source, theory: bool = True):
             ax_s.plot(small, 19.0 * small, "k:", lw=1, label=r"$N_1^* \approx 19G$")
     ax_d.set_ylabel(r"$D_{xy}$")
     ax_t.set_ylabel(r"$\theta/\pi$")
-    ax_t.set_xlabel(r"$G = \mu k a / E_s$")
+    ax_t.set_xlabel(SWEPT_LABELS.get(x, x))
     _legend(ax_d)
     if rheology:
         ax_f.set_ylabel(r"TTF $/ f_s$")
         ax_s.set_ylabel(r"$S^*_{xy}$, $N_1^*$, $N_2^*$")
-        ax_s.set_xlabel(r"$G = \mu k a / E_s$")
+        ax_s.set_xlabel(SWEPT_LABELS.get(x, x))
         _legend(ax_f)
         _legend(ax_s)
     else:
         _legend(ax_t)
     title = str(ds.attrs.get("title", ""))
     parts = [context[k] for k in ("shape", "law", "lam", "mesh") if context.get(k)]
-    if parts or title:
-        fig.supxlabel((f"{title}: " if title else "") + ", ".join(parts), fontsize="small", color="0.25")
+    text = (f"{title}: " if title else "") + ", ".join(parts)
+    note = _left_out_note(cells, unsettled)
+    _supxlabel(fig, "\n".join(t for t in (text, note) if t))
+    fig.steady_note = note  # what the figure says it left out, for callers and tests
     return fig
+
+
+def _left_out_note(cells: list[dict], unsettled: list[dict]) -> str:
+    """Error bars: window std; and which runs are no steady values, and why."""
+    text = "points: settled runs, window mean ± its standard deviation"
+    if not unsettled:
+        return text
+    why: dict[str, int] = {}
+    for c in unsettled:
+        why[c["why"]] = why.get(c["why"], 0) + 1
+    reasons = ", ".join(f"{n} {w}" for w, n in why.items())
+    return f"{text}; ×: {len(unsettled)} of {len(cells)} runs not settled ({reasons}), no line through them"
+
+
+def _swept_fields(ds) -> list[str]:
+    """The swept fields of a summary: its dimensions with coordinates (a grid) or the
+    coordinates along its run dimension (a zip campaign)."""
+    dims = ds["D_xy"].dims
+    out = [d for d in dims if d in ds.coords and d not in _NOT_SWEPT]
+    out += [n for n, c in ds.coords.items() if n not in dims and n not in _NOT_SWEPT and c.dims
+            and set(c.dims) <= set(dims) and n not in out]
+    return out
+
+
+def _summary_cells(ds, names: tuple[str, ...], swept: list[str]) -> list[dict]:
+    """One record per run of a summary: its swept values, values, window stds and whether
+    it is a steady value (``steady_average`` = 1; a summary without that variable: status
+    completed, or every run when it has no status either)."""
+    dims = ds["D_xy"].dims
+
+    def at(name: str, index: dict):
+        var = ds[name]
+        value = var.isel({d: index[d] for d in var.dims if d in index}).values
+        return value.item() if np.ndim(value) == 0 else value
+
+    cells = []
+    for idx in np.ndindex(*(ds.sizes[d] for d in dims)):
+        index = dict(zip(dims, idx))
+        status = str(at("status", index)) if "status" in ds.variables else "completed"
+        if "steady_average" in ds.variables:
+            settled = bool(int(at("steady_average", index)))
+        else:
+            settled = status == "completed"
+        motion = str(at("motion", index)) if "motion" in ds.variables else ""
+        why = "" if settled else (status if status != "completed" else (motion or "transient") + " motion")
+        cells.append({
+            "swept": {f: at(f, index) for f in swept},
+            "values": {n: float(at(n, index)) for n in names},
+            "std": {n: float(at(f"{n}_std", index)) for n in names if f"{n}_std" in ds.variables},
+            "settled": settled, "why": why,
+        })
+    return cells
+
+
+def _shown(v) -> str:
+    return f"{v:g}" if isinstance(v, (float, np.floating, int, np.integer)) else str(v)
 
 
 def _summary_context(ds) -> dict[str, str]:
@@ -635,41 +951,8 @@ def _summary_context(ds) -> dict[str, str]:
     return out
 
 
-def _steady_groups(ds, names: tuple[str, ...] = ("D_xy", "theta")) -> list[tuple[str, np.ndarray, dict]]:
-    """One (label, G, {name: values}) series per combination of the other swept values."""
-    first = ds[names[0]]
-    if "shear_rate_G" in first.dims:
-        others = [d for d in first.dims if d != "shear_rate_G"]
-        arrays = {n: ds[n].transpose(*others, "shear_rate_G") for n in names}
-        G = np.asarray(ds["shear_rate_G"].values, dtype=np.float64)
-        out = []
-        for index in np.ndindex(*(ds.sizes[d] for d in others)):
-            sel = dict(zip(others, index))
-            label = ", ".join(f"{_short(d)} = {_value(ds, d, i)}" for d, i in sel.items())
-            out.append((label, G, {n: np.asarray(a.isel(sel).values, float) for n, a in arrays.items()}))
-        return out
-    # 'run' dimension: group by the other coordinates on it.
-    dim = first.dims[0]
-    G = np.asarray(ds["shear_rate_G"].values, dtype=np.float64)
-    others = [name for name, c in ds.coords.items() if c.dims == (dim,) and name not in (dim, "shear_rate_G", "run_id")]
-    keys = [tuple(np.asarray(ds[name].values)[i] for name in others) for i in range(ds.sizes[dim])]
-    out = []
-    for key in dict.fromkeys(keys):
-        mask = np.array([k == key for k in keys])
-        label = ", ".join(f"{_short(n)} = {v}" for n, v in zip(others, key))
-        out.append((label, G[mask], {n: np.asarray(ds[n].values, float)[mask] for n in names}))
-    return out
-
-
 def _short(name: str) -> str:
     return {"viscosity_ratio": "λ", "shear_rate_G": "G", "initial_tilt_deg": "tilt"}.get(name, name)
-
-
-def _value(ds, dim: str, i: int) -> str:
-    if dim in ds.coords:
-        v = np.asarray(ds[dim].values)[i]
-        return f"{v:g}" if isinstance(v, (float, np.floating)) else str(v)
-    return str(i)
 
 
 def orbit_figure(source):
@@ -746,10 +1029,12 @@ def figure_format(output: str | os.PathLike) -> str:
 
 
 def plot(source, kind: str, output: str | os.PathLike | None = None, *, dpi: float | None = None,
-         fmt: str | None = None, **options: Any):
-    """Draw figure `kind` of a run (or, for 'steady', a campaign summary); save it
+         fmt: str | None = None, size: tuple[float, float] | None = None, **options: Any):
+    """Draw figure `kind` of a run (or, for 'steady', a campaign summary) at ``size``
+    (W, H inches; default the kind's), legends placed by :func:`place_legends`; save it
     when `output` is given, as the format its suffix names (or ``fmt``) at ``dpi``
-    (default :data:`DPI`). Returns the Figure."""
+    (default :data:`DPI`), fonts embedded as TrueType (Type 42) in a PDF and text kept as
+    text in an SVG (:data:`JOURNAL_RC`). Returns the Figure."""
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {', '.join(KINDS)}, got {kind!r}")
     if fmt is None and output is not None:
@@ -758,14 +1043,44 @@ def plot(source, kind: str, output: str | os.PathLike | None = None, *, dpi: flo
         raise ValueError(f"format must be one of {', '.join(FIGURE_FORMATS)}, got {fmt!r}")
     if dpi is not None and not (math.isfinite(dpi) and 10 <= dpi <= 2400):
         raise ValueError(f"--dpi {dpi:g}: must be in [10, 2400]")
+    if size is not None:
+        size = parse_size(size)
     if kind == "steady":
         _refuse_run_file(source)
     fig = KINDS[kind](source, **options)
+    if size is not None:
+        fig.set_size_inches(size)
+        if getattr(fig, "caption", ""):
+            _supxlabel(fig, fig.caption)  # wrapped anew to the new width
+    place_legends(fig)
     if output is not None:
+        import matplotlib
+
         output = Path(output)
         output.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(output, format=fmt, dpi=dpi or DPI, metadata=_metadata(fmt))
+        with matplotlib.rc_context(JOURNAL_RC):
+            fig.savefig(output, format=fmt, dpi=dpi or DPI, metadata=_metadata(fmt))
     return fig
+
+
+#: what journals ask of vector figures: TrueType (Type 42) fonts embedded in PDF and
+#: PostScript (many refuse Type 3), and SVG text as <text> elements, not paths
+JOURNAL_RC = {"pdf.fonttype": 42, "ps.fonttype": 42, "svg.fonttype": "none"}
+#: the range ``--size`` accepts, in inches (a column is about 3.3 in, a page 7 in)
+SIZE_RANGE = (1.0, 30.0)
+
+
+def parse_size(size) -> tuple[float, float]:
+    """(W, H) in inches from 'W,H' or a pair; ValueError (one line) for anything else."""
+    text = size if isinstance(size, str) else ",".join(str(v) for v in size)
+    try:
+        w, h = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"--size {text!r}: must be W,H in inches, e.g. 3.3,2.5") from None
+    lo, hi = SIZE_RANGE
+    if not (lo <= w <= hi and lo <= h <= hi):
+        raise ValueError(f"--size {text!r}: W and H must be in [{lo:g}, {hi:g}] inches")
+    return w, h
 
 
 def _metadata(fmt: str) -> dict[str, Any]:
@@ -798,7 +1113,8 @@ class FigureError(ValueError):
 
 def write_figure(paths: Sequence[str | os.PathLike], kind: str, output: str | os.PathLike | None = None, *,
                  overwrite: bool = False, dpi: float | None = None, theory: bool = True, unwrap: bool = False,
-                 times: Sequence[float] | None = None, node: int | None = None) -> Path:
+                 times: Sequence[float] | None = None, node: int | None = None, x: str | None = None,
+                 size: str | None = None, labels: Sequence[str] | None = None) -> Path:
     """`capsim plot`: draw `kind` of one run (several overlaid for :data:`OVERLAY_KINDS`, a
     summary for 'steady') into `output` (default :func:`default_output`), through the output
     guards and a temporary file renamed into place. Raises FigureError, or
@@ -839,6 +1155,22 @@ def write_figure(paths: Sequence[str | os.PathLike], kind: str, output: str | os
         options["t"] = times[-1]
     if kind == "trajectory" and node is not None:
         options["node"] = node
+    if labels:
+        if kind not in OVERLAY_KINDS:
+            raise FigureError(f"--label: only for runs overlaid by --kind {' or '.join(OVERLAY_KINDS)}, not {kind}")
+        if len(labels) != len(paths):
+            raise FigureError(f"--label given {len(labels)} times for {len(paths)} runs: give one per PATH, in order")
+        options["labels"] = list(labels)
+    figure_size = None
+    if size is not None:
+        try:
+            figure_size = parse_size(size)
+        except ValueError as exc:
+            raise FigureError(str(exc)) from None
+    if x is not None:
+        if kind != "steady":
+            raise FigureError(f"--x {x!r}: only for --kind steady (the swept field on its axis)")
+        options["x"] = x
     source: Any = [str(p) for p in paths] if len(paths) > 1 else path
 
     def draw(tmp: Path) -> None:
@@ -848,7 +1180,7 @@ def write_figure(paths: Sequence[str | os.PathLike], kind: str, output: str | os
         from capsim.store import TrajectoryError
 
         try:
-            plt.close(plot(source, kind, tmp, dpi=dpi, fmt=fmt, **options))
+            plt.close(plot(source, kind, tmp, dpi=dpi, fmt=fmt, size=figure_size, **options))
         except (TrajectoryError, ConfigError, ValueError, KeyError) as exc:
             raise FigureError(first_line(exc)) from None
         except OSError:

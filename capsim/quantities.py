@@ -193,6 +193,9 @@ _add("status", "final status of the run", "",
      "completed, unstable, interrupted or failed as recorded in the run file; missing when the run has no "
      "readable file")
 _add("status_reason", "why the run stopped", "", "one line from the run")
+_add("end_state", "state of the run at its t_end", "1",
+     "bytes of a capsim restart checkpoint (.npz: integrator, model, observer, snapshot schedule and the case) "
+     "at the last step of a run that reached time.t_end; `capsim run --resume --t-end T` extends the run from it")
 _add("n_nodes", "mesh nodes", "1", "number of nodes (vertices and mid-side nodes) of the mesh")
 
 # ---------------------------------------------------------------- summary/ (statistics over the averaging window)

@@ -32,7 +32,7 @@ from capsim.threads import set_run_threads
 from capsim.stopping import LoopState, Stop, end_tolerance, stop_reason
 from capsim import checkpoint
 from capsim.checkpoint import ResumeError, checkpoint_path, remove_checkpoint
-from capsim.store import FileLock, StorageError, TrajectoryError, TrajectoryWriter
+from capsim.store import FileLock, StorageError, TrajectoryError, TrajectoryWriter, read_end_state
 from capsim.timestepping import Integrator, build_integrator
 
 __all__ = ["ResumeError", "RunResult", "build_model", "run_case"]
@@ -184,7 +184,8 @@ class _Run:
         self.path = Path(case.output.path)
         self.ckpt_path = checkpoint_path(self.path)
         self.config_yaml = case.to_yaml()
-        saved, self.wall_before = checkpoint.load(self.ckpt_path, case) if resume else (None, 0.0)
+        self.extending = False  # resumed from a completed run's end state to a later t_end
+        saved, self.wall_before = self._saved_state(case) if resume else (None, 0.0)
         self.model, X = build_model(case)
         set_run_threads(self.model.disc.n_nodes)  # a small mesh runs faster on one thread
         self.model.interrupt_check = stop.check  # SIGTERM honoured between GMRES iterations too
@@ -197,6 +198,15 @@ class _Run:
             self._reopen(saved)
         else:
             self._create(X)
+
+    def _saved_state(self, case: Case) -> tuple[dict[str, dict[str, Any]], float]:
+        """What --resume continues from: the checkpoint of an interrupted run or, where there
+        is none, the end state of a run that reached its t_end (then extended to case.time.t_end)."""
+        blob = None if self.ckpt_path.exists() else read_end_state(self.path)
+        if blob is None:
+            return checkpoint.load(self.ckpt_path, case)
+        self.extending = True
+        return checkpoint.load_end_state(blob, self.path, case)
 
     # -- parts ----------------------------------------------------------------
     def _rhs(self, x: np.ndarray):
@@ -258,6 +268,7 @@ class _Run:
         if stored_version and stored_version != __version__:  # the rows after the cut are this version's
             attrs["resumed_from_version"] = stored_version
         self.writer.set_attrs(**attrs)
+        self.writer.drop_end_state()
         self.observer.resume(self.writer.steps())
         self.committed = saved
 
@@ -269,8 +280,10 @@ class _Run:
         stored = checkpoint.stored_case(data["attrs"].get("config_yaml"))
         if stored is None:
             raise ResumeError(f"{path}: not the checkpoint's run file: no readable config_yaml")
-        diff = checkpoint.first_difference(checkpoint.step_defining_of(self.case.model_dump(mode="json")),
-                                           checkpoint.step_defining_of(stored), where="the run file")
+        now, then = checkpoint.step_defining_of(self.case.model_dump(mode="json")), checkpoint.step_defining_of(stored)
+        if self.extending:
+            now, then = checkpoint.without_t_end(now), checkpoint.without_t_end(then)
+        diff = checkpoint.first_difference(now, then, where="the run file")
         if diff is not None:
             raise ResumeError(f"{path}: not the checkpoint's run file (another case): {diff}")
         t_rows = data["timeseries"]["t"]
@@ -417,6 +430,8 @@ class _Run:
             motion["motion"] = "unstable"
         self.writer.write_summary(motion)
         self.writer.set_attrs(motion=motion["motion"])
+        if status == "completed" and not outcome.reason:  # reached t_end: it can be extended
+            self.writer.write_end_state(checkpoint.end_state_bytes(self.committed, self.config_yaml, result.wall_time_s))
         self.writer.close(status, reason)
         return replace(result, summary=motion)
 

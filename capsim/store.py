@@ -55,10 +55,13 @@ __all__ = [
     "STATUSES", "CheckpointError", "FileLock", "LockedError", "StorageError", "TrajectoryError", "TrajectoryWriter",
     "free_bytes", "is_run_file", "lock_path",
     "case_from_trajectory", "checkpoint_path", "guard_run_output", "mark_abandoned", "open_run", "read_case", "read_checkpoint", "read_run_record",
-    "read_run_status", "read_trajectory", "remove_checkpoint", "write_checkpoint", "write_error_estimate",
+    "END_STATE", "read_end_state", "read_run_status", "read_trajectory", "remove_checkpoint", "write_checkpoint",
+    "write_error_estimate",
 ]
 
 STATUSES = frozenset({"completed", "unstable", "interrupted", "failed"})
+#: the root dataset holding a completed run's end state (what ``--resume --t-end`` extends)
+END_STATE = "end_state"
 
 _STEP_FLUSH_EVERY = 20
 #: free space ``--resume`` asks for beyond a copy of the run file (the cut is made on the copy)
@@ -478,6 +481,21 @@ class TrajectoryWriter:
         (motion, window means and standard deviations); rewritten on resume."""
         self._write_group("summary", summary)
 
+    def write_end_state(self, blob: bytes) -> None:
+        """The dataset ``end_state``: the bytes of the state a run reached at its t_end
+        (:func:`capsim.checkpoint.end_state_bytes`), from which ``--resume --t-end`` extends it."""
+        def write() -> None:
+            self.drop_end_state()
+            _label(self._file.create_dataset(END_STATE, data=np.frombuffer(blob, dtype=np.uint8)), END_STATE)
+            self._file.flush()
+
+        self._guarded(write)
+
+    def drop_end_state(self) -> None:
+        """Remove ``end_state``: a run being extended is no longer at it (its checkpoint takes over)."""
+        if END_STATE in self._file:
+            del self._file[END_STATE]
+
     def _write_group(self, name: str, data: dict[str, Any]) -> None:
         self._check_room()
         if name in self._file:
@@ -664,6 +682,15 @@ def _scalars(f: h5py.File, name: str) -> dict[str, Any]:
         if isinstance(ds, h5py.Dataset) and ds.shape == ():
             out[key] = ds.asstr()[()] if h5py.check_string_dtype(ds.dtype) else _scalar(ds[()])
     return out
+
+
+def read_end_state(path: str | os.PathLike) -> bytes | None:
+    """The ``end_state`` bytes of a run that reached its t_end; None when the file has none."""
+    try:
+        with h5py.File(path, "r", locking=False) as f:
+            return f[END_STATE][()].tobytes() if END_STATE in f else None
+    except (OSError, ValueError):
+        return None
 
 
 def read_run_status(path: str | os.PathLike) -> str | None:

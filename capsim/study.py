@@ -562,8 +562,10 @@ def write_error_estimate(path: str | os.PathLike, estimate: dict[str, Any]) -> N
 def format_error_estimate(summary: dict[str, Any], estimate: dict[str, Any]) -> str:
     """Lines 'q  value ± estimate (mesh …, time …)' for the summary values."""
     lines = [f"error estimate (level {estimate['coarse_level']} and rtol {estimate['loose_rtol']:g} reruns, "
-             f"{estimate['wall_time_s']:.1f} s):"]
-    names = {"D_xy": "D_xy", "theta": "theta", "ttf_ratio": "TTF/f_s", "Sxy_star": "S*_xy"}
+             f"{estimate['wall_time_s']:.1f} s); value ± error estimate |mesh| + |time| (not a window spread), "
+             "θ in units of π as in the table above:"]
+    names = {"D_xy": "D_xy", "theta": "theta/pi", "ttf_ratio": "TTF/f_s", "Sxy_star": "S*_xy"}
+    scales = {"theta": math.pi}
     width = max(len(v) for v in names.values()) + len(" (t_end)")
     for q, label in names.items():
         for suffix, where in (("_mean", ""), ("", " (t_end)")):
@@ -571,8 +573,9 @@ def format_error_estimate(summary: dict[str, Any], estimate: dict[str, Any]) -> 
             value = summary.get(q) if suffix == "_mean" else estimate.get(f"{key}_value")
             if not isinstance(value, (int, float)) or not math.isfinite(value):
                 continue
-            lines.append(f"  {label + where:<{width}}  {value:.6f} ± {estimate[key]:.2e}"
-                         f"  (mesh {estimate[f'{key}_mesh']:+.1e}, time {estimate[f'{key}_time']:+.1e})")
+            c = scales.get(q, 1.0)
+            lines.append(f"  {label + where:<{width}}  {value / c:.6f} ± {estimate[key] / c:.2e}"
+                         f"  (mesh {estimate[f'{key}_mesh'] / c:+.1e}, time {estimate[f'{key}_time'] / c:+.1e})")
     return "\n".join(lines)
 
 

@@ -157,6 +157,16 @@ def _coordinate(name: str, dotted: str, values: list) -> tuple:
         attrs = dict(attrs, case_field_values="; ".join(json.dumps(list(v)) for v in values),
                      long_name=f"index of the swept {dotted}")
         return name, np.arange(len(values), dtype=np.int64), attrs
+    kind = dotted.split(".", 1)[1] if dotted.startswith("physical.") else None
+    if kind is not None and all(isinstance(v, str) for v in values):
+        # a swept physical value ('50 1/s'): the coordinate is its SI magnitude, so that it
+        # sorts and plots as a number; the texts as given are kept beside it
+        from capsim.units import KINDS, parse
+
+        unit, what, _ = KINDS[kind]
+        attrs = dict(attrs, units=unit, long_name=f"{kind.replace('_', ' ')} ({what}, SI)",
+                     case_field_values="; ".join(values))
+        return name, np.array([parse(v, kind) for v in values], dtype=np.float64), attrs
     return name, np.asarray(values), attrs
 
 

@@ -42,6 +42,7 @@ KINDS: dict[str, tuple[str, str, str]] = {
     "radius": ("m", "a length", "2.8 um"),
     "surface_modulus": ("N/m", "a surface modulus (force / length)", "18 uN/m"),
     "shear_modulus": ("N/m", "a surface modulus (force / length)", "6 uN/m"),
+    "bending_modulus": ("J", "an energy (a bending modulus)", "1.8e-19 J"),
     "membrane_viscosity": ("N*s/m", "a surface viscosity (force × time / length)", "2.5e-7 N*s/m"),
 }
 

@@ -63,7 +63,7 @@ EXPECTED_LABELS = {
     "inclination": [("$kt$", r"$\theta/\pi$")],
     "contour": [("$x/a$", "$y/a$")],
     "trajectory": [("$x/a$", "$y/a$")],
-    "tensions": [(r"polar angle in the $xy$-plane, $\varphi/\pi$", "principal tension $/E_s$")],
+    "tensions": [(r"arc length along the section, $s/L$", "principal tension $/E_s$")],
     "rheology": [("$kt$", r"$S^*_{xy}$, $N_1^*$, $N_2^*$")],
     "steady": [("", "$D_{xy}$"), ("$G = \\mu k a / E_s$", r"$\theta/\pi$")],
     "orbit": [("$kt$", r"angle / $\pi$"), ("director $x$", "director $y$"), ("director $y$", "director $z$")],
@@ -248,9 +248,9 @@ def test_steady_groups_runs_of_a_non_grid_summary():
     )
     fig = plot(ds, "steady")
     lines = {line.get_label(): line for line in fig.axes[0].get_lines()}
-    assert list(lines) == ["λ = 1.0", "λ = 5.0", "first order, $25G/4$"]
-    assert list(lines["λ = 1.0"].get_xdata()) == [0.05, 0.1]
-    assert list(lines["λ = 1.0"].get_ydata()) == [0.1, 0.2]
+    assert list(lines) == ["λ = 1", "λ = 5", "first order, $25G/4$"]  # as a grid labels them
+    assert list(lines["λ = 1"].get_xdata()) == [0.05, 0.1]
+    assert list(lines["λ = 1"].get_ydata()) == [0.1, 0.2]
 
 
 def test_steady_adds_tank_treading_and_stresslet_panels_when_summarised(summary_nc, tmp_path):
@@ -299,3 +299,60 @@ def test_cli_names_the_plot_kinds_the_plot_module_has():
     from capsim.cli import _PLOT_KINDS
 
     assert _PLOT_KINDS == tuple(KINDS)
+
+
+# ------------------------------------------------------------ journal-ready figures (issue 30, finding 4)
+
+
+def test_pdf_embeds_truetype_fonts_and_svg_keeps_text(tiny_run, tmp_path):
+    plot(tiny_run, "deformation", tmp_path / "d.pdf")
+    pdf = (tmp_path / "d.pdf").read_bytes()
+    assert b"/FontFile2" in pdf and b"/Type3" not in pdf  # Type 42 (TrueType), no Type 3
+    plot(tiny_run, "deformation", tmp_path / "d.svg")
+    svg = (tmp_path / "d.svg").read_text()
+    assert "<text" in svg and "D_{xy}" not in svg.split("<text", 1)[0][-200:]
+
+
+def test_size_label_and_a_legend_inside_when_there_is_room(tiny_run, tmp_path):
+    runner = CliRunner()
+    other = tmp_path / "copy.h5"
+    other.write_bytes(tiny_run.read_bytes())
+    out = tmp_path / "d.png"
+    result = runner.invoke(app, ["plot", str(tiny_run), str(other), "--kind", "deformation", "--size", "3.3,2.5",
+                                 "--label", "first", "--label", "second", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert png_size(out) == (330, 250)
+    fig = plot([str(tiny_run), str(other)], "deformation", labels=["first", "second"], size=(3.3, 2.5))
+    ax = fig.axes[0]
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert labels[:2] == ["first", "second"]
+    # without --label two runs of one case still get labels that tell them apart
+    auto = [t.get_text() for t in plot([str(tiny_run), str(other)], "deformation").axes[0].get_legend().get_texts()]
+    assert len(set(auto[:2])) == 2, auto
+    # the contour's legend fits inside, covering no line: it does not take a quarter of the width
+    fig = plot(tiny_run, "contour")
+    box, axes_box = fig.axes[0].get_legend().get_window_extent(), fig.axes[0].get_window_extent()
+    assert axes_box.x0 <= box.x0 and box.x1 <= axes_box.x1 and axes_box.width > 0.8 * fig.bbox.width
+
+
+@pytest.mark.parametrize("args, expected", [
+    (["--size", "3x2"], "--size '3x2': must be W,H in inches"),
+    (["--size", "0.5,2"], "--size '0.5,2': W and H must be in [1, 30] inches"),
+    (["--label", "a", "--label", "b"], "--label given 2 times for 1 runs: give one per PATH, in order"),
+    (["--x", "shear_rate_G"], "--x 'shear_rate_G': only for --kind steady"),
+])
+def test_bad_figure_options_are_one_line_exit_2(tiny_run, tmp_path, args, expected):
+    result = CliRunner().invoke(app, ["plot", str(tiny_run), "--kind", "deformation", "-o", str(tmp_path / "f.png"), *args])
+    assert result.exit_code == 2 and len(result.stderr.strip().splitlines()) == 1, result.output
+    assert expected in result.stderr
+
+
+def test_the_caption_is_the_resolved_case_not_its_name(tmp_path):
+    path = tmp_path / "named.h5"
+    case = case_from_dict({
+        "name": "sphere-G0.1", "flow": {"shear_rate_G": 0.05}, "mesh": {"level": 0}, "time": {"t_end": 0.05},
+        "output": {"path": str(path), "snapshot_every": 0.05},
+    })
+    run_case(case)
+    caption = plot(path, "deformation").caption
+    assert "G = 0.05" in caption and "G0.1" not in caption

@@ -123,3 +123,57 @@ def test_rbc_preset_resolves_with_its_documented_G():
     assert case.flow.shear_rate_G == pytest.approx(G, rel=1e-12) == pytest.approx(0.0448, rel=1e-12)
     assert case.membrane.bending_modulus == pytest.approx(1.8e-19 / (3 * 2.5e-6 * 2.8e-6 ** 2), rel=0.01)
     assert (case.membrane.law, case.membrane.skalak_c, case.flow.viscosity_ratio) == ("skalak", 10.0, 5.0)
+
+
+# ---------------------------------------------------------------- issue 30: physical values set and swept
+
+
+def test_set_a_physical_value_on_the_red_cell_recomputes_G():
+    from capsim.config import apply_overrides
+
+    case = load_case(ROOT / "configs" / "rbc.yaml")
+    half = apply_overrides(case, **{"physical.shear_rate": "50 1/s"})
+    # G = μka/E_s = 1.2e-3 · 50 · 2.8e-6 / (3 · 2.5e-6) = 0.0224 (the preset, at 100 1/s: 0.0448)
+    assert half.flow.shear_rate_G == pytest.approx(1.2e-3 * 50 * 2.8e-6 / 7.5e-6, rel=1e-12)
+    assert case.flow.shear_rate_G == pytest.approx(2 * half.flow.shear_rate_G, rel=1e-12)
+    result = runner.invoke(app, ["validate", str(ROOT / "configs" / "sphere.yaml"), "--set", "physical.shear_rate=50 1/s"])
+    assert result.exit_code == 2 and len(result.stderr.strip().splitlines()) == 1
+    assert "physical.viscosity: required field is missing" in result.stderr
+
+
+def test_a_sweep_over_a_physical_value_has_an_SI_coordinate(tmp_path):
+    from capsim.campaign import campaign_from_dict, expand_campaign
+    from capsim.summary import _coordinate
+
+    base = {"physical": {"shear_rate": "100 1/s", "viscosity": "1.2 mPa*s", "radius": "2.8 um",
+                         "shear_modulus": "2.5 uN/m"}, "mesh": {"level": 0}}
+    campaign = campaign_from_dict({"name": "rates", "base": base, "sweep": {"physical.shear_rate": ["50 1/s", "0.1 1/ms"]},
+                                   "output": {"dir": str(tmp_path / "out")}})
+    G = [load_G(spec) for spec in expand_campaign(campaign)]
+    assert G == pytest.approx([1.2e-3 * 50 * 2.8e-6 / 7.5e-6, 1.2e-3 * 100 * 2.8e-6 / 7.5e-6], rel=1e-12)
+    name, values, attrs = _coordinate("shear_rate", "physical.shear_rate", ["50 1/s", "0.1 1/ms"])
+    assert list(values) == pytest.approx([50.0, 100.0]) and attrs["units"] == "1/s"
+    assert attrs["case_field_values"] == "50 1/s; 0.1 1/ms"
+
+
+def load_G(spec) -> float:
+    return yaml.safe_load(spec.case_yaml)["flow"]["shear_rate_G"]
+
+
+def test_capillary_number_and_physical_bending_give_G_and_kappa_by_hand():
+    from capsim.config import apply_overrides
+
+    sphere = case_from_dict({"name": "ca", "flow": {"capillary_number": 0.3}})
+    assert sphere.flow.shear_rate_G == pytest.approx(0.1, rel=1e-12)  # G = Ca/3 (G_s = E_s/3)
+    drop = case_from_dict({"name": "ca", "flow": {"capillary_number": 0.3}, "membrane": {"law": "surface_tension"}})
+    assert drop.flow.shear_rate_G == pytest.approx(0.3, rel=1e-12)  # a drop: Ca = μka/γ = G
+    assert apply_overrides(sphere, **{"flow.capillary_number": 0.6}).flow.shear_rate_G == pytest.approx(0.2)
+    with pytest.raises(ConfigError, match="give flow.shear_rate_G or flow.capillary_number, not both"):
+        case_from_dict({"name": "ca", "flow": {"capillary_number": 0.3, "shear_rate_G": 0.2}})
+    # κ = 1.8e-19 J, E_s = 3 × 2.5 uN/m, a = 2.8 um: κ/(E_s a²) = 1.8e-19 / (7.5e-6 × 7.84e-12) = 3.0612e-3
+    rbc = apply_overrides(load_case(ROOT / "configs" / "rbc.yaml"), **{"physical.bending_modulus": "1.8e-19 J"})
+    assert rbc.membrane.bending_modulus == pytest.approx(1.8e-19 / (7.5e-6 * 2.8e-6**2), rel=1e-12)
+    assert apply_overrides(rbc, **{"time.t_end": 1.0}).membrane.bending_modulus == rbc.membrane.bending_modulus
+    result = runner.invoke(app, ["validate", str(ROOT / "configs" / "rbc.yaml"), "--set", "physical.bending_modulus=2 m"])
+    assert result.exit_code == 2 and len(result.stderr.strip().splitlines()) == 1
+    assert "physical.bending_modulus = '2 m': '2 m' is not an energy (a bending modulus)" in result.stderr

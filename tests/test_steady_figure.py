@@ -1,0 +1,66 @@
+"""The steady figure shows settled runs only as results (issue 30, finding 3)."""
+
+import numpy as np
+import pytest
+import xarray as xr
+from typer.testing import CliRunner
+
+from capsim.cli import app
+from capsim.plot import plot
+from capsim.summary import write_summary
+
+
+def _grid(steady_average):
+    """A 2 × 2 G × λ summary with window stds; steady_average as given."""
+    G, lam = np.array([0.05, 0.1]), np.array([1.0, 5.0])
+    dims = ("shear_rate_G", "viscosity_ratio")
+    D = np.array([[0.30, 0.28], [0.55, 0.5]])
+    return xr.Dataset(
+        {"D_xy": (dims, D), "theta": (dims, np.full(D.shape, 0.7)), "D_xy_std": (dims, np.full(D.shape, 0.02)),
+         "theta_std": (dims, np.full(D.shape, 0.01)), "steady_average": (dims, np.asarray(steady_average, np.int8)),
+         "status": (dims, np.full(D.shape, "completed", dtype=object)),
+         "motion": (dims, np.full(D.shape, "transient", dtype=object))},
+        coords={"shear_rate_G": G, "viscosity_ratio": lam},
+    )
+
+
+def _data_lines(ax):
+    return [line for line in ax.get_lines() if line.get_label().startswith("λ")]
+
+
+def test_transient_runs_are_no_curve_and_the_figure_says_so():
+    fig = plot(_grid([[0, 0], [0, 0]]), "steady")
+    assert _data_lines(fig.axes[0]) == []  # no curve through transient values
+    crosses = [line for line in fig.axes[0].get_lines() if line.get_label().startswith("not settled")]
+    assert len(crosses) == 1 and len(crosses[0].get_xdata()) == 4
+    assert "4 of 4 runs not settled (4 transient motion)" in fig.steady_note
+    assert fig.steady_note in fig.caption and fig._supxlabel.get_text().replace("\n", " ").endswith(fig.steady_note)
+
+
+def test_settled_runs_carry_the_window_spread_as_error_bars():
+    fig = plot(_grid([[1, 1], [1, 0]]), "steady")
+    lines = {line.get_label(): line for line in _data_lines(fig.axes[0])}
+    assert list(lines["λ = 1"].get_xdata()) == [0.05, 0.1] and list(lines["λ = 5"].get_xdata()) == [0.05]
+    bars = [c for c in fig.axes[0].collections if c.get_segments()]
+    spans = sorted(float(seg[1][1] - seg[0][1]) for c in bars for seg in c.get_segments())
+    assert spans == pytest.approx([0.04] * 3)  # ± D_xy_std = 0.02 on the three settled runs
+    assert "1 of 4 runs not settled" in fig.steady_note
+
+
+def test_a_lambda_only_and_a_zip_campaign_plot_against_their_field(tmp_path):
+    lam_only = _grid([[1, 1], [1, 1]]).isel(shear_rate_G=0, drop=True)
+    fig = plot(lam_only, "steady")
+    assert fig.axes[1].get_xlabel() == r"viscosity ratio $\lambda$"
+    zipped = xr.Dataset(
+        {"D_xy": ("run", [0.1, 0.2, 0.3]), "theta": ("run", [0.7, 0.6, 0.5]), "steady_average": ("run", [1, 1, 0])},
+        coords={"run": ["a", "b", "c"], "viscosity_ratio": ("run", [0.2, 1.0, 5.0]),
+                "initial_tilt_deg": ("run", [0.0, 10.0, 20.0])},
+    )
+    fig = plot(zipped, "steady", x="initial_tilt_deg")
+    assert fig.axes[1].get_xlabel() == "initial tilt (deg)"
+    with pytest.raises(ValueError, match=r"--x 'level': not a numeric swept field .*allowed: viscosity_ratio, initial_tilt_deg"):
+        plot(zipped, "steady", x="level")
+    path = write_summary(_grid([[1, 1], [1, 1]]), tmp_path / "s.nc")
+    result = CliRunner().invoke(app, ["plot", str(path), "--kind", "steady", "--x", "nope", "-o", str(tmp_path / "s.png")])
+    assert result.exit_code == 2 and len(result.stderr.strip().splitlines()) == 1
+    assert "--x 'nope': not a numeric swept field of the summary (allowed: shear_rate_G, viscosity_ratio)" in result.stderr
