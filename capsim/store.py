@@ -486,15 +486,19 @@ class TrajectoryWriter:
         (:func:`capsim.checkpoint.end_state_bytes`), from which ``--resume --t-end`` extends it."""
         def write() -> None:
             self.drop_end_state()
-            _label(self._file.create_dataset(END_STATE, data=np.frombuffer(blob, dtype=np.uint8)), END_STATE)
+            ds = self._file.create_dataset(END_STATE, data=np.frombuffer(blob, dtype=np.uint8))
+            _label(ds, END_STATE)
+            # a netCDF-4 dimension of its own, so that xarray opens the root as it is (no phony dims)
+            _attach(ds, _dimension(self._file, f"{END_STATE}_dim0", ds.shape[0]))
             self._file.flush()
 
         self._guarded(write)
 
     def drop_end_state(self) -> None:
         """Remove ``end_state``: a run being extended is no longer at it (its checkpoint takes over)."""
-        if END_STATE in self._file:
-            del self._file[END_STATE]
+        for name in (END_STATE, f"{END_STATE}_dim0"):
+            if name in self._file:
+                del self._file[name]
 
     def _write_group(self, name: str, data: dict[str, Any]) -> None:
         self._check_room()
