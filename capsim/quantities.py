@@ -196,6 +196,7 @@ _add("status_reason", "why the run stopped", "", "one line from the run")
 _add("end_state", "state of the run at its t_end", "1",
      "bytes of a capsim restart checkpoint (.npz: integrator, model, observer, snapshot schedule and the case) "
      "at the last step of a run that reached time.t_end; `capsim run --resume --t-end T` extends the run from it")
+_add("end_state_byte", "byte of the end state", "1", "zero-based index of a byte of end_state (its dimension)")
 _add("n_nodes", "mesh nodes", "1", "number of nodes (vertices and mid-side nodes) of the mesh")
 
 # ---------------------------------------------------------------- summary/ (statistics over the averaging window)

@@ -489,14 +489,14 @@ class TrajectoryWriter:
             ds = self._file.create_dataset(END_STATE, data=np.frombuffer(blob, dtype=np.uint8))
             _label(ds, END_STATE)
             # a netCDF-4 dimension of its own, so that xarray opens the root as it is (no phony dims)
-            _attach(ds, _dimension(self._file, f"{END_STATE}_dim0", ds.shape[0]))
+            _attach(ds, _index(self._file, f"{END_STATE}_byte", ds.shape[0]))
             self._file.flush()
 
         self._guarded(write)
 
     def drop_end_state(self) -> None:
         """Remove ``end_state``: a run being extended is no longer at it (its checkpoint takes over)."""
-        for name in (END_STATE, f"{END_STATE}_dim0"):
+        for name in (END_STATE, f"{END_STATE}_byte"):
             if name in self._file:
                 del self._file[name]
 
