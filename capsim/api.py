@@ -56,7 +56,7 @@ def load_case(source: "PathLike | Mapping[str, Any] | Case", sets: Sequence[str]
     ``overrides`` are fields by dotted name, written with ``**{"time.t_end": 2.0}``
     or with a double underscore for the dot, ``time__t_end=2.0`` (None leaves a
     field as it is). Every value is checked against the schema
-    (:doc:`the case file reference </reference/case_file>`); a mistake raises
+    (the case file reference of the docs); a mistake raises
     :class:`capsim.config.ConfigError` with one line naming the field, the value and
     what is allowed.
 
