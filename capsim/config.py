@@ -443,7 +443,7 @@ class Quadrature(_Model):
     )
     # Sharp rims of flat shapes put elements close to a node without holding it;
     # with 0.5 (and singular_order 8) the double-layer identity error of b/a = 0.3
-    # at level 3 falls from 6.6e-2 to 5.5e-3 for 4.7x the double-layer time (README)
+    # at level 3 falls from 6.6e-2 to 5.5e-3 for 4.7x the double-layer time (docs/theory.md, "Numerical method")
     near_field_factor: float = Field(
         0.0, ge=0, le=3,
         description="integrate elements within this many element sizes of a node (not holding it) "
