@@ -9,7 +9,8 @@ numba nor HDF5)::
     tree = capsim.open_run(result.path)                             # an xarray.DataTree
 
 ``sweep``, ``summarize`` and ``study`` do what the CLI commands of the same names do;
-see :mod:`capsim.api`.
+see :mod:`capsim.api`. ``capsim.study`` is also the module of that name: calling it calls
+:func:`capsim.study.study`.
 """
 
 from capsim._version import __version__
@@ -24,7 +25,7 @@ _LAZY = {
     "run": "capsim.api",
     "sweep": "capsim.api",
     "summarize": "capsim.api",
-    "study": "capsim.api",
+    "study": "capsim.study",  # the module, callable: capsim.study(...) is capsim.study.study(...)
     "open_run": "capsim.api",
     "Case": "capsim.config",
     "RunResult": "capsim.runner",
@@ -39,6 +40,8 @@ def __getattr__(name: str):
 
     if name == "RunResult":  # capsim.runner loads numba: the thread policy first
         importlib.import_module("capsim.threads").apply_policy()
+    if name == "study":  # importing the submodule makes it the package's attribute `study`
+        return importlib.import_module(module)
     value = getattr(importlib.import_module(module), name)
     globals()[name] = value
     return value

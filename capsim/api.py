@@ -65,19 +65,9 @@ def load_case(source: "PathLike | Mapping[str, Any] | Case", sets: Sequence[str]
     >>> case.mesh.level
     1
     """
-    from capsim.config import Case, ConfigError, apply_overrides, case_from_dict, load_case_with, parse_sets
+    from capsim.config import resolve_case
 
-    dotted = {key.replace("__", "."): value for key, value in overrides.items()}
-    if isinstance(source, (str, os.PathLike)):
-        return load_case_with(source, list(sets) if sets else None, **dotted)
-    if isinstance(source, Case):
-        case = source
-    elif isinstance(source, Mapping):
-        case = case_from_dict(dict(source))
-    else:
-        raise ConfigError(f"load_case: a path, a dict or a Case, got {type(source).__name__}")
-    dotted = {**parse_sets(list(sets) if sets else None), **{k: v for k, v in dotted.items() if v is not None}}
-    return apply_overrides(case, **dotted) if dotted else case
+    return resolve_case(dict(source) if isinstance(source, Mapping) else source, sets, **overrides)
 
 
 def load_campaign(source: PathLike, sets: Sequence[str] | None = None, *, max_runs: int | None = None) -> "Campaign":
@@ -207,54 +197,11 @@ def summarize(directory: PathLike, output: PathLike | None = None, *, overwrite:
 
 
 def study(case: "PathLike | Mapping[str, Any] | Case", levels: Sequence[int] = (2, 3, 4),
-          rtols: Sequence[float] = (1e-3, 1e-4, 1e-5), *, quad: Sequence[int] | None = None,
-          reference: str = "finest", workers: int = 1, output: PathLike | None = None,
-          runs_dir: PathLike | None = None, overwrite: bool = False, progress: Progress = False,
-          sets: Sequence[str] | None = None, inputs: Sequence[PathLike] = (), **overrides: Any) -> "xr.Dataset":
-    """Accuracy against cost: run the ladder ``levels`` × ``rtols`` (× ``quad`` Gauss orders)
-    and compare each run with the ``reference`` (``"finest"`` or ``"richardson"``);
-    what ``capsim study`` does.
+          rtols: Sequence[float] = (1e-3, 1e-4, 1e-5), **options: Any) -> "xr.Dataset":
+    """Accuracy against cost; see :func:`capsim.study.study` (``capsim.study(...)`` calls it too)."""
+    from capsim.study import study as _study
 
-    Returns an ``xarray.Dataset`` of errors, wall times and observed orders
-    (:func:`capsim.study.format_study_table` prints it as the CLI does). With
-    ``output`` the Dataset is written there as netCDF and the Pareto plot beside it
-    (``.png``), through the same guards as the CLI. ``progress=True`` prints a line
-    per finished run on stderr; a callable receives that line. ``inputs``: more
-    files never to write over.
-    """
-    import sys
-
-    from capsim.config import ConfigError
-    from capsim.files import FIGURE_MAGIC, check_writable, guard_output, is_study_file, replace_atomically, starts_with
-    from capsim.study import REFERENCES, plot_pareto, write_study
-
-    if reference not in REFERENCES:
-        raise ConfigError(f"reference = {reference!r}: allowed: {', '.join(REFERENCES)}")
-    if reference == "richardson" and len(set(levels)) < 2:
-        raise ConfigError("reference = 'richardson' needs at least two levels")
-    inputs = [Path(p) for p in inputs] + ([Path(case)] if isinstance(case, (str, os.PathLike)) else [])
-    case = load_case(case, sets, **overrides)
-    targets = []
-    if output is not None:
-        output = Path(output)
-        png = output.with_suffix(".png")
-        targets = [(output, is_study_file), (png, starts_with(FIGURE_MAGIC["png"]))]
-        for path, ours in targets:
-            check_writable(path)
-            guard_output(path, inputs, overwrite, ours=ours)
-        inputs += [output, png]
-    if runs_dir is not None and Path(runs_dir).exists() and not Path(runs_dir).is_dir():
-        raise ConfigError(f"runs_dir {runs_dir} is not a directory")
-    report = _progress(progress, lambda: (lambda line: print(line, file=sys.stderr)))
-    _apply_thread_policy(workers)
-    from capsim.study import run_study
-
-    ds = run_study(case, list(levels), list(rtols), regular_orders=list(quad) if quad else None, reference=reference,
-                   workers=workers, out_dir=runs_dir, progress=report, overwrite=overwrite, inputs=inputs)
-    if output is not None:
-        replace_atomically(output, lambda tmp: write_study(ds, tmp))
-        replace_atomically(png, lambda tmp: plot_pareto(ds, tmp))
-    return ds
+    return _study(case, levels, rtols, **options)
 
 
 def open_run(path: PathLike):

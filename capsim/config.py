@@ -1009,6 +1009,22 @@ def load_case_with(path: str | os.PathLike, sets: list[str] | None = None, **ove
         raise ConfigError(f"{path}: --set/options: {text[len(prefix):] if text.startswith(prefix) else text}") from None
 
 
+def resolve_case(source: Any, sets: list[str] | None = None, **overrides: Any) -> Case:
+    """A case from a path, a dict or a Case, with ``--set`` texts and overrides by dotted name
+    (``**{"time.t_end": 2}``, or ``time__t_end=2``; None: not given). One-line ConfigError."""
+    dotted = {key.replace("__", "."): value for key, value in overrides.items()}
+    if isinstance(source, (str, os.PathLike)):
+        return load_case_with(source, list(sets) if sets else None, **dotted)
+    if isinstance(source, Case):
+        case = source
+    elif isinstance(source, dict):
+        case = case_from_dict(dict(source))
+    else:
+        raise ConfigError(f"a case is a path, a dict or a Case, got {type(source).__name__}")
+    dotted = {**parse_sets(list(sets) if sets else None), **{k: v for k, v in dotted.items() if v is not None}}
+    return apply_overrides(case, **dotted) if dotted else case
+
+
 def apply_overrides(case: Case, **dotted: Any) -> Case:
     """A re-validated copy of `case` with dotted fields replaced.
 
