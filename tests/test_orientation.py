@@ -1,7 +1,7 @@
 """Any orientation (issue 26): the rest shape's axis anywhere (initial_axis), the
 symmetry the scene has (mesh.symmetry auto | quarter | half | none), the material
 director and the 3-D ellipsoid every step, the orbit classifier and summary, and
-Jeffery's rigid limit (docs/known_answers.md, "Jeffery's orbits")."""
+Jeffery's rigid limit (docs/known_answers.md, "Jeffery's orbits off the plane")."""
 
 from __future__ import annotations
 
