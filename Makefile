@@ -4,7 +4,7 @@ BIN    := $(VENV)/bin
 # Reinstall only when the package metadata changes.
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv test test-all demo bench bench-threads bench-stepping cf-tools
+.PHONY: venv test test-all docs demo bench bench-threads bench-stepping cf-tools
 
 venv: $(STAMP)
 
@@ -31,6 +31,16 @@ $(CF_STAMP): pyproject.toml | $(STAMP)
 		echo "cf-tools: no libudunits2 (needs root: apt-get install libudunits2-0 udunits-bin); CF tests will skip"; }
 	-@$(BIN)/pip install -q -e '.[cf]' || echo "cf-tools: cfchecker not installed; CF tests will skip"
 	@touch $@
+
+# the documentation site into site/ (warnings are errors); the case-file and quantity references
+# are generated from the code at every build (docs/gen_reference.py)
+DOCS_STAMP := $(VENV)/.docs-tools
+$(DOCS_STAMP): pyproject.toml | $(STAMP)
+	$(BIN)/pip install -q -e '.[docs]'
+	touch $@
+
+docs: $(DOCS_STAMP)
+	$(BIN)/mkdocs build --strict --clean
 
 demo: venv
 	$(BIN)/capsim run configs/sphere.yaml --overwrite

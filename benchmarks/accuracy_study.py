@@ -1,4 +1,4 @@
-"""Accuracy against cost for the README ("Accuracy and cost").
+"""Accuracy against cost for the docs/validation.md ("Accuracy and cost").
 
 Runs `capsim.study.run_study` on an initially spherical capsule (thin-shell law,
 G = 0.1) at λ = 1 and λ = 5, mesh levels 2-4 × rtol 1e-3, 1e-4, 1e-5, to

@@ -1,4 +1,4 @@
-"""Do the reported error bars bound the error? (issue 18, item 3; README "Accuracy and cost")
+"""Do the reported error bars bound the error? (issue 18, item 3; docs/validation.md "Accuracy and cost")
 
 For each case: the run itself (mesh level L, ``time.rtol`` 1e-4), its reported
 bar (:func:`capsim.study.error_estimate`, what ``capsim run --error-estimate``

@@ -1,12 +1,51 @@
-"""capsim: boundary-integral simulation of elastic capsules in simple shear flow."""
+"""capsim: boundary-integral simulation of elastic capsules in simple shear flow.
+
+The library face (every name is loaded on first use; ``import capsim`` loads neither
+numba nor HDF5)::
+
+    import capsim
+    case = capsim.load_case("configs/sphere.yaml", mesh__level=1)   # a Case
+    result = capsim.run(case, overwrite=True, progress=True)        # a RunResult
+    tree = capsim.open_run(result.path)                             # an xarray.DataTree
+
+``sweep``, ``summarize`` and ``study`` do what the CLI commands of the same names do;
+see :mod:`capsim.api`. ``capsim.study`` is also the module of that name: calling it calls
+:func:`capsim.study.study`.
+"""
 
 from capsim._version import __version__
 
-__all__ = ["__version__", "open_run"]
+__all__ = ["__version__", "load_case", "load_campaign", "run", "sweep", "summarize", "study", "open_run",
+           "Case", "RunResult"]
+
+# name -> module that defines it; imported on first access (PEP 562)
+_LAZY = {
+    "load_case": "capsim.api",
+    "load_campaign": "capsim.api",
+    "run": "capsim.api",
+    "sweep": "capsim.api",
+    "summarize": "capsim.api",
+    "study": "capsim.study",  # the module, callable: capsim.study(...) is capsim.study.study(...)
+    "open_run": "capsim.api",
+    "Case": "capsim.config",
+    "RunResult": "capsim.runner",
+}
 
 
-def open_run(path):
-    """A run file as an ``xarray.DataTree`` (one node per group); see :func:`capsim.store.open_run`."""
-    from capsim.store import open_run as _open_run  # h5py and xarray only when asked for
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'capsim' has no attribute {name!r}")
+    import importlib
 
-    return _open_run(path)
+    if name == "RunResult":  # capsim.runner loads numba: the thread policy first
+        importlib.import_module("capsim.threads").apply_policy()
+    if name == "study":  # importing the submodule makes it the package's attribute `study`
+        return importlib.import_module(module)
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -15,7 +15,7 @@ from typing import Any, Optional
 import typer
 from typer.core import TyperGroup
 
-from capsim.files import FIGURE_MAGIC, is_study_file
+from capsim.files import FIGURE_MAGIC
 
 try:  # typer >= 0.2x carries its own copy of click
     from typer import _click as click
@@ -109,38 +109,6 @@ def _files_call(fn, *args, **kwargs):
         raise _user_error(str(exc)) from None
 
 
-def _check_writable(path: Path) -> None:
-    from capsim import files
-
-    _files_call(files.check_writable, path)
-
-
-def _guard_output(out: Path, inputs: list[Path], overwrite: bool, *, ours=lambda p: False,
-                  option: str = "--overwrite") -> None:
-    from capsim import files
-
-    _files_call(files.guard_output, out, inputs, overwrite, ours=ours, option=option)
-
-
-def _starts_with(magic: bytes):
-    from capsim import files
-
-    return files.starts_with(magic)
-
-
-def _write_atomically(out: Path, write) -> None:
-    from capsim import files
-
-    _files_call(files.replace_atomically, out, write)
-
-
-def _run_progress():
-    """rich.progress in a terminal, plain periodic lines otherwise (capsim.display)."""
-    from capsim.display import RunProgress
-
-    return RunProgress()
-
-
 @app.command()
 def run(
     case_path: Path = typer.Argument(..., metavar="CASE.yaml", help="case file"),
@@ -170,37 +138,24 @@ def run(
 
     capsim run configs/sphere.yaml --resume --t-end 12   (a completed run, extended to kt = 12)
     """
-    case = _load(
-        case_path,
-        sets,
-        **{
-            "output.path": str(output) if output is not None else None,
-            "time.t_end": t_end,
-            "mesh.level": level,
-        },
-    )
-    from capsim.store import guard_run_output
+    from capsim import api
+    from capsim.checkpoint import ResumeError
+    from capsim.config import ConfigError
+    from capsim.files import LockedError, OutputError, StorageError
 
-    _files_call(guard_run_output, case.output.path, [case_path], overwrite=overwrite, resume=resume)
-
-    from capsim.runner import ResumeError, run_case
-    from capsim.store import LockedError, StorageError
-
-    progress = None if quiet else _run_progress()
+    case = _load(case_path, sets, **{"output.path": str(output) if output is not None else None,
+                                     "time.t_end": t_end, "mesh.level": level})
     try:
-        summary = run_case(case, progress=progress, resume=resume)
+        summary = api.run(case, inputs=[case_path], overwrite=overwrite, resume=resume, progress=not quiet)
     except ResumeError as exc:
         raise _user_error(f"cannot resume: {exc}") from None
-    except (LockedError, StorageError) as exc:
+    except (ConfigError, OutputError, LockedError, StorageError) as exc:
         raise _user_error(str(exc)) from None
     except OSError as exc:
         raise _user_error(f"cannot write {case.output.path}: {exc.strerror or exc}") from None
     except KeyboardInterrupt:
         typer.echo("\ninterrupted", err=True)
         raise typer.Exit(code=1) from None
-    finally:
-        if progress is not None:
-            progress.finish()
     from capsim.display import print_summary
 
     print_summary({**summary, "shear_rate_G": case.flow.shear_rate_G}, title=case.name)
@@ -393,26 +348,16 @@ def sweep(
 
     capsim sweep campaigns/fig4-spheres-lambda1.0.yaml --set time.scheme=rkc --set mesh.level=2
     """
-    from capsim.campaign import run_campaign
+    from capsim import api
     from capsim.config import ConfigError
-    from capsim.store import LockedError, StorageError
+    from capsim.files import LockedError, StorageError
 
     campaign = _load_campaign(campaign_path, sets, max_runs)
-    progress = None
-    if not quiet:
-        from capsim.campaign import expand_campaign
-        from capsim.display import SweepProgress
-
-        t_end = {spec.run_id: spec.case().time.t_end for spec in expand_campaign(campaign)}
-        progress = SweepProgress(t_end)
     try:
-        result = run_campaign(campaign, workers=workers, scheduler=scheduler, resume=not no_resume, progress=progress,
-                              overwrite=overwrite)
+        result = api.sweep(campaign, workers=workers, scheduler=scheduler, resume=not no_resume,
+                           overwrite=overwrite, progress=not quiet)
     except (ConfigError, LockedError, StorageError) as exc:
         raise _user_error(str(exc)) from None
-    finally:
-        if progress is not None:
-            progress.finish()
     for record in result["records"]:
         if record["status"] != "completed":
             typer.echo(f"{record['run_id']}: {record['status']}: {record['status_reason']}", err=True)
@@ -434,13 +379,14 @@ def summarize(
 
     capsim summarize runs/fig9-11-13-spheres-level2 -o s.nc   (then: capsim plot s.nc --kind steady)
     """
+    from capsim import api
     from capsim.config import ConfigError
-    from capsim.summary import summarize_to_file
 
     try:
-        path, ds = _files_call(summarize_to_file, directory, output, overwrite=overwrite)
+        ds = _files_call(api.summarize, directory, output, overwrite=overwrite)
     except (FileNotFoundError, ConfigError) as exc:
         raise _user_error(str(exc)) from None
+    path = api.summary_path(directory, output)
     counts = {s: int((ds["status"] == s).sum()) for s in sorted(set(ds["status"].values.ravel()))}
     typer.echo(f"{path}: dims {dict(ds.sizes)}, status {counts}")
 
@@ -551,36 +497,30 @@ def study(
 
     capsim study configs/sphere.yaml --levels 1,2,3 --reference richardson --set time.scheme=rkc
     """
+    from capsim import api
     from capsim.config import ConfigError
-    from capsim.study import format_study_table, plot_pareto, run_study, write_study
+    from capsim.study import format_study_table
 
-    reference = reference.value
     level_list = _number_list(levels, int, "--levels")
     rtol_list = _number_list(rtols, float, "--rtols")
     quad_list = _number_list(quad, int, "--quad") if quad is not None else None
-    if reference == "richardson" and len(set(level_list)) < 2:
+    if reference.value == "richardson" and len(set(level_list)) < 2:
         raise _user_error("--reference richardson needs at least two levels")
-    case = _load(case_path, sets, **{"time.t_end": t_end})
-    png = output.with_suffix(".png")
-    for path, ours in ((output, is_study_file), (png, _starts_with(_FIGURE_MAGIC["png"]))):
-        _check_writable(path)
-        _guard_output(path, [case_path], overwrite, ours=ours)
     if runs_dir is not None and runs_dir.exists() and not runs_dir.is_dir():
         raise _user_error(f"--runs-dir {runs_dir} is not a directory")
+    case = _load(case_path, sets, **{"time.t_end": t_end})
     report = None if quiet else (lambda line: typer.echo(line, err=True))
     try:
-        ds = _files_call(run_study, case, level_list, rtol_list, regular_orders=quad_list, reference=reference,
-                         workers=workers, out_dir=runs_dir, progress=report, overwrite=overwrite,
-                         inputs=[case_path, output, png])
+        ds = _files_call(api.study, case, level_list, rtol_list, quad=quad_list, reference=reference.value,
+                         workers=workers, output=output, runs_dir=runs_dir, overwrite=overwrite, progress=report,
+                         inputs=[case_path])
     except ConfigError as exc:
         raise _user_error(str(exc)) from None
     except KeyboardInterrupt:
         typer.echo("\ninterrupted", err=True)
         raise typer.Exit(code=1) from None
     typer.echo(format_study_table(ds))
-    _write_atomically(output, lambda tmp: write_study(ds, tmp))
-    _write_atomically(png, lambda tmp: plot_pareto(ds, tmp))
-    typer.echo(f"{output}, {png}")
+    typer.echo(f"{output}, {output.with_suffix('.png')}")
     raise typer.Exit(code=0 if bool((ds["status"] == "completed").all()) else 1)
 
 

@@ -461,7 +461,7 @@ class Quadrature(_Model):
     )
     # Sharp rims of flat shapes put elements close to a node without holding it;
     # with 0.5 (and singular_order 8) the double-layer identity error of b/a = 0.3
-    # at level 3 falls from 6.6e-2 to 5.5e-3 for 4.7x the double-layer time (README)
+    # at level 3 falls from 6.6e-2 to 5.5e-3 for 4.7x the double-layer time (docs/theory.md, "Numerical method")
     near_field_factor: float = Field(
         0.0, ge=0, le=3,
         description="integrate elements within this many element sizes of a node (not holding it) "
@@ -1068,6 +1068,22 @@ DERIVED_FIELDS = {
     "flow.capillary_number": "flow.shear_rate_G",
     "physical.bending_modulus": "membrane.bending_modulus",
 }
+
+
+def resolve_case(source: Any, sets: list[str] | None = None, **overrides: Any) -> Case:
+    """A case from a path, a dict or a Case, with ``--set`` texts and overrides by dotted name
+    (``**{"time.t_end": 2}``, or ``time__t_end=2``; None: not given). One-line ConfigError."""
+    dotted = {key.replace("__", "."): value for key, value in overrides.items()}
+    if isinstance(source, (str, os.PathLike)):
+        return load_case_with(source, list(sets) if sets else None, **dotted)
+    if isinstance(source, Case):
+        case = source
+    elif isinstance(source, dict):
+        case = case_from_dict(dict(source))
+    else:
+        raise ConfigError(f"a case is a path, a dict or a Case, got {type(source).__name__}")
+    dotted = {**parse_sets(list(sets) if sets else None), **{k: v for k, v in dotted.items() if v is not None}}
+    return apply_overrides(case, **dotted) if dotted else case
 
 
 def apply_overrides(case: Case, **dotted: Any) -> Case:

@@ -314,7 +314,7 @@ def _compression(summary: dict[str, Any]) -> str | None:
 
     A membrane without bending stiffness cannot carry compression: where the smaller
     principal tension is negative a real capsule wrinkles, and where the compression
-    persists the computed solution comes to depend on the mesh (README, "Compressed
+    persists the computed solution comes to depend on the mesh (docs/user_guide.md, "Compressed
     membranes and bending stiffness").
     """
     frac, low = summary.get("compressed_fraction"), summary.get("min_tension")
@@ -330,7 +330,7 @@ def _compression(summary: dict[str, Any]) -> str | None:
             text += f": held by the bending modulus {summary['bending_modulus']:g}; check mesh convergence"
         else:
             text += (": would wrinkle without bending; rerun with --set membrane.bending_modulus=1e-4 "
-                     "(README, \"Compressed membranes and bending stiffness\")")
+                     "(docs/user_guide.md, \"Compressed membranes and bending stiffness\")")
     return text
 
 

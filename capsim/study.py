@@ -33,7 +33,10 @@ from __future__ import annotations
 import math
 import os
 import shutil
+import sys
 import tempfile
+import types
+from collections.abc import Mapping
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -584,3 +587,70 @@ def run_error_estimate(case: Case, summary: dict[str, Any], workers: int = 2) ->
     estimate = error_estimate(case, summary, workers=workers)
     write_error_estimate(case.output.path, estimate)  # the run's result itself is read-only (RunResult)
     return format_error_estimate(summary, estimate)
+
+
+PathLike = str | os.PathLike
+
+
+def study(case: "PathLike | Mapping[str, Any] | Case", levels: Sequence[int] = (2, 3, 4),
+          rtols: Sequence[float] = (1e-3, 1e-4, 1e-5), *, quad: Sequence[int] | None = None,
+          reference: str = "finest", workers: int = 1, output: PathLike | None = None,
+          runs_dir: PathLike | None = None, overwrite: bool = False, progress: bool | Callable[[str], None] = False,
+          sets: Sequence[str] | None = None, inputs: Sequence[PathLike] = (), **overrides: Any) -> "xr.Dataset":
+    """Accuracy against cost: run the ladder ``levels`` × ``rtols`` (× ``quad`` Gauss orders)
+    and compare each run with the ``reference`` (``"finest"`` or ``"richardson"``);
+    what ``capsim study`` does.
+
+    Returns an ``xarray.Dataset`` of errors, wall times and observed orders
+    (:func:`capsim.study.format_study_table` prints it as the CLI does). With
+    ``output`` the Dataset is written there as netCDF and the Pareto plot beside it
+    (``.png``), through the same guards as the CLI. ``progress=True`` prints a line
+    per finished run on stderr; a callable receives that line. ``inputs``: more
+    files never to write over.
+    """
+    from capsim.config import ConfigError, resolve_case
+    from capsim.files import FIGURE_MAGIC, check_writable, guard_output, is_study_file, replace_atomically, starts_with
+    from capsim.threads import apply_policy
+
+    if reference not in REFERENCES:
+        raise ConfigError(f"reference = {reference!r}: allowed: {', '.join(REFERENCES)}")
+    if reference == "richardson" and len(set(levels)) < 2:
+        raise ConfigError("reference = 'richardson' needs at least two levels")
+    inputs = [Path(p) for p in inputs] + ([Path(case)] if isinstance(case, (str, os.PathLike)) else [])
+    case = resolve_case(dict(case) if isinstance(case, Mapping) else case, sets, **overrides)
+    targets = []
+    if output is not None:
+        output = Path(output)
+        png = output.with_suffix(".png")
+        targets = [(output, is_study_file), (png, starts_with(FIGURE_MAGIC["png"]))]
+        for path, ours in targets:
+            check_writable(path)
+            guard_output(path, inputs, overwrite, ours=ours)
+        inputs += [output, png]
+    if runs_dir is not None and Path(runs_dir).exists() and not Path(runs_dir).is_dir():
+        raise ConfigError(f"runs_dir {runs_dir} is not a directory")
+    if progress is True:
+        report = lambda line: print(line, file=sys.stderr)  # noqa: E731
+    else:
+        report = progress or None
+    apply_policy(workers=workers)
+
+    ds = run_study(case, list(levels), list(rtols), regular_orders=list(quad) if quad else None, reference=reference,
+                   workers=workers, out_dir=runs_dir, progress=report, overwrite=overwrite, inputs=inputs)
+    if output is not None:
+        replace_atomically(output, lambda tmp: write_study(ds, tmp))
+        replace_atomically(png, lambda tmp: plot_pareto(ds, tmp))
+    return ds
+
+
+
+class _CallableStudyModule(types.ModuleType):
+    """``capsim.study`` is both this module and the library function :func:`study`:
+    importing the module sets the package's attribute ``study`` to it (the import system does),
+    so the module, called, is the function."""
+
+    def __call__(self, *args: Any, **kwargs: Any):
+        return study(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableStudyModule

@@ -7,7 +7,7 @@ process, before the first ``import numba``: the CLI's callback, the pool
 workers' initializer (:mod:`capsim.executor`), and :func:`capsim.campaign.execute_run`
 (a Dask worker). This module imports nothing from numba or numpy.
 
-The policy (benchmark: ``make bench-threads``, README section "Threads"):
+The policy (benchmark: ``make bench-threads``, docs/user_guide.md section "Threads"):
 
 - **threading layer**: the first of :data:`LAYERS` that loads, ``omp`` (libgomp)
   with ``OMP_WAIT_POLICY=PASSIVE``, then ``tbb`` (only when the TBB library is
@@ -270,7 +270,7 @@ def policy_attrs() -> dict[str, str | int]:
 #: full-mesh nodes from which a run's parallel kernels use every thread they were given: below it
 #: one thread (measured on the demo, level 3 = 1026 nodes with quarter symmetry: one thread
 #: 3.6 s, two 4.0 s, a second thread's fork-join cost outweighs its share of ~1 ms of
-#: sums; level 4 = 4098 nodes: two threads 1.18x faster per evaluation; issue 29, README "Threads")
+#: sums; level 4 = 4098 nodes: two threads 1.18x faster per evaluation; issue 29, docs/user_guide.md "Threads")
 PARALLEL_MIN_NODES = 2000
 
 

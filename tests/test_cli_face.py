@@ -348,7 +348,7 @@ def test_the_compression_warning_says_what_to_do_in_one_line():
     text = _compression({"compressed_fraction": 0.26, "min_tension": -0.31, "bending_modulus": 0.0})
     assert "\n" not in text and text.startswith("26 %")
     assert "--set membrane.bending_modulus=" in text
-    section = re.search(r'README,\s"(.+?)"', text).group(1)  # the section it cites
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    assert re.search(rf"^## {re.escape(section)}$", readme, re.M)
+    page, section = re.search(r'(docs/\w+\.md),\s"(.+?)"', text).groups()  # the docs section it cites
+    cited = (Path(__file__).resolve().parents[1] / page).read_text()
+    assert re.search(rf"^## {re.escape(section)}$", cited, re.M)
     assert "would wrinkle" not in (_compression({"compressed_fraction": 0.01, "min_tension": -0.01}) or "")

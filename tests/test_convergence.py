@@ -154,7 +154,7 @@ def test_steady_theta_order(tmp_path):
 
 def _n2_ratio(tmp_path, G: float, lam: float) -> float:
     """N2*/N1*, thin shell, level 2, weak bending κ = 1e-4 (removes the mesh-scale
-    creep of the compressed membrane, README), mean over the last third of
+    creep of the compressed membrane, docs/user_guide.md), mean over the last third of
     kt ∈ [0, max(3, 8 kτ)] (kτ = 12.1 G at λ = 1, 33 G at λ = 5)."""
     from capsim.runner import run_case
     from capsim.store import read_trajectory

@@ -3,10 +3,12 @@
 * No file points to notes outside the repository: every markdown file a file
   names is one of the repository's (what a reader needs of the project's notes
   is in docs/conventions.md, docs/known_answers.md and docs/time_stepping.md).
-* Every relative markdown link in README.md, REPRODUCTION.md and docs/*.md
-  points to a file that exists, and every README section cited as
-  ``README, "Section"`` exists.
-* The README's layout section names every module of the package.
+* Every relative markdown link in README.md, REPRODUCTION.md and docs/**/*.md
+  points to a file that exists, and every section cited as ``README, "Section"``
+  or ``docs/page.md, "Section"`` exists.
+* The developer guide's layout section names every module of the package.
+* README.md is one screenful (at most 150 lines) and copies no benchmark row: every
+  benchmark table lives once, in benchmarks/*.md (the docs include it from there).
 """
 
 from __future__ import annotations
@@ -20,14 +22,17 @@ ROOT = Path(__file__).resolve().parents[1]
 SCANNED_DIRS = ("capsim", "tests", "docs", "configs", "campaigns", "benchmarks")
 SCANNED_FILES = ("README.md", "REPRODUCTION.md", "Makefile", "pyproject.toml")
 TEXT_SUFFIXES = {".py", ".md", ".yaml", ".yml", ".toml", ".txt", ".cfg", ".ini", ".json"}
-MARKDOWN = ("README.md", "REPRODUCTION.md", "docs/*.md")
+MARKDOWN = ("README.md", "REPRODUCTION.md", "docs/*.md", "docs/**/*.md")
 
 # a path-like token naming a markdown file: it must be a file of the repository
 _MD_TOKEN = re.compile(r"[\w./-]*\w\.md\b")
 # absolute paths of the machines the notes were written on, and the folder beside the repository
 _OUTSIDE = re.compile(r"/work/|\.\./shared\b|\bshared/\w")
 _LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
-_README_SECTION = re.compile(r"README,\s+\"([^\"]+)\"")
+_CITED_SECTION = re.compile(r"(README|docs/[\w/]+\.md),\s+\"([^\"]+)\"")
+README_MAX_LINES = 150
+# pages the docs build generates from the code (docs/gen_reference.py): real, though not files
+GENERATED = {ROOT / "docs" / "reference" / "case_file.md", ROOT / "docs" / "reference" / "quantities.md"}
 
 
 def _scanned_files() -> list[Path]:
@@ -51,7 +56,7 @@ def _dangling_markdown_reference(token: str, source: Path) -> bool:
     that names it, to the repository root, to docs/ or to benchmarks/, or as the name of
     a markdown file anywhere in the tree (text often names a file without its folder)."""
     for base in (source.parent, ROOT, ROOT / "docs", ROOT / "benchmarks"):
-        if (base / token).is_file():
+        if (base / token).is_file() or (base / token).resolve() in GENERATED:
             return False
     name = token.rsplit("/", 1)[-1]
     return not any(p.name == name for d in SCANNED_DIRS for p in (ROOT / d).rglob("*.md")) and \
@@ -125,30 +130,57 @@ def test_relative_markdown_links_resolve():
             if re.match(r"^[a-z][a-z0-9+.-]*:", target) or target.startswith("#"):
                 continue  # URLs, mailto:, in-page anchors
             path = target.split("#", 1)[0]
-            if not (md.parent / path).exists():
+            if not (md.parent / path).exists() and (md.parent / path).resolve() not in GENERATED:
                 broken.append(f"{md.relative_to(ROOT)}: {target}")
     assert not broken, "broken relative links:\n" + "\n".join(broken)
 
 
-def test_cited_readme_sections_exist():
-    headings = {
-        m.group(1).strip()
-        for m in re.finditer(r"^#{2,4} (.+)$", _read(ROOT / "README.md"), re.M)
-    }
+def _headings(path: Path) -> set[str]:
+    return {m.group(1).strip() for m in re.finditer(r"^#{2,4} (.+?)(?:\s*\{#[\w-]+\})?$", _read(path), re.M)}
+
+
+def test_cited_sections_exist():
     missing = []
     for p in _scanned_files() + [ROOT / "README.md"]:
         text = re.sub(r"\s+", " ", _read(p))
-        for name in _README_SECTION.findall(text):
-            if name not in headings:
-                missing.append(f"{p.relative_to(ROOT)}: README, \"{name}\"")
-    assert not missing, "cited README sections that do not exist:\n" + "\n".join(missing)
+        for page, name in _CITED_SECTION.findall(text):
+            target = ROOT / ("README.md" if page == "README" else page)
+            if not target.is_file() or not any(h == name or h.startswith(name + " (") for h in _headings(target)):
+                missing.append(f"{p.relative_to(ROOT)}: {page}, \"{name}\"")
+    assert not missing, "cited sections that do not exist:\n" + "\n".join(missing)
 
 
-def test_readme_layout_names_every_module():
-    layout = _section(_read(ROOT / "README.md"), "Layout")
-    assert layout, "README.md has no '## Layout' section"
+def test_developer_guide_layout_names_every_module():
+    layout = _section(_read(ROOT / "docs" / "developer.md"), "Layout")
+    assert layout, "docs/developer.md has no '## Layout' section"
     modules = sorted(p.name for p in (ROOT / "capsim").glob("*.py"))
     unlisted = [m for m in modules if not re.search(rf"(?<![\w.]){re.escape(m)}(?!\w)", layout)]
-    assert not unlisted, f"README layout does not list: {unlisted}"
+    assert not unlisted, f"the developer guide's layout does not list: {unlisted}"
     for folder in ("capsim", "configs", "campaigns", "tests", "benchmarks", "docs"):
-        assert re.search(rf"^\s*{folder}/", layout, re.M), f"README layout does not list {folder}/"
+        assert re.search(rf"^\s*{folder}/", layout, re.M), f"the developer guide layout does not list {folder}/"
+
+
+def _benchmark_rows() -> dict[str, str]:
+    """Every data row of a table in benchmarks/*.md -> its file."""
+    rows = {}
+    for md in sorted((ROOT / "benchmarks").glob("*.md")):
+        for line in _read(md).splitlines():
+            if line.startswith("|") and not re.fullmatch(r"\|[\s|:-]+\|", line.strip()):
+                rows[line.strip()] = md.name
+    return rows
+
+
+def test_readme_is_one_screenful():
+    lines = _read(ROOT / "README.md").splitlines()
+    assert len(lines) <= README_MAX_LINES, f"README.md has {len(lines)} lines (at most {README_MAX_LINES})"
+
+
+def test_no_benchmark_row_is_copied():
+    rows = _benchmark_rows()
+    assert rows, "benchmarks/*.md hold no table rows"
+    copied = []
+    for md in [ROOT / "README.md", ROOT / "REPRODUCTION.md"] + sorted((ROOT / "docs").rglob("*.md")):
+        for lineno, line in enumerate(_read(md).splitlines(), 1):
+            if line.strip() in rows:
+                copied.append(f"{md.relative_to(ROOT)}:{lineno}: a row of benchmarks/{rows[line.strip()]}")
+    assert not copied, "benchmark rows copied (include the file in docs/benchmarks.md):\n" + "\n".join(copied)

@@ -36,7 +36,7 @@ def test_small_deformation_matches_first_order_theory(tmp_path):
 
     Measured at five first-order relaxation times after the impulsive start,
     where the first-order transient has settled to within 1%. (Without bending
-    stiffness the membrane keeps creeping slowly afterwards; see README.)
+    stiffness the membrane keeps creeping slowly afterwards; see docs/user_guide.md, "Compressed membranes and bending stiffness".)
     """
     ratios, thetas = {}, {}
     for G in (0.0125, 0.00625):

@@ -1,7 +1,7 @@
 """Any orientation (issue 26): the rest shape's axis anywhere (initial_axis), the
 symmetry the scene has (mesh.symmetry auto | quarter | half | none), the material
 director and the 3-D ellipsoid every step, the orbit classifier and summary, and
-Jeffery's rigid limit (docs/known_answers.md, "Jeffery's orbits")."""
+Jeffery's rigid limit (docs/known_answers.md, "Jeffery's orbits off the plane")."""
 
 from __future__ import annotations
 
@@ -351,7 +351,7 @@ def test_an_orbit_campaign_summarises_and_plots(tmp_path):
 def test_a_soft_prolate_capsule_drifts_to_rolling(tmp_path):
     """Dupont, Salsac & Barthès-Biesel (J. Fluid Mech. 721, 2013): at low Ca a prolate
     capsule (aspect ratio 2, λ = 1) ends rolling along the vorticity axis whatever its
-    initial inclination (README, "Orbits off the shear plane"). configs/orbit-prolate-
+    initial inclination (docs/user_guide.md, "Orbits off the shear plane"). configs/orbit-prolate-
     rolling.yaml (G = 0.01, Ca = 0.03, 60° from z), stopped once settled: rolling, the
     director within 0.1 rad of z, the orbit constant falling every orbit."""
     from pathlib import Path

@@ -77,7 +77,7 @@ def _run(tmp_path_factory, lam, bq, level=2):
     case = case_from_dict({
         "name": "visc", "mesh": {"level": level},
         "flow": {"shear_rate_G": G, "viscosity_ratio": lam, "history": {"kind": "stop", "stop_time": stop}},
-        # a weak bending modulus removes the creep of a compressed membrane at small G (README,
+        # a weak bending modulus removes the creep of a compressed membrane at small G (docs/user_guide.md,
         # "Compressed membranes and bending stiffness"; tests/test_bending.py): without it D_xy
         # drifts up with time and mesh (level 3, Bq_s = 10: +16 % at the stop)
         "membrane": {"viscosity": {"shear": bq}, "bending_modulus": KAPPA},

@@ -1,0 +1,213 @@
+"""The library face of capsim: what ``import capsim`` offers, and what every CLI command calls.
+
+Each function does what its CLI command does, with the same checks and the same
+one-line errors, but returns Python objects instead of printing:
+
+========================  ==========================  ==========================================
+function                  CLI command                 returns
+========================  ==========================  ==========================================
+:func:`load_case`         ``capsim validate CASE``    :class:`capsim.config.Case`
+:func:`run`               ``capsim run``              :class:`capsim.runner.RunResult`
+:func:`sweep`             ``capsim sweep``            dict of counts and one record per run
+:func:`summarize`         ``capsim summarize``        ``xarray.Dataset`` (also written as netCDF)
+:func:`study`             ``capsim study``            ``xarray.Dataset`` (written when ``output``)
+:func:`open_run`          --                          ``xarray.DataTree`` of a run file
+========================  ==========================  ==========================================
+
+Nothing here imports numba at import time: :func:`run`, :func:`sweep` and
+:func:`study` first apply the thread policy (:func:`capsim.threads.apply_policy`,
+the same one the CLI applies), then load the kernels.
+
+Errors are exceptions whose message is the line the CLI prints after ``error:``:
+:class:`capsim.config.ConfigError` for a bad case or campaign,
+:class:`capsim.files.OutputError` for an output that must not be written (an
+existing run file without ``overwrite``), :class:`capsim.files.LockedError` when
+another process writes the same file, :class:`capsim.files.StorageError` when
+writing fails, :class:`capsim.checkpoint.ResumeError` when a run cannot resume.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # pragma: no cover - types only
+    import xarray as xr
+
+    from capsim.campaign import Campaign
+    from capsim.config import Case
+    from capsim.runner import RunResult
+
+__all__ = ["load_case", "load_campaign", "run", "sweep", "summarize", "study", "open_run"]
+
+PathLike = str | os.PathLike
+#: ``progress=`` of :func:`run`, :func:`sweep`, :func:`study`: False (silent), True (the CLI's
+#: display on stderr), or a callable given each progress state
+Progress = bool | Callable[[Any], None]
+
+
+def load_case(source: "PathLike | Mapping[str, Any] | Case", sets: Sequence[str] | None = None,
+              **overrides: Any) -> "Case":
+    """A case from a YAML file, a dict of the same sections, or an existing :class:`~capsim.config.Case`.
+
+    ``sets`` are ``--set`` texts (``"mesh.level=1"``, the value read as YAML);
+    ``overrides`` are fields by dotted name, written with ``**{"time.t_end": 2.0}``
+    or with a double underscore for the dot, ``time__t_end=2.0`` (None leaves a
+    field as it is). Every value is checked against the schema
+    (the case file reference of the docs); a mistake raises
+    :class:`capsim.config.ConfigError` with one line naming the field, the value and
+    what is allowed.
+
+    >>> import capsim
+    >>> case = capsim.load_case("configs/sphere.yaml", mesh__level=1)
+    >>> case.mesh.level
+    1
+    """
+    from capsim.config import resolve_case
+
+    return resolve_case(dict(source) if isinstance(source, Mapping) else source, sets, **overrides)
+
+
+def load_campaign(source: PathLike, sets: Sequence[str] | None = None, *, max_runs: int | None = None) -> "Campaign":
+    """A campaign file (a ``base`` case, a ``sweep`` grid and/or ``zip`` lists, an ``output.dir``),
+    with ``--set`` texts written into its base; one-line :class:`capsim.config.ConfigError`."""
+    from capsim.campaign import MAX_RUNS, load_campaign_with
+
+    return load_campaign_with(source, list(sets) if sets else None,
+                              max_runs=MAX_RUNS if max_runs is None else max_runs)
+
+
+def _apply_thread_policy(workers: int = 1) -> None:
+    """The CLI's thread policy (a no-op after the first call, or once numba is loaded)."""
+    from capsim.threads import apply_policy
+
+    apply_policy(workers=workers)
+
+
+def _progress(progress: Progress, make: Callable[[], Any]):
+    if progress is True:
+        return make()
+    if progress is False or progress is None:
+        return None
+    if not callable(progress):
+        raise TypeError(f"progress must be True, False or a callable, got {type(progress).__name__}")
+    return progress
+
+
+def _finish(display: Any) -> None:
+    finish = getattr(display, "finish", None)
+    if callable(finish):
+        finish()
+
+
+def run(case: "PathLike | Mapping[str, Any] | Case", *, output: PathLike | None = None, overwrite: bool = False,
+        resume: bool = False, progress: Progress = False, sets: Sequence[str] | None = None,
+        inputs: Sequence[PathLike] = (), **overrides: Any) -> "RunResult":
+    """Run one case and write its run file (HDF5); what ``capsim run`` does.
+
+    ``case`` is a case file, a dict or a :class:`~capsim.config.Case`; ``sets`` and
+    ``overrides`` change fields as in :func:`load_case`; ``output`` replaces
+    ``output.path``. Before anything is computed the output is checked exactly as
+    the CLI checks it: an existing file is refused
+    (:class:`capsim.files.OutputError`, the CLI's one-line message) unless
+    ``overwrite`` (start again) or ``resume`` (continue an interrupted run from its
+    checkpoint). The thread policy is applied before numba loads. ``progress=True``
+    shows the CLI's progress line on stderr; a callable receives
+    ``{t, dt, D_xy, step, t_end}`` after each step. ``inputs``: more files the run
+    must never write over (the case file is one when ``case`` is a path).
+
+    Returns a :class:`~capsim.runner.RunResult`: ``status`` (``"completed"`` when the
+    run reached its end), the path, cost, and the summary of the motion
+    (``result["D_xy"]``, ``result["theta"]``: means over the last window).
+
+    >>> result = capsim.run("configs/sphere.yaml", overwrite=True)   # doctest: +SKIP
+    >>> result.status, round(result["D_xy"], 4)                       # doctest: +SKIP
+    ('completed', 0.0904)
+    """
+    inputs = [Path(p) for p in inputs] + ([Path(case)] if isinstance(case, (str, os.PathLike)) else [])
+    if output is not None:
+        overrides["output.path"] = os.fspath(output)
+    case = load_case(case, sets, **overrides)
+    from capsim.store import guard_run_output
+
+    guard_run_output(case.output.path, inputs, overwrite=overwrite, resume=resume)
+    _apply_thread_policy()
+    from capsim.display import RunProgress
+    from capsim.runner import run_case
+
+    display = _progress(progress, RunProgress)
+    try:
+        return run_case(case, progress=display, resume=resume)
+    finally:
+        _finish(display)
+
+
+def sweep(campaign: "PathLike | Campaign", *, workers: int | None = None, scheduler: str | None = None,
+          resume: bool = True, overwrite: bool = False, progress: Progress = False,
+          sets: Sequence[str] | None = None, max_runs: int | None = None) -> dict[str, Any]:
+    """Run every case of a campaign into its ``output.dir``; what ``capsim sweep`` does.
+
+    Completed runs are skipped unless ``resume=False``; a directory that holds another
+    campaign is refused unless ``overwrite``. ``workers`` local processes (default one
+    per core) or a Dask ``scheduler`` address. Returns ``{"total", "skipped",
+    "completed", "failed", "interrupted", "records"}`` (one record per run, with its
+    ``run_id``, ``status`` and ``status_reason``); :func:`summarize` then collects
+    the directory into one Dataset.
+    """
+    from capsim.campaign import Campaign, expand_campaign, run_campaign
+
+    if not isinstance(campaign, Campaign):
+        campaign = load_campaign(campaign, sets, max_runs=max_runs)
+    _apply_thread_policy()
+    display = None
+    if progress is True:
+        from capsim.display import SweepProgress
+
+        display = SweepProgress({spec.run_id: spec.case().time.t_end for spec in expand_campaign(campaign)})
+    else:
+        display = _progress(progress, lambda: None)
+    try:
+        return run_campaign(campaign, workers=workers, scheduler=scheduler, resume=resume, progress=display,
+                            overwrite=overwrite)
+    finally:
+        _finish(display)
+
+
+def summary_path(directory: PathLike, output: PathLike | None = None) -> Path:
+    """Where :func:`summarize` writes: ``output``, else ``DIR/summary.nc``."""
+    return Path(output) if output is not None else Path(directory) / "summary.nc"
+
+
+def summarize(directory: PathLike, output: PathLike | None = None, *, overwrite: bool = False) -> "xr.Dataset":
+    """Collect a campaign directory's runs into one ``xarray.Dataset`` and write it as netCDF
+    (to ``output``, default :func:`summary_path`); what ``capsim summarize`` does.
+
+    The Dataset has one dimension per swept field (named by the field's last part,
+    e.g. ``G``, ``lam``) and one variable per quantity of
+    :mod:`capsim.quantities` (``D_xy``, ``theta``, ..., with units and meaning in
+    their attributes) plus ``status``. An existing file that is not a summary is
+    replaced only with ``overwrite`` (:class:`capsim.files.OutputError`).
+    """
+    from capsim.summary import summarize_to_file
+
+    _, ds = summarize_to_file(directory, summary_path(directory, output), overwrite=overwrite)
+    return ds
+
+
+def study(case: "PathLike | Mapping[str, Any] | Case", levels: Sequence[int] = (2, 3, 4),
+          rtols: Sequence[float] = (1e-3, 1e-4, 1e-5), **options: Any) -> "xr.Dataset":
+    """Accuracy against cost; see :func:`capsim.study.study` (``capsim.study(...)`` calls it too)."""
+    from capsim.study import study as _study
+
+    return _study(case, levels, rtols, **options)
+
+
+def open_run(path: PathLike):
+    """A run file as an ``xarray.DataTree``: one node per group (``/timeseries`` with ``D_xy``,
+    ``theta``... over ``t``; ``/snapshots`` with the node positions; ``/run`` the end-of-run
+    record; the case in the root's attributes). See :func:`capsim.store.open_run`."""
+    from capsim.store import open_run as _open_run  # h5py and xarray only when asked for
+
+    return _open_run(path)
