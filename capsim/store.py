@@ -489,7 +489,11 @@ class TrajectoryWriter:
             ds = self._file.create_dataset(END_STATE, data=np.frombuffer(blob, dtype=np.uint8))
             _label(ds, END_STATE)
             # a netCDF-4 dimension of its own, so that xarray opens the root as it is (no phony dims)
-            _attach(ds, _index(self._file, f"{END_STATE}_byte", ds.shape[0]))
+            # its dimension: a netCDF dimension without a coordinate variable (no data: an
+            # index of 8 bytes per byte would multiply the dataset's size by nine)
+            dim = _dimension(self._file, f"{END_STATE}_byte", ds.shape[0])
+            _label(dim, f"{END_STATE}_byte")
+            _attach(ds, dim)
             self._file.flush()
 
         self._guarded(write)
