@@ -150,3 +150,24 @@ def test_every_computing_cli_command_calls_the_library():
     # capsim.study is the module capsim.study (the import system makes it so), and calling it
     # calls the library function
     assert capsim.study is sys.modules["capsim.study"] and callable(capsim.study)
+
+
+def test_the_first_run_after_an_install_says_it_is_compiling(tmp_path):
+    """An empty numba cache (NUMBA_CACHE_DIR) is reported before the run compiles (issue 29)."""
+    import os
+    import subprocess
+    import sys
+
+    import yaml
+
+    case = tmp_path / "c.yaml"
+    case.write_text(yaml.safe_dump({"name": "c", "mesh": {"level": 0}, "time": {"t_end": 0.02}}))
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    env.pop("NUMBA_NUM_THREADS", None)
+    first = subprocess.run([sys.executable, "-m", "capsim.cli", "run", str(case), "-o", str(tmp_path / "a.h5")],
+                           env=env, capture_output=True, text=True, timeout=600)
+    assert first.returncode == 0, first.stderr[-2000:]
+    assert "compiling the numba kernels" in first.stderr
+    second = subprocess.run([sys.executable, "-m", "capsim.cli", "run", str(case), "-o", str(tmp_path / "b.h5")],
+                            env=env, capture_output=True, text=True, timeout=600)
+    assert second.returncode == 0 and "compiling" not in second.stderr
