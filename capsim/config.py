@@ -461,7 +461,7 @@ class Quadrature(_Model):
     )
     # Sharp rims of flat shapes put elements close to a node without holding it;
     # with 0.5 (and singular_order 8) the double-layer identity error of b/a = 0.3
-    # at level 3 falls from 6.6e-2 to 5.5e-3 for 4.7x the double-layer time (docs/theory.md, "Numerical method")
+    # at level 3 falls from 6.6e-2 to 5.5e-3 for 4.7x the double-layer time (docs/method.md, "Numerical method")
     near_field_factor: float = Field(
         0.0, ge=0, le=3,
         description="integrate elements within this many element sizes of a node (not holding it) "
@@ -682,28 +682,34 @@ class Case(_Model):
         from capsim.units import SHEAR_OVER_ELASTIC_MODULUS
 
         G = Ca * (1.0 if self.membrane.law == "surface_tension" else SHEAR_OVER_ELASTIC_MODULUS)
-        if "shear_rate_G" in self.flow.model_fields_set:
-            # a resolved case holds both: accepted when they agree
-            if not math.isclose(self.flow.shear_rate_G, G, rel_tol=1e-9):
-                raise _FieldProblem("flow.shear_rate_G", self.flow.shear_rate_G,
-                                    f"give flow.shear_rate_G or flow.capillary_number, not both "
-                                    f"(Ca = {Ca:g} gives G = {G:.6g}); remove one")
-            return self
-        object.__setattr__(self, "flow", self.flow.model_copy(update={"shear_rate_G": G}))
+        if not self._given_agrees("flow", "shear_rate_G", G, "flow.capillary_number", f"Ca = {Ca:g} gives G = {G:.6g}"):
+            self._set_derived("flow", "shear_rate_G", G)
         return self
+
+    def _given_agrees(self, section: str, name: str, value: float, source: str, gives: str) -> bool:
+        """Whether the case gives ``section.name`` itself, a field computed from `source`
+        (physical values, Ca): a resolved case holds both and is accepted when they agree;
+        a disagreement is a one-line error. False when the case leaves it to `source`."""
+        model = getattr(self, section)
+        if name not in model.model_fields_set:
+            return False
+        if not math.isclose(getattr(model, name), value, rel_tol=1e-9):
+            raise _FieldProblem(f"{section}.{name}", getattr(model, name),
+                                f"give {section}.{name} or {source}, not both ({gives}); remove one")
+        return True
+
+    def _set_derived(self, section: str, name: str, value: float) -> None:
+        # frozen models: the section with the computed value, set once while validating
+        object.__setattr__(self, section, getattr(self, section).model_copy(update={name: value}))
 
     @model_validator(mode="after")
     def _bending_from_physical(self) -> Case:
         if self.physical is None or self.physical.bending_modulus is None:
             return self
         kappa = self.physical.bending_modulus_scaled()
-        if "bending_modulus" in self.membrane.model_fields_set:
-            if not math.isclose(self.membrane.bending_modulus, kappa, rel_tol=1e-9):
-                raise _FieldProblem("membrane.bending_modulus", self.membrane.bending_modulus,
-                                    f"give membrane.bending_modulus or physical.bending_modulus, not both "
-                                    f"(physical gives κ/(E_s a²) = {kappa:.6g}); remove one")
-            return self
-        object.__setattr__(self, "membrane", self.membrane.model_copy(update={"bending_modulus": kappa}))
+        if not self._given_agrees("membrane", "bending_modulus", kappa, "physical.bending_modulus",
+                                  f"physical gives κ/(E_s a²) = {kappa:.6g}"):
+            self._set_derived("membrane", "bending_modulus", kappa)
         return self
 
     @model_validator(mode="after")
@@ -711,18 +717,11 @@ class Case(_Model):
         if self.physical is None:
             return self
         G = self.physical.conversion()["G"]
-        if "shear_rate_G" in self.flow.model_fields_set:
-            # a resolved case holds both: accepted when they agree
-            if not math.isclose(self.flow.shear_rate_G, G, rel_tol=1e-9):
-                raise _FieldProblem(
-                    "flow.shear_rate_G", self.flow.shear_rate_G,
-                    f"give flow.shear_rate_G or physical, not both (physical gives G = {G:.6g}); remove one",
-                )
+        if self._given_agrees("flow", "shear_rate_G", G, "physical", f"physical gives G = {G:.6g}"):
             return self
         if not 0 < G < 1e6:
             raise _FieldProblem("physical", "…", f"gives G = {G:.3g}, outside (0, 1e6): check the units")
-        # frozen models: the flow with the computed G, set once while validating
-        object.__setattr__(self, "flow", self.flow.model_copy(update={"shear_rate_G": G}))
+        self._set_derived("flow", "shear_rate_G", G)
         return self
 
     @field_validator("initial_axis", mode="before")
