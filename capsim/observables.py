@@ -454,13 +454,7 @@ def _tumbling(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, out: dict) -> 
     if not th_u.min() < -np.pi / 2 - 0.05:
         return False
     out["motion"] = "tumbling"
-    # passages through −π/2 − mπ, m = 0, 1, ...
-    level = np.floor((th_u + np.pi / 2) / np.pi)
-    passes = []
-    for i in np.flatnonzero(np.diff(level) < 0):
-        target = (level[i]) * np.pi - np.pi / 2
-        w = (th_u[i] - target) / (th_u[i] - th_u[i + 1])
-        passes.append(td[i] + w * (td[i + 1] - td[i]))
+    passes = _passages(td, th_u, -np.pi / 2, falling_only=True)  # through −π/2 − mπ, m = 0, 1, ...
     if len(passes) >= 2:
         out["period"] = 2.0 * float(passes[-1] - passes[-2])
         out["t_from"], out["t_to"] = float(passes[-2]), float(passes[-1])
@@ -487,6 +481,21 @@ def _oscillating(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, rtol: float
     out["t_from"], out["t_to"] = osc["t_from"], osc["t_to"]
     for name, s in (("D_xy", D_xy[half]), ("theta", th_half)):
         out[f"{name}_mean"], out[f"{name}_amplitude"] = _cycle_stats(t[half], s, osc["t_from"], osc["last_cycle"])
+
+
+def _passages(t: np.ndarray, s: np.ndarray, offset: float, *, shift: float = 0.0,
+              falling_only: bool = False) -> list[float]:
+    """The times at which s(t), unwrapped, passes through offset + mπ (m any whole number),
+    linearly interpolated between samples; only downward passages with `falling_only`;
+    `shift` (in units of π) moves the levels so that a start exactly on one counts."""
+    level = np.floor((s - offset) / np.pi - shift)
+    change = np.diff(level)
+    passes = []
+    for i in np.flatnonzero(change < 0 if falling_only else change != 0):
+        target = max(level[i], level[i + 1]) * np.pi + offset
+        w = (target - s[i]) / (s[i + 1] - s[i])
+        passes.append(t[i] + w * (t[i + 1] - t[i]))
+    return passes
 
 
 def jeffery_orbit_constant(polar: np.ndarray, azimuth: np.ndarray, r: float) -> np.ndarray:
@@ -525,14 +534,7 @@ def orbit_summary(t: np.ndarray, director: np.ndarray, aspect_ratio: float = 1.0
         return out
     phi = np.unwrap(np.arctan2(d[:, 0], d[:, 1]))
     # the shift counts a start exactly on a passage (a director started in the yz-plane)
-    level = np.floor(phi / np.pi - 1e-9)
-    idx = np.flatnonzero(np.diff(level) != 0)
-    passes = []
-    for i in idx:
-        target = max(level[i], level[i + 1]) * np.pi
-        w = (target - phi[i]) / (phi[i + 1] - phi[i])
-        passes.append(t[i] + w * (t[i + 1] - t[i]))
-    passes = np.array(passes)
+    passes = np.array(_passages(t, phi, 0.0, shift=1e-9))
     if passes.size < 3:
         return out
     C = jeffery_orbit_constant(polar, phi, aspect_ratio)
@@ -590,7 +592,6 @@ def classify_orbit(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, director:
                    D_xy_mean=window_stats(t, D_xy, t_last)[0], theta_mean=window_stats(t, theta, t_last)[0],
                    D_xy_amplitude=nan, theta_amplitude=nan)
         return out
-    window = t >= out["t_from"] - 1e-12
     if out["motion"] == "steady":
         return out
     late = t >= 0.5 * t[-1]
