@@ -758,7 +758,7 @@ class StepObserver:
         density = state.density + model.shear_rate_G * traction[elements]
         S_v = particle_stresslet(state.geometry, np.ascontiguousarray(traction[elements]), u, elements,
                                  model.disc.reg_phi, center, volume, 1.0, 1.0)
-        dissipation = float(u.ravel() @ (model.viscous.stiffness(y) @ u.ravel()))
+        dissipation = model.viscous.dissipation(y, u)  # K of the solve at these positions
         return density, {"Sxy_viscous_star": float(S_v[0, 1]), "viscous_dissipation": dissipation}
 
     def _remember(self, row: dict) -> None:

@@ -85,6 +85,7 @@ class KelvinVoigtMembrane:
         self._drag: float | None = None
         self._rest_factor = None
         self._factor_x: np.ndarray | None = None  # frozen: where the factor is built (None: the rest shape)
+        self._operators: tuple | None = None  # (x, K, mass LU) of the last assembly
         self.iterations = 0
         self.factorizations = 0  # sparse LUs of a preconditioner (not checkpointed: a benchmark count)
 
@@ -102,20 +103,40 @@ class KelvinVoigtMembrane:
         n = 3 * disc.n_nodes
         return sp.csr_matrix((blocks.ravel(), (self._rows, self._cols)), shape=(n, n))
 
-    def traction(self, x: np.ndarray, geo, u: np.ndarray) -> np.ndarray:
-        """M⁻¹K u at the nodes (N_p, 3): the viscous traction jump Δf_v over G, i.e. in units
-        of μk (times G: in the E_s/a of the elastic Δf). For the observables: one sparse solve."""
+    def _cached(self, x: np.ndarray):
+        """(K, mass LU) of the last assembly when it was at x, else None."""
+        cached = self._operators
+        if cached is not None and cached[0].shape == x.shape and np.array_equal(cached[0], x):
+            return cached[1], cached[2]
+        return None
+
+    def operators(self, x: np.ndarray, geo):
+        """(K, the LU of the mass matrix) at configuration x: those of the last solve when it
+        was at x (the accepted positions, which the observables then read), else assembled."""
         import scipy.sparse as sp
         from scipy.sparse.linalg import splu
 
+        cached = self._cached(x)
+        if cached is not None:
+            return cached
         disc = self.disc
         mass = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr),
                              shape=(disc.n_nodes, disc.n_nodes))
-        return splu(mass.tocsc()).solve(np.asfortranarray((self.stiffness(x) @ u.ravel()).reshape(-1, 3)))
+        K, mass_lu = self.stiffness(x), splu(mass.tocsc())
+        self._operators = (np.array(x, copy=True), K, mass_lu)
+        return K, mass_lu
+
+    def traction(self, x: np.ndarray, geo, u: np.ndarray) -> np.ndarray:
+        """M⁻¹K u at the nodes (N_p, 3): the viscous traction jump Δf_v over G, i.e. in units
+        of μk (times G: in the E_s/a of the elastic Δf)."""
+        K, mass_lu = self.operators(x, geo)
+        return mass_lu.solve(np.asfortranarray((K @ u.ravel()).reshape(-1, 3)))
 
     def dissipation(self, x: np.ndarray, u: np.ndarray) -> float:
         """uᵀK u = ∫ T_v:D dA / G: the membrane's viscous dissipation rate in units of μ k² a³."""
-        return float(u.ravel() @ (self.stiffness(x) @ u.ravel()))
+        cached = self._cached(x)
+        K = cached[0] if cached is not None else self.stiffness(x)
+        return float(u.ravel() @ (K @ u.ravel()))
 
     def drag_scale(self, model: "CapsuleModel") -> float:
         """s = ⟨v, SL[v]⟩/⟨v, v⟩ at the rest shape for white noise v (fixed seed): computed
@@ -173,10 +194,10 @@ class KelvinVoigtMembrane:
         from capsim.krylov import gmres
 
         disc, counts, lam = model.disc, model.counts, model.viscosity_ratio
-        K = self.stiffness(x)
+        self._operators = None  # a new configuration: assembled once, kept for the observables
+        K, mass_lu = self.operators(x, geo)
         mass = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr),
-                             shape=(disc.n_nodes, disc.n_nodes))
-        mass_lu = splu(mass.tocsc())
+                             shape=(disc.n_nodes, disc.n_nodes)) if self.preconditioner == "local" else None
         double = model.double_layer_operator(x, geo, normals) if lam != 1.0 else None
         elements = disc.elements
 
