@@ -61,6 +61,26 @@ def _cross(a0, a1, a2, b0, b1, b2):
 
 
 @njit(inline="always")
+def _tangents(x, elements, e, dxi, deta, q):
+    """The tangents ∂x/∂ξ, ∂x/∂η of element e at point q (rows q of the basis derivatives)."""
+    ax = 0.0
+    ay = 0.0
+    az = 0.0
+    bx = 0.0
+    by = 0.0
+    bz = 0.0
+    for a in range(6):
+        node = elements[e, a]
+        ax += dxi[q, a] * x[node, 0]
+        ay += dxi[q, a] * x[node, 1]
+        az += dxi[q, a] * x[node, 2]
+        bx += deta[q, a] * x[node, 0]
+        by += deta[q, a] * x[node, 1]
+        bz += deta[q, a] * x[node, 2]
+    return ax, ay, az, bx, by, bz
+
+
+@njit(inline="always")
 def _element_point(xe, fe, e, phi, dxi, deta):
     """Position, unnormalised normal ∂x/∂ξ × ∂x/∂η and density at one rule point of
     element e, given the basis values and derivatives there (rows of 6); xe, fe:
@@ -756,20 +776,7 @@ def nodal_unit_normals(x, elements, node_dxi, node_deta):
     acc = np.zeros((n_nodes, 3))
     for e in range(elements.shape[0]):
         for k in range(6):
-            ax = 0.0
-            ay = 0.0
-            az = 0.0
-            bx = 0.0
-            by = 0.0
-            bz = 0.0
-            for a in range(6):
-                node = elements[e, a]
-                ax += node_dxi[k, a] * x[node, 0]
-                ay += node_dxi[k, a] * x[node, 1]
-                az += node_dxi[k, a] * x[node, 2]
-                bx += node_deta[k, a] * x[node, 0]
-                by += node_deta[k, a] * x[node, 1]
-                bz += node_deta[k, a] * x[node, 2]
+            ax, ay, az, bx, by, bz = _tangents(x, elements, e, node_dxi, node_deta, k)
             nx, ny, nz = _cross(ax, ay, az, bx, by, bz)
             s = 1.0 / np.sqrt(nx * nx + ny * ny + nz * nz)
             v = elements[e, k]
@@ -1116,20 +1123,7 @@ def viscous_membrane_blocks(x, elements, dxi, deta, w, c_shear, c_dil):
     g = np.empty((6, 3))
     for e in range(ne):
         for q in range(nq):
-            a0 = 0.0
-            a1 = 0.0
-            a2 = 0.0
-            b0 = 0.0
-            b1 = 0.0
-            b2 = 0.0
-            for k in range(6):
-                node = elements[e, k]
-                a0 += dxi[q, k] * x[node, 0]
-                a1 += dxi[q, k] * x[node, 1]
-                a2 += dxi[q, k] * x[node, 2]
-                b0 += deta[q, k] * x[node, 0]
-                b1 += deta[q, k] * x[node, 1]
-                b2 += deta[q, k] * x[node, 2]
+            a0, a1, a2, b0, b1, b2 = _tangents(x, elements, e, dxi, deta, q)
             g11 = a0 * a0 + a1 * a1 + a2 * a2
             g12 = a0 * b0 + a1 * b1 + a2 * b2
             g22 = b0 * b0 + b1 * b1 + b2 * b2
