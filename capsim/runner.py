@@ -208,6 +208,10 @@ class _Run:
         self.extending = True
         return checkpoint.load_end_state(blob, self.path, case)
 
+    def _wall(self) -> float:
+        """Wall time the run has spent, its earlier parts (before a resume) included."""
+        return self.wall_before + time.perf_counter() - self.wall0
+
     # -- parts ----------------------------------------------------------------
     def _rhs(self, x: np.ndarray):
         self.stop.check()
@@ -263,7 +267,7 @@ class _Run:
                                                   verify=self._belongs_to_checkpoint)
         except (TrajectoryError, StorageError) as exc:
             raise ResumeError(str(exc)) from None
-        stored_version = str(self.writer._file.attrs.get("capsim_version", ""))
+        stored_version = str(self.writer.attr("capsim_version", ""))
         attrs = {"config_yaml": self.config_yaml, "capsim_version": __version__}
         if stored_version and stored_version != __version__:  # the rows after the cut are this version's
             attrs["resumed_from_version"] = stored_version
@@ -298,7 +302,7 @@ class _Run:
 
     def _save_checkpoint(self, parts: dict[str, dict[str, Any]]) -> None:
         self.writer.flush()  # the rows the checkpoint counts on must be on disk first
-        checkpoint.save(self.ckpt_path, parts, self.config_yaml, self.wall_before + time.perf_counter() - self.wall0)
+        checkpoint.save(self.ckpt_path, parts, self.config_yaml, self._wall())
         self.checkpoints.taken(int(parts["integrator"]["steps"]))
 
     def _accepted(self, trial) -> None:
@@ -356,7 +360,7 @@ class _Run:
                 self._accepted(trial)
             state = LoopState(ig.t, ig.dt, ig.steps, signal=stop.name, attempted=True, finite=trial.finite,
                               accepted=trial.accepted, h=trial.h,
-                              wall_s=self.wall_before + time.perf_counter() - self.wall0)
+                              wall_s=self._wall())
         return outcome
 
     def execute(self) -> RunResult:
@@ -408,7 +412,7 @@ class _Run:
         work = self._work()
         result = RunResult(
             status=status, status_reason=reason, path=str(self.path), t=ig.t, steps=ig.steps,
-            rejected_steps=ig.rejected, wall_time_s=self.wall_before + time.perf_counter() - self.wall0,
+            rejected_steps=ig.rejected, wall_time_s=self._wall(),
             scheme=ig.name, scheme_choice=ig.choice or None, velocity_evaluations=int(work["velocity_evaluations"]),
             layer_applications=int(work["layer_applications"]),
             linear_iterations=int(work["linear_iterations"]),

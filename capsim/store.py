@@ -360,6 +360,10 @@ class TrajectoryWriter:
         else:
             self.close("failed", f"{type(exc).__name__}: {exc}")
 
+    def attr(self, name: str, default: Any = None) -> Any:
+        """A root attribute of the open file (as stored; `default` when absent)."""
+        return self._file.attrs.get(name, default)
+
     def still_ours(self) -> bool:
         """The file at the path is still the one this writer opened (not deleted, not replaced)."""
         try:
