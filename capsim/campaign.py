@@ -65,8 +65,9 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from capsim.config import NAME_MAX, Case, ConfigError, StrictModel, case_from_dict, describe_error, read_yaml
 from capsim.errors import bounded_repr, first_line
-from capsim.executor import SigtermAsInterrupt, one_line, run_batch
-from capsim.store import FileLock, StorageError, _tmp_name
+from capsim.executor import WORKER_DIED, SigtermAsInterrupt, one_line, run_batch
+from capsim.files import write_durably
+from capsim.store import FileLock, StorageError
 from capsim.threads import apply_policy as apply_thread_policy
 from capsim.threads import usable_cores  # noqa: F401  (processes x threads = these cores)
 
@@ -419,14 +420,12 @@ def _file_status(spec: RunSpec) -> str | None:
     """The status of the run file at a run's path; :data:`FOREIGN` when that file
     holds another case (another G, level, ...), so that it is neither skipped as
     done nor summarised as this run; None when there is no readable file."""
-    from capsim.store import read_run_digest, read_run_status
+    from capsim.store import read_run_identity
 
-    status = read_run_status(spec.path)
+    status, digest = read_run_identity(spec.path)
     if status is None:
         return None
-    if read_run_digest(spec.path) != spec.digest():
-        return FOREIGN
-    return status
+    return FOREIGN if digest != spec.digest() else status
 
 
 def campaign_digest(campaign: Campaign) -> str:
@@ -474,17 +473,8 @@ class _Index:
             self.write_error = str(exc)
 
     def write(self) -> None:
-        tmp = _tmp_name(self.path)
-        try:
-            with open(tmp, "w", encoding="utf-8") as fh:
-                fh.write(json.dumps({"campaign": self.digest, "runs": self.runs}, indent=1, default=str))
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, self.path)  # atomic: a reader never sees half a file
-        except OSError as exc:  # a full disk: the previous runs.json stays
-            tmp.unlink(missing_ok=True)
-            raise StorageError(f"{self.path}: cannot write: {exc.strerror or first_line(exc)}; "
-                               "the previous runs.json is kept") from None
+        text = json.dumps({"campaign": self.digest, "runs": self.runs}, indent=1, default=str)
+        write_durably(self.path, lambda fh: fh.write(text.encode("utf-8")), "the previous runs.json is kept")
 
 
 def _read_index(out_dir: str | os.PathLike) -> tuple[dict[str, dict], str | None]:
@@ -650,16 +640,7 @@ def _claim(campaign: Campaign, out_dir: Path, overwrite: bool) -> str:
     except (OSError, UnicodeDecodeError):
         current = None
     if current != text:
-        tmp = _tmp_name(path)
-        try:
-            with open(tmp, "w", encoding="utf-8") as fh:
-                fh.write(text)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        except OSError as exc:
-            tmp.unlink(missing_ok=True)
-            raise StorageError(f"{path}: cannot write: {exc.strerror or first_line(exc)}; nothing was changed") from None
+        write_durably(path, lambda fh: fh.write(text.encode("utf-8")), "nothing was changed")
     return digest
 
 
@@ -714,7 +695,7 @@ def _reconcile(spec: RunSpec, record: dict) -> dict:
     """A run whose worker died: the record follows its file (completed before the worker
     died: completed; left 'running': marked failed in the file too), so that runs.json
     never contradicts the files."""
-    if record["status"] != "failed" or not record["status_reason"].startswith("worker died"):
+    if record["status"] != "failed" or not record["status_reason"].startswith(WORKER_DIED):
         return record
     from capsim.store import mark_abandoned, read_run_record
 

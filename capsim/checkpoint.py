@@ -24,7 +24,7 @@ import yaml
 
 from capsim.config import Case, step_defining
 from capsim.errors import bounded_repr, first_line
-from capsim.files import CHECKPOINT_SUFFIX, StorageError, tmp_name, write_failure
+from capsim.files import CHECKPOINT_SUFFIX, tmp_name, write_durably
 from capsim.schedules import end_tolerance
 
 __all__ = [
@@ -51,17 +51,8 @@ def checkpoint_path(trajectory_path: str | os.PathLike) -> Path:
 def write_checkpoint(path: str | os.PathLike, arrays: dict[str, Any]) -> None:
     """Write arrays and scalars to an .npz atomically: a killed writer leaves the
     previous checkpoint in place, never half of a new one."""
-    path = Path(path)
-    tmp = tmp_name(path)
-    try:
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **{key: np.asarray(value) for key, value in arrays.items()})
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except OSError as exc:  # a full disk: the previous checkpoint stays
-        tmp.unlink(missing_ok=True)
-        raise StorageError(write_failure(path, exc) + "; the previous checkpoint is kept") from None
+    write_durably(path, lambda fh: np.savez(fh, **{key: np.asarray(value) for key, value in arrays.items()}),
+                  "the previous checkpoint is kept")
 
 
 def read_checkpoint(path: str | os.PathLike) -> dict[str, np.ndarray]:

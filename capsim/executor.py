@@ -319,6 +319,10 @@ def _run_here(items, task, order, warm, failure, done, stop_on_interrupted, outc
         outcome.interrupted = True
 
 
+#: how the reason of an item whose worker process died begins (callers reconcile such items)
+WORKER_DIED = "worker died"
+
+
 class _PoolBroken(Exception):
     """A worker process died (killed, out of memory): the pool can take no more work."""
 
@@ -404,7 +408,7 @@ def _pool_round(items, task, keys, order, kinds, failure, done, on_progress, n, 
         except cf.process.BrokenProcessPool:
             raise _PoolBroken from None
         except Exception as exc:  # noqa: BLE001 - the worker failed otherwise
-            return failure(i, "failed", f"worker died: {one_line(exc)}")
+            return failure(i, "failed", f"{WORKER_DIED}: {one_line(exc)}")
         if isinstance(record, str) and record == _NOT_STARTED:
             return failure(i, "interrupted", f"{name} stopped before this run started")
         if isinstance(record, _Failed):
@@ -439,7 +443,7 @@ def _pool_round(items, task, keys, order, kinds, failure, done, on_progress, n, 
                         continue
                     if keys[i] in guilty:
                         finished.add(keys[i])
-                        done(i, failure(i, "failed", "worker died (killed, or out of memory) while running this; "
+                        done(i, failure(i, "failed", f"{WORKER_DIED} (killed, or out of memory) while running this; "
                                                      "the other runs went on"))
                     else:
                         again.append(i)

@@ -34,7 +34,7 @@ from capsim.errors import first_line
 __all__ = [
     "FileIdentity", "FileLock", "LockedError", "OutputError", "StorageError",
     "check_writable", "copy_and_replace", "free_bytes", "guard_output", "lock_path", "mb",
-    "replace_atomically", "room_bytes", "same_file", "tmp_name", "write_failure",
+    "replace_atomically", "room_bytes", "same_file", "tmp_name", "write_durably", "write_failure",
 ]
 
 
@@ -259,6 +259,24 @@ def replace_atomically(out: str | os.PathLike, write: Callable[[Path], None]) ->
         raise StorageError(f"cannot write {out}: {first_line(StorageError(text))}; nothing was changed") from None
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def write_durably(path: str | os.PathLike, write: Callable, kept: str) -> None:
+    """``write(fh)`` into :func:`tmp_name` opened for binary writing, fsync, rename over
+    `path`: a reader never sees half a file and a crash after it returns loses nothing.
+    A failure (a full disk) leaves `path` as it was: StorageError, '<path>: cannot write:
+    <reason>; <kept>'."""
+    path = Path(path)
+    tmp = tmp_name(path)
+    try:
+        with open(tmp, "wb") as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise StorageError(f"{write_failure(path, exc)}; {kept}") from None
 
 
 def copy_and_replace(path: str | os.PathLike, change: Callable[[Path], None], headroom: int) -> None:

@@ -735,17 +735,28 @@ def mark_abandoned(path: str | os.PathLike, reason: str) -> bool:
         return False
 
 
-def read_run_digest(path: str | os.PathLike) -> str | None:
-    """:func:`capsim.config.case_digest` of the case a run file holds; None when unreadable."""
+def read_run_identity(path: str | os.PathLike) -> tuple[str | None, str | None]:
+    """(status, :func:`capsim.config.case_digest` of the stored case) of a run file, in one
+    opening; (None, None) when there is no readable file, a None digest when its case is not one."""
     from capsim.config import case_digest
 
     try:
         with h5py.File(path, "r", locking=False) as f:
+            status = str(_scalar(f.attrs.get("status", "")))
             text = _scalar(f.attrs.get("config_yaml", ""))
+    except (OSError, ValueError):
+        return None, None
+    try:
         stored = yaml.safe_load(text) if isinstance(text, str) and text else None
-        return case_digest(case_from_dict(stored).model_dump(mode="json")) if isinstance(stored, dict) else None
-    except Exception:  # noqa: BLE001 - unreadable or foreign: no digest
-        return None
+        digest = case_digest(case_from_dict(stored).model_dump(mode="json")) if isinstance(stored, dict) else None
+    except Exception:  # noqa: BLE001 - a damaged or foreign case: no digest
+        digest = None
+    return status, digest
+
+
+def read_run_digest(path: str | os.PathLike) -> str | None:
+    """:func:`capsim.config.case_digest` of the case a run file holds; None when unreadable."""
+    return read_run_identity(path)[1]
 
 
 def read_run_record(path: str | os.PathLike) -> dict[str, Any] | None:
