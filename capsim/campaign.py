@@ -58,12 +58,12 @@ import sys
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Annotated, Any, get_args
+from typing import Annotated, Any
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from capsim.config import NAME_MAX, Case, ConfigError, StrictModel, case_from_dict, describe_error, read_yaml
+from capsim.config import NAME_MAX, Case, ConfigError, StrictModel, case_from_dict, describe_error, read_yaml, section_model
 from capsim.errors import bounded_repr, first_line
 from capsim.executor import WORKER_DIED, SigtermAsInterrupt, one_line, run_batch
 from capsim.files import write_durably
@@ -266,10 +266,8 @@ def _check_dotted(key: str, where: str) -> None:
                 f"{where}: {bounded_repr(key)} is not a case field ({bounded_repr(owner)[1:-1]} has: "
                 f"{', '.join(model.model_fields)})"
             )
-        ann = field.annotation
-        # an optional section (membrane.viscosity, flow.history): the model inside
-        ann = next((a for a in get_args(ann) if isinstance(a, type) and issubclass(a, BaseModel)), ann)
-        is_section = isinstance(ann, type) and issubclass(ann, BaseModel)
+        ann = section_model(field.annotation)  # an optional section too (membrane.viscosity, flow.history)
+        is_section = ann is not None
         last = i == len(parts) - 1
         if is_section and last:
             raise ConfigError(f"{where}: {key!r} is a section; sweep one of its fields ({', '.join(ann.model_fields)})")

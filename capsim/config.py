@@ -1128,17 +1128,21 @@ def _yaml_problem(exc: yaml.YAMLError) -> str:
     return problem
 
 
+def section_model(annotation: Any) -> type[BaseModel] | None:
+    """The model of a section field: the annotation itself, or the model inside an
+    Optional[Model] (flow.physical, membrane.viscosity); None for a leaf field."""
+    ann = next((a for a in get_args(annotation) if isinstance(a, type) and issubclass(a, BaseModel)), annotation)
+    return ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
+
+
 def _model_at(loc: tuple, root: type[BaseModel] | None = None) -> type[BaseModel] | None:
     """The model class that owns the field at `loc` (loc of its parent), from `root` (a Case)."""
-    model: type[BaseModel] = Case if root is None else root
+    model: type[BaseModel] | None = Case if root is None else root
     for part in loc:
         field = model.model_fields.get(part) if isinstance(part, str) else None
-        ann = field.annotation if field is not None else None
-        # Optional[Model] (flow.physical): the model inside
-        ann = next((a for a in get_args(ann) if isinstance(a, type) and issubclass(a, BaseModel)), ann)
-        if not (isinstance(ann, type) and issubclass(ann, BaseModel)):
+        model = section_model(field.annotation) if field is not None else None
+        if model is None:
             return None
-        model = ann
     return model
 
 
