@@ -285,14 +285,10 @@ def copy_and_replace(path: str | os.PathLike, change: Callable[[Path], None], he
     `headroom` bytes more. Any failure leaves the file as it was (StorageError)."""
     path = Path(path)
     size = os.path.getsize(path)
-    room = room_bytes(path.parent) - size
+    room = room_bytes(path.parent) - size  # capped by the file-size limit too
     if room < headroom:
         raise StorageError(f"{path}: cannot write: {mb(room)} of room beyond a copy of the file on its file "
                            f"system (or under the file-size limit), {mb(headroom)} needed; nothing was changed")
-    soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
-    if soft != resource.RLIM_INFINITY and soft - size < headroom:
-        raise StorageError(f"{path}: cannot write: the file-size limit leaves {mb(soft - size)}, "
-                           f"{mb(headroom)} needed; nothing was changed")
 
     def write(tmp: Path) -> None:
         shutil.copyfile(path, tmp)

@@ -40,7 +40,8 @@ import yaml
 from capsim.config import Case, case_from_dict
 from capsim.errors import first_line
 from capsim.files import (
-    FileIdentity, FileLock, LockedError, StorageError, copy_and_replace, free_bytes, lock_path, room_bytes,
+    FileIdentity, FileLock, LockedError, StorageError, copy_and_replace, free_bytes, lock_path, require_room,
+    room_bytes,
 )
 from capsim.checkpoint import (  # noqa: F401 - the checkpoint's names, as this module offered them
     CheckpointError, checkpoint_path, read_checkpoint, remove_checkpoint, write_checkpoint,
@@ -166,11 +167,8 @@ class TrajectoryWriter:
             image = self._build_image(**header)
         except (OSError, RuntimeError) as exc:
             raise StorageError(_write_failure(target, exc) + "; nothing was changed") from None
-        need = len(image) + _needed_bytes(np.size(header.get("rest_positions", ())) // 3, ())
-        room = room_bytes(target.parent)
-        if room < need:
-            raise StorageError(f"{target}: cannot write: {_mb(room)} of room on its file system (or under the "
-                               f"file-size limit), a new run file needs {_mb(need)}; nothing was changed")
+        require_room(target, len(image) + _needed_bytes(np.size(header.get("rest_positions", ())) // 3, ()),
+                     "a new run file")
         try:
             self._creating.unlink(missing_ok=True)  # a stale one of a dead process of this pid
             with open(self._creating, "xb") as fh:
