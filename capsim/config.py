@@ -1045,19 +1045,7 @@ def parse_sets(sets: list[str] | None) -> dict[str, Any]:
 
 def load_case_with(path: str | os.PathLike, sets: list[str] | None = None, **overrides: Any) -> Case:
     """The case at `path` with ``--set`` texts and dotted `overrides` (None: not given) applied."""
-    dotted = parse_sets(sets)
-    for key, value in overrides.items():
-        if value is not None:
-            if key in dotted:
-                raise ConfigError(f"--set {key} and its own option both given; give one")
-            dotted[key] = value
-    case = load_case(path)
-    try:
-        return apply_overrides(case, **dotted) if dotted else case
-    except ConfigError as exc:
-        text = str(exc)
-        prefix = "<overrides>: "
-        raise ConfigError(f"{path}: --set/options: {text[len(prefix):] if text.startswith(prefix) else text}") from None
+    return resolve_case(path, sets, **overrides)
 
 
 #: field (or section) set → the field computed from it, dropped from the old case when the
@@ -1071,18 +1059,29 @@ DERIVED_FIELDS = {
 
 def resolve_case(source: Any, sets: list[str] | None = None, **overrides: Any) -> Case:
     """A case from a path, a dict or a Case, with ``--set`` texts and overrides by dotted name
-    (``**{"time.t_end": 2}``, or ``time__t_end=2``; None: not given). One-line ConfigError."""
-    dotted = {key.replace("__", "."): value for key, value in overrides.items()}
+    (``**{"time.t_end": 2}``, or ``time__t_end=2``; None: not given); a field given both ways
+    is an error. One-line ConfigError."""
+    dotted = parse_sets(list(sets) if sets else None)
+    for key, value in overrides.items():
+        key = key.replace("__", ".")
+        if value is not None:
+            if key in dotted:
+                raise ConfigError(f"--set {key} and its own option both given; give one")
+            dotted[key] = value
     if isinstance(source, (str, os.PathLike)):
-        return load_case_with(source, list(sets) if sets else None, **dotted)
-    if isinstance(source, Case):
-        case = source
+        case, where = load_case(source), os.fspath(source)
+    elif isinstance(source, Case):
+        case, where = source, "<case>"
     elif isinstance(source, dict):
-        case = case_from_dict(dict(source))
+        case, where = case_from_dict(dict(source)), "<dict>"
     else:
         raise ConfigError(f"a case is a path, a dict or a Case, got {type(source).__name__}")
-    dotted = {**parse_sets(list(sets) if sets else None), **{k: v for k, v in dotted.items() if v is not None}}
-    return apply_overrides(case, **dotted) if dotted else case
+    try:
+        return apply_overrides(case, **dotted) if dotted else case
+    except ConfigError as exc:
+        text = str(exc)
+        prefix = "<overrides>: "
+        raise ConfigError(f"{where}: --set/options: {text[len(prefix):] if text.startswith(prefix) else text}") from None
 
 
 def apply_overrides(case: Case, **dotted: Any) -> Case:
