@@ -63,7 +63,7 @@ from typing import Annotated, Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from capsim.config import NAME_MAX, Case, ConfigError, StrictModel, case_from_dict, describe_error, read_yaml, section_model
+from capsim.config import NAME_MAX, Case, ConfigError, StrictModel, case_from_dict, format_validation_error, read_yaml, section_model
 from capsim.errors import bounded_repr, first_line
 from capsim.executor import WORKER_DIED, SigtermAsInterrupt, one_line, run_batch
 from capsim.files import write_durably
@@ -209,7 +209,7 @@ def campaign_from_dict(d: Any, source: str = "<campaign>", max_runs: int = MAX_R
     try:
         campaign = Campaign.model_validate(dict(d))
     except ValidationError as exc:
-        raise ConfigError(_format_error(exc, source)) from None
+        raise ConfigError(format_validation_error(exc, source, root=Campaign)) from None
     n_runs = count_runs(campaign)
     if n_runs > max_runs:
         sizes = " x ".join(
@@ -232,26 +232,6 @@ def count_runs(campaign: Campaign) -> int:
     """Number of runs of the campaign (grid size times zip length), without expanding it."""
     zip_len = len(next(iter(campaign.zip.values()))) if campaign.zip else 1
     return math.prod(len(v) for v in campaign.sweep.values()) * zip_len
-
-
-def _format_error(exc: ValidationError, source: str) -> str:
-    """A campaign's schema error in one line: the case schema's formatter for its fields, in
-    the campaign's words (kept: "FIELD: what (got VALUE)", as the tests and users know them)."""
-    parts = []
-    for err in exc.errors(include_url=False)[:3]:
-        loc = ".".join(p if isinstance(p, str) and len(p) <= 40 else bounded_repr(p, 40) for p in map(str, err["loc"]))
-        if err["type"] == "extra_forbidden":
-            parts.append(describe_error(err, root=Campaign))  # unknown field: the case schema's words
-            continue
-        if err["type"] == "missing":
-            what = "required field is missing"
-        else:
-            what = err["msg"].removeprefix("Value error, ")
-            value = err.get("input")
-            if err["loc"] and not isinstance(value, (dict, BaseModel)):
-                what += f" (got {bounded_repr(value)})"
-        parts.append(f"{loc}: {what}" if loc else what)
-    return " ".join(f"{source}: {'; '.join(parts)}".split())
 
 
 def _check_dotted(key: str, where: str) -> None:

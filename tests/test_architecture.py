@@ -136,3 +136,18 @@ def test_every_writer_uses_the_one_temporary_name():
         if path.name == "files.py":
             continue
         assert not re.search(r"\.tmp-|\+ \"\.tmp\"|\.tmp\"\)", path.read_text()), path.name
+
+
+def test_one_formatter_for_every_schema_error():
+    """A case's and a campaign's schema errors are worded by config.format_validation_error alone
+    (issue 27): no other module walks a ValidationError's list of problems."""
+    import re
+
+    for path in PACKAGE.glob("*.py"):
+        if path.name != "config.py":
+            assert not re.search(r"\.errors\(", path.read_text()), path.name
+    # the campaign's base model is the case schema's strict base
+    from capsim.campaign import Campaign
+    from capsim.config import StrictModel
+
+    assert issubclass(Campaign, StrictModel)
