@@ -108,7 +108,11 @@ class _Display:
 
 
 class RunProgress(_Display):
-    """Progress of one run; called with run_case's ``{t, dt, D_xy, step, t_end}``."""
+    """Progress of one run; called with run_case's ``{t, dt, D_xy, step, t_end, wall_s}``.
+
+    The elapsed time shown is the run's ``wall_s`` where given (the clock of the closing
+    table: set-up, compilation and a resumed run's earlier parts included), else the time
+    since the first call."""
 
     def __init__(self, stream: TextIO | None = None, *, terminal: bool | None = None,
                  interval_s: float | None = None, clock: Callable[[], float] = time.monotonic) -> None:
@@ -117,6 +121,7 @@ class RunProgress(_Display):
         self._t0 = math.nan
         self._task = None
         self._last_draw = -math.inf
+        self._stamp = math.nan
 
     def _eta(self, now: float) -> float | None:
         t, t_end = _number(self.state, "t"), _number(self.state, "t_end")
@@ -126,41 +131,51 @@ class RunProgress(_Display):
             return None
         return max(0.0, (t_end - t) * elapsed / done)
 
+    def _elapsed(self, now: float) -> float:
+        wall = _number(self.state, "wall_s")
+        if math.isfinite(wall):
+            return wall + (now - self._stamp)  # the run's clock, advanced since its last report
+        return now - (self._start if self._start is not None else now)
+
     def _line(self, now: float) -> str:
         s = self.state
         t, t_end = _number(s, "t"), _number(s, "t_end")
         pct = 100.0 * t / t_end if t_end > 0 else math.nan
-        return (f"kt {t:.4f} / {t_end:g} ({pct:3.0f} %)  elapsed {format_duration(now - (self._start if self._start is not None else now))}"
+        return (f"kt {t:.4f} / {t_end:g} ({pct:3.0f} %)  elapsed {format_duration(self._elapsed(now))}"
                 f"  ETA {format_duration(self._eta(now))}  dt {_number(s, 'dt'):.2e}"
                 f"  D_xy {_number(s, 'D_xy'):.5f}  step {int(_number(s, 'step')) if math.isfinite(_number(s, 'step')) else 0}")
 
     def __call__(self, state: Mapping[str, Any]) -> None:
         now = self.clock()
         self.state = dict(state)
+        self._stamp = now
         if self._start is None:
             self._start, self._t0 = now, _number(state, "t")
         self._show(now)
 
     def _refresh_live(self, final: bool = False) -> None:
-        from rich.progress import (BarColumn, Progress, TaskProgressColumn, TextColumn, TimeElapsedColumn,
-                                   TimeRemainingColumn)
+        from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeRemainingColumn
 
         s = self.state
         t, t_end = _number(s, "t"), _number(s, "t_end")
         if not math.isfinite(t_end) or t_end <= 0:
             return
         info = f"dt {_number(s, 'dt'):.2e}  D_xy {_number(s, 'D_xy'):.5f}"
+        # the elapsed column is the run's own clock (rich's would start at the first step)
+        elapsed = format_duration(self._elapsed(self.clock()))
         if self._live is None:
             self._live = Progress(
                 TextColumn("kt {task.fields[kt]}"), BarColumn(), TaskProgressColumn(),
-                TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(), TextColumn("{task.fields[info]}"),
+                TextColumn("{task.fields[elapsed]}"), TextColumn("ETA"), TimeRemainingColumn(),
+                TextColumn("{task.fields[info]}"),
                 console=self._console(), auto_refresh=False, transient=False,
             )
             self._live.start()
             self._task = self._live.add_task("run", total=t_end, completed=t if math.isfinite(t) else 0.0,
-                                             kt=f"{t:.3f} / {t_end:g}", info=info)
+                                             kt=f"{t:.3f} / {t_end:g}", info=info, elapsed=elapsed)
         else:
-            self._live.update(self._task, completed=t, total=t_end, kt=f"{t:.3f} / {t_end:g}", info=info)
+            self._live.update(self._task, completed=t, total=t_end, kt=f"{t:.3f} / {t_end:g}", info=info,
+                              elapsed=elapsed)
         self._live.refresh()
 
 

@@ -315,8 +315,10 @@ class _Run:
             self.snapshots.taken(ig.t)
         self.committed = self._parts()
         if self.progress is not None:
+            # wall_s: the run's own clock (set-up, compilation and earlier parts included), so the
+            # progress display and the closing table show one wall time
             self.progress({"t": ig.t, "dt": trial.h, "D_xy": row["D_xy"], "step": ig.steps,
-                           "t_end": self.case.time.t_end})
+                           "t_end": self.case.time.t_end, "wall_s": self._wall()})
         if self.checkpoints.due(ig.steps):
             self._save_checkpoint(self.committed)
 

@@ -352,3 +352,39 @@ def test_the_compression_warning_says_what_to_do_in_one_line():
     cited = (Path(__file__).resolve().parents[1] / page).read_text()
     assert re.search(rf"^## {re.escape(section)}$", cited, re.M)
     assert "would wrinkle" not in (_compression({"compressed_fraction": 0.01, "min_tension": -0.01}) or "")
+
+
+def test_run_progress_shows_the_runs_own_wall_clock():
+    """Elapsed = the run's wall_s (the closing table's clock, compilation included), advanced by
+    the time since its last report; not the time since the first step (issue 29 item 5)."""
+    clock = iter([100.0, 101.0, 101.5, 102.0])  # three reports, then finish()
+    stream = io.StringIO()
+    progress = RunProgress(stream, terminal=False, interval_s=1.0, clock=lambda: next(clock))
+    progress({"t": 0.1, "dt": 1e-3, "D_xy": 0.01, "step": 1, "t_end": 0.3, "wall_s": 20.0})  # after compiling
+    progress({"t": 0.2, "dt": 1e-3, "D_xy": 0.01, "step": 2, "t_end": 0.3, "wall_s": 21.0})
+    progress({"t": 0.3, "dt": 1e-3, "D_xy": 0.01, "step": 3, "t_end": 0.3, "wall_s": 3723.0})
+    progress.finish()
+    lines = stream.getvalue().splitlines()
+    assert "elapsed 0:00:21" in lines[0]            # not 0:00:01 (the time since the first step)
+    assert "elapsed 1:02:04" in lines[-1]           # 3723 s + 0.5 s since the last report (finish at 102)
+
+    live = io.StringIO()
+    clock2 = iter([0.0] * 10)
+    bar = RunProgress(live, terminal=True, interval_s=0.0, clock=lambda: next(clock2))
+    bar({"t": 0.3, "dt": 1e-3, "D_xy": 0.01, "step": 3, "t_end": 0.3, "wall_s": 3725.0})
+    bar.finish()
+    assert "1:02:05" in ESCAPE.sub("", live.getvalue())
+
+
+def test_the_last_progress_report_carries_the_closing_tables_wall_time(tmp_path):
+    from capsim.api import run
+
+    case = tmp_path / "case.yaml"
+    case.write_text("name: tiny\nmesh: {level: 1}\nflow: {shear_rate_G: 0.1}\ntime: {t_end: 0.2}\n"
+                    f"output: {{path: {tmp_path / 'tiny.h5'}}}\n")
+    reports = []
+    result = run(case, progress=reports.append)
+    walls = [r["wall_s"] for r in reports]
+    assert walls == sorted(walls) and walls[0] > 0
+    # the closing table's wall time is the last report's, plus the closing writes only
+    assert 0.0 <= result.wall_time_s - walls[-1] < 0.5
