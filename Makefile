@@ -11,6 +11,8 @@ venv: $(STAMP)
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -e '.[test]'
+	# compile the demo's numba kernels into the cache now, so that its first run computes at once
+	$(BIN)/capsim warm-up configs/sphere.yaml
 	touch $@
 
 test: venv cf-tools

@@ -16,7 +16,7 @@ see :mod:`capsim.api`. ``capsim.study`` is also the module of that name: calling
 from capsim._version import __version__
 
 __all__ = ["__version__", "load_case", "load_campaign", "run", "sweep", "summarize", "study", "open_run",
-           "Case", "RunResult"]
+           "warm_up", "Case", "RunResult"]
 
 # name -> module that defines it; imported on first access (PEP 562)
 _LAZY = {
@@ -27,6 +27,7 @@ _LAZY = {
     "summarize": "capsim.api",
     "study": "capsim.study",  # the module, callable: capsim.study(...) is capsim.study.study(...)
     "open_run": "capsim.api",
+    "warm_up": "capsim.api",
     "Case": "capsim.config",
     "RunResult": "capsim.runner",
 }

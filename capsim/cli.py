@@ -195,6 +195,18 @@ def bench(
     typer.echo(key_value_lines(result))
 
 
+@app.command("warm-up")
+def warm_up(
+    case_paths: Optional[list[Path]] = typer.Argument(None, metavar="[CASE.yaml]...", help="case files"),
+) -> None:
+    """Compile the numba kernels these cases use (default: the default case's) into numba's cache,
+    so that their first run computes at once (make venv does this for the demo)."""
+    from capsim import api
+
+    cases = [_load(path) for path in case_paths or []]
+    typer.echo(f"kernels ready in {api.warm_up(cases):.1f} s (compiled, or loaded from numba's cache)")
+
+
 @app.command()
 def validate(
     case_path: Path = typer.Argument(..., metavar="CASE.yaml|CAMPAIGN.yaml", help="case or campaign file"),

@@ -51,3 +51,55 @@ def test_a_run_after_warm_up_compiles_nothing_for_any_scheme_or_preconditioner()
     result = json.loads(proc.stdout.strip().splitlines()[-1])
     assert result["kinds"] == 5  # each scheme and preconditioner is a kind of its own
     assert result["compiled"] == {name: [] for name in ("rkf23", "rkc", "li_local", "li_dense", "li_none")}
+
+
+RUN_AND_COUNT = textwrap.dedent('''
+    import json, sys
+    from numba.core.registry import CPUDispatcher
+    import capsim
+    result = capsim.run(sys.argv[1], output=sys.argv[2])
+    import capsim.kernels as k
+    stats = [obj.stats for obj in vars(k).values() if isinstance(obj, CPUDispatcher)]
+    print(json.dumps({"status": result.status, "hits": sum(sum(s.cache_hits.values()) for s in stats),
+                      "misses": sum(sum(s.cache_misses.values()) for s in stats)}))
+''')
+
+
+def test_capsim_warm_up_fills_the_cache_so_the_first_run_compiles_nothing(tmp_path):
+    """`capsim warm-up CASE` (what `make venv` runs for the demo, issue 29 item 5) leaves numba's
+    cache holding every kernel the case's run uses: a run in a new process then loads each
+    signature from the cache (hits) and compiles none (misses = 0), and says nothing of compiling."""
+    import os
+
+    import yaml
+
+    case = tmp_path / "c.yaml"
+    case.write_text(yaml.safe_dump({"name": "c", "mesh": {"level": 1}, "time": {"t_end": 0.05}}))
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    env.pop("NUMBA_NUM_THREADS", None)
+    warm = subprocess.run([sys.executable, "-m", "capsim.cli", "warm-up", str(case)], env=env,
+                          capture_output=True, text=True, timeout=900)
+    assert warm.returncode == 0, warm.stderr[-2000:]
+    assert warm.stdout.startswith("kernels ready in ")
+    run = subprocess.run([sys.executable, "-c", RUN_AND_COUNT, str(case), str(tmp_path / "run.h5")], env=env,
+                         capture_output=True, text=True, timeout=900)
+    assert run.returncode == 0, run.stderr[-2000:]
+    counts = json.loads(run.stdout.strip().splitlines()[-1])
+    assert counts["status"] == "completed"
+    assert counts["hits"] > 0 and counts["misses"] == 0, counts
+    cli = subprocess.run([sys.executable, "-m", "capsim.cli", "run", str(case), "-o", str(tmp_path / "cli.h5")],
+                         env=env, capture_output=True, text=True, timeout=600)
+    assert cli.returncode == 0 and "compiling" not in cli.stderr, cli.stderr[-2000:]
+
+
+def test_warm_up_of_a_bad_case_file_is_one_line(tmp_path):
+    import os
+
+    case = tmp_path / "bad.yaml"
+    case.write_text("name: b\nmesh: {level: -1}\n")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_NUM_THREADS"}
+    proc = subprocess.run([sys.executable, "-m", "capsim.cli", "warm-up", str(case)], env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and "mesh.level" in lines[0], proc.stderr
