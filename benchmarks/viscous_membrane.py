@@ -70,6 +70,9 @@ def run_one(scheme: str, bq: float, preconditioner: str | None, dilatational: fl
             t0 = time.perf_counter()
             r = run_case(case)
             wall = time.perf_counter() - t0
+            # run_case stops at a SIGTERM and returns a partial run: never a row of the table
+            if r["status"] != "completed":
+                raise SystemExit(f"benchmark run ended {r['status']!r}: no table written")
             ts = read_trajectory(case.output.path)["timeseries"]
             iters = ts["solver_iterations"]
             return {"steps": r["steps"], "evaluations": r["velocity_evaluations"],
