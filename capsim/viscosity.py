@@ -45,6 +45,13 @@ from dataclasses import dataclass
 import numpy as np
 
 
+#: SuperLU options for the preconditioner's matrix (1+λ)/2 M + s/(8π) K, symmetric positive
+#: definite: a minimum-degree ordering of A + Aᵀ and diagonal pivots keep the symmetric
+#: structure (level 3: 0.50 million nonzeros in L + U against 0.88 with the default
+#: COLAMD, the triangular solves that every GMRES iteration applies correspondingly cheaper)
+SPD_LU = {"permc_spec": "MMD_AT_PLUS_A", "diag_pivot_thresh": 0.0, "options": {"SymmetricMode": True}}
+
+
 def is_active(params: dict | None) -> bool:
     """Whether a viscosity block changes anything (every Boussinesq number 0: the elastic code path)."""
     return bool(params) and any(float(v) > 0.0 for k, v in params.items() if k != "model")
@@ -80,8 +87,14 @@ class KelvinVoigtMembrane:
         self.rest_positions = np.ascontiguousarray(rest_positions, dtype=np.float64)
         e = np.asarray(disc.elements, dtype=np.int64)
         dof = (3 * e[:, :, None] + np.arange(3)[None, None, :]).reshape(e.shape[0], 18)
-        self._rows = np.repeat(dof, 18, axis=1).ravel()
-        self._cols = np.tile(dof, (1, 18)).ravel()
+        rows, cols = np.repeat(dof, 18, axis=1).ravel(), np.tile(dof, (1, 18)).ravel()
+        # K's sparsity is the mesh's: its CSR pattern and where each element-block entry
+        # lands in it are found once, so an assembly is one bincount (a COO-to-CSR
+        # conversion with its sort cost three times the blocks' kernel at level 3)
+        n = 3 * disc.n_nodes
+        keys, self._scatter = np.unique(rows * n + cols, return_inverse=True)
+        self._indices = (keys % n).astype(np.int32)
+        self._indptr = np.searchsorted(keys // n, np.arange(n + 1)).astype(np.int32)
         self._drag: float | None = None
         self._rest_factor = None
         self._factor_x: np.ndarray | None = None  # frozen: where the factor is built (None: the rest shape)
@@ -101,7 +114,8 @@ class KelvinVoigtMembrane:
             np.ascontiguousarray(x), disc.elements, disc.mem_dxi, disc.mem_deta, disc.mem_w,
             self.shear, self.dilatational)
         n = 3 * disc.n_nodes
-        return sp.csr_matrix((blocks.ravel(), (self._rows, self._cols)), shape=(n, n))
+        data = np.bincount(self._scatter, weights=blocks.ravel(), minlength=self._indices.size)
+        return sp.csr_matrix((data, self._indices, self._indptr), shape=(n, n))
 
     def _cached(self, x: np.ndarray):
         """(K, mass LU) of the last assembly when it was at x, else None."""
@@ -171,7 +185,7 @@ class KelvinVoigtMembrane:
             c = self.drag_scale(model) / (8.0 * np.pi)
             a = 0.5 * (1.0 + model.viscosity_ratio)
             mass3 = sp.kron(mass, sp.identity(3), format="csr")
-            self._rest_factor = (splu((a * mass3 + c * self.stiffness(X)).tocsc()), mass3)
+            self._rest_factor = (splu((a * mass3 + c * self.stiffness(X)).tocsc(), **SPD_LU), mass3)
             self.factorizations += 1
         lu, mass3 = self._rest_factor
         rot = best_rotation(self.rest_positions if self._factor_x is None else self._factor_x, x)
@@ -213,7 +227,7 @@ class KelvinVoigtMembrane:
             c = self.drag_scale(model) / (8.0 * np.pi)
             a = 0.5 * (1.0 + lam)
             mass3 = sp.kron(mass, sp.identity(3), format="csr")
-            pre_lu = splu((a * mass3 + c * K).tocsc())
+            pre_lu = splu((a * mass3 + c * K).tocsc(), **SPD_LU)
             self.factorizations += 1
 
             def precondition(y: np.ndarray) -> np.ndarray:
