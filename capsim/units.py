@@ -30,7 +30,7 @@ from typing import Any
 
 from capsim.errors import bounded_repr, first_line
 
-__all__ = ["KINDS", "UnitsError", "conversion", "parse"]
+__all__ = ["KINDS", "UnitsError", "conversion", "parse", "physical_factors", "scale_values"]
 
 #: G_s / E_s of every elastic law of capsim (capsim.membrane: the small-strain shear modulus)
 SHEAR_OVER_ELASTIC_MODULUS = 1.0 / 3.0
@@ -135,6 +135,7 @@ def conversion(shear_rate: Any, viscosity: Any, radius: Any, surface_modulus: An
     out = {
         "G": tension / e_s, "Ca": tension / g_s, "time_unit_s": 1.0 / k,
         "E_s_N_per_m": e_s, "G_s_N_per_m": g_s, "velocity_m_per_s": k * a, "tension_N_per_m": tension,
+        "shear_rate_per_s": k, "viscosity_Pa_s": mu, "radius_m": a,
     }
     if membrane_viscosity is not None:
         mu_s = parse(membrane_viscosity, "membrane_viscosity")
@@ -154,3 +155,48 @@ def describe_conversion(out: dict[str, float]) -> str:
     ] + ([f"Bq = mu_s / (mu a) = {out['Bq']:.6g}   (membrane.viscosity.shear); membrane time "
           f"mu_s / G_s = {out['membrane_time_s']:.6g} s (k tau = Bq Ca = {out['Bq'] * out['Ca']:.6g})"]
          if "Bq" in out else []))
+
+
+# ---------------------------------------------------------------- capsim's scales in physical units (outputs)
+
+
+def scale_values(out: dict[str, float]) -> dict[str, float]:
+    """The SI magnitude (in the SI unit of :data:`capsim.quantities.SCALE_UNITS`) of each
+    capsim scale, from :func:`conversion`'s result. V = (4π/3) a³: a is the equal-volume radius."""
+    k, mu, a, e_s = out["shear_rate_per_s"], out["viscosity_Pa_s"], out["radius_m"], out["E_s_N_per_m"]
+    volume = 4.0 / 3.0 * math.pi * a**3
+    return {
+        "a": a, "1/k": 1.0 / k, "E_s": e_s, "mu": mu, "mu k a": mu * k * a,
+        "5/2 mu k V": 2.5 * mu * k * volume, "E_s a^2": e_s * a**2, "a^2": a**2, "a^3": a**3,
+        "mu k^2 a^3": mu * k**2 * a**3, "k/(4 pi)": k / (4.0 * math.pi), "a k": a * k, "E_s/a": e_s / a,
+    }
+
+
+def physical_factors(physical: Any) -> dict[str, float]:
+    """What a dimensionless value measured in each capsim scale is multiplied by to be in the
+    unit shown (:data:`capsim.quantities.SCALE_UNITS`: 1/k → s, a → µm, μka → µN/m …), for a
+    case's ``physical`` block (a :class:`capsim.config.Physical` or its dict). The unit
+    changes go through pint."""
+    from capsim.quantities import SCALE_UNITS
+
+    if not isinstance(physical, dict):
+        physical = physical.model_dump()
+    out = conversion(physical["shear_rate"], physical["viscosity"], physical["radius"],
+                     physical.get("surface_modulus"), physical.get("shear_modulus"))
+    ureg = _registry()
+    values = scale_values(out)
+    return {scale: float(ureg.Quantity(values[scale], si).to(shown).magnitude)
+            for scale, (si, shown) in SCALE_UNITS.items()}
+
+
+class NoPhysicalBlock(UnitsError):
+    """--units physical for a run (or campaign) whose case has no physical block."""
+
+
+def factors_for(case: Any, what: str) -> dict[str, float]:
+    """:func:`physical_factors` of `case` (a Case); NoPhysicalBlock naming `what` when it has none."""
+    if getattr(case, "physical", None) is None:
+        raise NoPhysicalBlock(f"--units physical: {what} has no physical block (its case gives flow.shear_rate_G, "
+                              "not the shear rate, viscosity, radius and modulus); allowed: --units capsim, or a "
+                              "case with physical: (capsim units, docs/user_guide.md)")
+    return physical_factors(case.physical)
