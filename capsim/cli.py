@@ -276,19 +276,31 @@ def units(
         None, "--shear-modulus", help="surface shear modulus G_s = E_s/3 instead of E_s, e.g. '6 uN/m'"),
     membrane_viscosity: Optional[str] = typer.Option(
         None, "--membrane-viscosity", help="membrane surface shear viscosity μ_s, e.g. '2.5e-7 N*s/m' (gives Bq)"),
+    capillary_number: Optional[float] = typer.Option(
+        None, "--capillary-number", help="Ca = μka/G_s (flow.capillary_number): alone, gives G = Ca/3; with three "
+        "of shear rate, viscosity, radius and modulus, solves for the fourth"),
     as_json: bool = typer.Option(False, "--json", help="print a JSON object (G, Ca, time_unit_s, ...)"),
 ) -> None:
     """Physical values to capsim's numbers: G = μka/E_s, Ca = μka/G_s = 3G and the time unit 1/k.
 
-    Example:
+    Examples:
 
     capsim units --shear-rate '100 1/s' --viscosity '1.2 mPa*s' --radius '2.8 um' --shear-modulus '6 uN/m'
+
+    capsim units --capillary-number 0.1 --viscosity '1.2 mPa*s' --radius '2.8 um' --shear-modulus '6 uN/m'
     """
-    from capsim.units import UnitsError, conversion, describe_conversion, parse
+    from capsim.units import UnitsError, conversion, describe_capillary, describe_conversion, from_capillary_number, parse
 
     given = {"shear_rate": shear_rate, "viscosity": viscosity, "radius": radius,
              "surface_modulus": surface_modulus, "shear_modulus": shear_modulus,
              "membrane_viscosity": membrane_viscosity}
+    if capillary_number is not None:
+        try:
+            out = from_capillary_number(capillary_number, given)
+        except UnitsError as exc:
+            raise _user_error(f"units: {exc}") from None
+        typer.echo(json.dumps(out) if as_json else describe_capillary(out))
+        return
     missing = [_option(k) for k in ("shear_rate", "viscosity", "radius") if given[k] is None]
     if (surface_modulus is None) == (shear_modulus is None):
         missing.append("--surface-modulus or --shear-modulus (one of the two)" if surface_modulus is None

@@ -200,3 +200,83 @@ def factors_for(case: Any, what: str) -> dict[str, float]:
                               "not the shear rate, viscosity, radius and modulus); allowed: --units capsim, or a "
                               "case with physical: (capsim units, docs/user_guide.md)")
     return physical_factors(case.physical)
+
+
+# ---------------------------------------------------------------- the capillary number as an input
+
+
+#: what Ca = μ k a / G_s fixes when it is given with three of the four: name → (SI unit, formula)
+_SOLVED_BY_CA = {
+    "shear_rate": ("1/s", "k = Ca G_s / (mu a)"),
+    "viscosity": ("Pa*s", "mu = Ca G_s / (k a)"),
+    "radius": ("m", "a = Ca G_s / (mu k)"),
+    "shear_modulus": ("N/m", "G_s = mu k a / Ca"),
+}
+
+
+def check_capillary_number(ca: Any) -> float:
+    """Ca as `flow.capillary_number` takes it: a positive, finite number (UnitsError otherwise)."""
+    if isinstance(ca, bool) or not isinstance(ca, (int, float)) or not (math.isfinite(ca) and ca > 0):
+        raise UnitsError(f"--capillary-number {ca!r}: must be a positive, finite number (Ca = mu k a / G_s, e.g. 0.1)")
+    return float(ca)
+
+
+def from_capillary_number(ca: float, given: dict[str, Any]) -> dict[str, Any]:
+    """The conversion with Ca = μ k a / G_s as an input, consistent with ``flow.capillary_number``.
+
+    `given` maps shear_rate, viscosity, radius, surface_modulus / shear_modulus (E_s = 3 G_s)
+    and membrane_viscosity to quantity texts or None. With none of the first four: G = Ca/3
+    only (``{"Ca", "G"}``; a drop, surface_tension: G = Ca). With three of the four (the
+    modulus as E_s or G_s): the fourth is solved for (``solved``) and :func:`conversion` runs
+    on all four. Anything else: UnitsError naming what to give."""
+    ca = check_capillary_number(ca)
+    for kind, value in given.items():  # each value named by its option when it is not a quantity of its kind
+        if value is not None:
+            try:
+                parse(value, kind)
+            except UnitsError as exc:
+                raise UnitsError(f"--{kind.replace('_', '-')}: {exc}") from None
+    g_s = given.get("shear_modulus")
+    if given.get("surface_modulus") is not None:
+        if g_s is not None:
+            raise UnitsError("give only one of --surface-modulus and --shear-modulus")
+        g_s = f"{parse(given['surface_modulus'], 'surface_modulus') * SHEAR_OVER_ELASTIC_MODULUS!r} N/m"
+    four = {"shear_rate": given.get("shear_rate"), "viscosity": given.get("viscosity"),
+            "radius": given.get("radius"), "shear_modulus": g_s}
+    missing = [name for name, value in four.items() if value is None]
+    if len(missing) == 4:
+        if given.get("membrane_viscosity") is not None:
+            raise UnitsError("--membrane-viscosity needs the viscosity and the radius (Bq = mu_s/(mu a)); give "
+                             "three of --shear-rate, --viscosity, --radius, --shear-modulus with --capillary-number")
+        return {"Ca": ca, "G": ca * SHEAR_OVER_ELASTIC_MODULUS}
+    if not missing:
+        raise UnitsError("--capillary-number fixes one of --shear-rate, --viscosity, --radius and the modulus: give "
+                         "three of them with it, not all four (or leave out --capillary-number)")
+    if len(missing) > 1:
+        options = ", ".join("--" + name.replace("_", "-") for name in missing)
+        raise UnitsError(f"--capillary-number with physical values: give three of --shear-rate, --viscosity, "
+                         f"--radius and --surface-modulus/--shear-modulus (Ca fixes the fourth); missing {options}")
+    name = missing[0]
+    k, mu, a, gs = (parse(four[n], n) if n != name else None for n in ("shear_rate", "viscosity", "radius",
+                                                                           "shear_modulus"))
+    solved = {"shear_rate": lambda: ca * gs / (mu * a), "viscosity": lambda: ca * gs / (k * a),
+              "radius": lambda: ca * gs / (mu * k), "shear_modulus": lambda: mu * k * a / ca}[name]()
+    four[name] = f"{solved!r} {_SOLVED_BY_CA[name][0]}"
+    out: dict[str, Any] = conversion(four["shear_rate"], four["viscosity"], four["radius"],
+                                     shear_modulus=four["shear_modulus"],
+                                     membrane_viscosity=given.get("membrane_viscosity"))
+    out["solved"] = name
+    out[f"{name}_SI"] = solved
+    return out
+
+
+def describe_capillary(out: dict[str, Any]) -> str:
+    """:func:`from_capillary_number`'s result as the lines `capsim units` prints."""
+    if "solved" not in out:
+        return (f"Ca = {out['Ca']:.6g}   (flow.capillary_number)\n"
+                f"G  = Ca / 3 = {out['G']:.6g}   (flow.shear_rate_G: G_s = E_s / 3 for every elastic law; "
+                "a drop, law surface_tension: G = Ca)")
+    name = out["solved"]
+    unit, formula = _SOLVED_BY_CA[name]
+    return (f"{formula} = {out[name + '_SI']:.6g} {unit}   (from --capillary-number)\n"
+            + describe_conversion(out))
