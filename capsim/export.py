@@ -177,10 +177,14 @@ def _write_xdmf(out_dir: Path, stem: str, elements, rest, snapshots, factors=Non
     xdmf_path = out_dir / f"{stem}.xdmf"
     root = ET.Element("Xdmf", Version="3.0")
     domain = ET.SubElement(root, "Domain")
+    # the units of time, positions and each field, as XDMF Information elements of the domain
+    # (readers such as meshio take every child of the collection for a time step, and an
+    # Attribute for its one DataItem)
+    from capsim.quantities import EXPORT_FIELDS
+
+    for name in EXPORT_FIELDS:
+        ET.SubElement(domain, "Information", Name=f"units_{name}", Value=_units_text(name, factors))
     collection = ET.SubElement(domain, "Grid", Name=stem, GridType="Collection", CollectionType="Temporal")
-    # the units of time and positions, and of each field below (XDMF Information elements)
-    ET.SubElement(collection, "Information", Name="time_units", Value=_units_text("time", factors))
-    ET.SubElement(collection, "Information", Name="geometry_units", Value=_units_text("geometry", factors))
     elements = np.asarray(elements, dtype=np.int64)
     # Built in memory and written with one plain write: a full disk or a file-size limit
     # then fails that write cleanly, never inside HDF5 (where it has crashed the process).
@@ -203,7 +207,6 @@ def _write_xdmf(out_dir: Path, stem: str, elements, rest, snapshots, factors=Non
                     path = f"/{center.lower()}/{name}/{k}"
                     h5.create_dataset(path, data=value)
                     attr = ET.SubElement(grid, "Attribute", Name=name, AttributeType=_attribute_type(value), Center=center)
-                    ET.SubElement(attr, "Information", Name="units", Value=_units_text(name, factors))
                     _xdmf_item(attr, h5name, path, value)
         h5.flush()
         image = h5.id.get_file_image()
