@@ -483,6 +483,9 @@ def _tumbling(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, out: dict) -> 
     if len(passes) >= 2:
         out["period"] = 2.0 * float(passes[-1] - passes[-2])
         out["t_from"], out["t_to"] = float(passes[-2]), float(passes[-1])
+        # D_xy repeats every half turn (the shape is head-tail symmetric): its mean and half
+        # peak-to-peak over the last one, the spread a researcher quotes for a periodic motion
+        out["D_xy_mean"], out["D_xy_amplitude"] = _cycle_stats(t, D_xy, out["t_from"], (out["t_from"], out["t_to"]))
     elif len(passes) == 1 and td[-1] > passes[0]:
         turned = abs(th_u[-1] - (-np.pi / 2))
         if turned > 0.1:

@@ -833,10 +833,13 @@ def steady_figure(source, theory: bool = True, x: str | None = None):
         color = f"C{j % 10}"
         for ax, name, scale, style, series in panels:
             y = np.array([c["values"][name] for c in settled], dtype=np.float64) / scale
-            err = np.array([c["std"].get(name, np.nan) for c in settled], dtype=np.float64) / scale
+            err = np.array([_spread(c, name) for c in settled], dtype=np.float64) / scale
             first_series = ax is not ax_s if rheology else True
             ax.plot(xs, y, style, color=color, ms=4,
                     label=(label if first_series else (series if j == 0 else None)))
+            periodic = np.array([c["periodic"] for c in settled], dtype=bool)
+            if periodic.any():  # open markers: means over whole periods, not a steady state
+                ax.plot(xs[periodic], y[periodic], style[0], color=color, mfc="white", ms=5, ls="none")
             if np.isfinite(err).any():
                 ax.errorbar(xs, y, yerr=np.where(np.isfinite(err), err, 0.0), fmt="none", ecolor=color,
                             elinewidth=0.8, capsize=2)
@@ -877,9 +880,28 @@ def steady_figure(source, theory: bool = True, x: str | None = None):
     return fig
 
 
+#: motions that settle into a cycle rather than a state: their values are means over whole
+#: periods (the classifier's window) and their spread the half peak-to-peak of the last cycle
+PERIODIC_MOTIONS = ("oscillating", "tumbling", "kayaking")
+
+
+def _spread(cell: dict, name: str) -> float:
+    """The error bar of a settled point: the half-amplitude of the last cycle for a periodic
+    run (where the summary has it), else the window's standard deviation."""
+    amplitude = cell["amplitude"].get(name, np.nan)
+    if cell["periodic"] and math.isfinite(amplitude):
+        return amplitude
+    return cell["std"].get(name, np.nan)
+
+
 def _left_out_note(cells: list[dict], unsettled: list[dict]) -> str:
-    """Error bars: window std; and which runs are no steady values, and why."""
+    """Error bars: window std (steady) or half-amplitude (periodic); and which runs are no
+    steady values, and why."""
     text = "points: settled runs, window mean ± its standard deviation"
+    if any(c["periodic"] and c["settled"] for c in cells):
+        text = ("filled points: steady runs, window mean ± its standard deviation; open points: periodic runs "
+                "(oscillating, tumbling), mean over whole periods ± half the peak-to-peak of the last cycle "
+                "(a tumbling run has no mean θ)")
     if not unsettled:
         return text
     why: dict[str, int] = {}
@@ -924,7 +946,8 @@ def _summary_cells(ds, names: tuple[str, ...], swept: list[str]) -> list[dict]:
             "swept": {f: at(f, index) for f in swept},
             "values": {n: float(at(n, index)) for n in names},
             "std": {n: float(at(f"{n}_std", index)) for n in names if f"{n}_std" in ds.variables},
-            "settled": settled, "why": why,
+            "amplitude": {n: float(at(f"{n}_amplitude", index)) for n in names if f"{n}_amplitude" in ds.variables},
+            "periodic": motion in PERIODIC_MOTIONS, "settled": settled, "why": why,
         })
     return cells
 

@@ -254,7 +254,8 @@ for _name, _what in (("D_xy", "Taylor deformation parameter"), ("theta", "inclin
          f"mean of {_name} over the motion classifier's window (whole cycles when oscillating, the steady "
          f"window when steady); NaN for other motions")
     _add(f"{_name}_amplitude", f"oscillation amplitude of the {_what}", TABLE[_name].units,
-         f"half the peak-to-peak of {_name} over the last cycle; NaN unless oscillating")
+         f"half the peak-to-peak of {_name} over the last cycle (for a tumbling run, D_xy's over its last half "
+         f"turn; θ turns through every angle and has none); NaN unless oscillating or tumbling")
 for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star"):
     _base = TABLE[_name]
     _add(f"{_name}_std", f"standard deviation of the {_base.long_name}", _base.units,
@@ -310,7 +311,8 @@ _add("time_scheme", "time-stepping scheme", "1",
      "(Rosenbrock-W) (flag_values, flag_meanings)")
 _add("steady_average", "whether the values are averages over a settled motion", "1",
      "flag: 1 when the motion is steady, rolling, kayaking, oscillating or tumbling, so that the observables are means over "
-     "whole cycles (or the steady window); 0 when the run ended transient or unstable, or did not classify "
+     "whole cycles (or the steady window; a periodic run's spread is then its *_amplitude, and a tumbling or kayaking "
+     "run has no mean theta: NaN); 0 when the run ended transient or unstable, or did not classify "
      "its motion: the observables are then means over the last quarter of the run (or its last row), not a "
      "settled value — do not average them with the others")
 

@@ -52,6 +52,8 @@ _CONTEXT = {"level": (np.int64, -1), "mesh_base": (np.int8, -1), "law": (object,
             "time_scheme": (np.int8, -1), "rtol": (np.float64, np.nan), "steady_average": (np.int8, 0)}
 #: motions whose window means are settled values
 _SETTLED = frozenset({"steady", "rolling", "kayaking", "oscillating", "tumbling"})
+#: settled motions whose in-plane long axis turns round and round: no mean inclination
+_TURNING = frozenset({"tumbling", "kayaking"})
 
 _WHERE = "campaign"  # the qualified entries of capsim.quantities for this file
 
@@ -102,6 +104,11 @@ def read_run(path: str | os.PathLike) -> dict[str, Any] | None:
     steps = summary.get("steps", run.get("steps", n - 1 if n else -1))
     record["steps"] = int(steps)
     record["steady_average"] = int(record["status"] == "completed" and record["motion"] in _SETTLED)
+    if record["motion"] in _TURNING:
+        # the long axis turns through every angle: a mean of θ over whole periods is no property
+        # of the motion (and its spread the whole range), so θ has no settled value
+        for name in ("theta", "theta_std", "theta_error_estimate"):
+            record[name] = np.nan
     try:
         case = case_from_trajectory({"attrs": attrs})
     except Exception:  # no or an unreadable config_yaml: the context stays unknown

@@ -92,3 +92,14 @@ def test_cf_check_of_a_run_with_nan_theta(sphere_run, tmp_path):
     tmp, _ = sphere_run
     counts = _cf_counts(tmp / "s.h5", tmp_path)
     assert counts["FATAL"] == 0 and counts["ERROR"] == 0 and counts["WARN"] == 0, counts
+
+
+def test_a_tumbling_run_reports_the_half_amplitude_of_D_xy():
+    """θ turning clockwise at a constant rate ω = 0.3 with D_xy = 0.3 + 0.1 sin(2ωt): tumbling,
+    D_xy's mean 0.3 and half peak-to-peak 0.1 over the last half turn (NaN before issue 30)."""
+    t = np.linspace(0.0, 60.0, 6001)
+    theta = np.pi / 2 - (0.3 * t + 0.1) % np.pi
+    D = 0.3 + 0.1 * np.sin(0.6 * t)
+    out = classify_motion(t, D, theta)
+    assert out["motion"] == "tumbling" and out["period"] == pytest.approx(2 * np.pi / 0.3, rel=1e-3)
+    assert out["D_xy_mean"] == pytest.approx(0.3, abs=1e-4) and out["D_xy_amplitude"] == pytest.approx(0.1, rel=1e-4)
