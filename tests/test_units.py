@@ -224,3 +224,23 @@ def test_bad_capillary_number_input_is_one_line_exit_2(args, words):
     assert result.exit_code == 2, result.output
     line = result.stderr.strip()
     assert "\n" not in line and line.startswith("error: ") and words in line, line
+
+
+def test_set_a_physical_value_recomputes_every_field_derived_from_it():
+    """DERIVED_FIELDS covers physical.membrane_viscosity, and a radius changes Bq and κ/(E_s a²)
+    too when the case computes them from physical (before: 'give membrane.viscosity.shear or
+    physical.membrane_viscosity, not both')."""
+    from capsim.config import apply_overrides
+
+    viscous = load_case(ROOT / "configs" / "rbc-viscous.yaml")  # μ_s = 1e-7 N s/m, μ = 1.2 mPa s, a = 2.8 µm
+    assert viscous.membrane.viscosity.shear == pytest.approx(1e-7 / (1.2e-3 * 2.8e-6), rel=1e-12)
+    doubled = apply_overrides(viscous, **{"physical.membrane_viscosity": "2e-7 N*s/m"})
+    assert doubled.membrane.viscosity.shear == pytest.approx(2e-7 / (1.2e-3 * 2.8e-6), rel=1e-12)
+    wider = apply_overrides(viscous, **{"physical.radius": "3 um"})
+    assert wider.membrane.viscosity.shear == pytest.approx(1e-7 / (1.2e-3 * 3e-6), rel=1e-12)
+    rbc = apply_overrides(load_case(ROOT / "configs" / "rbc.yaml"), **{"physical.bending_modulus": "1.8e-19 J"})
+    wider = apply_overrides(rbc, **{"physical.radius": "3 um"})
+    assert wider.membrane.bending_modulus == pytest.approx(1.8e-19 / (7.5e-6 * 3e-6**2), rel=1e-12)
+    # a κ given as membrane.bending_modulus (configs/rbc.yaml) is the user's, kept
+    kept = apply_overrides(load_case(ROOT / "configs" / "rbc.yaml"), **{"physical.radius": "3 um"})
+    assert kept.membrane.bending_modulus == 3.06e-3
