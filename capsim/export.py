@@ -273,8 +273,11 @@ def export_run(
         from capsim.units import factors_for
 
         factors = factors_for(case_of(data), path.name)
-    elif units != "capsim":
-        raise ValueError(f"units must be capsim or physical, got {units!r}")
+    else:
+        from capsim.quantities import UNIT_SYSTEMS
+
+        if units not in UNIT_SYSTEMS:
+            raise ValueError(f"units must be one of {', '.join(UNIT_SYSTEMS)}, got {units!r}")
     model = model_for(data) if fields else None
 
     def snapshots():

@@ -1154,8 +1154,10 @@ def plot(source, kind: str, output: str | os.PathLike | None = None, *, dpi: flo
         size = parse_size(size)
     if kind == "steady":
         _refuse_run_file(source)
-    if units not in ("capsim", "physical"):  # capsim.quantities.UNIT_SYSTEMS
-        raise ValueError(f"--units {units!r}: must be capsim or physical")
+    from capsim.quantities import UNIT_SYSTEMS
+
+    if units not in UNIT_SYSTEMS:
+        raise ValueError(f"--units {units!r}: must be one of {', '.join(UNIT_SYSTEMS)}")
     factors = None
     if units == "physical":
         if kind == "steady":

@@ -226,3 +226,10 @@ def test_steady_figure_refuses_physical_units(tmp_path):
     path = write_summary(ds, tmp_path / "s.nc")
     _one_line_exit_2(runner.invoke(app, ["plot", str(path), "--kind", "steady", "--units", "physical",
                                          "-o", str(tmp_path / "s.png")]), "--units physical", "--kind steady")
+
+
+def test_the_cli_choices_are_the_unit_systems():
+    from capsim import cli
+    from capsim.quantities import UNIT_SYSTEMS
+
+    assert cli._UNIT_SYSTEMS == UNIT_SYSTEMS
