@@ -233,3 +233,15 @@ def test_the_cli_choices_are_the_unit_systems():
     from capsim.quantities import UNIT_SYSTEMS
 
     assert cli._UNIT_SYSTEMS == UNIT_SYSTEMS
+
+
+def test_run_prints_its_closing_table_in_physical_units(tmp_path):
+    case = tmp_path / "cell.yaml"
+    case.write_text("name: cell\nmesh: {level: 0}\ntime: {t_end: 0.01}\n"
+                    "physical: {shear_rate: 50 1/s, viscosity: 1.2 mPa*s, radius: 2.8 um, shear_modulus: 6 uN/m}\n"
+                    f"output: {{path: {tmp_path / 'cell.h5'}}}\n")
+    result = runner.invoke(app, ["run", str(case), "--units", "physical", "-q"])
+    assert result.exit_code == 0, result.output
+    rows = {line.split("  ")[0].strip(): line for line in result.stdout.splitlines() if line.strip()}
+    assert "t (s)" in rows and rows["t (s)"].split()[-1] == "0.0002"  # kt = 0.01 × 0.02 s
+    assert "S_xy (pN*um)" in rows and "TTF f (Hz)" in rows and "kt" not in result.stdout.split("wall time")[0]
