@@ -305,6 +305,8 @@ def _mean_std(summary: dict[str, Any], name: str, scale: float = 1.0) -> str | N
     mean, std = summary.get(name), summary.get(f"{name}_std")
     if not isinstance(mean, (int, float)):
         return None
+    if math.isnan(mean):  # θ of a tumbling run, or of a shape without a long axis
+        return "undefined (NaN)"
     shown = f"{mean / scale:.6f}"
     return shown + (f" ± {std / scale:.2e}" if isinstance(std, (int, float)) else "")
 

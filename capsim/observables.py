@@ -21,6 +21,7 @@ from capsim.geometry import (
     volume_area,
 )
 from capsim.membrane import principal_tensions
+from capsim.quantities import TURNING_MOTIONS
 
 
 #: relative gap (μ_L − μ_l)/(μ_L + μ_l) of the in-plane eigenvalues of the second moment below
@@ -709,6 +710,10 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
         rate = revolution_rate(t, series["tt_angle"], min(t0, 0.5 * t[-1]))
         if rate is not None:
             out["ttf_ratio"] = float(rate / RIGID_SPHERE_ROTATION_RATE)
+    if out["motion"] in TURNING_MOTIONS:
+        # the long axis turns through every angle: a mean θ over whole turns is no property of
+        # the motion (the folded mean of a uniform turn is arbitrary, its spread the whole range)
+        out["theta"] = out["theta_std"] = float("nan")
     out["averaging_t_from"], out["averaging_t_to"] = t0, t1
     for key in ("period", "D_xy_mean", "D_xy_amplitude", "theta_mean", "theta_amplitude"):
         out[key] = motion[key]

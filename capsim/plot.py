@@ -32,6 +32,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from capsim.mesh import linear_subtriangles  # numba-free: figures need no kernels
+from capsim.quantities import PERIODIC_MOTIONS
 
 __all__ = [
     "DPI", "FIGSIZE", "FIGURE_FORMATS", "FIRST_ORDER_G_MAX", "KINDS", "contour_figure", "orbit_figure", "deformation_figure", "inclination_figure",
@@ -880,9 +881,6 @@ def steady_figure(source, theory: bool = True, x: str | None = None):
     return fig
 
 
-#: motions that settle into a cycle rather than a state: their values are means over whole
-#: periods (the classifier's window) and their spread the half peak-to-peak of the last cycle
-PERIODIC_MOTIONS = ("oscillating", "tumbling", "kayaking")
 
 
 def _spread(cell: dict, name: str) -> float:

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["CONVENTIONS", "FLAGS", "GROUPS", "PLANNED", "Quantity", "SCALES", "SCALE_UNITS", "TABLE", "UNIT_SYSTEMS",
+__all__ = ["CONVENTIONS", "FLAGS", "GROUPS", "PERIODIC_MOTIONS", "PLANNED", "TURNING_MOTIONS", "Quantity", "SCALES", "SCALE_UNITS", "TABLE", "UNIT_SYSTEMS",
            "attrs_for", "case_field_attrs", "global_attrs", "key_for", "physical_attrs", "physical_units"]
 
 
@@ -104,7 +104,8 @@ _add("D_xy", "Taylor deformation parameter in the xy-plane", "1",
 _add("theta", "inclination of the long axis", "rad",
      "angle from the x-axis (flow direction) to the long axis in the xy-plane, in (−π/2, π/2]; the seed's "
      "definition: for a shape turned off the plane it is the inclination of the projected axis (see "
-     "long_axis_x/y/z and director_azimuth)")
+     "long_axis_x/y/z and director_azimuth); NaN where the shape has no long axis in the plane (its two in-plane "
+     "second moments equal to a relative 1e-10: a sphere at rest)")
 _add("volume", "enclosed volume", "1", "volume V enclosed by the membrane, in units of a³", "a^3")
 _add("area", "surface area", "1", "area S of the membrane, in units of a²", "a^2")
 _add("volume_drift", "relative volume change", "1", "(V − V0)/V0, V0 the volume at t = 0")
@@ -319,7 +320,8 @@ _add("steady_average", "whether the values are averages over a settled motion", 
 _STEADY = "at the end of the run (mean over the averaging window when the run reports one)"
 for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star"):
     _base = TABLE[_name]
-    _add(f"campaign/{_name}", _base.long_name, _base.units, f"{_base.definition}; {_STEADY}", _base.scale,
+    _turning = "; NaN for a tumbling or kayaking run (its long axis turns through every angle)" if _name == "theta" else ""
+    _add(f"campaign/{_name}", _base.long_name, _base.units, f"{_base.definition}; {_STEADY}{_turning}", _base.scale,
          _base.physical_name)
 for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star"):
     _base = TABLE[_name]
@@ -386,7 +388,7 @@ GROUPS: dict[str, str] = {
 #: that every entry outside this set is used and that nothing written is in it).
 PLANNED: frozenset[str] = frozenset()
 
-del _add, _base, _c, _key, _name, _of, _sfx, _what
+del _add, _base, _c, _key, _name, _of, _sfx, _turning, _what
 
 
 #: Categorical quantities written as CF flag variables (integer codes, flag_values, flag_meanings).
@@ -450,6 +452,11 @@ EXPORT_FIELDS: dict[str, tuple[str, str]] = {
     "principal_stretch_2": ("smaller principal stretch", ""),
     "traction": ("element average of Δf", "E_s/a"),
 }
+#: Settled motions that are cycles, not states: their values are means over whole periods and
+#: their spread the half peak-to-peak of the last cycle (``<q>_amplitude``)
+PERIODIC_MOTIONS = ("oscillating", "tumbling", "kayaking")
+#: periodic motions whose in-plane long axis turns round and round: no mean θ (NaN)
+TURNING_MOTIONS = ("tumbling", "kayaking")
 #: how values are shown and written: capsim's scales (dimensionless, the default) or physical
 #: units from the run's ``physical:`` block
 UNIT_SYSTEMS = ("capsim", "physical")

@@ -31,7 +31,7 @@ import xarray as xr
 from capsim._version import __version__
 from capsim.campaign import CAMPAIGN_FILE, INDEX_FILE, expand_campaign, load_campaign, load_index
 from capsim.config import Case
-from capsim.quantities import FLAGS, TABLE, UNIT_SYSTEMS, attrs_for, case_field_attrs, global_attrs, physical_attrs
+from capsim.quantities import FLAGS, TABLE, TURNING_MOTIONS, UNIT_SYSTEMS, attrs_for, case_field_attrs, global_attrs, physical_attrs
 from capsim.store import case_from_trajectory, read_run_digest, read_run_record, read_run_status
 
 __all__ = ["SUMMARY_ATTRS", "read_run", "read_run_status", "summarize_campaign", "text_encoding", "write_summary"]
@@ -52,8 +52,9 @@ _CONTEXT = {"level": (np.int64, -1), "mesh_base": (np.int8, -1), "law": (object,
             "time_scheme": (np.int8, -1), "rtol": (np.float64, np.nan), "steady_average": (np.int8, 0)}
 #: motions whose window means are settled values
 _SETTLED = frozenset({"steady", "rolling", "kayaking", "oscillating", "tumbling"})
-#: settled motions whose in-plane long axis turns round and round: no mean inclination
-_TURNING = frozenset({"tumbling", "kayaking"})
+#: settled motions whose in-plane long axis turns round and round: no mean inclination (run
+#: files written before issue 30 still hold the folded mean)
+_TURNING = TURNING_MOTIONS
 
 _WHERE = "campaign"  # the qualified entries of capsim.quantities for this file
 

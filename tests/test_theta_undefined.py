@@ -103,3 +103,11 @@ def test_a_tumbling_run_reports_the_half_amplitude_of_D_xy():
     out = classify_motion(t, D, theta)
     assert out["motion"] == "tumbling" and out["period"] == pytest.approx(2 * np.pi / 0.3, rel=1e-3)
     assert out["D_xy_mean"] == pytest.approx(0.3, abs=1e-4) and out["D_xy_amplitude"] == pytest.approx(0.1, rel=1e-4)
+    ones = np.ones_like(t)
+    summary = run_summary({"t": t, "D_xy": D, "theta": theta, "ttf_ratio": ones, "Sxy_star": ones,
+                           "N1_star": ones, "N2_star": ones})
+    assert summary["motion"] == "tumbling" and math.isnan(summary["theta"]) and math.isnan(summary["theta_std"])
+    assert summary["D_xy_amplitude"] == pytest.approx(0.1, rel=1e-4)
+    from capsim.display import summary_rows
+
+    assert dict(summary_rows(summary))["theta/pi"] == "undefined (NaN)"
