@@ -189,7 +189,8 @@ def summary_path(directory: PathLike, output: PathLike | None = None) -> Path:
     return Path(output) if output is not None else Path(directory) / "summary.nc"
 
 
-def summarize(directory: PathLike, output: PathLike | None = None, *, overwrite: bool = False) -> "xr.Dataset":
+def summarize(directory: PathLike, output: PathLike | None = None, *, overwrite: bool = False,
+              units: str = "capsim") -> "xr.Dataset":
     """Collect a campaign directory's runs into one ``xarray.Dataset`` and write it as netCDF
     (to ``output``, default :func:`summary_path`); what ``capsim summarize`` does.
 
@@ -197,11 +198,13 @@ def summarize(directory: PathLike, output: PathLike | None = None, *, overwrite:
     e.g. ``G``, ``lam``) and one variable per quantity of
     :mod:`capsim.quantities` (``D_xy``, ``theta``, ..., with units and meaning in
     their attributes) plus ``status``. An existing file that is not a summary is
-    replaced only with ``overwrite`` (:class:`capsim.files.OutputError`).
+    replaced only with ``overwrite`` (:class:`capsim.files.OutputError`). ``units="physical"``:
+    the variables with a capsim scale in physical units from each run's ``physical:`` block
+    (:class:`capsim.units.UnitsError` for a campaign without one).
     """
     from capsim.summary import summarize_to_file
 
-    _, ds = summarize_to_file(directory, summary_path(directory, output), overwrite=overwrite)
+    _, ds = summarize_to_file(directory, summary_path(directory, output), overwrite=overwrite, units=units)
     return ds
 
 

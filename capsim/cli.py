@@ -76,10 +76,15 @@ _PLOT_KINDS = ("deformation", "inclination", "contour", "trajectory", "tensions"
 _EXPORT_FORMATS = ("xdmf", "vtu")
 _STUDY_REFERENCES = ("finest", "richardson")
 _FIGURE_FORMATS = ("png", "pdf", "svg")
+_UNIT_SYSTEMS = ("capsim", "physical")  # capsim.quantities.UNIT_SYSTEMS
 _FIGURE_MAGIC = FIGURE_MAGIC
 PlotKind = enum.Enum("PlotKind", {k: k for k in _PLOT_KINDS}, type=str)
 ExportFormat = enum.Enum("ExportFormat", {k: k for k in _EXPORT_FORMATS}, type=str)
 StudyReference = enum.Enum("StudyReference", {k: k for k in _STUDY_REFERENCES}, type=str)
+UnitSystem = enum.Enum("UnitSystem", {k: k for k in _UNIT_SYSTEMS}, type=str)
+#: --units, on run, summarize, plot and export
+_UNITS_HELP = ("capsim: capsim's scales (kt, x/a, E_s ...); physical: s, um, uN/m, Hz, pN*um from the case's "
+               "physical: block (capsim.quantities.SCALE_UNITS)")
 
 #: --set FIELD=VALUE, repeatable (run, validate, sweep, study)
 _SET_HELP = ("set a case field, dotted path = YAML value, repeatable: --set mesh.level=1 "
@@ -96,6 +101,16 @@ def _load(case_path: Path, sets: list[str] | None = None, **overrides: Any):
     try:
         return load_case_with(case_path, sets, **overrides)
     except ConfigError as exc:
+        raise _user_error(str(exc)) from None
+
+
+def _factors(case, what: str) -> dict:
+    """--units physical: the factors of the case's physical block; none is a one-line error."""
+    from capsim.units import UnitsError, factors_for
+
+    try:
+        return factors_for(case, what)
+    except UnitsError as exc:
         raise _user_error(str(exc)) from None
 
 
@@ -125,6 +140,7 @@ def run(
     ),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing file at the output path"),
     sets: Optional[list[str]] = typer.Option(None, "--set", metavar="FIELD=VALUE", help=_SET_HELP),
+    units: UnitSystem = typer.Option("capsim", "--units", help="the closing table's units: " + _UNITS_HELP),
 ) -> None:
     """Run one case and write its trajectory (or, with --resume, finish an interrupted one).
 
@@ -145,6 +161,7 @@ def run(
 
     case = _load(case_path, sets, **{"output.path": str(output) if output is not None else None,
                                      "time.t_end": t_end, "mesh.level": level})
+    factors = _factors(case, str(case_path)) if units.value == "physical" else None  # refused before the run
     try:
         summary = api.run(case, inputs=[case_path], overwrite=overwrite, resume=resume, progress=not quiet)
     except ResumeError as exc:
@@ -158,7 +175,7 @@ def run(
         raise typer.Exit(code=1) from None
     from capsim.display import print_summary
 
-    print_summary({**summary, "shear_rate_G": case.flow.shear_rate_G}, title=case.name)
+    print_summary({**summary, "shear_rate_G": case.flow.shear_rate_G}, title=case.name, factors=factors)
     if error_estimate and summary.get("status") == "completed":
         from capsim.study import run_error_estimate
 
@@ -271,19 +288,31 @@ def units(
         None, "--shear-modulus", help="surface shear modulus G_s = E_s/3 instead of E_s, e.g. '6 uN/m'"),
     membrane_viscosity: Optional[str] = typer.Option(
         None, "--membrane-viscosity", help="membrane surface shear viscosity μ_s, e.g. '2.5e-7 N*s/m' (gives Bq)"),
+    capillary_number: Optional[float] = typer.Option(
+        None, "--capillary-number", help="Ca = μka/G_s (flow.capillary_number): alone, gives G = Ca/3; with three "
+        "of shear rate, viscosity, radius and modulus, solves for the fourth"),
     as_json: bool = typer.Option(False, "--json", help="print a JSON object (G, Ca, time_unit_s, ...)"),
 ) -> None:
     """Physical values to capsim's numbers: G = μka/E_s, Ca = μka/G_s = 3G and the time unit 1/k.
 
-    Example:
+    Examples:
 
     capsim units --shear-rate '100 1/s' --viscosity '1.2 mPa*s' --radius '2.8 um' --shear-modulus '6 uN/m'
+
+    capsim units --capillary-number 0.1 --viscosity '1.2 mPa*s' --radius '2.8 um' --shear-modulus '6 uN/m'
     """
-    from capsim.units import UnitsError, conversion, describe_conversion, parse
+    from capsim.units import UnitsError, conversion, describe_capillary, describe_conversion, from_capillary_number, parse
 
     given = {"shear_rate": shear_rate, "viscosity": viscosity, "radius": radius,
              "surface_modulus": surface_modulus, "shear_modulus": shear_modulus,
              "membrane_viscosity": membrane_viscosity}
+    if capillary_number is not None:
+        try:
+            out = from_capillary_number(capillary_number, given)
+        except UnitsError as exc:
+            raise _user_error(f"units: {exc}") from None
+        typer.echo(json.dumps(out) if as_json else describe_capillary(out))
+        return
     missing = [_option(k) for k in ("shear_rate", "viscosity", "radius") if given[k] is None]
     if (surface_modulus is None) == (shear_modulus is None):
         missing.append("--surface-modulus or --shear-modulus (one of the two)" if surface_modulus is None
@@ -384,6 +413,7 @@ def summarize(
     directory: Path = typer.Argument(..., metavar="DIR", help="campaign output directory"),
     output: Optional[Path] = typer.Option(None, "-o", "--output", help="netCDF path (default DIR/summary.nc)"),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing file that is not a summary"),
+    units: UnitSystem = typer.Option("capsim", "--units", help="the variables' units: " + _UNITS_HELP),
 ) -> None:
     """Collect a campaign's runs into one xarray Dataset written as netCDF.
 
@@ -393,10 +423,11 @@ def summarize(
     """
     from capsim import api
     from capsim.config import ConfigError
+    from capsim.units import UnitsError
 
     try:
-        ds = _files_call(api.summarize, directory, output, overwrite=overwrite)
-    except (FileNotFoundError, ConfigError) as exc:
+        ds = _files_call(api.summarize, directory, output, overwrite=overwrite, units=units.value)
+    except (FileNotFoundError, ConfigError, UnitsError) as exc:
         raise _user_error(str(exc)) from None
     path = api.summary_path(directory, output)
     counts = {s: int((ds["status"] == s).sum()) for s in sorted(set(ds["status"].values.ravel()))}
@@ -421,6 +452,7 @@ def plot(
     x: Optional[str] = typer.Option(None, "--x", help="steady: the swept field on the axis (default shear_rate_G, else the first numeric one)"),
     size: Optional[str] = typer.Option(None, "--size", metavar="W,H", help="figure size in inches, e.g. 3.3,2.5 (default 6.4,4.8)"),
     labels: Optional[list[str]] = typer.Option(None, "--label", help="legend label of each overlaid run, once per PATH in order"),
+    units: UnitSystem = typer.Option("capsim", "--units", help="the axes' units (--time stays kt): " + _UNITS_HELP),
 ) -> None:
     """Write a figure (PNG, PDF or SVG) of a run, or of a campaign summary for --kind steady.
 
@@ -438,7 +470,8 @@ def plot(
 
     try:
         out = _files_call(write_figure, paths, kind.value, output, overwrite=overwrite, dpi=dpi,
-                          theory=not no_theory, unwrap=unwrap, times=times, node=node, x=x, size=size, labels=labels)
+                          theory=not no_theory, unwrap=unwrap, times=times, node=node, x=x, size=size, labels=labels,
+                          units=units.value)
     except FigureError as exc:
         raise _user_error(str(exc)) from None
     typer.echo(str(out))
@@ -452,6 +485,7 @@ def export(
     output: Optional[Path] = typer.Option(None, "-o", "--output", help="output directory (default RUN_<format>/)"),
     no_fields: bool = typer.Option(False, "--no-fields", help="geometry and displacement only (no recomputed fields)"),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace run files or checkpoints in the output directory"),
+    units: UnitSystem = typer.Option("capsim", "--units", help="times, positions and fields in: " + _UNITS_HELP),
 ) -> None:
     """Write the surface mesh over time with membrane fields for ParaView.
 
@@ -466,7 +500,8 @@ def export(
     from capsim.export import ExportError, export_to_dir
 
     try:
-        files = _files_call(export_to_dir, path, output, fmt.value, fields=not no_fields, overwrite=overwrite)
+        files = _files_call(export_to_dir, path, output, fmt.value, fields=not no_fields, overwrite=overwrite,
+                            units=units.value)
     except ExportError as exc:
         raise _user_error(str(exc)) from None
     typer.echo(f"{files[0]} ({len(files)} files)")

@@ -1048,13 +1048,26 @@ def load_case_with(path: str | os.PathLike, sets: list[str] | None = None, **ove
     return resolve_case(path, sets, **overrides)
 
 
-#: field (or section) set → the field computed from it, dropped from the old case when the
-#: first is set and the second is not (``--set physical.shear_rate=50 1/s`` gives a new G)
+#: field (or section) set → the fields computed from it, each dropped from the old case when
+#: the first is set and the second is not (``--set physical.shear_rate=50 1/s`` gives a new G),
+#: as (derived field, the field of the old case it was computed from; None: always). Every
+#: physical value enters G; the radius and the moduli enter κ/(E_s a²) and the viscosity and
+#: the radius Bq = μ_s/(μ a) too, when the case computes them from physical.
 DERIVED_FIELDS = {
-    "physical": "flow.shear_rate_G",
-    "flow.capillary_number": "flow.shear_rate_G",
-    "physical.bending_modulus": "membrane.bending_modulus",
+    "physical": (("flow.shear_rate_G", None), ("membrane.bending_modulus", "physical.bending_modulus"),
+                 ("membrane.viscosity.shear", "physical.membrane_viscosity")),
+    "flow.capillary_number": (("flow.shear_rate_G", None),),
+    "physical.bending_modulus": (("membrane.bending_modulus", None),),
+    "physical.membrane_viscosity": (("membrane.viscosity.shear", None),),
 }
+
+
+def _lookup(data: dict, dotted: str) -> Any:
+    """The value at a dotted path of a case's dict, None where a part is missing."""
+    node: Any = data
+    for part in dotted.split("."):
+        node = node.get(part) if isinstance(node, dict) else None
+    return node
 
 
 def resolve_case(source: Any, sets: list[str] | None = None, **overrides: Any) -> Case:
@@ -1095,11 +1108,18 @@ def apply_overrides(case: Case, **dotted: Any) -> Case:
         case.output.path == Output().path.replace("{name}", case.name)
     ):
         data["output"]["path"] = Output().path
-    for given, derived in DERIVED_FIELDS.items():
+    old = case.model_dump()
+    for given, derived_fields in DERIVED_FIELDS.items():
         # a derived value is computed anew from what it derives from, not the old one kept
-        if any(key == given or key.startswith(given + ".") for key in dotted) and derived not in dotted:
-            section, field = derived.split(".")
-            data[section].pop(field, None)
+        if not any(key == given or key.startswith(given + ".") for key in dotted):
+            continue
+        for derived, source in derived_fields:
+            if derived in dotted or (source is not None and _lookup(old, source) is None):
+                continue
+            *path, field = derived.split(".")
+            parent = _lookup(data, ".".join(path))
+            if isinstance(parent, dict):
+                parent.pop(field, None)
     if any(key.startswith("physical.") for key in dotted) and data.get("physical") is None:
         data["physical"] = {}  # a case without the block gets one from the --set values
     for key, value in dotted.items():

@@ -320,11 +320,13 @@ def _mean_std(summary: dict[str, Any], name: str, scale: float = 1.0) -> str | N
     mean, std = summary.get(name), summary.get(f"{name}_std")
     if not isinstance(mean, (int, float)):
         return None
+    if math.isnan(mean):  # θ of a tumbling run, or of a shape without a long axis
+        return "undefined (NaN)"
     shown = f"{mean / scale:.6f}"
     return shown + (f" ± {std / scale:.2e}" if isinstance(std, (int, float)) else "")
 
 
-def _compression(summary: dict[str, Any]) -> str | None:
+def _compression(summary: dict[str, Any], factors: Mapping[str, float] | None = None) -> str | None:
     """Share of the membrane under compression at the end, with a warning when large.
 
     A membrane without bending stiffness cannot carry compression: where the smaller
@@ -337,8 +339,12 @@ def _compression(summary: dict[str, Any]) -> str | None:
         return None
     G = summary.get("shear_rate_G")
     # one tension scale on every screen: E_s, as the tension figure and the export (the stored
-    # min_tension is in μka = E_s/G); μka only where G is not known
-    shown = f"{low * G:.3g} E_s" if isinstance(G, (int, float)) and G > 0 else f"{low:.3g} μka"
+    # min_tension is in μka = E_s/G); μka only where G is not known; physical units on asking
+    if factors is not None:
+        factor, unit = _in("min_tension", factors)
+        shown = f"{low * factor:.3g} {unit}"
+    else:
+        shown = f"{low * G:.3g} E_s" if isinstance(G, (int, float)) and G > 0 else f"{low:.3g} μka"
     text = f"{100 * frac:.0f} % (smallest tension {shown})"
     if frac > 0.05:
         if summary.get("bending_modulus", 0.0) > 0:
@@ -349,24 +355,48 @@ def _compression(summary: dict[str, Any]) -> str | None:
     return text
 
 
-def summary_rows(summary: dict[str, Any]) -> list[tuple[str, str]]:
-    """The closing table of a run: (quantity, value) rows, those without a value left out."""
+def _in(name: str, factors: Mapping[str, float] | None) -> tuple[float, str]:
+    """(what a value of `name` is multiplied by, its unit) for the table: 1 and "" in capsim's
+    scales; in physical units (`factors` from capsim.units.physical_factors) the factor of its
+    scale and the unit of capsim.quantities, the one table of units."""
+    if factors is None:
+        return 1.0, ""
+    from capsim.quantities import physical_units
+
+    unit, scale = physical_units(name)
+    return (factors[scale], unit) if scale else (1.0, "")
+
+
+def summary_rows(summary: dict[str, Any], factors: Mapping[str, float] | None = None) -> list[tuple[str, str]]:
+    """The closing table of a run: (quantity, value) rows, those without a value left out.
+    With `factors` (``--units physical``) times, frequencies, stresslets and tensions are in
+    physical units (each row names its unit); D_xy and θ/π are ratios either way."""
     period = summary.get("period")
     window = (summary.get("averaging_t_from"), summary.get("averaging_t_to"))
+    f_t, u_t = _in("t", factors)
+    time = f"t ({u_t})" if factors is not None else "t"
+    physical = factors is not None
+
+    def scaled(name: str, label: str, physical_label: str) -> tuple[str, str | None]:
+        factor, unit = _in(name, factors)
+        return (f"{physical_label} ({unit})" if physical else label), _mean_std(summary, name, 1.0 / factor)
+
     rows = [
         ("status", summary.get("status")),
         ("reason", summary.get("status_reason") or None),
-        ("t", fmt(summary.get("t"), "g")),
+        (time, fmt(summary.get("t") * f_t if isinstance(summary.get("t"), (int, float)) else summary.get("t"), "g")),
         ("motion", summary.get("motion")),
-        ("averaged over kt", f"[{window[0]:.4g}, {window[1]:.4g}] (mean ± standard deviation over this window)"
+        (f"averaged over {time if physical else 'kt'}",
+         f"[{window[0] * f_t:.4g}, {window[1] * f_t:.4g}] (mean ± standard deviation over this window)"
          if None not in window else None),
-        ("period kT", fmt(period, ".4g") if isinstance(period, float) and math.isfinite(period) else None),
+        (f"period T ({u_t})" if physical else "period kT",
+         fmt(period * f_t, ".4g") if isinstance(period, float) and math.isfinite(period) else None),
         ("D_xy", _mean_std(summary, "D_xy")),
         ("theta/pi", _mean_std(summary, "theta", math.pi)),
-        ("TTF/f_s", _mean_std(summary, "ttf_ratio")),
-        ("S*_xy", _mean_std(summary, "Sxy_star")),
-        ("N1*", _mean_std(summary, "N1_star")),
-        ("N2*", _mean_std(summary, "N2_star")),
+        scaled("ttf_ratio", "TTF/f_s", "TTF f"),
+        scaled("Sxy_star", "S*_xy", "S_xy"),
+        scaled("N1_star", "N1*", "S_xx - S_yy"),
+        scaled("N2_star", "N2*", "S_yy - S_zz"),
         ("scheme", summary.get("scheme")),
         ("scheme chosen because", summary.get("scheme_choice")),
         ("steps", fmt(summary.get("steps"), "d")),
@@ -377,21 +407,22 @@ def summary_rows(summary: dict[str, Any]) -> list[tuple[str, str]]:
         ("layer matrices", fmt(summary.get("layer_matrices"), "d") if summary.get("layer_matrices") else None),
         ("wall time (s)", fmt(summary.get("wall_time_s"), ".1f")),
         ("volume drift", fmt(summary.get("volume_drift"), ".3e")),
-        ("compressed vertices", _compression(summary)),
+        ("compressed vertices", _compression(summary, factors)),
         ("output", summary.get("path")),
     ]
     return [(key, str(value)) for key, value in rows if value is not None]
 
 
-def summary_table(summary: dict[str, Any]) -> str:
+def summary_table(summary: dict[str, Any], factors: Mapping[str, float] | None = None) -> str:
     """The closing table as plain aligned text."""
-    rows = summary_rows(summary)
+    rows = summary_rows(summary, factors)
     width = max(len(key) for key, _ in rows)
     return "\n".join(f"{key:<{width}}  {value}" for key, value in rows)
 
 
-def print_summary(summary: dict[str, Any], title: str | None = None) -> None:
-    print_table(summary_rows(summary), title=title)
+def print_summary(summary: dict[str, Any], title: str | None = None,
+                  factors: Mapping[str, float] | None = None) -> None:
+    print_table(summary_rows(summary, factors), title=title)
 
 
 def print_sweep_result(result: dict[str, Any], campaign: Any, table: bool = True) -> None:

@@ -135,6 +135,27 @@ def snapshot_fields(model, x: np.ndarray, rest: np.ndarray) -> tuple[dict[str, n
 # ------------------------------------------------------------------ writers
 
 
+def _units_text(name: str, factors: dict | None) -> str:
+    """The unit of export field `name` (capsim.quantities.EXPORT_FIELDS): the physical unit of
+    its scale (SCALE_UNITS) with `factors`, else the capsim scale it is measured in."""
+    from capsim.quantities import EXPORT_FIELDS, SCALE_UNITS
+
+    scale = EXPORT_FIELDS[name][1]
+    if not scale:
+        return "1"
+    return SCALE_UNITS[scale][1] if factors is not None else f"1 (capsim scale {scale})"
+
+
+def _scaled(fields: dict[str, np.ndarray], factors: dict | None) -> dict[str, np.ndarray]:
+    """The fields times the factor of their scale (physical units), or as they are."""
+    from capsim.quantities import EXPORT_FIELDS
+
+    if factors is None:
+        return fields
+    return {name: value * factors[EXPORT_FIELDS[name][1]] if EXPORT_FIELDS[name][1] else value
+            for name, value in fields.items()}
+
+
 def _xdmf_item(parent: ET.Element, h5name: str, path: str, array: np.ndarray) -> None:
     if array.dtype.kind == "f":
         number, precision = "Float", "8"
@@ -151,11 +172,18 @@ def _attribute_type(array: np.ndarray) -> str:
     return {3: "Vector", 9: "Tensor"}.get(array.shape[1], "Matrix")
 
 
-def _write_xdmf(out_dir: Path, stem: str, elements, rest, snapshots) -> list[Path]:
+def _write_xdmf(out_dir: Path, stem: str, elements, rest, snapshots, factors=None) -> list[Path]:
     h5name = f"{stem}_data.h5"
     xdmf_path = out_dir / f"{stem}.xdmf"
     root = ET.Element("Xdmf", Version="3.0")
     domain = ET.SubElement(root, "Domain")
+    # the units of time, positions and each field, as XDMF Information elements of the domain
+    # (readers such as meshio take every child of the collection for a time step, and an
+    # Attribute for its one DataItem)
+    from capsim.quantities import EXPORT_FIELDS
+
+    for name in EXPORT_FIELDS:
+        ET.SubElement(domain, "Information", Name=f"units_{name}", Value=_units_text(name, factors))
     collection = ET.SubElement(domain, "Grid", Name=stem, GridType="Collection", CollectionType="Temporal")
     elements = np.asarray(elements, dtype=np.int64)
     # Built in memory and written with one plain write: a full disk or a file-size limit
@@ -191,11 +219,16 @@ def _write_xdmf(out_dir: Path, stem: str, elements, rest, snapshots) -> list[Pat
     return [xdmf_path, out_dir / h5name]
 
 
-def _write_vtu(out_dir: Path, stem: str, elements, rest, snapshots) -> list[Path]:
+def _write_vtu(out_dir: Path, stem: str, elements, rest, snapshots, factors=None) -> list[Path]:
     import meshio
+
+    from capsim.quantities import EXPORT_FIELDS
 
     written = []
     root = ET.Element("VTKFile", type="Collection", version="0.1", byte_order="LittleEndian")
+    # a .vtu has no place for units: the collection file names them, one comment
+    root.append(ET.Comment(" units: " + "; ".join(f"{name}: {_units_text(name, factors)}" for name in EXPORT_FIELDS)
+                           + " "))
     coll = ET.SubElement(root, "Collection")
     for k, (t, x, point, cell) in enumerate(snapshots):
         name = f"{stem}_{k:04d}.vtu"
@@ -217,8 +250,11 @@ def export_run(
     out_dir: str | os.PathLike | None = None,
     fmt: str = "xdmf",
     fields: bool = True,
+    units: str = "capsim",
 ) -> list[Path]:
-    """Write a trajectory's snapshots for ParaView; returns the files written (index file first)."""
+    """Write a trajectory's snapshots for ParaView; returns the files written (index file first).
+    ``units="physical"``: times in s, positions in µm and every field in the physical unit of
+    its scale (capsim.quantities.EXPORT_FIELDS, SCALE_UNITS) from the run's physical block."""
     from capsim.store import read_trajectory
 
     if fmt not in FORMATS:
@@ -232,16 +268,27 @@ def export_run(
     positions, times = data["positions"], data["snapshot_t"]
     if len(positions) == 0:
         positions, times = rest[None], np.zeros(1)
+    factors = None
+    if units == "physical":
+        from capsim.units import factors_for
+
+        factors = factors_for(case_of(data), path.name)
+    else:
+        from capsim.quantities import UNIT_SYSTEMS
+
+        if units not in UNIT_SYSTEMS:
+            raise ValueError(f"units must be one of {', '.join(UNIT_SYSTEMS)}, got {units!r}")
     model = model_for(data) if fields else None
 
     def snapshots():
+        f_t, f_x = (factors["1/k"], factors["a"]) if factors is not None else (1.0, 1.0)
         for t, x in zip(times, positions):
             x = np.asarray(x, dtype=np.float64)
             if model is None:
                 point, cell = {"displacement": x - rest}, {}
             else:
                 point, cell = snapshot_fields(model, x, rest)
-            yield float(t), x, point, cell
+            yield float(t) * f_t, x * f_x, _scaled(point, factors), _scaled(cell, factors)
 
     writer = _write_xdmf if fmt == "xdmf" else _write_vtu
     # Every file is written in a private staging directory inside `out`, then renamed into
@@ -250,7 +297,7 @@ def export_run(
     shutil.rmtree(staging, ignore_errors=True)
     try:
         staging.mkdir()
-        staged = writer(staging, path.stem, elements, rest, snapshots())
+        staged = writer(staging, path.stem, elements, rest, snapshots(), factors)
         for file in staged:
             os.replace(file, out / file.name)
     except (OSError, RuntimeError) as exc:
@@ -265,7 +312,7 @@ class ExportError(ValueError):
 
 
 def export_to_dir(path: str | os.PathLike, out_dir: str | os.PathLike | None = None, fmt: str = "xdmf", *,
-                  fields: bool = True, overwrite: bool = False) -> list[Path]:
+                  fields: bool = True, overwrite: bool = False, units: str = "capsim") -> list[Path]:
     """`capsim export`: :func:`export_run` behind the output guards: the files it would
     replace in `out_dir` (``<stem>.xdmf``, ``<stem>_data.h5`` | ``<stem>_NNNN.vtu``,
     ``<stem>.pvd``) are replaced only if they are not run files, checkpoints or campaign
@@ -289,7 +336,7 @@ def export_to_dir(path: str | os.PathLike, out_dir: str | os.PathLike | None = N
         for target in planned:
             guard_output(target, [path], overwrite, ours=lambda p: protected(p) is None)
     try:
-        return export_run(path, out, fmt, fields=fields)
+        return export_run(path, out, fmt, fields=fields, units=units)
     except (TrajectoryError, ConfigError, ValueError) as exc:
         raise ExportError(first_line(exc)) from None
     except StorageError:

@@ -21,6 +21,23 @@ from capsim.geometry import (
     volume_area,
 )
 from capsim.membrane import principal_tensions
+from capsim.quantities import TURNING_MOTIONS
+
+
+#: relative gap (μ_L − μ_l)/(μ_L + μ_l) of the in-plane eigenvalues of the second moment below
+#: which the long axis, and θ, is undefined (stored as NaN): round-off of a sphere's
+#: eigenvalues is ~1e-15 (θ then arbitrary), a capsule after its first step has D_xy ≳ 1e-6
+THETA_UNDEFINED_GAP = 1e-10
+
+
+def unwrap_defined(theta: np.ndarray) -> np.ndarray:
+    """θ unwrapped modulo π where it is defined; NaN (no long axis) left NaN and skipped,
+    so that an undefined θ at kt = 0 does not turn the whole unwrapped series into NaN."""
+    theta = np.array(theta, dtype=float, copy=True)
+    ok = np.isfinite(theta)
+    if ok.any():
+        theta[ok] = np.unwrap(theta[ok], period=np.pi)
+    return theta
 
 
 def ellipsoid_axes(geo: ElementGeometry) -> dict:
@@ -46,6 +63,13 @@ def ellipsoid_axes(geo: ElementGeometry) -> dict:
         theta -= np.pi
     elif theta <= -np.pi / 2:
         theta += np.pi
+    # A shape without a long axis in the shear plane (a sphere, a disk seen along its axis)
+    # has two equal in-plane eigenvalues: its eigenvector, and θ with it, is then round-off
+    # (a level-3 sphere gave 0.5787 rad). The eigenvector's error is about round-off over
+    # the relative gap, so below THETA_UNDEFINED_GAP θ is not a property of the shape.
+    gap = abs(mu[i_long] - mu[i_short]) / max(abs(mu[i_long]) + abs(mu[i_short]), np.finfo(float).tiny)
+    if not gap >= THETA_UNDEFINED_GAP:
+        theta = float("nan")
     return {
         "volume": volume,
         "area": area,
@@ -329,13 +353,14 @@ def is_steady(
         return False
     sel = t >= t[-1] - w
     d = np.asarray(D_xy, float)[sel]
-    th = np.unwrap(np.asarray(theta, float)[sel], period=np.pi)
-    if not (np.all(np.isfinite(d)) and np.all(np.isfinite(th))):
+    th = unwrap_defined(np.asarray(theta, float)[sel])
+    if not np.all(np.isfinite(d)):
         return False
     scale = max(float(np.abs(d).mean()), 1e-3)
     if float(np.ptp(d)) > rtol * scale:
         return False
-    return scale <= 1e-3 or float(np.ptp(th)) <= theta_tol
+    # θ undefined (NaN) in the window: only a shape without a long axis, which scale ≤ 1e-3 covers
+    return scale <= 1e-3 or (bool(np.all(np.isfinite(th))) and float(np.ptp(th)) <= theta_tol)
 
 
 def _oscillation(t: np.ndarray, s: np.ndarray, floor: float, min_ratio: float = 0.5) -> dict | None:
@@ -427,7 +452,8 @@ def classify_motion(
     t_end = float(t[-1])
     out["t_to"] = t_end
     out["t_from"] = max(float(t[0]), (1.0 - window_fraction) * t_end)
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(D_xy)) and np.all(np.isfinite(theta))):
+    # θ is NaN where the shape has no long axis (a sphere at kt = 0): not a failure; ±∞ is
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(D_xy)) and not np.any(np.isinf(theta))):
         out["motion"] = "unstable"
         return out
 
@@ -446,7 +472,7 @@ def _tumbling(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, out: dict) -> 
     """classify_motion's tumbling: θ, unwrapped, below −π/2 (a continuous clockwise turn);
     the period from successive passages through −π/2 (mod π), Jeffery's (seed §5). Fills
     `out` and returns True when it tumbles."""
-    defined = D_xy > 1e-3  # θ of a sphere is undefined
+    defined = (D_xy > 1e-3) & np.isfinite(theta)  # θ of a sphere is undefined
     if np.count_nonzero(defined) < 2:
         return False
     td = t[defined]
@@ -458,6 +484,9 @@ def _tumbling(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, out: dict) -> 
     if len(passes) >= 2:
         out["period"] = 2.0 * float(passes[-1] - passes[-2])
         out["t_from"], out["t_to"] = float(passes[-2]), float(passes[-1])
+        # D_xy repeats every half turn (the shape is head-tail symmetric): its mean and half
+        # peak-to-peak over the last one, the spread a researcher quotes for a periodic motion
+        out["D_xy_mean"], out["D_xy_amplitude"] = _cycle_stats(t, D_xy, out["t_from"], (out["t_from"], out["t_to"]))
     elif len(passes) == 1 and td[-1] > passes[0]:
         turned = abs(th_u[-1] - (-np.pi / 2))
         if turned > 0.1:
@@ -471,7 +500,9 @@ def _oscillating(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, rtol: float
     last two thirds of the run (the start-up transient of a capsule is a few kt, and two
     whole cycles of kT ≈ 10 must fit in a run of a few tens of kt); fills `out` if so."""
     half = t >= float(t[-1]) / 3.0
-    th_half = np.unwrap(theta[half], period=np.pi)
+    th_half = unwrap_defined(theta[half])
+    if not np.all(np.isfinite(th_half)):  # no long axis in this half: D_xy alone can oscillate
+        th_half = np.zeros_like(th_half)
     scale = max(float(np.abs(D_xy[half]).mean()), 1e-3)
     osc = _oscillation(t[half], th_half, theta_tol) or _oscillation(t[half], D_xy[half], rtol * scale)
     if osc is None:
@@ -667,9 +698,11 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
     out: dict = {"motion": motion["motion"]}
     for name in SUMMARY_QUANTITIES:
         s = np.asarray(series[name], float)
-        if name == "theta":
-            s = np.unwrap(s, period=np.pi)
-        mean, std = window_stats(t, s, t0, t1)
+        ts = t
+        if name == "theta":  # over the rows where θ is defined (NaN: no long axis)
+            s = unwrap_defined(s)
+            ts, s = t[np.isfinite(s)], s[np.isfinite(s)]
+        mean, std = window_stats(ts, s, t0, t1) if ts.size else (float("nan"), float("nan"))
         if name == "theta":
             mean = np.pi / 2 - (np.pi / 2 - mean) % np.pi  # back into (−π/2, π/2]
         out[name], out[f"{name}_std"] = mean, std
@@ -677,6 +710,10 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
         rate = revolution_rate(t, series["tt_angle"], min(t0, 0.5 * t[-1]))
         if rate is not None:
             out["ttf_ratio"] = float(rate / RIGID_SPHERE_ROTATION_RATE)
+    if out["motion"] in TURNING_MOTIONS:
+        # the long axis turns through every angle: a mean θ over whole turns is no property of
+        # the motion (the folded mean of a uniform turn is arbitrary, its spread the whole range)
+        out["theta"] = out["theta_std"] = float("nan")
     out["averaging_t_from"], out["averaging_t_to"] = t0, t1
     for key in ("period", "D_xy_mean", "D_xy_amplitude", "theta_mean", "theta_amplitude"):
         out[key] = motion[key]

@@ -32,6 +32,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from capsim.mesh import linear_subtriangles  # numba-free: figures need no kernels
+from capsim.quantities import PERIODIC_MOTIONS
 
 __all__ = [
     "DPI", "FIGSIZE", "FIGURE_FORMATS", "FIRST_ORDER_G_MAX", "KINDS", "contour_figure", "orbit_figure", "deformation_figure", "inclination_figure",
@@ -371,6 +372,7 @@ def deformation_figure(source, theory: bool = True, labels: Sequence[str] | None
         ax.set_ylim(0.0, 1.15 * max(float(np.nanmax(D)) for _, _, D, _ in drawn))
     ax.set_xlabel(r"$kt$")
     ax.set_ylabel(r"$D_{xy}$")
+    _tag(ax, x=("t", "$t$"))
     _legend(ax)
     return fig
 
@@ -387,10 +389,14 @@ def inclination_figure(source, theory: bool = True, unwrap: bool = False, labels
                    label=r"first order, $\theta = \pi/4$")
     ax.set_xlabel(r"$kt$")
     ax.set_ylabel(r"$\theta/\pi$")
+    _tag(ax, x=("t", "$t$"))
     if not unwrap and any(np.nanmin(v) < -0.1 for _, _, v, _ in drawn if np.isfinite(v).any()):
         ax.set_ylim(-0.52, 0.52)  # a tumbling run: the whole range of θ, broken at ±π/2
     _legend(ax)
     return fig
+
+
+_RHEOLOGY_PHYSICAL = {"Sxy_star": r"$S_{xy}$", "N1_star": r"$S_{xx} - S_{yy}$", "N2_star": r"$S_{yy} - S_{zz}$"}
 
 
 def rheology_figure(source, theory: bool = True):
@@ -406,13 +412,15 @@ def rheology_figure(source, theory: bool = True):
         first = {"Sxy_star": 1.0, "N1_star": 19.0 * info["G"]}
     labels = {"Sxy_star": r"$S^*_{xy}$", "N1_star": r"$N_1^*$", "N2_star": r"$N_2^*$"}
     for i, (name, label) in enumerate(labels.items()):
-        ax.plot(t, _series(data, name), color=f"C{i}", label=label)
+        line, = ax.plot(t, _series(data, name), color=f"C{i}", label=label)
+        line.physical_label = _RHEOLOGY_PHYSICAL[name]
         if name in first:
             ax.axhline(first[name], color=f"C{i}", ls=":", lw=1)
     if first:
         ax.plot([], [], "k:", lw=1, label="first order")
     ax.set_xlabel(r"$kt$")
     ax.set_ylabel(r"$S^*_{xy}$, $N_1^*$, $N_2^*$")
+    _tag(ax, x=("t", "$t$"), y=("Sxy_star", r"stresslet $S_{xy}$, $S_{xx} - S_{yy}$, $S_{yy} - S_{zz}$"))
     _caption(fig, [info])
     _legend(ax)
     return fig
@@ -681,6 +689,7 @@ def contour_figure(source, times: Sequence[float] | None = None, z0: float = 0.0
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(r"$x/a$")
     ax.set_ylabel(r"$y/a$")
+    _tag(ax, x=("centroid_x", "$x$"), y=("centroid_y", "$y$"))
     _caption(fig, [info], extra=f"section z = {z0:g}" if z0 else "")
     _legend(ax)
     return fig
@@ -720,6 +729,7 @@ def trajectory_figure(source, node: int | None = None, direction: Sequence[float
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(r"$x/a$")
     ax.set_ylabel(r"$y/a$")
+    _tag(ax, x=("centroid_x", "$x$"), y=("centroid_y", "$y$"))
     _caption(fig, [info])
     _legend(ax)
     fig.path_node = node  # the chosen node, for callers and tests
@@ -748,6 +758,7 @@ def tensions_figure(source, t: float | None = None, z0: float = 0.0):
     ax.set_xlim(0.0, 1.0)
     ax.set_xlabel(r"arc length along the section, $s/L$")  # from its largest x, counter-clockwise (caption)
     ax.set_ylabel(r"principal tension $/E_s$")
+    _tag(ax, y=("G_s", "principal tension"))  # tensions in E_s, the scale of G_s
     _caption(fig, [info], extra=f"kt = {data['snapshot_t'][k]:.3g}; s from the section's largest x, counter-clockwise")
     _legend(ax)
     return fig
@@ -823,10 +834,13 @@ def steady_figure(source, theory: bool = True, x: str | None = None):
         color = f"C{j % 10}"
         for ax, name, scale, style, series in panels:
             y = np.array([c["values"][name] for c in settled], dtype=np.float64) / scale
-            err = np.array([c["std"].get(name, np.nan) for c in settled], dtype=np.float64) / scale
+            err = np.array([_spread(c, name) for c in settled], dtype=np.float64) / scale
             first_series = ax is not ax_s if rheology else True
             ax.plot(xs, y, style, color=color, ms=4,
                     label=(label if first_series else (series if j == 0 else None)))
+            periodic = np.array([c["periodic"] for c in settled], dtype=bool)
+            if periodic.any():  # open markers: means over whole periods, not a steady state
+                ax.plot(xs[periodic], y[periodic], style[0], color=color, mfc="white", ms=5, ls="none")
             if np.isfinite(err).any():
                 ax.errorbar(xs, y, yerr=np.where(np.isfinite(err), err, 0.0), fmt="none", ecolor=color,
                             elinewidth=0.8, capsize=2)
@@ -867,9 +881,25 @@ def steady_figure(source, theory: bool = True, x: str | None = None):
     return fig
 
 
+
+
+def _spread(cell: dict, name: str) -> float:
+    """The error bar of a settled point: the half-amplitude of the last cycle for a periodic
+    run (where the summary has it), else the window's standard deviation."""
+    amplitude = cell["amplitude"].get(name, np.nan)
+    if cell["periodic"] and math.isfinite(amplitude):
+        return amplitude
+    return cell["std"].get(name, np.nan)
+
+
 def _left_out_note(cells: list[dict], unsettled: list[dict]) -> str:
-    """Error bars: window std; and which runs are no steady values, and why."""
+    """Error bars: window std (steady) or half-amplitude (periodic); and which runs are no
+    steady values, and why."""
     text = "points: settled runs, window mean ± its standard deviation"
+    if any(c["periodic"] and c["settled"] for c in cells):
+        text = ("filled points: steady runs, window mean ± its standard deviation; open points: periodic runs "
+                "(oscillating, tumbling), mean over whole periods ± half the peak-to-peak of the last cycle "
+                "(a tumbling run has no mean θ)")
     if not unsettled:
         return text
     why: dict[str, int] = {}
@@ -914,7 +944,8 @@ def _summary_cells(ds, names: tuple[str, ...], swept: list[str]) -> list[dict]:
             "swept": {f: at(f, index) for f in swept},
             "values": {n: float(at(n, index)) for n in names},
             "std": {n: float(at(f"{n}_std", index)) for n in names if f"{n}_std" in ds.variables},
-            "settled": settled, "why": why,
+            "amplitude": {n: float(at(f"{n}_amplitude", index)) for n in names if f"{n}_amplitude" in ds.variables},
+            "periodic": motion in PERIODIC_MOTIONS, "settled": settled, "why": why,
         })
     return cells
 
@@ -976,6 +1007,7 @@ def orbit_figure(source):
     ax.plot(t, azimuth / np.pi, "C1-", label=r"azimuth $\varphi/\pi$ from $y$ (unwrapped)")
     ax.set_xlabel(r"$kt$")
     ax.set_ylabel(r"angle / $\pi$")
+    _tag(ax, x=("t", "$t$"))
     ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
     circle = np.linspace(0.0, 2 * np.pi, 181)
     # (horizontal, vertical) components of each view; the hidden axis decides the front
@@ -1000,6 +1032,79 @@ def orbit_figure(source):
             ax.legend(fontsize="x-small", loc="upper left", bbox_to_anchor=(1.02, 1.0))
     _caption(fig, [info])
     return fig
+
+
+# ------------------------------------------------------------ physical units
+
+
+def _tag(ax, x: tuple[str, str] | None = None, y: tuple[str, str] | None = None) -> None:
+    """Say what each axis of `ax` shows, as (a quantity of capsim.quantities whose scale the
+    values are in, the axis' name in physical units), for :func:`to_physical`."""
+    ax.capsim_axes = (x, y)
+
+
+#: how a unit of capsim.quantities.SCALE_UNITS is typeset on an axis (the unit is the table's)
+_TYPESET = {"um": "µm", "uN/m": "µN/m", "pN*um": "pN µm", "um^2": "µm²", "um^3": "µm³"}
+_KT = __import__("re").compile(r"\bkt = ([-+0-9.eE]+)")
+
+
+def run_factors(sources) -> dict[str, float]:
+    """The physical factors (capsim.units.physical_factors) of the run(s) to draw; ValueError
+    (one line) for a run without a physical block, or overlaid runs whose blocks differ."""
+    from capsim.export import case_of
+    from capsim.units import factors_for
+
+    found = []
+    for run in _sources(sources):
+        name = Path(str(run)).name if not isinstance(run, dict) else "the run"
+        found.append(factors_for(case_of(_load_run(run)), name))
+    if any(f != found[0] for f in found[1:]):
+        raise ValueError("--units physical: the overlaid runs have different physical scales (shear rate, radius, "
+                         "viscosity, modulus): one axis cannot show them; overlay them in --units capsim")
+    return found[0]
+
+
+def to_physical(fig, factors: dict[str, float]) -> None:
+    """Redraw the tagged axes (:func:`_tag`) of `fig` in physical units: every line's data
+    times the factor of its quantity's scale (axhline/axvline in the one direction that is
+    data), the axis named with the unit of capsim.quantities, 'kt = …' in labels and the
+    caption as 't = … s'."""
+    from capsim.quantities import physical_units
+
+    def unit_of(name: str) -> tuple[float, str]:
+        unit, scale = physical_units(name)
+        return factors[scale], _TYPESET.get(unit, unit)
+
+    f_t, u_t = unit_of("t")
+
+    def kt_text(text: str) -> str:
+        return _KT.sub(lambda m: f"t = {float(m.group(1)) * f_t:.3g} {u_t}", text)
+
+    for ax in fig.axes:
+        x, y = getattr(ax, "capsim_axes", (None, None))
+        fx, ux = unit_of(x[0]) if x else (1.0, "")
+        fy, uy = unit_of(y[0]) if y else (1.0, "")
+        for line in ax.get_lines():
+            transform = line.get_transform()
+            sx = fx if transform in (ax.transData, ax.get_xaxis_transform(which="grid")) else 1.0
+            sy = fy if transform in (ax.transData, ax.get_yaxis_transform(which="grid")) else 1.0
+            line.set_xdata(np.asarray(line.get_xdata(), float) * sx)
+            line.set_ydata(np.asarray(line.get_ydata(), float) * sy)
+            line.set_label(kt_text(getattr(line, "physical_label", line.get_label())))
+        legend = ax.get_legend()
+        if legend is not None:  # the same entries, their texts in physical units
+            for text, label in zip(legend.get_texts(), ax.get_legend_handles_labels()[1]):
+                text.set_text(label)
+        if x is None and y is None:
+            continue
+        if x:
+            ax.set_xlabel(f"{x[1]} ({ux})")
+        if y:
+            ax.set_ylabel(f"{y[1]} ({uy})")
+        ax.relim()
+        ax.autoscale_view()
+    if getattr(fig, "caption", ""):
+        _supxlabel(fig, kt_text(fig.caption))
 
 
 # ------------------------------------------------------------ dispatcher
@@ -1029,7 +1134,7 @@ def figure_format(output: str | os.PathLike) -> str:
 
 
 def plot(source, kind: str, output: str | os.PathLike | None = None, *, dpi: float | None = None,
-         fmt: str | None = None, size: tuple[float, float] | None = None, **options: Any):
+         fmt: str | None = None, size: tuple[float, float] | None = None, units: str = "capsim", **options: Any):
     """Draw figure `kind` of a run (or, for 'steady', a campaign summary) at ``size``
     (W, H inches; default the kind's), legends placed by :func:`place_legends`; save it
     when `output` is given, as the format its suffix names (or ``fmt``) at ``dpi``
@@ -1047,7 +1152,20 @@ def plot(source, kind: str, output: str | os.PathLike | None = None, *, dpi: flo
         size = parse_size(size)
     if kind == "steady":
         _refuse_run_file(source)
+    from capsim.quantities import UNIT_SYSTEMS
+
+    if units not in UNIT_SYSTEMS:
+        raise ValueError(f"--units {units!r}: must be one of {', '.join(UNIT_SYSTEMS)}")
+    factors = None
+    if units == "physical":
+        if kind == "steady":
+            raise ValueError("--units physical: --kind steady draws ratios (D_xy, θ/π, TTF/f_s, S*) against the swept "
+                             "field, whose physical values are SI already; allowed: --units capsim (capsim summarize "
+                             "--units physical writes the values in physical units)")
+        factors = run_factors(source)
     fig = KINDS[kind](source, **options)
+    if factors is not None:
+        to_physical(fig, factors)
     if size is not None:
         fig.set_size_inches(size)
         if getattr(fig, "caption", ""):
@@ -1114,7 +1232,7 @@ class FigureError(ValueError):
 def write_figure(paths: Sequence[str | os.PathLike], kind: str, output: str | os.PathLike | None = None, *,
                  overwrite: bool = False, dpi: float | None = None, theory: bool = True, unwrap: bool = False,
                  times: Sequence[float] | None = None, node: int | None = None, x: str | None = None,
-                 size: str | None = None, labels: Sequence[str] | None = None) -> Path:
+                 size: str | None = None, labels: Sequence[str] | None = None, units: str = "capsim") -> Path:
     """`capsim plot`: draw `kind` of one run (several overlaid for :data:`OVERLAY_KINDS`, a
     summary for 'steady') into `output` (default :func:`default_output`), through the output
     guards and a temporary file renamed into place. Raises FigureError, or
@@ -1180,7 +1298,7 @@ def write_figure(paths: Sequence[str | os.PathLike], kind: str, output: str | os
         from capsim.store import TrajectoryError
 
         try:
-            plt.close(plot(source, kind, tmp, dpi=dpi, fmt=fmt, size=figure_size, **options))
+            plt.close(plot(source, kind, tmp, dpi=dpi, fmt=fmt, size=figure_size, units=units, **options))
         except (TrajectoryError, ConfigError, ValueError, KeyError) as exc:
             raise FigureError(first_line(exc)) from None
         except OSError:

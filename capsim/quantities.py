@@ -35,8 +35,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["CONVENTIONS", "FLAGS", "GROUPS", "PLANNED", "Quantity", "SCALES", "TABLE", "attrs_for",
-           "case_field_attrs", "global_attrs", "key_for"]
+__all__ = ["CONVENTIONS", "FLAGS", "GROUPS", "PERIODIC_MOTIONS", "PLANNED", "TURNING_MOTIONS", "Quantity", "SCALES", "SCALE_UNITS", "TABLE", "UNIT_SYSTEMS",
+           "attrs_for", "case_field_attrs", "global_attrs", "key_for", "physical_attrs", "physical_units"]
 
 
 @dataclass(frozen=True)
@@ -47,6 +47,9 @@ class Quantity:
     units: str  # UDUNITS: "1", "rad", "degree", "s"; "" for strings
     definition: str
     scale: str = ""  # capsim scale of the dimensionless value: "a", "1/k", "E_s", "mu k a" …
+    #: long name of the value times its scale, where that is another quantity (S*_xy × (5/2)μkV
+    #: is the stresslet S_xy); "" when the long name holds (a time in 1/k or in s is a time)
+    physical_name: str = ""
 
     def attrs(self) -> dict[str, str]:
         out = {"long_name": self.long_name, "units": self.units, "definition": self.definition}
@@ -58,10 +61,10 @@ class Quantity:
 TABLE: dict[str, Quantity] = {}
 
 
-def _add(key: str, long_name: str, units: str, definition: str, scale: str = "") -> Quantity:
+def _add(key: str, long_name: str, units: str, definition: str, scale: str = "", physical_name: str = "") -> Quantity:
     if key in TABLE:
         raise ValueError(f"quantity {key!r} defined twice")
-    TABLE[key] = q = Quantity(long_name, units, definition, scale)
+    TABLE[key] = q = Quantity(long_name, units, definition, scale, physical_name)
     return q
 
 
@@ -101,7 +104,8 @@ _add("D_xy", "Taylor deformation parameter in the xy-plane", "1",
 _add("theta", "inclination of the long axis", "rad",
      "angle from the x-axis (flow direction) to the long axis in the xy-plane, in (−π/2, π/2]; the seed's "
      "definition: for a shape turned off the plane it is the inclination of the projected axis (see "
-     "long_axis_x/y/z and director_azimuth)")
+     "long_axis_x/y/z and director_azimuth); NaN where the shape has no long axis in the plane (its two in-plane "
+     "second moments equal to a relative 1e-10: a sphere at rest)")
 _add("volume", "enclosed volume", "1", "volume V enclosed by the membrane, in units of a³", "a^3")
 _add("area", "surface area", "1", "area S of the membrane, in units of a²", "a^2")
 _add("volume_drift", "relative volume change", "1", "(V − V0)/V0, V0 the volume at t = 0")
@@ -145,17 +149,18 @@ _add("min_tension", "smallest principal membrane tension", "1",
 _add("compressed_fraction", "fraction of the membrane in compression", "1",
      "share of vertices whose smaller principal tension is negative; a membrane without bending "
      "stiffness would wrinkle there")
-_add("Sxy_star", "normalised particle shear stress", "1", f"S_xy / ((5/2) μ k V), {_STRESSLET}", "5/2 mu k V")
+_add("Sxy_star", "normalised particle shear stress", "1", f"S_xy / ((5/2) μ k V), {_STRESSLET}", "5/2 mu k V",
+     "particle stresslet S_xy")
 _add("N1_star", "normalised first normal stress difference", "1",
-     f"(S_xx − S_yy) / ((5/2) μ k V), {_STRESSLET}", "5/2 mu k V")
+     f"(S_xx − S_yy) / ((5/2) μ k V), {_STRESSLET}", "5/2 mu k V", "stresslet difference S_xx − S_yy")
 _add("N2_star", "normalised second normal stress difference", "1",
-     f"(S_yy − S_zz) / ((5/2) μ k V), {_STRESSLET}", "5/2 mu k V")
+     f"(S_yy − S_zz) / ((5/2) μ k V), {_STRESSLET}", "5/2 mu k V", "stresslet difference S_yy − S_zz")
 _add("ttf_ratio", "normalised tank-treading frequency", "1",
      "f / f_s, f the frequency at which the material nodes starting in z = 0 circle the centroid in the "
      "xy-plane and f_s = k/(4π) that of a rigid sphere: per step from their mean angular velocity; in a "
      "summary from their whole revolutions (tt_angle) when there is at least one. A rest shape turned off the "
      "plane (initial_axis) has no mesh line on z = 0: the nodes of the band |z| < max|z|/4 (away from the "
-     "z-axis) are followed instead")
+     "z-axis) are followed instead", "k/(4 pi)", "tank-treading frequency")
 _add("tt_angle", "tank-treading angle", "rad",
      "unwrapped mean angle about the centroid, in the xy-plane, of the nodes starting in z = 0")
 _add("solver_iterations", "iterations of the velocity solve", "1",
@@ -250,11 +255,13 @@ for _name, _what in (("D_xy", "Taylor deformation parameter"), ("theta", "inclin
          f"mean of {_name} over the motion classifier's window (whole cycles when oscillating, the steady "
          f"window when steady); NaN for other motions")
     _add(f"{_name}_amplitude", f"oscillation amplitude of the {_what}", TABLE[_name].units,
-         f"half the peak-to-peak of {_name} over the last cycle; NaN unless oscillating")
+         f"half the peak-to-peak of {_name} over the last cycle (for a tumbling run, D_xy's over its last half "
+         f"turn; θ turns through every angle and has none); NaN unless oscillating or tumbling")
 for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star"):
     _base = TABLE[_name]
     _add(f"{_name}_std", f"standard deviation of the {_base.long_name}", _base.units,
-         f"standard deviation of {_name} over the averaging window; NaN when not reported", _base.scale)
+         f"standard deviation of {_name} over the averaging window; NaN when not reported", _base.scale,
+         _base.physical_name and f"standard deviation of the {_base.physical_name}")
 
 # ---------------------------------------------------------------- membrane_law/ and rest_shape/
 
@@ -305,14 +312,17 @@ _add("time_scheme", "time-stepping scheme", "1",
      "(Rosenbrock-W) (flag_values, flag_meanings)")
 _add("steady_average", "whether the values are averages over a settled motion", "1",
      "flag: 1 when the motion is steady, rolling, kayaking, oscillating or tumbling, so that the observables are means over "
-     "whole cycles (or the steady window); 0 when the run ended transient or unstable, or did not classify "
+     "whole cycles (or the steady window; a periodic run's spread is then its *_amplitude, and a tumbling or kayaking "
+     "run has no mean theta: NaN); 0 when the run ended transient or unstable, or did not classify "
      "its motion: the observables are then means over the last quarter of the run (or its last row), not a "
      "settled value — do not average them with the others")
 
 _STEADY = "at the end of the run (mean over the averaging window when the run reports one)"
 for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star"):
     _base = TABLE[_name]
-    _add(f"campaign/{_name}", _base.long_name, _base.units, f"{_base.definition}; {_STEADY}", _base.scale)
+    _turning = "; NaN for a tumbling or kayaking run (its long axis turns through every angle)" if _name == "theta" else ""
+    _add(f"campaign/{_name}", _base.long_name, _base.units, f"{_base.definition}; {_STEADY}{_turning}", _base.scale,
+         _base.physical_name)
 for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star"):
     _base = TABLE[_name]
     _add(f"{_name}_error_estimate", f"error estimate of the {_base.long_name}", _base.units,
@@ -378,7 +388,7 @@ GROUPS: dict[str, str] = {
 #: that every entry outside this set is used and that nothing written is in it).
 PLANNED: frozenset[str] = frozenset()
 
-del _add, _base, _c, _key, _name, _of, _sfx, _what
+del _add, _base, _c, _key, _name, _of, _sfx, _turning, _what
 
 
 #: Categorical quantities written as CF flag variables (integer codes, flag_values, flag_meanings).
@@ -402,7 +412,54 @@ SCALES: dict[str, str] = {
     "E_s a^2": "bending energy (κ)",
     "a^2": "area", "a^3": "volume",
     "mu k^2 a^3": "power (W): a rate of dissipation or of work of the flow",
+    "k/(4 pi)": "frequency: f_s = k/(4π), the revolutions per unit time of a rigid sphere's surface",
+    "a k": "velocity",
+    "E_s/a": "traction (force per area): a membrane load Δf",
 }
+
+#: Each capsim scale in physical units (``--units physical``): (its SI unit, the unit shown).
+#: The one place a physical unit is spelled: every writer (closing table, summary, figures,
+#: export) takes it from here through :func:`physical_units`; both UDUNITS (CF) and pint read
+#: these strings. Frequencies are revolutions per second, Hz.
+SCALE_UNITS: dict[str, tuple[str, str]] = {
+    "a": ("m", "um"),
+    "1/k": ("s", "s"),
+    "E_s": ("N/m", "uN/m"),
+    "mu": ("Pa*s", "mPa*s"),
+    "mu k a": ("N/m", "uN/m"),
+    "5/2 mu k V": ("N*m", "pN*um"),
+    "E_s a^2": ("J", "J"),
+    "a^2": ("m^2", "um^2"),
+    "a^3": ("m^3", "um^3"),
+    "mu k^2 a^3": ("W", "fW"),
+    "k/(4 pi)": ("Hz", "Hz"),
+    "a k": ("m/s", "um/s"),
+    "E_s/a": ("Pa", "Pa"),
+}
+
+#: The fields of `capsim export` (ParaView files, not netCDF): name → (what it is, its capsim
+#: scale; "" for a pure number). Their units, in either system, are SCALE_UNITS' and SCALES'.
+EXPORT_FIELDS: dict[str, tuple[str, str]] = {
+    "geometry": ("node positions", "a"),
+    "time": ("time of the snapshot", "1/k"),
+    "displacement": ("x − X from the rest shape", "a"),
+    "velocity": ("membrane velocity u(x)", "a k"),
+    "traction_jump": ("nodal traction jump Δf", "E_s/a"),
+    "tension": ("tension tensor T, 9 components row-major", "E_s"),
+    "principal_tension_1": ("larger principal tension", "E_s"),
+    "principal_tension_2": ("smaller principal tension", "E_s"),
+    "principal_stretch_1": ("larger principal stretch", ""),
+    "principal_stretch_2": ("smaller principal stretch", ""),
+    "traction": ("element average of Δf", "E_s/a"),
+}
+#: Settled motions that are cycles, not states: their values are means over whole periods and
+#: their spread the half peak-to-peak of the last cycle (``<q>_amplitude``)
+PERIODIC_MOTIONS = ("oscillating", "tumbling", "kayaking")
+#: periodic motions whose in-plane long axis turns round and round: no mean θ (NaN)
+TURNING_MOTIONS = ("tumbling", "kayaking")
+#: how values are shown and written: capsim's scales (dimensionless, the default) or physical
+#: units from the run's ``physical:`` block
+UNIT_SYSTEMS = ("capsim", "physical")
 
 
 def global_attrs(title: str) -> dict[str, str]:
@@ -438,6 +495,29 @@ def key_for(name: str, where: str | None = None) -> str:
 def attrs_for(name: str, where: str | None = None) -> dict[str, str]:
     """The attributes (long_name, units, definition and scale when there is one) of `name`."""
     return TABLE[key_for(name, where)].attrs()
+
+
+def physical_units(name: str, where: str | None = None) -> tuple[str, str]:
+    """(unit shown, scale) of `name` in physical units: its scale's unit from
+    :data:`SCALE_UNITS`, or its own units ("1", "rad", "s") and "" when it has no scale."""
+    q = TABLE[key_for(name, where)]
+    if q.scale in SCALE_UNITS:
+        return SCALE_UNITS[q.scale][1], q.scale
+    return q.units, ""
+
+
+def physical_attrs(name: str, where: str | None = None) -> dict[str, str]:
+    """The attributes of `name` converted to physical units: units from :data:`SCALE_UNITS`,
+    no ``scale``, the long name of the value times its scale, and the definition saying so."""
+    q = TABLE[key_for(name, where)]
+    attrs = q.attrs()
+    if q.scale not in SCALE_UNITS:
+        return attrs
+    attrs.pop("scale", None)
+    attrs["units"] = SCALE_UNITS[q.scale][1]
+    attrs["long_name"] = q.physical_name or q.long_name
+    attrs["definition"] = f"{q.definition}; times its scale {q.scale} of the run's physical block, in {attrs['units']}"
+    return attrs
 
 
 def case_field_attrs(dotted: str) -> dict[str, str]:

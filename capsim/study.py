@@ -93,8 +93,10 @@ def final_values(ts: dict[str, np.ndarray], window: tuple[float, float] | None =
     out: dict[str, float] = {}
     for q in QUANTITIES:
         s = np.asarray(ts[q], float)
-        if q == "theta":
-            s = np.unwrap(s, period=np.pi)
+        if q == "theta":  # NaN where the shape has no long axis (kt = 0 of a sphere): skipped
+            from capsim.observables import unwrap_defined
+
+            s = unwrap_defined(s)
         out[q] = float(s[-1])
         if window is not None:
             out[f"{q}_mean"] = _window_mean(t, s, *window)

@@ -31,7 +31,7 @@ import xarray as xr
 from capsim._version import __version__
 from capsim.campaign import CAMPAIGN_FILE, INDEX_FILE, expand_campaign, load_campaign, load_index
 from capsim.config import Case
-from capsim.quantities import FLAGS, TABLE, attrs_for, case_field_attrs, global_attrs
+from capsim.quantities import FLAGS, TABLE, TURNING_MOTIONS, UNIT_SYSTEMS, attrs_for, case_field_attrs, global_attrs, physical_attrs
 from capsim.store import case_from_trajectory, read_run_digest, read_run_record, read_run_status
 
 __all__ = ["SUMMARY_ATTRS", "read_run", "read_run_status", "summarize_campaign", "text_encoding", "write_summary"]
@@ -52,6 +52,9 @@ _CONTEXT = {"level": (np.int64, -1), "mesh_base": (np.int8, -1), "law": (object,
             "time_scheme": (np.int8, -1), "rtol": (np.float64, np.nan), "steady_average": (np.int8, 0)}
 #: motions whose window means are settled values
 _SETTLED = frozenset({"steady", "rolling", "kayaking", "oscillating", "tumbling"})
+#: settled motions whose in-plane long axis turns round and round: no mean inclination (run
+#: files written before issue 30 still hold the folded mean)
+_TURNING = TURNING_MOTIONS
 
 _WHERE = "campaign"  # the qualified entries of capsim.quantities for this file
 
@@ -102,6 +105,11 @@ def read_run(path: str | os.PathLike) -> dict[str, Any] | None:
     steps = summary.get("steps", run.get("steps", n - 1 if n else -1))
     record["steps"] = int(steps)
     record["steady_average"] = int(record["status"] == "completed" and record["motion"] in _SETTLED)
+    if record["motion"] in _TURNING:
+        # the long axis turns through every angle: a mean of θ over whole periods is no property
+        # of the motion (and its spread the whole range), so θ has no settled value
+        for name in ("theta", "theta_std", "theta_error_estimate"):
+            record[name] = np.nan
     try:
         case = case_from_trajectory({"attrs": attrs})
     except Exception:  # no or an unreadable config_yaml: the context stays unknown
@@ -170,8 +178,12 @@ def _coordinate(name: str, dotted: str, values: list) -> tuple:
     return name, np.asarray(values), attrs
 
 
-def summarize_campaign(directory: str | os.PathLike) -> xr.Dataset:
-    """One Dataset for a campaign directory written by ``capsim sweep``."""
+def summarize_campaign(directory: str | os.PathLike, units: str = "capsim") -> xr.Dataset:
+    """One Dataset for a campaign directory written by ``capsim sweep``; with ``units="physical"``
+    every variable that has a capsim scale (:mod:`capsim.quantities`) is in physical units
+    (:func:`to_physical`)."""
+    if units not in UNIT_SYSTEMS:
+        raise ValueError(f"units must be one of {', '.join(UNIT_SYSTEMS)}, got {units!r}")
     directory = Path(directory)
     if not (directory / CAMPAIGN_FILE).exists() or not (directory / INDEX_FILE).exists():
         raise FileNotFoundError(f"{directory}: not a campaign directory (no {CAMPAIGN_FILE} or {INDEX_FILE})")
@@ -234,6 +246,8 @@ def summarize_campaign(directory: str | os.PathLike) -> xr.Dataset:
         {name: (dims, values, _attrs_for(name)) for name, values in data.items()},
         coords=coords,
     )
+    if units == "physical":
+        ds = to_physical(ds, _physical_factors(index, planned, dims, shape))
     ds.attrs = {
         **global_attrs(f"capsim campaign {campaign.name}"),
         "capsim_version": __version__,
@@ -241,6 +255,42 @@ def summarize_campaign(directory: str | os.PathLike) -> xr.Dataset:
         "campaign_name": campaign.name,
         "campaign_yaml": campaign.to_yaml(),
     }
+    if units == "physical":
+        ds.attrs["capsim_units"] = ("physical: every variable with a capsim scale is that value times its scale from "
+                                    "the run's physical block, in the units it names; the coordinates are the swept "
+                                    "case values as given")
+    return ds
+
+
+def _physical_factors(index: dict, planned: dict, dims: tuple, shape: tuple) -> dict[str, np.ndarray]:
+    """Per run, the factor of each capsim scale from its case's physical block (they differ
+    between runs of a sweep over physical.*); a campaign without one: NoPhysicalBlock."""
+    from capsim.quantities import SCALE_UNITS
+    from capsim.units import factors_for
+
+    out = {scale: np.full(shape, np.nan) for scale in SCALE_UNITS}
+    for i, run_id in enumerate(index):
+        if run_id not in planned:
+            continue  # an old entry of the index: its values are NaN anyway
+        at = tuple(index[run_id]["grid_index"]) if dims != ("run",) else (i,)
+        for scale, factor in factors_for(planned[run_id].case(), f"run {run_id}").items():
+            out[scale][at] = factor
+    return out
+
+
+def to_physical(ds: xr.Dataset, factors: dict[str, np.ndarray]) -> xr.Dataset:
+    """`ds` with each data variable that has a capsim scale times that scale's factor (an array
+    over the runs, or a number) and the attributes of :func:`capsim.quantities.physical_attrs`:
+    the unit is the table's, never spelled here."""
+    ds = ds.copy()
+    for name, var in ds.data_vars.items():
+        scale = var.attrs.get("scale")
+        if scale not in factors:
+            continue
+        attrs = {**var.attrs, **physical_attrs(name, _WHERE)}
+        attrs.pop("scale", None)
+        ds[name] = var * factors[scale]
+        ds[name].attrs = attrs
     return ds
 
 
@@ -264,7 +314,7 @@ def write_summary(ds: xr.Dataset, path: str | os.PathLike) -> Path:
 
 
 def summarize_to_file(directory: str | os.PathLike, output: str | os.PathLike | None = None, *,
-                      overwrite: bool = False):
+                      overwrite: bool = False, units: str = "capsim"):
     """`capsim summarize`: the campaign in `directory` summarised into `output` (default
     DIR/summary.nc) through the output guards (never over the campaign's own files or
     one of its runs; another file than a summary only with `overwrite`) and a temporary
@@ -274,7 +324,7 @@ def summarize_to_file(directory: str | os.PathLike, output: str | os.PathLike | 
     )
 
     directory = Path(directory)
-    ds = summarize_campaign(directory)
+    ds = summarize_campaign(directory, units)
     path = Path(output) if output is not None else directory / "summary.nc"
     check_writable(path)
     inputs = [directory / CAMPAIGN_FILE, directory / INDEX_FILE]

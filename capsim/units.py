@@ -30,7 +30,7 @@ from typing import Any
 
 from capsim.errors import bounded_repr, first_line
 
-__all__ = ["KINDS", "UnitsError", "conversion", "parse"]
+__all__ = ["KINDS", "UnitsError", "conversion", "parse", "physical_factors", "scale_values"]
 
 #: G_s / E_s of every elastic law of capsim (capsim.membrane: the small-strain shear modulus)
 SHEAR_OVER_ELASTIC_MODULUS = 1.0 / 3.0
@@ -135,6 +135,7 @@ def conversion(shear_rate: Any, viscosity: Any, radius: Any, surface_modulus: An
     out = {
         "G": tension / e_s, "Ca": tension / g_s, "time_unit_s": 1.0 / k,
         "E_s_N_per_m": e_s, "G_s_N_per_m": g_s, "velocity_m_per_s": k * a, "tension_N_per_m": tension,
+        "shear_rate_per_s": k, "viscosity_Pa_s": mu, "radius_m": a,
     }
     if membrane_viscosity is not None:
         mu_s = parse(membrane_viscosity, "membrane_viscosity")
@@ -154,3 +155,128 @@ def describe_conversion(out: dict[str, float]) -> str:
     ] + ([f"Bq = mu_s / (mu a) = {out['Bq']:.6g}   (membrane.viscosity.shear); membrane time "
           f"mu_s / G_s = {out['membrane_time_s']:.6g} s (k tau = Bq Ca = {out['Bq'] * out['Ca']:.6g})"]
          if "Bq" in out else []))
+
+
+# ---------------------------------------------------------------- capsim's scales in physical units (outputs)
+
+
+def scale_values(out: dict[str, float]) -> dict[str, float]:
+    """The SI magnitude (in the SI unit of :data:`capsim.quantities.SCALE_UNITS`) of each
+    capsim scale, from :func:`conversion`'s result. V = (4π/3) a³: a is the equal-volume radius."""
+    k, mu, a, e_s = out["shear_rate_per_s"], out["viscosity_Pa_s"], out["radius_m"], out["E_s_N_per_m"]
+    volume = 4.0 / 3.0 * math.pi * a**3
+    return {
+        "a": a, "1/k": 1.0 / k, "E_s": e_s, "mu": mu, "mu k a": mu * k * a,
+        "5/2 mu k V": 2.5 * mu * k * volume, "E_s a^2": e_s * a**2, "a^2": a**2, "a^3": a**3,
+        "mu k^2 a^3": mu * k**2 * a**3, "k/(4 pi)": k / (4.0 * math.pi), "a k": a * k, "E_s/a": e_s / a,
+    }
+
+
+def physical_factors(physical: Any) -> dict[str, float]:
+    """What a dimensionless value measured in each capsim scale is multiplied by to be in the
+    unit shown (:data:`capsim.quantities.SCALE_UNITS`: 1/k → s, a → µm, μka → µN/m …), for a
+    case's ``physical`` block (a :class:`capsim.config.Physical` or its dict). The unit
+    changes go through pint."""
+    from capsim.quantities import SCALE_UNITS
+
+    if not isinstance(physical, dict):
+        physical = physical.model_dump()
+    out = conversion(physical["shear_rate"], physical["viscosity"], physical["radius"],
+                     physical.get("surface_modulus"), physical.get("shear_modulus"))
+    ureg = _registry()
+    values = scale_values(out)
+    return {scale: float(ureg.Quantity(values[scale], si).to(shown).magnitude)
+            for scale, (si, shown) in SCALE_UNITS.items()}
+
+
+class NoPhysicalBlock(UnitsError):
+    """--units physical for a run (or campaign) whose case has no physical block."""
+
+
+def factors_for(case: Any, what: str) -> dict[str, float]:
+    """:func:`physical_factors` of `case` (a Case); NoPhysicalBlock naming `what` when it has none."""
+    if getattr(case, "physical", None) is None:
+        raise NoPhysicalBlock(f"--units physical: {what} has no physical block (its case gives flow.shear_rate_G, "
+                              "not the shear rate, viscosity, radius and modulus); allowed: --units capsim, or a "
+                              "case with physical: (capsim units, docs/user_guide.md)")
+    return physical_factors(case.physical)
+
+
+# ---------------------------------------------------------------- the capillary number as an input
+
+
+#: what Ca = μ k a / G_s fixes when it is given with three of the four: name → (SI unit, formula)
+_SOLVED_BY_CA = {
+    "shear_rate": ("1/s", "k = Ca G_s / (mu a)"),
+    "viscosity": ("Pa*s", "mu = Ca G_s / (k a)"),
+    "radius": ("m", "a = Ca G_s / (mu k)"),
+    "shear_modulus": ("N/m", "G_s = mu k a / Ca"),
+}
+
+
+def check_capillary_number(ca: Any) -> float:
+    """Ca as `flow.capillary_number` takes it: a positive, finite number (UnitsError otherwise)."""
+    if isinstance(ca, bool) or not isinstance(ca, (int, float)) or not (math.isfinite(ca) and ca > 0):
+        raise UnitsError(f"--capillary-number {ca!r}: must be a positive, finite number (Ca = mu k a / G_s, e.g. 0.1)")
+    return float(ca)
+
+
+def from_capillary_number(ca: float, given: dict[str, Any]) -> dict[str, Any]:
+    """The conversion with Ca = μ k a / G_s as an input, consistent with ``flow.capillary_number``.
+
+    `given` maps shear_rate, viscosity, radius, surface_modulus / shear_modulus (E_s = 3 G_s)
+    and membrane_viscosity to quantity texts or None. With none of the first four: G = Ca/3
+    only (``{"Ca", "G"}``; a drop, surface_tension: G = Ca). With three of the four (the
+    modulus as E_s or G_s): the fourth is solved for (``solved``) and :func:`conversion` runs
+    on all four. Anything else: UnitsError naming what to give."""
+    ca = check_capillary_number(ca)
+    for kind, value in given.items():  # each value named by its option when it is not a quantity of its kind
+        if value is not None:
+            try:
+                parse(value, kind)
+            except UnitsError as exc:
+                raise UnitsError(f"--{kind.replace('_', '-')}: {exc}") from None
+    g_s = given.get("shear_modulus")
+    if given.get("surface_modulus") is not None:
+        if g_s is not None:
+            raise UnitsError("give only one of --surface-modulus and --shear-modulus")
+        g_s = f"{parse(given['surface_modulus'], 'surface_modulus') * SHEAR_OVER_ELASTIC_MODULUS!r} N/m"
+    four = {"shear_rate": given.get("shear_rate"), "viscosity": given.get("viscosity"),
+            "radius": given.get("radius"), "shear_modulus": g_s}
+    missing = [name for name, value in four.items() if value is None]
+    if len(missing) == 4:
+        if given.get("membrane_viscosity") is not None:
+            raise UnitsError("--membrane-viscosity needs the viscosity and the radius (Bq = mu_s/(mu a)); give "
+                             "three of --shear-rate, --viscosity, --radius, --shear-modulus with --capillary-number")
+        return {"Ca": ca, "G": ca * SHEAR_OVER_ELASTIC_MODULUS}
+    if not missing:
+        raise UnitsError("--capillary-number fixes one of --shear-rate, --viscosity, --radius and the modulus: give "
+                         "three of them with it, not all four (or leave out --capillary-number)")
+    if len(missing) > 1:
+        options = ", ".join("--" + name.replace("_", "-") for name in missing)
+        raise UnitsError(f"--capillary-number with physical values: give three of --shear-rate, --viscosity, "
+                         f"--radius and --surface-modulus/--shear-modulus (Ca fixes the fourth); missing {options}")
+    name = missing[0]
+    k, mu, a, gs = (parse(four[n], n) if n != name else None for n in ("shear_rate", "viscosity", "radius",
+                                                                           "shear_modulus"))
+    solved = {"shear_rate": lambda: ca * gs / (mu * a), "viscosity": lambda: ca * gs / (k * a),
+              "radius": lambda: ca * gs / (mu * k), "shear_modulus": lambda: mu * k * a / ca}[name]()
+    four[name] = f"{solved!r} {_SOLVED_BY_CA[name][0]}"
+    out: dict[str, Any] = conversion(four["shear_rate"], four["viscosity"], four["radius"],
+                                     shear_modulus=four["shear_modulus"],
+                                     membrane_viscosity=given.get("membrane_viscosity"))
+    out["solved"] = name
+    out[f"{name}_SI"] = solved
+    return out
+
+
+def describe_capillary(out: dict[str, Any]) -> str:
+    """:func:`from_capillary_number`'s result as the lines `capsim units` prints."""
+    if "solved" not in out:
+        return (f"Ca = {out['Ca']:.6g}   (flow.capillary_number)\n"
+                f"G  = Ca / 3 = {out['G']:.6g}   (flow.shear_rate_G: G_s = E_s / 3 for every elastic law; "
+                "a drop, law surface_tension: G = Ca)")
+    name = out["solved"]
+    unit, formula = _SOLVED_BY_CA[name]
+    return (f"{formula} = {out[name + '_SI']:.6g} {unit}   (from --capillary-number)\n"
+            + describe_conversion(out))

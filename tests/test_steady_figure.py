@@ -64,3 +64,48 @@ def test_a_lambda_only_and_a_zip_campaign_plot_against_their_field(tmp_path):
     result = CliRunner().invoke(app, ["plot", str(path), "--kind", "steady", "--x", "nope", "-o", str(tmp_path / "s.png")])
     assert result.exit_code == 2 and len(result.stderr.strip().splitlines()) == 1
     assert "--x 'nope': not a numeric swept field of the summary (allowed: shear_rate_G, viscosity_ratio)" in result.stderr
+
+
+# ---------------------------------------------------------------- periodic runs (issue 30, noticed)
+
+
+def test_a_periodic_run_is_settled_with_its_half_amplitude_as_error_bar():
+    """A swinging (oscillating) run at G = 0.1, λ = 5: its point is open, its error bar the
+    half peak-to-peak of the last cycle (0.05), not the window std (0.02); a tumbling run at
+    G = 0.1, λ = 1 has a D_xy point (± its half-amplitude 0.08) and no θ point."""
+    ds = _grid([[1, 1], [1, 1]])
+    dims = ("shear_rate_G", "viscosity_ratio")
+    ds["motion"] = (dims, np.array([["steady", "steady"], ["tumbling", "oscillating"]], dtype=object))
+    ds["D_xy_amplitude"] = (dims, np.array([[np.nan, np.nan], [0.08, 0.05]]))
+    ds["theta_amplitude"] = (dims, np.array([[np.nan, np.nan], [np.nan, 0.1]]))
+    ds["theta"] = ds["theta"].where(ds["motion"] != "tumbling")  # as the summary writes it
+    fig = plot(ds, "steady")
+    bars = [c for c in fig.axes[0].collections if c.get_segments()]
+    spans = sorted(round(float(seg[1][1] - seg[0][1]), 12) for c in bars for seg in c.get_segments())
+    assert spans == pytest.approx([0.04, 0.04, 0.1, 0.16])  # steady ± 0.02; swinging ± 0.05; tumbling ± 0.08
+    open_points = [line for line in fig.axes[0].get_lines() if line.get_markerfacecolor() == "white"]
+    assert sorted(float(x) for line in open_points for x in line.get_xdata()) == [0.1, 0.1]
+    theta_bars = [c for c in fig.axes[1].collections if c.get_segments()]
+    theta_spans = sorted(round(float(seg[1][1] - seg[0][1]), 12) for c in theta_bars for seg in c.get_segments()
+                         if len(seg) == 2)
+    # θ/π: steady ± 0.01/π, swinging ± 0.1/π; the tumbling run's NaN θ draws no bar
+    assert theta_spans == pytest.approx(sorted([0.02 / np.pi] * 2 + [0.2 / np.pi]))
+    theta_points = [y for line in _data_lines(fig.axes[1]) for x, y in zip(line.get_xdata(), line.get_ydata())
+                    if x == 0.1 and np.isfinite(y)]
+    assert theta_points and all(y == pytest.approx(0.7 / np.pi) for y in theta_points)  # only the swinging run
+    assert "open points: periodic runs" in fig.steady_note and "half the peak-to-peak" in fig.steady_note
+
+
+def test_the_summary_gives_a_tumbling_run_no_mean_theta(monkeypatch):
+    import capsim.summary as summary
+
+    def fake(path):
+        return {"attrs": {"status": "completed"}, "n_steps": 10, "first": {}, "last": {}, "run": {},
+                "summary": {"motion": path, "D_xy": 0.3, "theta": 0.2, "theta_std": 0.9, "D_xy_amplitude": 0.08}}
+
+    monkeypatch.setattr(summary, "read_run_record", fake)
+    tumbling, swinging = summary.read_run("tumbling"), summary.read_run("oscillating")
+    assert tumbling["steady_average"] == 1 and swinging["steady_average"] == 1  # settled, as a cycle
+    assert np.isnan(tumbling["theta"]) and np.isnan(tumbling["theta_std"])  # its long axis turns round
+    assert tumbling["D_xy"] == 0.3 and tumbling["D_xy_amplitude"] == 0.08
+    assert swinging["theta"] == 0.2  # a swinging run has a mean inclination

@@ -177,3 +177,70 @@ def test_capillary_number_and_physical_bending_give_G_and_kappa_by_hand():
     result = runner.invoke(app, ["validate", str(ROOT / "configs" / "rbc.yaml"), "--set", "physical.bending_modulus=2 m"])
     assert result.exit_code == 2 and len(result.stderr.strip().splitlines()) == 1
     assert "physical.bending_modulus = '2 m': '2 m' is not an energy (a bending modulus)" in result.stderr
+
+
+# ---------------------------------------------------------------- issue 30: the capillary number as an input
+
+
+def test_capillary_number_alone_gives_the_G_of_flow_capillary_number():
+    result = runner.invoke(app, ["units", "--capillary-number", "0.3", "--json"])
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.stdout)
+    assert out["G"] == pytest.approx(0.1, rel=1e-12)  # G = Ca/3 by hand
+    assert out["G"] == pytest.approx(case_from_dict({"name": "c", "flow": {"capillary_number": 0.3}}).flow.shear_rate_G,
+                                     rel=1e-12)
+    text = runner.invoke(app, ["units", "--capillary-number", "0.3"]).stdout
+    assert "G  = Ca / 3 = 0.1" in text and "flow.capillary_number" in text
+
+
+@pytest.mark.parametrize(("left_out", "SI"), [
+    ("--shear-rate", 100.0),         # k = Ca G_s / (μ a) = 0.056 × 6e-6 / (1.2e-3 × 2.8e-6) = 100 1/s
+    ("--viscosity", 1.2e-3),         # μ = Ca G_s / (k a)
+    ("--radius", 2.8e-6),            # a = Ca G_s / (μ k)
+    ("--shear-modulus", 6e-6),       # G_s = μ k a / Ca
+])
+def test_capillary_number_solves_for_the_fourth_value(left_out, SI):
+    options = {k: v for k, v in RBC.items() if k != left_out}
+    result = runner.invoke(app, _args(options) + ["--capillary-number", "0.056", "--json"])
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.stdout)
+    assert out["solved"] == left_out[2:].replace("-", "_")
+    assert out[f"{out['solved']}_SI"] == pytest.approx(SI, rel=1e-12)
+    for key, value in HAND["rbc"].items():  # the same conversion as with all four given
+        assert out[key] == pytest.approx(value, rel=1e-12), key
+
+
+@pytest.mark.parametrize(("args", "words"), [
+    (["--capillary-number", "-1"], "--capillary-number -1.0: must be a positive, finite number"),
+    (["--capillary-number", "nan"], "--capillary-number nan: must be a positive, finite number"),
+    (["--capillary-number", "abc"], "'--capillary-number'"),
+    (["--capillary-number", "0.1", "--radius", "2.8 um"], "missing --shear-rate, --viscosity, --shear-modulus"),
+    (["--capillary-number", "0.1", *_args(RBC)[1:]], "not all four"),
+    (["--capillary-number", "0.1", "--viscosity", "1.2 kg", "--radius", "2.8 um", "--shear-modulus", "6 uN/m"],
+     "--viscosity: '1.2 kg' is not a dynamic viscosity"),
+])
+def test_bad_capillary_number_input_is_one_line_exit_2(args, words):
+    result = runner.invoke(app, ["units", *args])
+    assert result.exit_code == 2, result.output
+    line = result.stderr.strip()
+    assert "\n" not in line and line.startswith("error: ") and words in line, line
+
+
+def test_set_a_physical_value_recomputes_every_field_derived_from_it():
+    """DERIVED_FIELDS covers physical.membrane_viscosity, and a radius changes Bq and κ/(E_s a²)
+    too when the case computes them from physical (before: 'give membrane.viscosity.shear or
+    physical.membrane_viscosity, not both')."""
+    from capsim.config import apply_overrides
+
+    viscous = load_case(ROOT / "configs" / "rbc-viscous.yaml")  # μ_s = 1e-7 N s/m, μ = 1.2 mPa s, a = 2.8 µm
+    assert viscous.membrane.viscosity.shear == pytest.approx(1e-7 / (1.2e-3 * 2.8e-6), rel=1e-12)
+    doubled = apply_overrides(viscous, **{"physical.membrane_viscosity": "2e-7 N*s/m"})
+    assert doubled.membrane.viscosity.shear == pytest.approx(2e-7 / (1.2e-3 * 2.8e-6), rel=1e-12)
+    wider = apply_overrides(viscous, **{"physical.radius": "3 um"})
+    assert wider.membrane.viscosity.shear == pytest.approx(1e-7 / (1.2e-3 * 3e-6), rel=1e-12)
+    rbc = apply_overrides(load_case(ROOT / "configs" / "rbc.yaml"), **{"physical.bending_modulus": "1.8e-19 J"})
+    wider = apply_overrides(rbc, **{"physical.radius": "3 um"})
+    assert wider.membrane.bending_modulus == pytest.approx(1.8e-19 / (7.5e-6 * 3e-6**2), rel=1e-12)
+    # a κ given as membrane.bending_modulus (configs/rbc.yaml) is the user's, kept
+    kept = apply_overrides(load_case(ROOT / "configs" / "rbc.yaml"), **{"physical.radius": "3 um"})
+    assert kept.membrane.bending_modulus == 3.06e-3
