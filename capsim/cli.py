@@ -179,7 +179,7 @@ def bench(
 
     capsim bench --level 3 --viscosity-ratio 5 --repeat 5 --json
     """
-    from capsim.benchmark import bench_case, bench_velocity
+    from capsim.benchmark import bench_case, bench_velocity, split_lines
     from capsim.config import ConfigError
 
     try:
@@ -192,7 +192,8 @@ def bench(
         return
     from capsim.display import key_value_lines
 
-    typer.echo(key_value_lines(result))
+    typer.echo(key_value_lines({k: v for k, v in result.items() if k != "split_s"}))
+    typer.echo(split_lines(result))
 
 
 @app.command()

@@ -367,6 +367,7 @@ class MembraneForce:
         self.mass_max_iter = mass_max_iter
         self.stage_times = {"geometry": 0.0, "membrane": 0.0}
         self.evaluations = 0
+        self.last_mass_iterations = 0  # iterations of the last mass-matrix solve
         self._last_traction: Array | None = None
 
     def state(self) -> dict[str, Array | None]:
@@ -424,24 +425,33 @@ class MembraneForce:
     def __call__(self, x: Array) -> MembraneState:
         """Tensions and the traction jump Δf at configuration x."""
         self.evaluations += 1
+        clock = self.disc.clock
+        clock.start()
         t0 = time.perf_counter()
         disc = self.disc
         geo = disc.geometry(x)
         t1 = time.perf_counter()
         self.stage_times["geometry"] += t1 - t0
+        clock.lap("geometry")
         vertex_state = lambda: self._vertex_state(x)  # noqa: E731
         if self.traction_method == "contour":
             state = MembraneState(np.empty(0), geo, np.empty(0), vertex_state)
             state.traction = state.density = self.element_traction(x, geo, state.tension)
             self.stage_times["membrane"] += time.perf_counter() - t1
+            clock.lap("contour_traction")
             return state
         rhs = self._energy_gradient(x)
+        clock.lap("strain")
         data = disc.mass_matrix_data(geo)
+        clock.lap("mass_assembly")
         guess = self._last_traction if self._last_traction is not None else np.zeros_like(rhs)
         traction, iterations = kernels.block_cg(
             disc.mass_indptr, disc.mass_indices, data, rhs, guess, self.mass_tol, self.mass_max_iter,
         )
         self._last_traction = traction
+        self.last_mass_iterations = int(iterations)
+        clock.lap("mass_solve")
         density = np.ascontiguousarray(traction[disc.elements])
         self.stage_times["membrane"] += time.perf_counter() - t1
+        clock.lap("gather")
         return MembraneState(traction, geo, density, vertex_state, iterations)
