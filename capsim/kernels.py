@@ -207,6 +207,12 @@ def _double_layer_element_regular(x0, y0, z0, u0, v0, w0, e, reg_points, reg_nor
 
 
 @njit(**_JIT)
+def gather_nodal(values, elements):
+    """Element-nodal copy (N_e, 6, 3) of a nodal field (N_p, 3): values[elements]."""
+    return _gather(values, elements)
+
+
+@njit(**_JIT)
 def _gather(values, elements):
     """Element-nodal copy (N_e, 6, 3) of a nodal field, for contiguous reads."""
     ne = elements.shape[0]
@@ -248,6 +254,55 @@ def single_layer_singular_correction(
             out[i_t, 1] += sy - ry
             out[i_t, 2] += sz - rz
     return out
+
+
+@njit(**_JIT)
+def surface_flux(elements, phi, normals, weights, u):
+    """∫ u·n dS of the nodal field u (N_p, 3) interpolated quadratically: Σ over the
+    rule points (normals (N_e, q, 3), weights (N_e, q)) in one pass over the elements."""
+    total = 0.0
+    for e in range(elements.shape[0]):
+        for q in range(phi.shape[0]):
+            ux = 0.0
+            uy = 0.0
+            uz = 0.0
+            for a in range(6):
+                node = elements[e, a]
+                f = phi[q, a]
+                ux += f * u[node, 0]
+                uy += f * u[node, 1]
+                uz += f * u[node, 2]
+            total += weights[e, q] * (ux * normals[e, q, 0] + uy * normals[e, q, 1] + uz * normals[e, q, 2])
+    return total
+
+
+@njit(**_JIT)
+def point_strengths(phi, density, weights):
+    """The density at the rule points (N_e, q, 3) from its element-nodal values
+    (N_e, 6, 3), and the Stokeslet strengths, density × weight, as (N_e·q, 3): one pass."""
+    ne = density.shape[0]
+    nq = phi.shape[0]
+    points = np.empty((ne, nq, 3))
+    strengths = np.empty((ne * nq, 3))
+    for e in range(ne):
+        for q in range(nq):
+            fx = 0.0
+            fy = 0.0
+            fz = 0.0
+            for a in range(6):
+                f = phi[q, a]
+                fx += f * density[e, a, 0]
+                fy += f * density[e, a, 1]
+                fz += f * density[e, a, 2]
+            points[e, q, 0] = fx
+            points[e, q, 1] = fy
+            points[e, q, 2] = fz
+            w = weights[e, q]
+            k = e * nq + q
+            strengths[k, 0] = fx * w
+            strengths[k, 1] = fy * w
+            strengths[k, 2] = fz * w
+    return points, strengths
 
 
 @njit(**_JIT)
@@ -617,79 +672,117 @@ def assemble_mass_matrix(elements, csr_slot, phi, weights, nnz):
 
 
 @njit(**_JIT)
-def _csr_matmul(indptr, indices, data, v, out):
-    n = out.shape[0]
-    m = out.shape[1]
+def _factor_solve(r, z, w, l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r, perm_c):
+    """z = A0⁻¹ r for Pr A0 Pc = L U (scipy's splu): the strictly lower part of the unit
+    lower L and the strictly upper part of U in CSR, U's inverse diagonal, both
+    permutations; w is workspace. Vectors of length n."""
+    n = r.shape[0]
     for i in range(n):
-        for c in range(m):
-            out[i, c] = 0.0
-        for p in range(indptr[i], indptr[i + 1]):
-            a = data[p]
-            j = indices[p]
-            for c in range(m):
-                out[i, c] += a * v[j, c]
+        w[perm_r[i]] = r[i]
+    for i in range(n):
+        s = w[i]
+        for p in range(l_indptr[i], l_indptr[i + 1]):
+            s -= l_data[p] * w[l_indices[p]]
+        w[i] = s
+    for i in range(n - 1, -1, -1):
+        s = w[i]
+        for p in range(u_indptr[i], u_indptr[i + 1]):
+            s -= u_data[p] * w[u_indices[p]]
+        w[i] = s * u_dinv[i]
+    for i in range(n):
+        z[i] = w[perm_c[i]]
 
 
 @njit(**_JIT)
-def block_cg(indptr, indices, data, rhs, x0, tol, max_iter):
-    """Jacobi-preconditioned conjugate gradients for an SPD CSR matrix and
-    several right-hand sides (columns of rhs) at once; stops when every column's
-    residual is below tol·max‖rhs‖. Returns (x, iterations)."""
-    n = rhs.shape[0]
-    m = rhs.shape[1]
-    dinv = np.empty(n)
-    for i in range(n):
+def _csr_matvec(indptr, indices, data, v, out):
+    for i in range(out.shape[0]):
+        s = 0.0
         for p in range(indptr[i], indptr[i + 1]):
-            if indices[p] == i:
-                dinv[i] = 1.0 / data[p]
-    x = x0.copy()
-    Ap = np.empty((n, m))
-    _csr_matmul(indptr, indices, data, x, Ap)
-    r = rhs - Ap
-    z = np.empty((n, m))
-    for i in range(n):
-        for c in range(m):
-            z[i, c] = r[i, c] * dinv[i]
-    pvec = z.copy()
-    rz = np.zeros(m)
+            s += data[p] * v[indices[p]]
+        out[i] = s
+
+
+@njit(**_JIT)
+def reduced_mass_data(data, slot, slot_sign, nnz):
+    """Values of the reduced mass matrix K = Eᵀ (M ⊗ I₃) E from those of M (CSR): entry p
+    of M goes, for each component c with slot[p, c] ≥ 0, to slot[p, c] with its sign."""
+    out = np.zeros(nnz)
+    for p in range(slot.shape[0]):
+        for c in range(3):
+            k = slot[p, c]
+            if k >= 0:
+                out[k] += slot_sign[p, c] * data[p]
+    return out
+
+
+@njit(**_JIT)
+def solve_reduced_mass(indptr, indices, data, rhs, last, col, sign, target_node, target_comp, inv_mult, tol,
+                       max_iter, l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r, perm_c):
+    """Δf (N, 3) with M Δf = rhs for an equivariant rhs, solved as K y = Eᵀ rhs with
+    Δf = E y (E: the unknown y[col[j, c]] of node j, component c, times sign[j, c]; 0
+    where col is −1), K = Eᵀ (M ⊗ I₃) E in CSR (indptr, indices, data). Conjugate
+    gradients from y = the targets' values of ``last``, preconditioned by the exact
+    factorisation of a nearby K (``_factor_solve``): with K itself the first iteration
+    solves, and as K drifts each iteration gains about −log10 ‖K0⁻¹K − I‖ digits.
+    Stops when max|r| ≤ tol·max|rhs| over the nodes (Eᵀ sums an orbit: its row u
+    is the node's value times the orbit's size, 1/inv_mult[u]). Returns (Δf, iterations)."""
+    n = target_node.shape[0]
+    b = np.zeros(n)
+    for j in range(col.shape[0]):
+        for c in range(3):
+            u = col[j, c]
+            if u >= 0:
+                b[u] += sign[j, c] * rhs[j, c]
+    y = np.empty(n)
+    for u in range(n):
+        y[u] = last[target_node[u], target_comp[u]]
+    Ap = np.empty(n)
+    _csr_matvec(indptr, indices, data, y, Ap)
+    r = b - Ap
     bmax = 0.0
-    for i in range(n):
-        for c in range(m):
-            rz[c] += r[i, c] * z[i, c]
-            bmax = max(bmax, abs(rhs[i, c]))
+    rmax = 0.0
+    for u in range(n):
+        bmax = max(bmax, abs(b[u]) * inv_mult[u])
+        rmax = max(rmax, abs(r[u]) * inv_mult[u])
     thresh = tol * (bmax + 1e-300)
     it = 0
-    pAp = np.zeros(m)
-    alpha = np.zeros(m)
-    rz_new = np.zeros(m)
-    while it < max_iter:
-        rmax = 0.0
-        for i in range(n):
-            for c in range(m):
-                rmax = max(rmax, abs(r[i, c]))
-        if rmax <= thresh:
-            break
-        _csr_matmul(indptr, indices, data, pvec, Ap)
-        pAp[:] = 0.0
-        for i in range(n):
-            for c in range(m):
-                pAp[c] += pvec[i, c] * Ap[i, c]
-        for c in range(m):
-            alpha[c] = rz[c] / pAp[c] if pAp[c] != 0.0 else 0.0
-        rz_new[:] = 0.0
-        for i in range(n):
-            for c in range(m):
-                x[i, c] += alpha[c] * pvec[i, c]
-                r[i, c] -= alpha[c] * Ap[i, c]
-                z[i, c] = r[i, c] * dinv[i]
-                rz_new[c] += r[i, c] * z[i, c]
-        for c in range(m):
-            beta = rz_new[c] / rz[c] if rz[c] != 0.0 else 0.0
-            rz[c] = rz_new[c]
-            for i in range(n):
-                pvec[i, c] = z[i, c] + beta * pvec[i, c]
-        it += 1
-    return x, it
+    if rmax > thresh:
+        w = np.empty(n)
+        z = np.empty(n)
+        _factor_solve(r, z, w, l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r, perm_c)
+        pvec = z.copy()
+        rz = 0.0
+        for u in range(n):
+            rz += r[u] * z[u]
+        while it < max_iter:
+            _csr_matvec(indptr, indices, data, pvec, Ap)
+            pAp = 0.0
+            for u in range(n):
+                pAp += pvec[u] * Ap[u]
+            alpha = rz / pAp if pAp != 0.0 else 0.0
+            rmax = 0.0
+            for u in range(n):
+                y[u] += alpha * pvec[u]
+                r[u] -= alpha * Ap[u]
+                rmax = max(rmax, abs(r[u]) * inv_mult[u])
+            it += 1
+            if rmax <= thresh:
+                break
+            _factor_solve(r, z, w, l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r, perm_c)
+            rz_new = 0.0
+            for u in range(n):
+                rz_new += r[u] * z[u]
+            beta = rz_new / rz if rz != 0.0 else 0.0
+            rz = rz_new
+            for u in range(n):
+                pvec[u] = z[u] + beta * pvec[u]
+    out = np.zeros(rhs.shape)
+    for j in range(col.shape[0]):
+        for c in range(3):
+            u = col[j, c]
+            if u >= 0:
+                out[j, c] = sign[j, c] * y[u]
+    return out, it
 
 
 # ---------------------------------------------------------------- double layer

@@ -278,11 +278,11 @@ class Discretization:
         if density.ndim == 2:
             nodal = np.repeat(density[:, None, :], 6, axis=1)
             point_density = np.repeat(density[:, None, :], geo.weights.shape[1], axis=1)
+            strengths = (point_density * geo.weights[..., None]).reshape(-1, 3)
         else:
-            nodal = density
-            point_density = interpolate(self.reg_phi, density)
+            nodal = np.ascontiguousarray(density)
+            point_density, strengths = kernels.point_strengths(self.reg_phi, nodal, geo.weights)
         nodal, point_density = np.ascontiguousarray(nodal), np.ascontiguousarray(point_density)
-        strengths = (point_density * geo.weights[..., None]).reshape(-1, 3)
         clock.lap("interpolation")
         u = kernels.stokeslet_sum(x[self.targets], geo.points.reshape(-1, 3), strengths)
         clock.lap("stokeslet_sum")
@@ -312,8 +312,8 @@ class Discretization:
 
     def flux(self, geo: ElementGeometry, u: np.ndarray) -> float:
         """∫ u·n dS of a nodal field u interpolated quadratically over the elements."""
-        n_q = geo.normals * geo.weights[..., None]
-        return float((interpolate(self.reg_phi, u[self.elements]) * n_q).sum())
+        return float(kernels.surface_flux(self.elements, self.reg_phi, geo.normals, geo.weights,
+                                          np.ascontiguousarray(u, dtype=np.float64)))
 
     def double_layer(self, x: np.ndarray, geo: ElementGeometry, u: np.ndarray, u_target: np.ndarray | None = None) -> np.ndarray:
         """D[u](x0) = ∫ (u − u0)·T·n dS at every node, u quadratic over elements.
@@ -491,6 +491,7 @@ class CapsuleModel:
 
         out: dict[str, np.ndarray | None] = {
             "warm_traction": copy(self.membrane._last_traction),
+            "warm_mass_factor_x": copy(self.membrane._mass_factor_x),
             "warm_velocity": copy(self._last_velocity),
             "warm_rhs": copy(self._last_rhs),
             "membrane_evaluations": np.array(self.membrane.evaluations, dtype=np.int64),
@@ -505,7 +506,8 @@ class CapsuleModel:
 
     def restore(self, state: dict) -> None:
         """Undo to a ``state()``: missing warm starts are cleared, missing counters 0."""
-        known = {"warm_traction", "warm_velocity", "warm_rhs", "membrane_evaluations", *COUNTERS}
+        known = {"warm_traction", "warm_mass_factor_x", "warm_velocity", "warm_rhs", "membrane_evaluations",
+                 *COUNTERS}
         if self.viscous is not None:
             known |= {"viscous_iterations", "warm_viscous_factor_x"}
         if self.flow_stop_time is not None:
@@ -518,7 +520,8 @@ class CapsuleModel:
             a = state.get(key)
             return None if a is None else np.array(a, dtype=np.float64, copy=True)
 
-        self.membrane.restore({"traction": copy("warm_traction"), "evaluations": state.get("membrane_evaluations", 0)})
+        self.membrane.restore({"traction": copy("warm_traction"), "factor_x": copy("warm_mass_factor_x"),
+                               "evaluations": state.get("membrane_evaluations", 0)})
         self._last_velocity = copy("warm_velocity")
         self._last_rhs = copy("warm_rhs")
         self.counts = {k: int(state.get(k, 0)) for k in COUNTERS}
