@@ -672,6 +672,82 @@ def assemble_mass_matrix(elements, csr_slot, phi, weights, nnz):
 
 
 @njit(**_JIT)
+def _csr_matmul(indptr, indices, data, v, out):
+    n = out.shape[0]
+    m = out.shape[1]
+    for i in range(n):
+        for c in range(m):
+            out[i, c] = 0.0
+        for p in range(indptr[i], indptr[i + 1]):
+            a = data[p]
+            j = indices[p]
+            for c in range(m):
+                out[i, c] += a * v[j, c]
+
+
+@njit(**_JIT)
+def block_cg(indptr, indices, data, rhs, x0, tol, max_iter):
+    """Jacobi-preconditioned conjugate gradients for an SPD CSR matrix and
+    several right-hand sides (columns of rhs) at once; stops when every column's
+    residual is below tol·max‖rhs‖. Returns (x, iterations)."""
+    n = rhs.shape[0]
+    m = rhs.shape[1]
+    dinv = np.empty(n)
+    for i in range(n):
+        for p in range(indptr[i], indptr[i + 1]):
+            if indices[p] == i:
+                dinv[i] = 1.0 / data[p]
+    x = x0.copy()
+    Ap = np.empty((n, m))
+    _csr_matmul(indptr, indices, data, x, Ap)
+    r = rhs - Ap
+    z = np.empty((n, m))
+    for i in range(n):
+        for c in range(m):
+            z[i, c] = r[i, c] * dinv[i]
+    pvec = z.copy()
+    rz = np.zeros(m)
+    bmax = 0.0
+    for i in range(n):
+        for c in range(m):
+            rz[c] += r[i, c] * z[i, c]
+            bmax = max(bmax, abs(rhs[i, c]))
+    thresh = tol * (bmax + 1e-300)
+    it = 0
+    pAp = np.zeros(m)
+    alpha = np.zeros(m)
+    rz_new = np.zeros(m)
+    while it < max_iter:
+        rmax = 0.0
+        for i in range(n):
+            for c in range(m):
+                rmax = max(rmax, abs(r[i, c]))
+        if rmax <= thresh:
+            break
+        _csr_matmul(indptr, indices, data, pvec, Ap)
+        pAp[:] = 0.0
+        for i in range(n):
+            for c in range(m):
+                pAp[c] += pvec[i, c] * Ap[i, c]
+        for c in range(m):
+            alpha[c] = rz[c] / pAp[c] if pAp[c] != 0.0 else 0.0
+        rz_new[:] = 0.0
+        for i in range(n):
+            for c in range(m):
+                x[i, c] += alpha[c] * pvec[i, c]
+                r[i, c] -= alpha[c] * Ap[i, c]
+                z[i, c] = r[i, c] * dinv[i]
+                rz_new[c] += r[i, c] * z[i, c]
+        for c in range(m):
+            beta = rz_new[c] / rz[c] if rz[c] != 0.0 else 0.0
+            rz[c] = rz_new[c]
+            for i in range(n):
+                pvec[i, c] = z[i, c] + beta * pvec[i, c]
+        it += 1
+    return x, it
+
+
+@njit(**_JIT)
 def _factor_solve(r, z, w, l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r, perm_c):
     """z = A0⁻¹ r for Pr A0 Pc = L U (scipy's splu): the strictly lower part of the unit
     lower L and the strictly upper part of U in CSR, U's inverse diagonal, both
@@ -713,6 +789,22 @@ def reduced_mass_data(data, slot, slot_sign, nnz):
             if k >= 0:
                 out[k] += slot_sign[p, c] * data[p]
     return out
+
+
+@njit(**_JIT)
+def asymmetry(x, col, sign, target_node):
+    """max over nodes and components of |x[j, c] − sign[j, c]·x[its target, c]| (|x[j, c]|
+    where the symmetry forces it to zero): 0 for a configuration with the symmetry."""
+    worst = 0.0
+    for j in range(x.shape[0]):
+        for c in range(3):
+            u = col[j, c]
+            if u >= 0:
+                d = abs(x[j, c] - sign[j, c] * x[target_node[u], c])
+            else:
+                d = abs(x[j, c])
+            worst = max(worst, d)
+    return worst
 
 
 @njit(**_JIT)

@@ -291,6 +291,11 @@ TRACTION_METHODS = ("galerkin", "contour")
 
 # ---------------------------------------------------------------- the mass-matrix solve
 
+#: a configuration farther than this (relative to its size) from having the mesh's symmetry
+#: has its mass matrix solved in full: a run's positions have it to the bit (they are
+#: expanded from the targets), a finite-difference probe of size ε·|v| does not
+ASYMMETRY_TOL = 1e-13
+
 #: fill-reducing ordering of the reduced mass matrix's factorisation (scipy's splu): MMD on
 #: A + Aᵀ keeps the factor small (about 2.4× the nonzeros of the full matrix at level 3)
 MASS_ORDERING = "MMD_AT_PLUS_A"
@@ -518,10 +523,20 @@ class MembraneForce:
         the unknowns the symmetry leaves (``ReducedMass``), by conjugate gradients from
         the last Δf, preconditioned by the kept factorisation; one that no longer serves
         (more than mass_refactor_iterations iterations) is replaced by the factorisation
-        at x for the next solve."""
+        at x for the next solve. A configuration without the symmetry is solved in full."""
         reduced = self._reduced()
-        data = reduced.data(mass_data)
         guess = self._last_traction if self._last_traction is not None else np.zeros_like(rhs)
+        if kernels.asymmetry(x, reduced.col, reduced.sign, reduced.target_node) > ASYMMETRY_TOL * np.abs(x).max():
+            # a configuration without the mesh's symmetry (a finite-difference probe of a
+            # Jacobian): the right-hand side is not equivariant and the reduced system would
+            # drop its other part; the full system by Jacobi-preconditioned CG, the kept
+            # factorisation untouched
+            disc = self.disc
+            traction, iterations = kernels.block_cg(
+                disc.mass_indptr, disc.mass_indices, mass_data, rhs, guess, self.mass_tol, self.mass_max_iter)
+            self._last_traction = traction
+            return traction, int(iterations)
+        data = reduced.data(mass_data)
         factor = self._factor(x, data)
         traction, iterations = kernels.solve_reduced_mass(
             reduced.indptr, reduced.indices, data, rhs, guess, reduced.col, reduced.sign, reduced.target_node,
