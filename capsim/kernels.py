@@ -663,11 +663,14 @@ def assemble_mass_matrix(elements, csr_slot, phi, weights, nnz):
     nq = phi.shape[0]
     for e in range(ne):
         for k in range(6):
-            for l in range(6):
+            # the element matrix is symmetric: each pair once (the same products, the same bits)
+            for l in range(k, 6):
                 s = 0.0
                 for q in range(nq):
                     s += phi[q, k] * phi[q, l] * weights[e, q]
                 data[csr_slot[e, k, l]] += s
+                if l != k:
+                    data[csr_slot[e, l, k]] += s
     return data
 
 
