@@ -117,6 +117,7 @@ def main() -> None:
     if a.worker:
         worker(a.level, a.repeat)
         return
+    sys.path.insert(0, str(ROOT))  # this checkout's capsim for the table, whatever is installed
     runs: dict[str, list[dict]] = {"before": [], "after": []}
     with tempfile.TemporaryDirectory() as tmp:
         baseline = export(a.baseline, Path(tmp))

@@ -979,6 +979,30 @@ def nodal_unit_normals(x, elements, node_dxi, node_deta):
     return acc
 
 
+@njit(**_JIT)
+def target_unit_normals(x, elements, inc_offsets, inc_elem, inc_local, node_dxi, node_deta, targets):
+    """``nodal_unit_normals`` at the target nodes only (len(targets), 3), from the elements
+    holding each (in element order, as there: the same bits)."""
+    out = np.zeros((targets.shape[0], 3))
+    for i in range(targets.shape[0]):
+        p = targets[i]
+        sx = 0.0
+        sy = 0.0
+        sz = 0.0
+        for c in range(inc_offsets[p], inc_offsets[p + 1]):
+            ax, ay, az, bx, by, bz = _tangents(x, elements, inc_elem[c], node_dxi, node_deta, inc_local[c])
+            nx, ny, nz = _cross(ax, ay, az, bx, by, bz)
+            s = 1.0 / np.sqrt(nx * nx + ny * ny + nz * nz)
+            sx += nx * s
+            sy += ny * s
+            sz += nz * s
+        s = 1.0 / np.sqrt(sx ** 2 + sy ** 2 + sz ** 2)
+        out[i, 0] = sx * s
+        out[i, 1] = sy * s
+        out[i, 2] = sz * s
+    return out
+
+
 # ---------------------------------------------------------------- bending (hinges)
 
 @njit(inline="always")

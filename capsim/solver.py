@@ -307,8 +307,13 @@ class Discretization:
     def nodal_normals(self, x: np.ndarray) -> np.ndarray:
         """Unit normals at all nodes: mean of the element normals at each node
         (symmetric to the bit when a symmetry is in use)."""
-        n = kernels.nodal_unit_normals(np.ascontiguousarray(x), self.elements, self.node_dxi, self.node_deta)
-        return n if self.symmetry == "none" else self.expand(n[self.targets])
+        x = np.ascontiguousarray(x)
+        if self.symmetry == "none":
+            return kernels.nodal_unit_normals(x, self.elements, self.node_dxi, self.node_deta)
+        # at the targets only, from the elements holding them
+        return self.expand(kernels.target_unit_normals(
+            x, self.elements, self.inc_offsets, self.inc_elem, self.inc_local, self.node_dxi, self.node_deta,
+            self.targets))
 
     def flux(self, geo: ElementGeometry, u: np.ndarray) -> float:
         """∫ u·n dS of a nodal field u interpolated quadratically over the elements."""
