@@ -437,8 +437,11 @@ class MembraneForce:
     galerkin: Δf is the quadratic field whose moments against every basis
     function equal the energy gradient, M·Δf = ∂E/∂x with E = ∫ W dA_0 (+ the
     hinge bending energy; principle of virtual work; every node, mid-edge nodes
-    included, is elastically restrained). The block-CG solve of M·Δf = ∂E/∂x
-    starts from the previous Δf (warm start, part of ``state()``).
+    included, is elastically restrained). M·Δf = ∂E/∂x is solved on the unknowns
+    the mesh's symmetry leaves (``ReducedMass``) by conjugate gradients from the
+    previous Δf, preconditioned by a factorisation kept while it serves; the
+    previous Δf and where the factorisation was made are the warm start, part of
+    ``state()``.
     contour: the seed's element average (3.6), −(1/S_e)∮ T·b dl from vertex
     tensions, used element-constant (3.7).
 
