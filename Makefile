@@ -4,7 +4,7 @@ BIN    := $(VENV)/bin
 # Reinstall only when the package metadata changes.
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv test test-all docs demo bench bench-threads bench-stepping cf-tools
+.PHONY: venv test test-all docs demo bench bench-threads bench-stepping bench-split cf-tools
 
 venv: $(STAMP)
 
@@ -59,3 +59,9 @@ bench-threads: venv
 # writes benchmarks/time_schemes.md and benchmarks/time_schemes.json
 bench-stepping: venv
 	$(BIN)/python benchmarks/stepping.py $(CASES)
+
+# the per-stage split of one evaluation (level 3, lambda = 1, quarter symmetry, one thread), this
+# checkout against the baseline commit in alternating rounds (a few minutes):
+# writes benchmarks/evaluation_split.md and benchmarks/evaluation_split.json
+bench-split: venv
+	$(BIN)/python benchmarks/evaluation_split.py

@@ -190,13 +190,16 @@ def bench(
     repeat: int = typer.Option(3, "--repeat", help="timed repetitions (1 to 1000)"),
     as_json: bool = typer.Option(False, "--json", help="print JSON"),
 ) -> None:
-    """Time one velocity evaluation on a sphere mesh (options checked like a case's).
+    """Time one velocity evaluation on a sphere mesh (options checked like a case's) and
+    print its split per stage: membrane (geometry, strain, mass-matrix assembly and solve),
+    single layer (Stokeslet sum, singular correction), velocity (normals, volume correction,
+    the λ ≠ 1 solve), each in ms per evaluation and against the Stokeslet sum.
 
     Example:
 
     capsim bench --level 3 --viscosity-ratio 5 --repeat 5 --json
     """
-    from capsim.benchmark import bench_case, bench_velocity
+    from capsim.benchmark import bench_case, bench_velocity, split_lines
     from capsim.config import ConfigError
 
     try:
@@ -209,7 +212,8 @@ def bench(
         return
     from capsim.display import key_value_lines
 
-    typer.echo(key_value_lines(result))
+    typer.echo(key_value_lines({k: v for k, v in result.items() if k != "split_s"}))
+    typer.echo(split_lines(result))
 
 
 @app.command("warm-up")

@@ -207,6 +207,12 @@ def _double_layer_element_regular(x0, y0, z0, u0, v0, w0, e, reg_points, reg_nor
 
 
 @njit(**_JIT)
+def gather_nodal(values, elements):
+    """Element-nodal copy (N_e, 6, 3) of a nodal field (N_p, 3): values[elements]."""
+    return _gather(values, elements)
+
+
+@njit(**_JIT)
 def _gather(values, elements):
     """Element-nodal copy (N_e, 6, 3) of a nodal field, for contiguous reads."""
     ne = elements.shape[0]
@@ -248,6 +254,55 @@ def single_layer_singular_correction(
             out[i_t, 1] += sy - ry
             out[i_t, 2] += sz - rz
     return out
+
+
+@njit(**_JIT)
+def surface_flux(elements, phi, normals, weights, u):
+    """∫ u·n dS of the nodal field u (N_p, 3) interpolated quadratically: Σ over the
+    rule points (normals (N_e, q, 3), weights (N_e, q)) in one pass over the elements."""
+    total = 0.0
+    for e in range(elements.shape[0]):
+        for q in range(phi.shape[0]):
+            ux = 0.0
+            uy = 0.0
+            uz = 0.0
+            for a in range(6):
+                node = elements[e, a]
+                f = phi[q, a]
+                ux += f * u[node, 0]
+                uy += f * u[node, 1]
+                uz += f * u[node, 2]
+            total += weights[e, q] * (ux * normals[e, q, 0] + uy * normals[e, q, 1] + uz * normals[e, q, 2])
+    return total
+
+
+@njit(**_JIT)
+def point_strengths(phi, density, weights):
+    """The density at the rule points (N_e, q, 3) from its element-nodal values
+    (N_e, 6, 3), and the Stokeslet strengths, density × weight, as (N_e·q, 3): one pass."""
+    ne = density.shape[0]
+    nq = phi.shape[0]
+    points = np.empty((ne, nq, 3))
+    strengths = np.empty((ne * nq, 3))
+    for e in range(ne):
+        for q in range(nq):
+            fx = 0.0
+            fy = 0.0
+            fz = 0.0
+            for a in range(6):
+                f = phi[q, a]
+                fx += f * density[e, a, 0]
+                fy += f * density[e, a, 1]
+                fz += f * density[e, a, 2]
+            points[e, q, 0] = fx
+            points[e, q, 1] = fy
+            points[e, q, 2] = fz
+            w = weights[e, q]
+            k = e * nq + q
+            strengths[k, 0] = fx * w
+            strengths[k, 1] = fy * w
+            strengths[k, 2] = fz * w
+    return points, strengths
 
 
 @njit(**_JIT)
@@ -608,11 +663,14 @@ def assemble_mass_matrix(elements, csr_slot, phi, weights, nnz):
     nq = phi.shape[0]
     for e in range(ne):
         for k in range(6):
-            for l in range(6):
+            # the element matrix is symmetric: each pair once (the same products, the same bits)
+            for l in range(k, 6):
                 s = 0.0
                 for q in range(nq):
                     s += phi[q, k] * phi[q, l] * weights[e, q]
                 data[csr_slot[e, k, l]] += s
+                if l != k:
+                    data[csr_slot[e, l, k]] += s
     return data
 
 
@@ -690,6 +748,136 @@ def block_cg(indptr, indices, data, rhs, x0, tol, max_iter):
                 pvec[i, c] = z[i, c] + beta * pvec[i, c]
         it += 1
     return x, it
+
+
+@njit(**_JIT)
+def _factor_solve(r, z, w, l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r, perm_c):
+    """z = A0⁻¹ r for Pr A0 Pc = L U (scipy's splu): the strictly lower part of the unit
+    lower L and the strictly upper part of U in CSR, U's inverse diagonal, both
+    permutations; w is workspace. Vectors of length n."""
+    n = r.shape[0]
+    for i in range(n):
+        w[perm_r[i]] = r[i]
+    for i in range(n):
+        s = w[i]
+        for p in range(l_indptr[i], l_indptr[i + 1]):
+            s -= l_data[p] * w[l_indices[p]]
+        w[i] = s
+    for i in range(n - 1, -1, -1):
+        s = w[i]
+        for p in range(u_indptr[i], u_indptr[i + 1]):
+            s -= u_data[p] * w[u_indices[p]]
+        w[i] = s * u_dinv[i]
+    for i in range(n):
+        z[i] = w[perm_c[i]]
+
+
+@njit(**_JIT)
+def _csr_matvec(indptr, indices, data, v, out):
+    for i in range(out.shape[0]):
+        s = 0.0
+        for p in range(indptr[i], indptr[i + 1]):
+            s += data[p] * v[indices[p]]
+        out[i] = s
+
+
+@njit(**_JIT)
+def reduced_mass_data(data, slot, slot_sign, nnz):
+    """Values of the reduced mass matrix K = Eᵀ (M ⊗ I₃) E from those of M (CSR): entry p
+    of M goes, for each component c with slot[p, c] ≥ 0, to slot[p, c] with its sign."""
+    out = np.zeros(nnz)
+    for p in range(slot.shape[0]):
+        for c in range(3):
+            k = slot[p, c]
+            if k >= 0:
+                out[k] += slot_sign[p, c] * data[p]
+    return out
+
+
+@njit(**_JIT)
+def asymmetry(x, col, sign, target_node):
+    """max over nodes and components of |x[j, c] − sign[j, c]·x[its target, c]| (|x[j, c]|
+    where the symmetry forces it to zero): 0 for a configuration with the symmetry."""
+    worst = 0.0
+    for j in range(x.shape[0]):
+        for c in range(3):
+            u = col[j, c]
+            if u >= 0:
+                d = abs(x[j, c] - sign[j, c] * x[target_node[u], c])
+            else:
+                d = abs(x[j, c])
+            worst = max(worst, d)
+    return worst
+
+
+@njit(**_JIT)
+def solve_reduced_mass(indptr, indices, data, rhs, last, col, sign, target_node, target_comp, inv_mult, tol,
+                       max_iter, l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r, perm_c):
+    """Δf (N, 3) with M Δf = rhs for an equivariant rhs, solved as K y = Eᵀ rhs with
+    Δf = E y (E: the unknown y[col[j, c]] of node j, component c, times sign[j, c]; 0
+    where col is −1), K = Eᵀ (M ⊗ I₃) E in CSR (indptr, indices, data). Conjugate
+    gradients from y = the targets' values of ``last``, preconditioned by the exact
+    factorisation of a nearby K (``_factor_solve``): with K itself the first iteration
+    solves, and as K drifts each iteration gains about −log10 ‖K0⁻¹K − I‖ digits.
+    Stops when max|r| ≤ tol·max|rhs| over the nodes (Eᵀ sums an orbit: its row u
+    is the node's value times the orbit's size, 1/inv_mult[u]). Returns (Δf, iterations)."""
+    n = target_node.shape[0]
+    b = np.zeros(n)
+    for j in range(col.shape[0]):
+        for c in range(3):
+            u = col[j, c]
+            if u >= 0:
+                b[u] += sign[j, c] * rhs[j, c]
+    y = np.empty(n)
+    for u in range(n):
+        y[u] = last[target_node[u], target_comp[u]]
+    Ap = np.empty(n)
+    _csr_matvec(indptr, indices, data, y, Ap)
+    r = b - Ap
+    bmax = 0.0
+    rmax = 0.0
+    for u in range(n):
+        bmax = max(bmax, abs(b[u]) * inv_mult[u])
+        rmax = max(rmax, abs(r[u]) * inv_mult[u])
+    thresh = tol * (bmax + 1e-300)
+    it = 0
+    if rmax > thresh:
+        w = np.empty(n)
+        z = np.empty(n)
+        _factor_solve(r, z, w, l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r, perm_c)
+        pvec = z.copy()
+        rz = 0.0
+        for u in range(n):
+            rz += r[u] * z[u]
+        while it < max_iter:
+            _csr_matvec(indptr, indices, data, pvec, Ap)
+            pAp = 0.0
+            for u in range(n):
+                pAp += pvec[u] * Ap[u]
+            alpha = rz / pAp if pAp != 0.0 else 0.0
+            rmax = 0.0
+            for u in range(n):
+                y[u] += alpha * pvec[u]
+                r[u] -= alpha * Ap[u]
+                rmax = max(rmax, abs(r[u]) * inv_mult[u])
+            it += 1
+            if rmax <= thresh:
+                break
+            _factor_solve(r, z, w, l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r, perm_c)
+            rz_new = 0.0
+            for u in range(n):
+                rz_new += r[u] * z[u]
+            beta = rz_new / rz if rz != 0.0 else 0.0
+            rz = rz_new
+            for u in range(n):
+                pvec[u] = z[u] + beta * pvec[u]
+    out = np.zeros(rhs.shape)
+    for j in range(col.shape[0]):
+        for c in range(3):
+            u = col[j, c]
+            if u >= 0:
+                out[j, c] = sign[j, c] * y[u]
+    return out, it
 
 
 # ---------------------------------------------------------------- double layer
@@ -789,6 +977,30 @@ def nodal_unit_normals(x, elements, node_dxi, node_deta):
         acc[v, 1] *= s
         acc[v, 2] *= s
     return acc
+
+
+@njit(**_JIT)
+def target_unit_normals(x, elements, inc_offsets, inc_elem, inc_local, node_dxi, node_deta, targets):
+    """``nodal_unit_normals`` at the target nodes only (len(targets), 3), from the elements
+    holding each (in element order, as there: the same bits)."""
+    out = np.zeros((targets.shape[0], 3))
+    for i in range(targets.shape[0]):
+        p = targets[i]
+        sx = 0.0
+        sy = 0.0
+        sz = 0.0
+        for c in range(inc_offsets[p], inc_offsets[p + 1]):
+            ax, ay, az, bx, by, bz = _tangents(x, elements, inc_elem[c], node_dxi, node_deta, inc_local[c])
+            nx, ny, nz = _cross(ax, ay, az, bx, by, bz)
+            s = 1.0 / np.sqrt(nx * nx + ny * ny + nz * nz)
+            sx += nx * s
+            sy += ny * s
+            sz += nz * s
+        s = 1.0 / np.sqrt(sx ** 2 + sy ** 2 + sz ** 2)
+        out[i, 0] = sx * s
+        out[i, 1] = sy * s
+        out[i, 2] = sz * s
+    return out
 
 
 # ---------------------------------------------------------------- bending (hinges)

@@ -289,6 +289,114 @@ def hinge_angles(x: Array, hinges: Array) -> Array:
 TRACTION_METHODS = ("galerkin", "contour")
 
 
+# ---------------------------------------------------------------- the mass-matrix solve
+
+#: a configuration farther than this (relative to its size) from having the mesh's symmetry
+#: has its mass matrix solved in full: a run's positions have it to the bit (they are
+#: expanded from the targets), a finite-difference probe of size ε·|v| does not
+ASYMMETRY_TOL = 1e-13
+
+#: fill-reducing ordering of the reduced mass matrix's factorisation (scipy's splu): MMD on
+#: A + Aᵀ keeps the factor small (about 2.4× the nonzeros of the full matrix at level 3)
+MASS_ORDERING = "MMD_AT_PLUS_A"
+
+
+@dataclass(frozen=True)
+class ReducedMass:
+    """The mass-matrix solve M·Δf = b (three components) on the unknowns that the mesh's
+    symmetry leaves: y, one per (target node, component) that the symmetry does not force
+    to zero, with Δf = E y, Δf[j, c] = sign[j, c]·y[col[j, c]] (0 where col is −1).
+    For an equivariant b (the energy gradient at a symmetric configuration) the Galerkin
+    system K y = Eᵀ b, K = Eᵀ (M ⊗ I₃) E (SPD), has the solution of the full system, at
+    about a quarter of its size under quarter symmetry; without symmetry K is M three
+    times on the diagonal. Built once per discretisation: K's CSR pattern and, for
+    every entry p of M's pattern and component c, its slot in K (−1: none) and sign."""
+
+    col: Array
+    sign: Array
+    target_node: Array
+    target_comp: Array
+    inv_mult: Array
+    indptr: Array
+    indices: Array
+    slot: Array
+    slot_sign: Array
+
+    @property
+    def size(self) -> int:
+        return int(self.target_node.size)
+
+    @classmethod
+    def of(cls, disc) -> "ReducedMass":
+        n = disc.n_nodes
+        if disc.symmetry == "none":
+            targets, source = np.arange(n), np.arange(n)
+            signs, zero = np.ones((n, 3)), np.zeros((n, 3), dtype=bool)
+        else:
+            targets, source, signs, zero = disc.targets, disc._sym_source, disc._sym_signs, disc._sym_zero
+        free = ~zero[targets]  # (n_t, 3): the unknowns; a node's zero components are its target's
+        uid = np.full(free.shape, -1, dtype=np.int64)
+        uid[free] = np.arange(int(free.sum()))
+        col = uid[source]
+        col[zero] = -1
+        t_idx, comp = np.nonzero(free)  # row-major, the order of uid
+        n_red = t_idx.size
+        inv_mult = 1.0 / np.bincount(col[col >= 0], minlength=n_red)
+        rows = np.repeat(np.arange(n), np.diff(disc.mass_indptr))
+        cols = disc.mass_indices
+        u, v = col[rows], col[cols]  # (nnz, 3)
+        valid = (u >= 0) & (v >= 0)
+        keys = np.where(valid, u * n_red + v, -1)
+        uniq, inverse = np.unique(keys[valid], return_inverse=True)
+        slot = np.full(keys.shape, -1, dtype=np.int64)
+        slot[valid] = inverse
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(uniq // n_red, minlength=n_red))]).astype(np.int64)
+        slot_sign = signs[rows] * signs[cols]
+        return cls(
+            col=np.ascontiguousarray(col, dtype=np.int64), sign=np.ascontiguousarray(signs, dtype=np.float64),
+            target_node=targets[t_idx].astype(np.int64), target_comp=comp.astype(np.int64),
+            inv_mult=np.ascontiguousarray(inv_mult), indptr=indptr, indices=(uniq % n_red).astype(np.int64),
+            slot=slot, slot_sign=np.ascontiguousarray(slot_sign),
+        )
+
+    def data(self, mass_data: Array) -> Array:
+        """K's values from M's (``Discretization.mass_matrix_data``)."""
+        return kernels.reduced_mass_data(mass_data, self.slot, self.slot_sign, int(self.indices.size))
+
+    def assemble(self, disc, geo) -> Array:
+        """K's values at a configuration (its geometry). Through M: a scatter straight from
+        the elements to K's slots (N_e × 36 × 3 of them) measured 1.4× slower."""
+        return self.data(disc.mass_matrix_data(geo))
+
+
+@dataclass(frozen=True)
+class MassFactor:
+    """The exact factorisation of the reduced mass matrix K at one configuration, as the
+    arrays ``kernels.solve_reduced_mass`` takes: Pr K Pc = L U with L's strictly lower
+    part and U's strictly upper part in CSR, U's inverse diagonal and the permutations.
+    K is SPD and factored without pivoting (scipy's symmetric mode), so the
+    preconditioner it gives is SPD too."""
+
+    arrays: tuple
+
+    @classmethod
+    def of(cls, reduced: ReducedMass, data: Array) -> "MassFactor":
+        import scipy.sparse as sp
+        from scipy.sparse.linalg import splu
+
+        n = reduced.size
+        k = sp.csc_matrix(sp.csr_matrix((data, reduced.indices, reduced.indptr), shape=(n, n)))
+        lu = splu(k, permc_spec=MASS_ORDERING, diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+        lower = sp.tril(lu.L, k=-1, format="csr")
+        upper = sp.triu(lu.U, k=1, format="csr")
+
+        def csr(a):
+            return (a.indptr.astype(np.int64), a.indices.astype(np.int64), np.ascontiguousarray(a.data))
+
+        return cls((*csr(lower), *csr(upper), np.ascontiguousarray(1.0 / lu.U.diagonal()),
+                    lu.perm_r.astype(np.int64), lu.perm_c.astype(np.int64)))
+
+
 @dataclass
 class MembraneState:
     """Everything the membrane step produced at one configuration.
@@ -329,8 +437,11 @@ class MembraneForce:
     galerkin: Δf is the quadratic field whose moments against every basis
     function equal the energy gradient, M·Δf = ∂E/∂x with E = ∫ W dA_0 (+ the
     hinge bending energy; principle of virtual work; every node, mid-edge nodes
-    included, is elastically restrained). The block-CG solve of M·Δf = ∂E/∂x
-    starts from the previous Δf (warm start, part of ``state()``).
+    included, is elastically restrained). M·Δf = ∂E/∂x is solved on the unknowns
+    the mesh's symmetry leaves (``ReducedMass``) by conjugate gradients from the
+    previous Δf, preconditioned by a factorisation kept while it serves; the
+    previous Δf and where the factorisation was made are the warm start, part of
+    ``state()``.
     contour: the seed's element average (3.6), −(1/S_e)∮ T·b dl from vertex
     tensions, used element-constant (3.7).
 
@@ -350,6 +461,7 @@ class MembraneForce:
         traction_method: str = "galerkin",
         mass_tol: float = 1e-8,
         mass_max_iter: int = 500,
+        mass_refactor_iterations: int = 4,
     ):
         if traction_method not in TRACTION_METHODS:
             raise ValueError(f"unknown traction method {traction_method!r} (allowed: {TRACTION_METHODS})")
@@ -365,21 +477,97 @@ class MembraneForce:
         self.traction_method = traction_method
         self.mass_tol = mass_tol
         self.mass_max_iter = mass_max_iter
+        # the mass solve is preconditioned by the factorisation of the mass matrix at
+        # _mass_factor_x (kept while it serves: refactored where a solve needed more than
+        # mass_refactor_iterations iterations); the pattern never changes, the values slowly
+        self.mass_refactor_iterations = int(mass_refactor_iterations)
+        self._mass_factor: MassFactor | None = None
+        self._reduced_mass: tuple[str, ReducedMass] | None = None  # (the symmetry it is for, the tables)
+        self._mass_factor_x: Array | None = None
+        self.mass_factorizations = 0
         self.stage_times = {"geometry": 0.0, "membrane": 0.0}
         self.evaluations = 0
+        self.last_mass_iterations = 0  # iterations of the last mass-matrix solve
         self._last_traction: Array | None = None
 
     def state(self) -> dict[str, Array | None]:
-        """Warm-start memory (the last Δf of the mass-matrix solve) and the counter."""
+        """Warm-start memory (the last Δf of the mass-matrix solve and where the mass
+        matrix was factored: together they make the next solve bit for bit) and the counter."""
         return {
             "traction": None if self._last_traction is None else self._last_traction.copy(),
+            "factor_x": None if self._mass_factor_x is None else self._mass_factor_x.copy(),
             "evaluations": np.array(self.evaluations, dtype=np.int64),
         }
 
     def restore(self, state: dict) -> None:
         t = state.get("traction")
         self._last_traction = None if t is None else np.array(t, dtype=np.float64, copy=True)
+        fx = state.get("factor_x")
+        fx = None if fx is None else np.array(fx, dtype=np.float64, copy=True)
+        if fx is None or self._mass_factor_x is None or not np.array_equal(fx, self._mass_factor_x):
+            self._mass_factor = None  # refactored at fx (or at the next configuration) on first use
+        self._mass_factor_x = fx
         self.evaluations = int(state.get("evaluations", 0))
+
+    def _reduced(self) -> ReducedMass:
+        if self._reduced_mass is None or self._reduced_mass[0] != self.disc.symmetry:
+            self._reduced_mass = (self.disc.symmetry, ReducedMass.of(self.disc))
+        return self._reduced_mass[1]
+
+    def _factor(self, x: Array, data: Array) -> MassFactor:
+        """The factorisation in use: the kept one, else that at _mass_factor_x (a restored
+        state), else that at x (data: the reduced mass matrix at x)."""
+        if self._mass_factor is None:
+            reduced = self._reduced()
+            if self._mass_factor_x is None:
+                self._mass_factor_x = np.array(x, copy=True)
+            else:
+                data = reduced.assemble(self.disc, self.disc.geometry(self._mass_factor_x))
+            self._mass_factor = MassFactor.of(reduced, data)
+            self.mass_factorizations += 1
+        return self._mass_factor
+
+    def solve_mass(self, x: Array, mass_data: Array, rhs: Array) -> tuple[Array, int]:
+        """Δf with M·Δf = rhs (M the mass matrix at x, in the CSR values ``mass_data``) on
+        the unknowns the symmetry leaves (``ReducedMass``), by conjugate gradients from
+        the last Δf, preconditioned by the kept factorisation; one that no longer serves
+        (more than mass_refactor_iterations iterations) is replaced by the factorisation
+        at x for the next solve. A configuration without the symmetry is solved in full."""
+        if not self._symmetric(x):
+            return self._solve_full(mass_data, rhs)
+        return self._solve_reduced(x, self._reduced().data(mass_data), rhs)
+
+    def _symmetric(self, x: Array) -> bool:
+        reduced = self._reduced()
+        return kernels.asymmetry(x, reduced.col, reduced.sign, reduced.target_node) <= ASYMMETRY_TOL * np.abs(x).max()
+
+    def _solve_full(self, mass_data: Array, rhs: Array) -> tuple[Array, int]:
+        # a configuration without the mesh's symmetry (a finite-difference probe of a
+        # Jacobian): the right-hand side is not equivariant and the reduced system would
+        # drop its other part; the full system by Jacobi-preconditioned CG, the kept
+        # factorisation untouched
+        disc = self.disc
+        guess = self._last_traction if self._last_traction is not None else np.zeros_like(rhs)
+        traction, iterations = kernels.block_cg(
+            disc.mass_indptr, disc.mass_indices, mass_data, rhs, guess, self.mass_tol, self.mass_max_iter)
+        self._last_traction = traction
+        return traction, int(iterations)
+
+    def _solve_reduced(self, x: Array, data: Array, rhs: Array) -> tuple[Array, int]:
+        """The reduced solve with K's values ``data`` at x (see solve_mass)."""
+        reduced = self._reduced()
+        guess = self._last_traction if self._last_traction is not None else np.zeros_like(rhs)
+        factor = self._factor(x, data)
+        traction, iterations = kernels.solve_reduced_mass(
+            reduced.indptr, reduced.indices, data, rhs, guess, reduced.col, reduced.sign, reduced.target_node,
+            reduced.target_comp, reduced.inv_mult, self.mass_tol, self.mass_max_iter, *factor.arrays,
+        )
+        if iterations > self.mass_refactor_iterations:
+            self._mass_factor = MassFactor.of(reduced, data)
+            self._mass_factor_x = np.array(x, copy=True)
+            self.mass_factorizations += 1
+        self._last_traction = traction
+        return traction, int(iterations)
 
     def _vertex_state(self, x: Array) -> tuple[VertexStrain, Array]:
         disc = self.disc
@@ -424,24 +612,34 @@ class MembraneForce:
     def __call__(self, x: Array) -> MembraneState:
         """Tensions and the traction jump Δf at configuration x."""
         self.evaluations += 1
+        clock = self.disc.clock
+        clock.start()
         t0 = time.perf_counter()
         disc = self.disc
         geo = disc.geometry(x)
         t1 = time.perf_counter()
         self.stage_times["geometry"] += t1 - t0
+        clock.lap("geometry")
         vertex_state = lambda: self._vertex_state(x)  # noqa: E731
         if self.traction_method == "contour":
             state = MembraneState(np.empty(0), geo, np.empty(0), vertex_state)
             state.traction = state.density = self.element_traction(x, geo, state.tension)
             self.stage_times["membrane"] += time.perf_counter() - t1
+            clock.lap("contour_traction")
             return state
         rhs = self._energy_gradient(x)
-        data = disc.mass_matrix_data(geo)
-        guess = self._last_traction if self._last_traction is not None else np.zeros_like(rhs)
-        traction, iterations = kernels.block_cg(
-            disc.mass_indptr, disc.mass_indices, data, rhs, guess, self.mass_tol, self.mass_max_iter,
-        )
-        self._last_traction = traction
-        density = np.ascontiguousarray(traction[disc.elements])
+        clock.lap("strain")
+        if self._symmetric(x):
+            data = self._reduced().assemble(disc, geo)
+            clock.lap("mass_assembly")
+            traction, iterations = self._solve_reduced(x, data, rhs)
+        else:
+            data = disc.mass_matrix_data(geo)
+            clock.lap("mass_assembly")
+            traction, iterations = self._solve_full(data, rhs)
+        self.last_mass_iterations = iterations
+        clock.lap("mass_solve")
+        density = kernels.gather_nodal(traction, disc.elements)
         self.stage_times["membrane"] += time.perf_counter() - t1
+        clock.lap("gather")
         return MembraneState(traction, geo, density, vertex_state, iterations)

@@ -28,6 +28,7 @@ from capsim.krylov import gmres
 from capsim.membrane import TRACTION_METHODS, MembraneForce, MembraneState, get_law  # noqa: F401 (re-exported)
 from capsim.mesh import node_element_incidence, rest_shape_mesh
 from capsim.quadrature import NODE_XI, NODE_ETA, gauss_legendre_01, singular_rules, subdivided_rule, triangle_rule
+from capsim.stageclock import StageClock
 from capsim.viscosity import build as build_viscous
 
 if TYPE_CHECKING:
@@ -185,6 +186,8 @@ class Discretization:
         self.fine_phi, self.fine_dxi, self.fine_deta = (np.ascontiguousarray(a) for a in (fphi, fdxi, fdeta))
         self.fine_w = np.ascontiguousarray(fw)
         self._near: tuple | None = None  # (geometry, offsets, elements) of the last configuration
+        # the per-stage split of an evaluation, shared with the membrane force (capsim bench)
+        self.clock = StageClock()
 
     def enable_symmetry(self, positions: np.ndarray, rotation: bool = True, mode: str | None = None) -> np.ndarray | None:
         """Use the symmetries of the problem: the mirror z → −z, the rotation by π
@@ -270,39 +273,52 @@ class Discretization:
         density: (N_e, 3) element-constant (seed 3.7) or (N_e, 6, 3) element
         nodal values interpolated quadratically.
         """
+        clock = self.clock
+        clock.start()
         if density.ndim == 2:
             nodal = np.repeat(density[:, None, :], 6, axis=1)
             point_density = np.repeat(density[:, None, :], geo.weights.shape[1], axis=1)
+            strengths = (point_density * geo.weights[..., None]).reshape(-1, 3)
         else:
-            nodal = density
-            point_density = interpolate(self.reg_phi, density)
+            nodal = np.ascontiguousarray(density)
+            point_density, strengths = kernels.point_strengths(self.reg_phi, nodal, geo.weights)
         nodal, point_density = np.ascontiguousarray(nodal), np.ascontiguousarray(point_density)
-        strengths = (point_density * geo.weights[..., None]).reshape(-1, 3)
+        clock.lap("interpolation")
         u = kernels.stokeslet_sum(x[self.targets], geo.points.reshape(-1, 3), strengths)
+        clock.lap("stokeslet_sum")
         u += kernels.single_layer_singular_correction(
             x, self.elements, self.inc_offsets, self.inc_elem, self.inc_local,
             nodal, geo.points, geo.weights, point_density,
             self.sing_phi, self.sing_dxi, self.sing_deta, self.sing_w, self.targets,
         )
+        clock.lap("singular_correction")
         near = self.near_pairs(x, geo)
         if near is not None:
             u += kernels.single_layer_near_correction(
                 x, self.elements, nodal, geo.points, geo.weights, point_density,
                 self.fine_phi, self.fine_dxi, self.fine_deta, self.fine_w, self.targets, near[0], near[1],
             )
-        return self.expand(u)
+            clock.lap("near_correction")
+        u = self.expand(u)
+        clock.lap("expand")
+        return u
 
 
     def nodal_normals(self, x: np.ndarray) -> np.ndarray:
         """Unit normals at all nodes: mean of the element normals at each node
         (symmetric to the bit when a symmetry is in use)."""
-        n = kernels.nodal_unit_normals(np.ascontiguousarray(x), self.elements, self.node_dxi, self.node_deta)
-        return n if self.symmetry == "none" else self.expand(n[self.targets])
+        x = np.ascontiguousarray(x)
+        if self.symmetry == "none":
+            return kernels.nodal_unit_normals(x, self.elements, self.node_dxi, self.node_deta)
+        # at the targets only, from the elements holding them
+        return self.expand(kernels.target_unit_normals(
+            x, self.elements, self.inc_offsets, self.inc_elem, self.inc_local, self.node_dxi, self.node_deta,
+            self.targets))
 
     def flux(self, geo: ElementGeometry, u: np.ndarray) -> float:
         """∫ u·n dS of a nodal field u interpolated quadratically over the elements."""
-        n_q = geo.normals * geo.weights[..., None]
-        return float((interpolate(self.reg_phi, u[self.elements]) * n_q).sum())
+        return float(kernels.surface_flux(self.elements, self.reg_phi, geo.normals, geo.weights,
+                                          np.ascontiguousarray(u, dtype=np.float64)))
 
     def double_layer(self, x: np.ndarray, geo: ElementGeometry, u: np.ndarray, u_target: np.ndarray | None = None) -> np.ndarray:
         """D[u](x0) = ∫ (u − u0)·T·n dS at every node, u quadratic over elements.
@@ -461,6 +477,15 @@ class CapsuleModel:
         for times in (self.membrane.stage_times, self.solver_times):
             for k in times:
                 times[k] = 0.0
+        self.disc.clock.reset()
+
+    @property
+    def split_times(self) -> dict:
+        """Seconds per fine stage since the last reset (``capsim.stageclock``): geometry,
+        strain, mass_assembly, mass_solve, gather, interpolation, stokeslet_sum,
+        singular_correction, expand, far_field, normals, volume_correction, and where
+        they run near_correction, double_layer_solve, viscous_solve, contour_traction."""
+        return dict(self.disc.clock.times)
 
     # ---- checkpoints
     def state(self) -> dict[str, np.ndarray | None]:
@@ -471,6 +496,7 @@ class CapsuleModel:
 
         out: dict[str, np.ndarray | None] = {
             "warm_traction": copy(self.membrane._last_traction),
+            "warm_mass_factor_x": copy(self.membrane._mass_factor_x),
             "warm_velocity": copy(self._last_velocity),
             "warm_rhs": copy(self._last_rhs),
             "membrane_evaluations": np.array(self.membrane.evaluations, dtype=np.int64),
@@ -485,7 +511,8 @@ class CapsuleModel:
 
     def restore(self, state: dict) -> None:
         """Undo to a ``state()``: missing warm starts are cleared, missing counters 0."""
-        known = {"warm_traction", "warm_velocity", "warm_rhs", "membrane_evaluations", *COUNTERS}
+        known = {"warm_traction", "warm_mass_factor_x", "warm_velocity", "warm_rhs", "membrane_evaluations",
+                 *COUNTERS}
         if self.viscous is not None:
             known |= {"viscous_iterations", "warm_viscous_factor_x"}
         if self.flow_stop_time is not None:
@@ -498,7 +525,8 @@ class CapsuleModel:
             a = state.get(key)
             return None if a is None else np.array(a, dtype=np.float64, copy=True)
 
-        self.membrane.restore({"traction": copy("warm_traction"), "evaluations": state.get("membrane_evaluations", 0)})
+        self.membrane.restore({"traction": copy("warm_traction"), "factor_x": copy("warm_mass_factor_x"),
+                               "evaluations": state.get("membrane_evaluations", 0)})
         self._last_velocity = copy("warm_velocity")
         self._last_rhs = copy("warm_rhs")
         self.counts = {k: int(state.get(k, 0)) for k in COUNTERS}
@@ -540,12 +568,16 @@ class CapsuleModel:
         self.counts["single_layer_applications"] += 1
         t1 = time.perf_counter()
         self.solver_times["single_layer"] += t1 - t0
+        clock = self.disc.clock
         u_explicit = self.far_field(x) - sl / (8.0 * np.pi * self.shear_rate_G)
+        clock.lap("far_field")
         needs_normals = lam != 1.0 or self.volume_correction
         normals = self.disc.nodal_normals(x) if needs_normals else None
+        clock.lap("normals")
         if self.viscous is not None:
             u = self.viscous.solve(self, x, state.geometry, u_explicit, normals)
             self.solver_times["solve"] += time.perf_counter() - t1
+            clock.lap("viscous_solve")
             info = self.last_solve_info
             if not info["residual"] <= 10.0 * self.solver_tol:
                 raise SolverDivergence(
@@ -562,6 +594,7 @@ class CapsuleModel:
                 # keep the solution, and so the positions, exactly symmetric
                 u = self.disc.expand(u[self.disc.targets])
             self.solver_times["solve"] += time.perf_counter() - t1
+            clock.lap("double_layer_solve")
         if self.volume_correction:
             # The exact velocity conserves volume; the discretised single layer
             # does so only to its quadrature error, which a stiff membrane
@@ -569,6 +602,7 @@ class CapsuleModel:
             # excess area and deforms without stretching: remove the net flux
             # with a uniform normal velocity.
             u = self.remove_net_flux(state.geometry, u, normals)
+            clock.lap("volume_correction")
         return u
 
     def remove_net_flux(self, geo: ElementGeometry, u: np.ndarray, normals: np.ndarray,
@@ -653,7 +687,8 @@ class SolverDivergence(RuntimeError):
     """The λ ≠ 1 velocity solve missed its tolerance."""
 
 
-def build_model(case: Case, rest_positions: np.ndarray | None = None) -> tuple[CapsuleModel, np.ndarray]:
+def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
+                symmetry: str | None = None) -> tuple[CapsuleModel, np.ndarray]:
     """The complete right-hand side of a case; returns (model, rest positions).
 
     The mesh of the rest shape, its discretisation with the symmetries it has
@@ -661,7 +696,12 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None) -> tuple[C
     simple shear and every tilted rest shape share; the positions are made
     exactly symmetric), the membrane force and the flow. ``rest_positions``
     replaces the rebuilt rest shape (a stored one, e.g. for an export; same mesh).
+    ``symmetry`` (a key of SYMMETRY_CANDIDATES) replaces mesh.symmetry: "mirror_z",
+    the mirror alone, is no case setting but the benchmark measures it.
     """
+    mode = case.mesh.symmetry if symmetry is None else symmetry
+    if mode not in SYMMETRY_CANDIDATES:
+        raise ValueError(f"symmetry = {mode!r}: must be one of {', '.join(SYMMETRY_CANDIDATES)}")
     mesh = rest_shape_mesh(
         case.shape.kind, case.mesh.base, case.mesh.level, case.initial_tilt_deg, axis=case.initial_axis,
         aspect_ratio=case.shape.aspect_ratio, c0=case.shape.c0, c2=case.shape.c2, c4=case.shape.c4,
@@ -674,12 +714,12 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None) -> tuple[C
         near_field_levels=case.quadrature.near_field_levels,
     )
     positions = mesh.positions
-    if case.mesh.symmetry != "none":
-        symmetric = disc.enable_symmetry(positions, mode=case.mesh.symmetry)
+    if mode != "none":
+        symmetric = disc.enable_symmetry(positions, mode=mode)
         if symmetric is not None:
             positions = symmetric
-        elif case.mesh.symmetry != "auto":
-            raise ValueError(f"mesh.symmetry = {case.mesh.symmetry}: the mesh of this rest shape does not have it")
+        elif mode != "auto":
+            raise ValueError(f"mesh.symmetry = {mode}: the mesh of this rest shape does not have it")
     rest = positions if rest_positions is None else np.asarray(rest_positions, dtype=np.float64)
     if rest.shape != positions.shape:
         raise ValueError(f"rest positions of shape {rest.shape} for a mesh of {positions.shape[0]} nodes")
