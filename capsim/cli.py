@@ -221,7 +221,14 @@ def warm_up(
     case_paths: Optional[list[Path]] = typer.Argument(None, metavar="[CASE.yaml]...", help="case files"),
 ) -> None:
     """Compile the numba kernels these cases use (default: the default case's) into numba's cache,
-    so that their first run computes at once (make venv does this for the demo)."""
+    so that their first run computes at once (make venv does this for the demo).
+
+    Examples:
+
+    capsim warm-up configs/sphere.yaml
+
+    capsim warm-up configs/rbc.yaml configs/rbc-viscous.yaml
+    """
     from capsim import api
 
     cases = [_load(path) for path in case_paths or []]

@@ -74,7 +74,7 @@ EXPECTED = {
     "campaign_missing_output.yaml": "output: required field is missing",
     "campaign_unknown_sweep_field.yaml": "'flow.shear_rate' is not a case field (flow has: shear_rate_G",
     "campaign_negative_G.yaml": "flow.shear_rate_G = -0.2: must be > 0",
-    "campaign_sweep_not_list.yaml": "sweep.flow.shear_rate_G: Input should be a valid list",
+    "campaign_sweep_not_list.yaml": "sweep.flow.shear_rate_G = 0.1: input should be a valid list",
     "campaign_zip_unequal.yaml": "zip lists must have equal lengths",
     "campaign_base_nan.yaml": "base: flow.viscosity_ratio = nan: must be a finite number",
     "campaign_sweep_section.yaml": "'flow' is a section; sweep one of its fields",
