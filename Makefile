@@ -4,7 +4,7 @@ BIN    := $(VENV)/bin
 # Reinstall only when the package metadata changes.
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv test test-all docs demo bench bench-threads bench-stepping cf-tools
+.PHONY: venv test test-all docs demo bench bench-threads bench-stepping bench-promise cf-tools
 
 venv: $(STAMP)
 
@@ -57,3 +57,8 @@ bench-threads: venv
 # writes benchmarks/time_schemes.md and benchmarks/time_schemes.json
 bench-stepping: venv
 	$(BIN)/python benchmarks/stepping.py $(CASES)
+
+# time.rtol's promise: every scheme x case x rtol 1e-2..1e-5, error / rtol against a reference at
+# 1e-7 (about 25 min on 2 shared cores; CASES=a c to run some): writes benchmarks/rtol_promise.md and .json
+bench-promise: venv
+	$(BIN)/python benchmarks/stepping.py --promise $(CASES)
