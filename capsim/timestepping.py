@@ -34,7 +34,10 @@ Schemes:
            number of stages of a step follows from h·ρ, ρ an estimate of the
            spectral radius of ∂u/∂x from a nonlinear power iteration with
            finite-difference Jacobian–vector products (as in the RKC code).
-           The step size comes from the error estimate alone.
+           The step size comes from the error estimate alone, controlled per
+           unit step (UNIT_STEP: accepted when est ≤ rtol · max(1, |y|∞) · h/1),
+           so that its error is proportional to rtol like the others'
+           (docs/time_stepping.md, "One promise for time.rtol").
 """
 
 from __future__ import annotations
