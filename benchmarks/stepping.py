@@ -289,7 +289,8 @@ def promise_case(key: str, tmp: Path) -> dict:
     print(f"({key}) {label}: reference {_line(row['reference'])}", flush=True)
     for scheme in FIXED:
         if scheme not in runnable:
-            row[scheme] = {f"{x:g}": {"not_run": f"{scheme} would take too long here"} for x in PROMISE_RTOLS}
+            row[scheme] = {f"{x:g}": {"not_run": "its stability limit: ~1e5 steps a unit of kt"}
+                           for x in PROMISE_RTOLS}
             continue
         if not _applies(key, scheme):
             continue
@@ -324,11 +325,12 @@ def _ratio(entry: dict) -> str:
 
 def promise_markdown(rows: list[dict]) -> str:
     cols = " | ".join(f"rtol {r:g}" for r in PROMISE_RTOLS)
-    lines = [f"max over t of |D_xy − D_ref| / rtol and |θ − θ_ref| / rtol (rad), as \"D / θ\"; reference: "
-             f"the case's reference scheme at rtol {PROMISE_REFERENCE_RTOL:g} on the same mesh; the cases are "
-             "those of the equal-accuracy table made cheaper where said.", "",
+    lines = [f"max over t of |D_xy − D_ref| / rtol and |θ − θ_ref| / rtol (rad; where D_xy > 1e-3, modulo π), "
+             f"as \"D / θ\"; reference: rkf23 at rtol {PROMISE_REFERENCE_RTOL:g} on the same mesh (rkc for (i), "
+             "whose rkc row therefore shows rkc against itself); the cases are those of the equal-accuracy "
+             "table made cheaper where said.", "",
              f"| case | scheme | {cols} |", "|---|---|" + "---|" * len(PROMISE_RTOLS)]
-    worst: dict[str, list[float]] = {}
+    worst: dict[str, list[float]] = {}  # max D, max θ over every case; the same without (e)
     for r in rows:
         for scheme in FIXED:
             if scheme not in r:
@@ -337,11 +339,15 @@ def promise_markdown(rows: list[dict]) -> str:
             lines.append(f"| ({r['case']}) {r['label']} | {scheme} | " + " | ".join(cells) + " |")
             for e in r[scheme].values():
                 if "not_run" not in e:
-                    w = worst.setdefault(scheme, [0.0, 0.0])
+                    w = worst.setdefault(scheme, [0.0] * 4)
                     w[0], w[1] = max(w[0], e["D_xy_ratio"]), max(w[1], e["theta_ratio"])
-    lines += ["", "The largest ratio of each scheme over every case and rtol (c and c_θ of the promise):", "",
-              "| scheme | max D error / rtol | max θ error / rtol |", "|---|---|---|"]
-    lines += [f"| {s} | {w[0]:.2g} | {w[1]:.2g} |" for s, w in worst.items()]
+                    if r["case"] != "e":  # the tumbling case, whose θ is a phase
+                        w[2], w[3] = max(w[2], e["D_xy_ratio"]), max(w[3], e["theta_ratio"])
+    lines += ["", "The largest ratio of each scheme over every case and rtol (c and c_θ of the promise), and "
+              "without the tumbling case (e):", "",
+              "| scheme | max D error / rtol | max θ error / rtol | without (e): D | without (e): θ |",
+              "|---|---|---|---|---|"]
+    lines += [f"| {s} | {w[0]:.2g} | {w[1]:.2g} | {w[2]:.2g} | {w[3]:.2g} |" for s, w in worst.items()]
     return "\n".join(lines) + "\n"
 
 
