@@ -817,16 +817,20 @@ class Automatic(Integrator):
     against rkc's accuracy-limited step h_acc ≈ H_ACC (rtol / 1e-3)^(1/2) (its error is
     controlled per unit step), which cases (a), (c), (g) of benchmarks/stepping.py reach
     after their transient (median step of their second half at rtol 1e-2, 1e-3, 1e-4:
-    0.16-0.24, 0.07-0.13, 0.02-0.05). rkc needs
-    s ≈ (ρ h_acc / 0.65)^(1/2) stages a step (its stability interval grows like
-    0.65 s²); measured per layer application (benchmarks/time_schemes.md):
+    0.16-0.24, 0.07-0.13, 0.02-0.05). rkc needs s ≈ (ρ h / 0.65)^(1/2) stages a step of
+    size h (its stability interval grows like 0.65 s²); measured per layer application
+    (benchmarks/time_schemes.md, benchmarks/rtol_promise.md):
 
-    - s ≤ RKF23_STAGES: not stiff; rkf23 (its three evaluations a step are all accuracy);
-    - s up to LINEARLY_IMPLICIT_STAGES: rkc, 1.4-7.6x fewer layer applications than
-      rkf23 in cases (a)-(d), (f), (h), and fewer than the linearly implicit scheme at
-      13 stages a step (case (c));
-    - more (cases (g): 34 stages, (i): 36): linearly_implicit, 2-12x fewer layer
-      applications than rkc there, with the dense preconditioner where the mesh takes it;
+    - s(h_acc) ≤ RKF23_STAGES: not stiff; rkf23 (its three evaluations a step are all
+      accuracy);
+    - s(H_ACC) > LINEARLY_IMPLICIT_STAGES: linearly_implicit, with the dense preconditioner
+      where the mesh takes it (cases (g): 37 stages at H_ACC, (i): 186; 2-47x fewer layer
+      applications than rkc there). Taken at H_ACC whatever the rtol: rkc's cost goes like
+      (ρ/h_acc)^(1/2) ∝ rtol^(-1/4) and the linearly implicit scheme's like its step's
+      inverse ∝ rtol^(-1/3), so their ratio hardly moves with rtol (measured on (g): li/dense
+      / rkc 0.35, 0.36, 0.35, 0.31 at rtol 1e-2 ... 1e-5), while s(h_acc) does;
+    - else rkc (cases (a)-(d), (f), (h): 3-16 stages at H_ACC; on (c), 16, rkc is 2x
+      cheaper than li/dense at equal accuracy);
     - λ ≥ TUMBLING_LAMBDA (a capsule that may tumble, case (e)): rkc missed the accuracy
       target there; linearly_implicit with the dense preconditioner 2x fewer than rkf23.
 
@@ -844,7 +848,7 @@ class Automatic(Integrator):
     reference = "capsim: benchmarks/time_schemes.md"
     H_ACC = 0.08
     RKF23_STAGES = 2
-    LINEARLY_IMPLICIT_STAGES = 20
+    LINEARLY_IMPLICIT_STAGES = 24  # between (c), 16, and (g), 37
     TUMBLING_LAMBDA = 8.0
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
@@ -884,11 +888,13 @@ class Automatic(Integrator):
             model.restore({**saved, **counters})
         h_acc = min(case.time.dt_max, cls.H_ACC * (case.time.rtol / 1e-3) ** 0.5)
         stages = math.sqrt(max(rho * h_acc, 0.0) / 0.65)
+        stiffness = math.sqrt(max(rho * cls.H_ACC, 0.0) / 0.65)  # stages at H_ACC: rtol-free
         measured = (f"ρ = {rho:.3g}, ρ h_acc = {rho * h_acc:.3g} (h_acc = {h_acc:.3g}): rkc would take "
-                    f"~{stages:.0f} stages a step")
+                    f"~{stages:.0f} stages a step (~{stiffness:.0f} at h = {cls.H_ACC:g})")
         if stages <= cls.RKF23_STAGES:
             return EmbeddedRungeKutta, f"not stiff: {measured}", spent, case
-        if stages > cls.LINEARLY_IMPLICIT_STAGES and implicit:
+        if stiffness > cls.LINEARLY_IMPLICIT_STAGES and implicit:
             return LinearlyImplicit, f"stiff: {measured}", spent, cls._implicit(case)
-        why = "" if implicit or stages <= cls.LINEARLY_IMPLICIT_STAGES else "; linearly_implicit cannot run this case"
+        why = ("" if implicit or stiffness <= cls.LINEARLY_IMPLICIT_STAGES
+               else "; linearly_implicit cannot run this case")
         return RungeKuttaChebyshev, f"moderately stiff: {measured}{why}", spent, case
