@@ -4,7 +4,7 @@ BIN    := $(VENV)/bin
 # Reinstall only when the package metadata changes.
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv test test-all docs demo bench bench-threads bench-stepping bench-split cf-tools
+.PHONY: venv test test-all docs demo bench bench-threads bench-stepping bench-split bench-promise cf-tools
 
 venv: $(STAMP)
 
@@ -65,3 +65,8 @@ bench-stepping: venv
 # writes benchmarks/evaluation_split.md and benchmarks/evaluation_split.json
 bench-split: venv
 	$(BIN)/python benchmarks/evaluation_split.py
+
+# time.rtol's promise: every scheme x case x rtol 1e-2..1e-5, error / rtol against a reference at
+# 1e-7 (about 25 min on 2 shared cores; CASES=a c to run some): writes benchmarks/rtol_promise.md and .json
+bench-promise: venv
+	$(BIN)/python benchmarks/stepping.py --promise $(CASES)

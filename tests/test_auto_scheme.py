@@ -44,6 +44,15 @@ def test_auto_picks_linearly_implicit_on_g_and_not_on_a_or_c():
         assert _chosen(spec).name == "rkc"
 
 
+@pytest.mark.parametrize("rtol", [1e-2, 1e-5])
+def test_auto_picks_between_rkc_and_linearly_implicit_alike_at_any_rtol(rtol):
+    """Their cost ratio hardly moves with rtol (benchmarks/rtol_promise.md, (g): li/dense over rkc
+    0.35 at rtol 1e-2, 0.31 at 1e-5), so neither does the choice: at rtol 3e-3 the stage count at
+    rtol's own step sent (c) to li/dense, 1.26x the layer applications of rkc at equal accuracy."""
+    assert _chosen(CASE_G, rtol=rtol).name == "linearly_implicit"
+    assert _chosen(CASE_C, rtol=rtol).name == "rkc"
+
+
 def test_auto_respects_what_the_linearly_implicit_scheme_cannot_run():
     stiff = {"mesh": {"level": 2}, "flow": {"shear_rate_G": 0.0002},  # stiffer than (g), contour traction
              "membrane": {"traction": "contour"}}

@@ -13,7 +13,8 @@ from capsim.config import apply_overrides
 from capsim.runner import run_case
 from capsim.store import read_trajectory
 from capsim.timestepping import (
-    SCHEMES, attempt_step, make_integrator, rkc_coefficients, rkc_stages_for, rkc_step, RKF23,
+    SCHEMES, RungeKuttaChebyshev, attempt_step, make_integrator, rkc_coefficients, rkc_stages_for, rkc_step,
+    RKF23,
 )
 
 from stiff_problems import RHO, RKF23_LIMIT, Y0, capsule_case as _capsule, exact, linear
@@ -97,6 +98,40 @@ def test_rkc_spends_fewer_evaluations_than_rkf23_on_the_stiff_problem():
         counts[name] = integ.evaluations
         assert np.abs(integ.y - exact(3.0)).max() < 1e-2
     assert counts["rkf23"] > 10 * counts["rkc"], counts
+
+
+def _max_error_over_run(name: str, rtol: float, t_end: float = 3.0) -> float:
+    """max over accepted steps of |y − y_exact|∞ on the stiff linear problem."""
+    integ = make_integrator(name, lambda y: (linear(y), None), Y0, rtol=rtol, dt_initial=1e-5,
+                            dt_min=1e-12, dt_max=1.0)
+    integ.start()
+    worst = 0.0
+    while integ.t < t_end - 1e-12:
+        if integ.attempt(t_end).accepted:
+            worst = max(worst, float(np.abs(integ.y - exact(integ.t)).max()))
+    return worst
+
+
+RTOLS = (1e-2, 1e-3, 1e-4, 1e-5)
+
+
+def test_rkc_error_is_proportional_to_rtol_per_unit_step(monkeypatch):
+    """docs/time_stepping.md, "One promise for time.rtol": rkc's estimate is of the solution it
+    advances, so per step its global error grows like rtol^(2/3) (measured here: error / rtol
+    0.14 at 1e-2, 4.1 at 1e-5); per unit step like rtol (0.06 to 0.16)."""
+    ratios = [_max_error_over_run("rkc", rtol) / rtol for rtol in RTOLS]
+    assert max(ratios) <= 0.5 and max(ratios) / min(ratios) <= 4.0, ratios
+    monkeypatch.setattr(RungeKuttaChebyshev, "UNIT_STEP", None)  # the per-step control it replaced
+    per_step = [_max_error_over_run("rkc", rtol) / rtol for rtol in RTOLS]
+    assert per_step[-1] / per_step[0] >= 20.0 and per_step[-1] > 2.0, per_step
+
+
+def test_one_rtol_bounds_every_schemes_error_alike():
+    """The same rtol, the same bound (c = 1.5 on this problem; rkf23 is the largest, 1.3, at its
+    stability limit where its steps are far shorter than accuracy asks)."""
+    for name in ("rkf23", "rkc", "linearly_implicit"):
+        for rtol in RTOLS:
+            assert _max_error_over_run(name, rtol, t_end=1.0) <= 1.5 * rtol, (name, rtol)
 
 
 def test_spectral_radius_estimate_bounds_the_largest_eigenvalue():
