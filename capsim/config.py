@@ -488,8 +488,9 @@ class _TimeCommon(_Model):
     )
     rtol: float = Field(
         1.0e-4, gt=0, lt=1,
-        description="local error tolerance of the step, at least 1e-10: the velocities it compares are "
-        "accurate to ~1e-12 (quadrature round-off, solver.tol), so a smaller one chases noise",
+        description="the time error's bound, the same for every scheme: max over t of |D_xy error| <= 1.5 rtol "
+        "and |theta error| <= 6 rtol rad (docs/time_stepping.md); at least 1e-10: the velocities it "
+        "compares are accurate to ~1e-12 (quadrature round-off, solver.tol), so a smaller one chases noise",
     )
     # dt_min and dt_max come before dt_initial so that its check can see both.
     dt_min: float = Field(1.0e-8, gt=0)
