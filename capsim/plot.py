@@ -863,6 +863,11 @@ def steady_figure(source, theory: bool = True, x: str | None = None):
     ax_d.set_ylabel(r"$D_{xy}$")
     ax_t.set_ylabel(r"$\theta/\pi$")
     ax_t.set_xlabel(SWEPT_LABELS.get(x, x))
+    if not any(np.isfinite(float(c["values"]["theta"])) for c in cells):
+        # every run tumbles or has no long axis: say so rather than leave an empty panel
+        ax_t.text(0.5, 0.5, "no mean inclination: every run tumbles\n(or has no long axis)",
+                  transform=ax_t.transAxes, ha="center", va="center", color="0.35")
+        ax_t.set_yticks([])
     _legend(ax_d)
     if rheology:
         ax_f.set_ylabel(r"TTF $/ f_s$")

@@ -109,3 +109,22 @@ def test_the_summary_gives_a_tumbling_run_no_mean_theta(monkeypatch):
     assert np.isnan(tumbling["theta"]) and np.isnan(tumbling["theta_std"])  # its long axis turns round
     assert tumbling["D_xy"] == 0.3 and tumbling["D_xy_amplitude"] == 0.08
     assert swinging["theta"] == 0.2  # a swinging run has a mean inclination
+
+
+def test_a_campaign_where_every_run_tumbles_says_so_in_the_theta_panel():
+    """No run has a mean θ (all tumble: the red cells of campaigns/rbc-shear-rates.yaml): the
+    θ panel carries a sentence instead of an empty frame with meaningless ticks."""
+    ds = _grid([[1, 1], [1, 1]])
+    dims = ("shear_rate_G", "viscosity_ratio")
+    ds["motion"] = (dims, np.full((2, 2), "tumbling", dtype=object))
+    ds["D_xy_amplitude"] = (dims, np.full((2, 2), 0.08))
+    ds["theta"] = ds["theta"].where(ds["motion"] != "tumbling")
+    fig = plot(ds, "steady")
+    theta_ax = fig.axes[1]
+    texts = [t.get_text() for t in theta_ax.texts]
+    assert any("every run tumbles" in t for t in texts), texts
+    assert list(theta_ax.get_yticks()) == []
+    # with one mean θ the panel draws it and says nothing of the kind
+    ds["theta"] = ds["theta"].where(ds["motion"] != "tumbling", 0.7)
+    fig = plot(ds, "steady")
+    assert not any("every run tumbles" in t.get_text() for t in fig.axes[1].texts)
