@@ -31,7 +31,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
 from capsim.config import apply_overrides, case_from_dict  # noqa: E402
-from capsim.runner import run_case  # noqa: E402
+from _common import run_or_stop  # noqa: E402
 from capsim.study import error_estimate, final_values  # noqa: E402
 from capsim.store import read_trajectory  # noqa: E402
 
@@ -67,7 +67,7 @@ def run_one(name: str, level: int, scheme: str, reference: str | None = None) ->
     with tempfile.TemporaryDirectory(prefix="capsim-errbars-") as tmp:
         main = make_case(name, level, 1e-4, scheme, f"{tmp}/main.h5")
         t0 = time.perf_counter()
-        summary = run_case(main)
+        summary = run_or_stop(main)
         rec["wall_main_s"] = time.perf_counter() - t0
         rec["status"] = summary["status"]
         window = (float(summary["averaging_t_from"]), float(summary["averaging_t_to"]))
@@ -79,7 +79,7 @@ def run_one(name: str, level: int, scheme: str, reference: str | None = None) ->
                                        "output.path": reference or f"{tmp}/ref.h5"})
         t0 = time.perf_counter()
         if reference is None:
-            rec["reference_status"] = run_case(ref)["status"]
+            rec["reference_status"] = run_or_stop(ref)["status"]
         else:  # the same case run before (e.g. the level-4 reference, minutes here)
             rec["reference_status"] = f"reused {Path(reference).name}"
         rec["wall_reference_s"] = time.perf_counter() - t0

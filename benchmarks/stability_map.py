@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 
 from capsim.config import case_from_dict
-from capsim.runner import run_case
+from _common import run_or_stop
 
 LEVEL = int(sys.argv[1]) if len(sys.argv) > 1 else 2
 OUT = Path(__file__).with_name("stability_map")
@@ -41,7 +41,7 @@ def main() -> None:
         })
         t0 = time.perf_counter()
         try:
-            s = run_case(case)
+            s = run_or_stop(case)
         except Exception as exc:  # recorded, never fatal for the map
             s = {"status": "failed", "status_reason": f"{type(exc).__name__}: {exc}", "t": float("nan")}
         s["wall_time_s"] = time.perf_counter() - t0

@@ -46,7 +46,7 @@ import numpy as np  # noqa: E402
 
 from capsim import __version__  # noqa: E402
 from capsim.config import ConfigError, case_from_dict  # noqa: E402
-from capsim.runner import run_case  # noqa: E402
+from _common import run_or_stop  # noqa: E402
 from capsim.store import read_trajectory
 
 D_TOL, THETA_TOL = 1e-4, 1e-3
@@ -122,7 +122,7 @@ def _applies(key: str, scheme: str) -> bool:
 def _run(key: str, scheme: str, rtol: float, tmp: Path, cases: dict | None = None) -> tuple[dict, dict]:
     spec = _spec(key, scheme, rtol, cases)
     spec["output"] = {"path": str(tmp / f"{spec['name']}.h5"), "snapshot_every": 1.0}
-    result = run_case(case_from_dict(spec))
+    result = run_or_stop(case_from_dict(spec))
     return dict(result), read_trajectory(result["path"])["timeseries"]
 
 

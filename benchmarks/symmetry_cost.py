@@ -18,7 +18,7 @@ import tempfile
 import numpy as np
 
 from capsim.config import case_from_dict
-from capsim.runner import run_case
+from _common import run_or_stop
 
 MODES = ("quarter", "half", "none")
 
@@ -44,14 +44,14 @@ def main() -> None:
     args = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        run_case(_case(tmp, 0, 5.0, "half", 0.05))  # JIT warm-up
+        run_or_stop(_case(tmp, 0, 5.0, "half", 0.05))  # JIT warm-up
         for level in args.levels:
             for lam in args.lams:
                 walls = {m: [] for m in MODES}
                 steps = {}
                 for _ in range(args.repeat):
                     for mode in MODES:
-                        s = run_case(_case(tmp, level, lam, mode, args.t_end))
+                        s = run_or_stop(_case(tmp, level, lam, mode, args.t_end))
                         walls[mode].append(s["wall_time_s"])
                         steps[mode] = s["steps"]
                 med = {m: float(np.median(w)) for m, w in walls.items()}

@@ -81,7 +81,7 @@ def child(spec: dict) -> dict:
     if spec["policy"]:
         threads.apply_policy(spec["threads"])
     from capsim.config import apply_overrides, case_from_dict
-    from capsim.runner import run_case
+    from _common import run_or_stop
 
     with tempfile.TemporaryDirectory(prefix="capsim-bench-threads-") as tmp:
         case = case_from_dict({
@@ -91,11 +91,11 @@ def child(spec: dict) -> dict:
         })
         warm = apply_overrides(case, **{"mesh.level": 0, "time.t_end": 0.01,
                                         "output.path": os.path.join(tmp, "warm.h5")})
-        run_case(warm)
+        run_or_stop(warm)
         runs = []
         for _ in range(spec["repeat"]):
             cpu0, wall0 = resource.getrusage(resource.RUSAGE_SELF).ru_utime, time.perf_counter()
-            summary = run_case(case)
+            summary = run_or_stop(case)
             wall = time.perf_counter() - wall0
             cpu = resource.getrusage(resource.RUSAGE_SELF).ru_utime - cpu0
             runs.append({"wall_s": wall, "user_cpu_s": cpu, "steps": int(summary["steps"]),

@@ -31,7 +31,7 @@ LAMBDAS = (1.0, 5.0)
 
 def run(lam: float, bq: float) -> dict:
     from capsim.config import case_from_dict
-    from capsim.runner import run_case
+    from _common import run_or_stop
     from capsim.small_deformation import LinearCapsule
     from capsim.store import read_trajectory
 
@@ -42,7 +42,7 @@ def run(lam: float, bq: float) -> dict:
             "membrane": {"viscosity": {"shear": bq}, "bending_modulus": KAPPA},
             "time": {"t_end": t_end, "scheme": "rkc", "rtol": 1e-5},
             "output": {"path": f"{tmp}/v.h5", "snapshot_every": t_end}})
-        run_case(case)
+        run_or_stop(case)
         ts = read_trajectory(case.output.path)["timeseries"]
         return {"lam": lam, "Bq": bq, "D_xy": float(ts["D_xy"][-1]), "theta": float(ts["theta"][-1]),
                 "ttf_ratio": float(ts["ttf_ratio"][-1]), "Sxy_star": float(ts["Sxy_star"][-1])}

@@ -50,7 +50,7 @@ CASES = [  # (label, scheme, Bq_s, preconditioner of the viscous solve)
 def run_one(scheme: str, bq: float, preconditioner: str | None, dilatational: float, t_end: float, level: int):
     import capsim.viscosity as viscosity
     from capsim.config import case_from_dict
-    from capsim.runner import run_case
+    from _common import run_or_stop
     from capsim.store import read_trajectory
 
     original = viscosity.KelvinVoigtMembrane.__init__
@@ -68,10 +68,9 @@ def run_one(scheme: str, bq: float, preconditioner: str | None, dilatational: fl
                                    "membrane": block, "time": {"t_end": t_end, "scheme": scheme},
                                    "output": {"path": f"{tmp}/b.h5", "snapshot_every": t_end}})
             t0 = time.perf_counter()
-            r = run_case(case)
+            r = run_or_stop(case)
             wall = time.perf_counter() - t0
-            # run_case stops at a SIGTERM and returns a partial run: never a row of the table
-            if r["status"] != "completed":
+            if r["status"] != "completed":  # a guard's stop is not a cost row either
                 raise SystemExit(f"benchmark run ended {r['status']!r}: no table written")
             ts = read_trajectory(case.output.path)["timeseries"]
             iters = ts["solver_iterations"]
