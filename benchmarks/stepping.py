@@ -47,6 +47,7 @@ import numpy as np  # noqa: E402
 from capsim import __version__  # noqa: E402
 from capsim.config import ConfigError, case_from_dict  # noqa: E402
 from _common import run_or_stop  # noqa: E402
+from capsim.observables import unwrap_defined  # noqa: E402
 from capsim.store import read_trajectory
 
 D_TOL, THETA_TOL = 1e-4, 1e-3
@@ -130,7 +131,9 @@ def errors(run: dict, ref: dict) -> tuple[float, float]:
     """max |ΔD_xy| and max |Δθ| (mod π, where D_xy > 1e-3) against the reference at the run's times."""
     t = run["t"]
     d_ref = np.interp(t, ref["t"], ref["D_xy"])
-    theta_ref = np.interp(t, ref["t"], np.unwrap(ref["theta"], period=np.pi))
+    # θ is NaN where the shape has no long axis (the sphere at kt = 0): interpolate the defined part
+    ok = np.isfinite(ref["theta"])
+    theta_ref = np.interp(t, ref["t"][ok], unwrap_defined(ref["theta"])[ok])
     dtheta = (run["theta"] - theta_ref + np.pi / 2) % np.pi - np.pi / 2
     defined = np.minimum(run["D_xy"], d_ref) > 1e-3
     return float(np.abs(run["D_xy"] - d_ref).max()), float(np.abs(dtheta[defined]).max(initial=0.0))
