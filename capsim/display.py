@@ -348,7 +348,10 @@ def _compression(summary: dict[str, Any], factors: Mapping[str, float] | None = 
     text = f"{100 * frac:.0f} % (smallest tension {shown})"
     if frac > 0.05:
         if summary.get("bending_modulus", 0.0) > 0:
-            text += f": held by the bending modulus {summary['bending_modulus']:g}; check mesh convergence"
+            factor, unit = _in("bending_modulus", factors)
+            kappa = f"{summary['bending_modulus'] * factor:.3g} {unit}" if factors is not None else \
+                f"{summary['bending_modulus']:g} E_s a²"
+            text += f": held by the bending modulus {kappa}; check mesh convergence"
         else:
             text += (": would wrinkle without bending; rerun with --set membrane.bending_modulus=1e-4 "
                      "(docs/user_guide.md, \"Compressed membranes and bending stiffness\")")

@@ -245,3 +245,15 @@ def test_run_prints_its_closing_table_in_physical_units(tmp_path):
     rows = {line.split("  ")[0].strip(): line for line in result.stdout.splitlines() if line.strip()}
     assert "t (s)" in rows and rows["t (s)"].split()[-1] == "0.0002"  # kt = 0.01 × 0.02 s
     assert "S_xy (pN*um)" in rows and "TTF f (Hz)" in rows and "kt" not in result.stdout.split("wall time")[0]
+
+
+def test_the_compression_line_gives_the_bending_modulus_in_its_units():
+    """One convention per screen: next to a tension in µN/m the bending modulus is in J
+    (κ = 3e-3 E_s a², E_s = 18 µN/m, a = 2.8 µm: 4.23e-19 J by hand), and in capsim's
+    scales it names E_s a²."""
+    from capsim.display import _compression
+
+    summary = {"compressed_fraction": 0.5, "min_tension": -0.1, "shear_rate_G": 0.05, "bending_modulus": 3e-3}
+    physical = _compression(summary, physical_factors(PHYSICAL))
+    assert f"{3e-3 * 18e-6 * 2.8e-6**2:.3g} J" == "4.23e-19 J" and "held by the bending modulus 4.23e-19 J" in physical
+    assert "held by the bending modulus 0.003 E_s a²" in _compression(summary)
