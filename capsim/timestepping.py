@@ -821,8 +821,14 @@ class Automatic(Integrator):
     size h (its stability interval grows like 0.65 s²); measured per layer application
     (benchmarks/time_schemes.md, benchmarks/rtol_promise.md):
 
-    - s(h_acc) ≤ RKF23_STAGES: not stiff; rkf23 (its three evaluations a step are all
-      accuracy);
+    - rkf23 where it takes fewer evaluations per unit time than rkc: 3 / min(h23, 2.5/ρ)
+      against max(2, s(h_acc)) / h_acc, h23 ≈ RKF23_H_ACC (rtol / 1e-3)^(1/3) its own
+      accuracy-limited step (third order by local extrapolation) and 2.5/ρ its stability
+      limit (a three-stage third-order method is stable on [−2.51, 0]). A viscous membrane
+      (ρ 6.9 at level 3, Bq 1) gets rkf23 at rtol 1e-4, rkc at 1e-2. rkc's stage count alone misjudged case (d)
+      (λ = 5): at rtol 1e-4 s(h_acc) = 1.8 sent it to rkf23, which is pinned there at its
+      stability limit (166 steps at rtol 1e-2 and 1e-3 alike) and took 3981 layer
+      applications where rkc took 3108;
     - s(H_ACC) > LINEARLY_IMPLICIT_STAGES: linearly_implicit, with the dense preconditioner
       where the mesh takes it (cases (g): 37 stages at H_ACC, (i): 186; 2-47x fewer layer
       applications than rkc there). Taken at H_ACC whatever the rtol: rkc's cost goes like
@@ -847,7 +853,9 @@ class Automatic(Integrator):
     order_low = 2
     reference = "capsim: benchmarks/time_schemes.md"
     H_ACC = 0.08
-    RKF23_STAGES = 2
+    #: rkf23's accuracy-limited step at rtol 1e-3 (exponent 1/3), and its stability limit × ρ
+    RKF23_H_ACC = 0.1
+    RKF23_STABILITY = 2.51
     LINEARLY_IMPLICIT_STAGES = 24  # between (c), 16, and (g), 37
     TUMBLING_LAMBDA = 8.0
 
@@ -889,9 +897,15 @@ class Automatic(Integrator):
         h_acc = min(case.time.dt_max, cls.H_ACC * (case.time.rtol / 1e-3) ** 0.5)
         stages = math.sqrt(max(rho * h_acc, 0.0) / 0.65)
         stiffness = math.sqrt(max(rho * cls.H_ACC, 0.0) / 0.65)  # stages at H_ACC: rtol-free
+        # evaluations per unit time: rkf23 at the smaller of its accuracy and stability steps,
+        # rkc at its accuracy step with at least its two stages
+        h23 = min(case.time.dt_max, cls.RKF23_H_ACC * (case.time.rtol / 1e-3) ** (1.0 / 3.0),
+                  cls.RKF23_STABILITY / max(rho, 1e-300))
+        cost23, cost_rkc = 3.0 / h23, max(2.0, stages) / h_acc
         measured = (f"ρ = {rho:.3g}, ρ h_acc = {rho * h_acc:.3g} (h_acc = {h_acc:.3g}): rkc would take "
-                    f"~{stages:.0f} stages a step (~{stiffness:.0f} at h = {cls.H_ACC:g})")
-        if stages <= cls.RKF23_STAGES:
+                    f"~{stages:.0f} stages a step (~{stiffness:.0f} at h = {cls.H_ACC:g}), "
+                    f"~{cost_rkc:.0f} evaluations per unit time against rkf23's ~{cost23:.0f}")
+        if cost23 <= cost_rkc:
             return EmbeddedRungeKutta, f"not stiff: {measured}", spent, case
         if stiffness > cls.LINEARLY_IMPLICIT_STAGES and implicit:
             return LinearlyImplicit, f"stiff: {measured}", spent, cls._implicit(case)

@@ -53,6 +53,19 @@ def test_auto_picks_between_rkc_and_linearly_implicit_alike_at_any_rtol(rtol):
     assert _chosen(CASE_C, rtol=rtol).name == "rkc"
 
 
+CASE_D = {"mesh": {"level": 3}, "flow": {"shear_rate_G": 0.1, "viscosity_ratio": 5.0}}
+
+
+@pytest.mark.parametrize("rtol", [1e-2, 1e-4])
+def test_auto_weighs_rkf23_by_its_stability_limit_too(rtol):
+    """(d), λ = 5: rkf23 is pinned at its stability limit there (166 steps at rtol 1e-2 and
+    1e-3 alike, benchmarks/time_schemes.md), so rkc is cheaper at any rtol (at 1e-4: 3108 layer
+    applications against 3981); rkc's stage count alone (1.8 at rtol 1e-4) sent it to rkf23."""
+    d = _chosen(CASE_D, rtol=rtol)
+    assert d.name == "rkc", d.choice
+    assert "evaluations per unit time against rkf23's" in d.choice
+
+
 def test_auto_respects_what_the_linearly_implicit_scheme_cannot_run():
     stiff = {"mesh": {"level": 2}, "flow": {"shear_rate_G": 0.0002},  # stiffer than (g), contour traction
              "membrane": {"traction": "contour"}}
