@@ -200,8 +200,7 @@ class StageSolver:
         mass = mass_lu = gradient = traction = None
         membrane = model.membrane
         if membrane.traction_method == "galerkin":
-            mass = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr),
-                                 shape=(disc.n_nodes, disc.n_nodes))
+            mass = disc.mass_matrix(geo)
             mass_lu = splu(mass.tocsc())
             gradient = membrane.energy_gradient(x)
         else:

@@ -251,6 +251,13 @@ class Discretization:
     def mass_matrix_data(self, geo: ElementGeometry) -> np.ndarray:
         return kernels.assemble_mass_matrix(self.elements, self.mass_slot, self.reg_phi, geo.weights, self.mass_nnz)
 
+    def mass_matrix(self, geo: ElementGeometry):
+        """The mass matrix at this geometry as a SciPy CSR matrix (N_p × N_p)."""
+        import scipy.sparse as sp
+
+        return sp.csr_matrix((self.mass_matrix_data(geo), self.mass_indices, self.mass_indptr),
+                             shape=(self.n_nodes, self.n_nodes))
+
     def geometry(self, x: np.ndarray) -> ElementGeometry:
         return element_geometry(x, self.elements, self.regular_order)
 

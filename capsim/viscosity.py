@@ -118,32 +118,29 @@ class KelvinVoigtMembrane:
         return sp.csr_matrix((data, self._indices, self._indptr), shape=(n, n))
 
     def _cached(self, x: np.ndarray):
-        """(K, mass LU) of the last assembly when it was at x, else None."""
+        """(K, mass matrix, mass LU) of the last assembly when it was at x, else None."""
         cached = self._operators
         if cached is not None and cached[0].shape == x.shape and np.array_equal(cached[0], x):
-            return cached[1], cached[2]
+            return cached[1:]
         return None
 
     def operators(self, x: np.ndarray, geo):
-        """(K, the LU of the mass matrix) at configuration x: those of the last solve when it
+        """(K, the mass matrix, its LU) at configuration x: those of the last solve when it
         was at x (the accepted positions, which the observables then read), else assembled."""
-        import scipy.sparse as sp
         from scipy.sparse.linalg import splu
 
         cached = self._cached(x)
         if cached is not None:
             return cached
-        disc = self.disc
-        mass = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr),
-                             shape=(disc.n_nodes, disc.n_nodes))
+        mass = self.disc.mass_matrix(geo)
         K, mass_lu = self.stiffness(x), splu(mass.tocsc())
-        self._operators = (np.array(x, copy=True), K, mass_lu)
-        return K, mass_lu
+        self._operators = (np.array(x, copy=True), K, mass, mass_lu)
+        return K, mass, mass_lu
 
     def traction(self, x: np.ndarray, geo, u: np.ndarray) -> np.ndarray:
         """M⁻¹K u at the nodes (N_p, 3): the viscous traction jump Δf_v over G, i.e. in units
         of μk (times G: in the E_s/a of the elastic Δf)."""
-        K, mass_lu = self.operators(x, geo)
+        K, _, mass_lu = self.operators(x, geo)
         return mass_lu.solve(np.asfortranarray((K @ u.ravel()).reshape(-1, 3)))
 
     def dissipation(self, x: np.ndarray, u: np.ndarray) -> float:
@@ -179,9 +176,7 @@ class KelvinVoigtMembrane:
         if self._rest_factor is None:
             disc = self.disc
             X = self.rest_positions if self._factor_x is None else self._factor_x
-            geo = disc.geometry(X)
-            mass = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr),
-                                 shape=(disc.n_nodes, disc.n_nodes))
+            mass = disc.mass_matrix(disc.geometry(X))
             c = self.drag_scale(model) / (8.0 * np.pi)
             a = 0.5 * (1.0 + model.viscosity_ratio)
             mass3 = sp.kron(mass, sp.identity(3), format="csr")
@@ -209,9 +204,7 @@ class KelvinVoigtMembrane:
 
         disc, counts, lam = model.disc, model.counts, model.viscosity_ratio
         self._operators = None  # a new configuration: assembled once, kept for the observables
-        K, mass_lu = self.operators(x, geo)
-        mass = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr),
-                             shape=(disc.n_nodes, disc.n_nodes)) if self.preconditioner == "local" else None
+        K, mass, mass_lu = self.operators(x, geo)
         double = model.double_layer_operator(x, geo, normals) if lam != 1.0 else None
         elements = disc.elements
 
