@@ -773,15 +773,6 @@ def _factor_solve(r, z, w, l_indptr, l_indices, l_data, u_indptr, u_indices, u_d
 
 
 @njit(**_JIT)
-def _csr_matvec(indptr, indices, data, v, out):
-    for i in range(out.shape[0]):
-        s = 0.0
-        for p in range(indptr[i], indptr[i + 1]):
-            s += data[p] * v[indices[p]]
-        out[i] = s
-
-
-@njit(**_JIT)
 def reduced_mass_data(data, slot, slot_sign, nnz):
     """Values of the reduced mass matrix K = Eᵀ (M ⊗ I₃) E from those of M (CSR): entry p
     of M goes, for each component c with slot[p, c] ≥ 0, to slot[p, c] with its sign."""
@@ -832,7 +823,8 @@ def solve_reduced_mass(indptr, indices, data, rhs, last, col, sign, target_node,
     for u in range(n):
         y[u] = last[target_node[u], target_comp[u]]
     Ap = np.empty(n)
-    _csr_matvec(indptr, indices, data, y, Ap)
+    y_col, Ap_col = y.reshape((n, 1)), Ap.reshape((n, 1))  # views: the block product, one column
+    _csr_matmul(indptr, indices, data, y_col, Ap_col)
     r = b - Ap
     bmax = 0.0
     rmax = 0.0
@@ -850,7 +842,7 @@ def solve_reduced_mass(indptr, indices, data, rhs, last, col, sign, target_node,
         for u in range(n):
             rz += r[u] * z[u]
         while it < max_iter:
-            _csr_matvec(indptr, indices, data, pvec, Ap)
+            _csr_matmul(indptr, indices, data, pvec.reshape((n, 1)), Ap_col)
             pAp = 0.0
             for u in range(n):
                 pAp += pvec[u] * Ap[u]
