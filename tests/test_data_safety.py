@@ -34,6 +34,7 @@ from capsim.cli import app
 from capsim.config import Case, apply_overrides, case_from_dict
 from capsim.runner import ResumeError, run_case
 from capsim.store import checkpoint_path, read_checkpoint, read_run_status, read_trajectory
+from interrupts import InterruptAfter as _InterruptAfter
 
 # looked up when a test runs, so that each test fails on its own without the fix
 def FileLock(*args, **kwargs):  # noqa: N802
@@ -47,14 +48,6 @@ def _case(tmp: Path, name: str = "safe", **dotted) -> Case:
     })
     return apply_overrides(case, **dotted) if dotted else case
 
-
-class _InterruptAfter:
-    def __init__(self, steps: int) -> None:
-        self.steps = steps
-
-    def __call__(self, state: dict) -> None:
-        if state["step"] == self.steps:
-            raise KeyboardInterrupt
 
 
 def _interrupted(tmp: Path, name: str, steps: int, **dotted) -> Case:

@@ -26,6 +26,7 @@ from capsim.observables import (
 from capsim.runner import run_case
 from capsim.solver import CapsuleModel, Discretization, build_model
 from capsim.store import read_trajectory
+from interrupts import InterruptAfter
 
 OFF_PLANE = (0.3, 0.5, 0.8)  # a general direction: no principal plane holds it
 SHAPES = [("sphere", {}), ("oblate", {"aspect_ratio": 0.5}), ("prolate", {"aspect_ratio": 2.0}), ("biconcave", {})]
@@ -196,13 +197,8 @@ def test_an_in_plane_axis_is_the_tilt(tmp_path):
 
 
 def test_a_resumed_off_plane_run_is_the_uninterrupted_one(tmp_path):
-    class Interrupt:
-        def __call__(self, state):
-            if state["step"] == 7:
-                raise KeyboardInterrupt
-
     case = _case(tmp_path, "resume", **{"flow.viscosity_ratio": 5.0, "time.t_end": 0.6})
-    assert run_case(case, progress=Interrupt())["status"] == "interrupted"
+    assert run_case(case, progress=InterruptAfter(7))["status"] == "interrupted"
     resumed = run_case(case, resume=True)
     reference = run_case(apply_overrides(case, **{"output.path": str(tmp_path / "reference.h5")}))
     assert resumed["status"] == reference["status"] == "completed" and resumed["steps"] == reference["steps"]

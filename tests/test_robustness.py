@@ -25,6 +25,7 @@ from capsim.runner import ResumeError, run_case
 from capsim.stopping import guard_violation
 from capsim.store import TrajectoryError, checkpoint_path, read_checkpoint, read_trajectory
 from capsim.summary import read_run_status
+from interrupts import InterruptAfter as _InterruptAfter
 
 BAD = Path(__file__).parent / "data" / "bad"
 
@@ -210,16 +211,6 @@ def test_far_too_loose_tolerance_stops_unstable(tmp_path):
 
 # ---------------------------------------------------------------- checkpoints and resume
 
-
-class _InterruptAfter:
-    """Progress callback standing in for Ctrl-C after a number of accepted steps."""
-
-    def __init__(self, steps: int) -> None:
-        self.steps = steps
-
-    def __call__(self, state: dict) -> None:
-        if state["step"] == self.steps:
-            raise KeyboardInterrupt
 
 
 @pytest.fixture(scope="module")

@@ -18,6 +18,7 @@ from capsim.timestepping import (
 )
 
 from stiff_problems import RHO, RKF23_LIMIT, Y0, capsule_case as _capsule, exact, linear
+from interrupts import InterruptAfter as _InterruptAfter
 
 
 def _rkc_fixed(h: float, t_end: float) -> np.ndarray:
@@ -156,14 +157,6 @@ def test_rkc_capsule_matches_a_tight_rkf23_reference(tmp_path):
     assert got["velocity_evaluations"][-1] == rkc["velocity_evaluations"]
     assert np.all(got["stages"][1:] >= 2)
 
-
-class _InterruptAfter:
-    def __init__(self, steps: int) -> None:
-        self.steps = steps
-
-    def __call__(self, state: dict) -> None:
-        if state["step"] >= self.steps:
-            raise KeyboardInterrupt
 
 
 RESUMED = {

@@ -15,6 +15,7 @@ from capsim.config import ConfigError, apply_overrides, case_from_dict
 from capsim.runner import run_case
 from capsim.solver import build_model
 from capsim.store import read_trajectory
+from interrupts import InterruptAfter as _InterruptAfter, InterruptAt as _InterruptAt
 
 
 def _case(tmp_path, name="v", **dotted):
@@ -109,14 +110,6 @@ def test_zero_viscosity_is_todays_trajectory_bit_for_bit(tmp_path):
     assert np.array_equal(a["positions"], b["positions"])
 
 
-class _InterruptAfter:
-    def __init__(self, steps: int) -> None:
-        self.steps = steps
-
-    def __call__(self, state: dict) -> None:
-        if state["step"] >= self.steps:
-            raise KeyboardInterrupt
-
 
 @pytest.mark.parametrize("scheme", ["rkf23", "rkc"])
 def test_resumed_viscous_run_repeats_the_uninterrupted_one(tmp_path, scheme):
@@ -205,14 +198,6 @@ def test_units_give_the_boussinesq_number():
     assert preset.membrane.viscosity.shear == pytest.approx(hand, rel=1e-12)
     assert preset.flow.viscosity_ratio == 5.0 and preset.time.scheme == "rkc"
 
-
-class _InterruptAt:
-    def __init__(self, t: float) -> None:
-        self.t = t
-
-    def __call__(self, state: dict) -> None:
-        if state["t"] >= self.t:
-            raise KeyboardInterrupt
 
 
 @pytest.mark.parametrize("interrupt_at", [0.3, 0.45])
