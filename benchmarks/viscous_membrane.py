@@ -86,7 +86,7 @@ def run_one(scheme: str, bq: float, preconditioner: str | None, dilatational: fl
 def table(rows: list[dict]) -> list[str]:
     ref = {r["scheme"]: r for r in rows if r["case"] == "elastic"}
     lines = [f"| case | scheme | steps | evaluations | layer applications | GMRES its/eval (max) | sparse LUs | "
-             f"wall s | layers / elastic | wall / elastic | D_xy | θ |", "|" + "---|" * 12]
+             "wall s | layers / elastic | wall / elastic | D_xy | θ |", "|" + "---|" * 12]
     for r in rows:
         e = ref[r["scheme"]]
         lines.append(f"| {r['case']} | {r['scheme']} | {r['steps']} | {r['evaluations']} | {r['layer_applications']} | "

@@ -28,7 +28,7 @@ from pydantic import (
 )
 
 from capsim.errors import bounded_repr, first_line
-from capsim.timestepping import DEFAULT_SCHEME, DENSE_MAX_NODES, SCHEMES  # noqa: F401 - DENSE_MAX_NODES re-exported
+from capsim.timestepping import DEFAULT_SCHEME, SCHEMES
 from capsim.viscosity import VISCOSITY_MODELS
 from capsim.viscosity import is_active as is_viscous
 
