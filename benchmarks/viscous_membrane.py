@@ -85,7 +85,7 @@ def run_one(scheme: str, bq: float, preconditioner: str | None, dilatational: fl
 
 def table(rows: list[dict]) -> list[str]:
     ref = {r["scheme"]: r for r in rows if r["case"] == "elastic"}
-    lines = [f"| case | scheme | steps | evaluations | layer applications | GMRES its/eval (max) | sparse LUs | "
+    lines = ["| case | scheme | steps | evaluations | layer applications | GMRES its/eval (max) | sparse LUs | "
              "wall s | layers / elastic | wall / elastic | D_xy | θ |", "|" + "---|" * 12]
     for r in rows:
         e = ref[r["scheme"]]
