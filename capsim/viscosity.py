@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -98,7 +99,8 @@ class KelvinVoigtMembrane:
         self._drag: float | None = None
         self._rest_factor = None
         self._factor_x: np.ndarray | None = None  # frozen: where the factor is built (None: the rest shape)
-        self._operators: tuple | None = None  # (x, K, mass LU) of the last assembly
+        self._operators: tuple | None = None  # (x, K, mass matrix, its LU or None) of the last assembly
+        self._reductions: dict = {}  # _Reduction per symmetry of the discretisation
         self.iterations = 0
         self.factorizations = 0  # sparse LUs of a preconditioner (not checkpointed: a benchmark count)
 
@@ -118,29 +120,34 @@ class KelvinVoigtMembrane:
         return sp.csr_matrix((data, self._indices, self._indptr), shape=(n, n))
 
     def _cached(self, x: np.ndarray):
-        """(K, mass matrix, mass LU) of the last assembly when it was at x, else None."""
+        """(K, mass matrix) of the last assembly when it was at x, else None."""
         cached = self._operators
         if cached is not None and cached[0].shape == x.shape and np.array_equal(cached[0], x):
-            return cached[1:]
+            return cached[1:3]
         return None
 
     def operators(self, x: np.ndarray, geo):
-        """(K, the mass matrix, its LU) at configuration x: those of the last solve when it
-        was at x (the accepted positions, which the observables then read), else assembled."""
-        from scipy.sparse.linalg import splu
-
+        """(K, the mass matrix) at configuration x: those of the last solve when it was at x
+        (the accepted positions, which the observables then read), else assembled."""
         cached = self._cached(x)
         if cached is not None:
             return cached
         mass = self.disc.mass_matrix(geo)
-        K, mass_lu = self.stiffness(x), splu(mass.tocsc())
-        self._operators = (np.array(x, copy=True), K, mass, mass_lu)
-        return K, mass, mass_lu
+        K = self.stiffness(x)
+        self._operators = (np.array(x, copy=True), K, mass, None)
+        return K, mass
 
     def traction(self, x: np.ndarray, geo, u: np.ndarray) -> np.ndarray:
         """M⁻¹K u at the nodes (N_p, 3): the viscous traction jump Δf_v over G, i.e. in units
-        of μk (times G: in the E_s/a of the elastic Δf)."""
-        K, _, mass_lu = self.operators(x, geo)
+        of μk (times G: in the E_s/a of the elastic Δf). Read by the observables at accepted
+        states only: the mass matrix's LU is made here, once per configuration."""
+        from scipy.sparse.linalg import splu
+
+        K, mass = self.operators(x, geo)
+        x_kept, _, _, mass_lu = self._operators
+        if mass_lu is None:
+            mass_lu = splu(mass.tocsc())
+            self._operators = (x_kept, K, mass, mass_lu)
         return mass_lu.solve(np.asfortranarray((K @ u.ravel()).reshape(-1, 3)))
 
     def dissipation(self, x: np.ndarray, u: np.ndarray) -> float:
@@ -160,107 +167,210 @@ class KelvinVoigtMembrane:
             self._drag = max(float(np.vdot(v, sl)) / float(np.vdot(v, v)), 0.0)
         return self._drag
 
-    def _rest_preconditioner(self, model: "CapsuleModel", x: np.ndarray):
-        """The local-drag preconditioner factorised at the rest shape (``rest``) or where the
-        last refactorisation was (``frozen``), applied in the frame of the best-fit rotation
-        from those nodes to x (Kabsch 1976): a tank-treading membrane carries its nodes
-        round while its shape stays, and K of a rotated mesh is the rotated K. ``frozen``
-        refactorises at the configuration of a solve that took more than REFRESH_ITERATIONS
-        (the shape has moved away); where is part of the checkpoint, so a resumed run
-        rebuilds the same factor."""
-        import scipy.sparse as sp
+    def _reduction(self) -> "_Reduction":
+        """The unknowns of the solve: those the mesh's symmetry leaves (membrane.ReducedMass's;
+        every node's three components without one). The layer sums are evaluated at the
+        symmetry's targets and expanded (solver.Discretization), so the velocity is
+        equivariant whatever the unknowns."""
+        from capsim.membrane import ReducedMass
+
+        name = self.disc.symmetry
+        red = self._reductions.get(name)
+        if red is None:
+            red = self._reductions[name] = _Reduction.of(ReducedMass.of(self.disc), self.disc.n_nodes, name)
+        return red
+
+    def _factors(self, model: "CapsuleModel", red: "_Reduction", X: np.ndarray, K=None, mass=None) -> tuple:
+        """At configuration X: the LU of the local-drag matrix Eᵀ((1+λ)/2 M⊗I₃ + s/(8π) K)E
+        on the solve's unknowns and the factorisation of the reduced mass matrix EᵀM⊗I₃E
+        (``membrane.MassFactor``), which preconditions the mass solves of nearby configurations
+        (the mass matrix is that of the shape: unchanged by a rotation)."""
         from scipy.sparse.linalg import splu
 
+        from capsim.membrane import MassFactor
+
+        disc = self.disc
+        if mass is None:
+            mass = disc.mass_matrix(disc.geometry(X))
+        if K is None:
+            K = self.stiffness(X)
+        c = self.drag_scale(model) / (8.0 * np.pi)
+        a = 0.5 * (1.0 + model.viscosity_ratio)
+        mass_data = red.reduced.data(mass.data)
+        reduced_mass = red.csr(mass_data)
+        drag = red.project(c * K) + a * reduced_mass
+        self.factorizations += 1
+        return splu(drag.tocsc(), **SPD_LU), reduced_mass, MassFactor.of(red.reduced, mass_data)
+
+    def _rest_preconditioner(self, model: "CapsuleModel", red: "_Reduction", x: np.ndarray):
+        """(preconditioner, mass factor): the local-drag preconditioner factorised at the rest
+        shape (``rest``) or where the last refactorisation was (``frozen``), applied in the
+        frame of the best-fit rotation from those nodes to x (Kabsch 1976): a tank-treading
+        membrane carries its nodes round while its shape stays, and K of a rotated mesh is the
+        rotated K. ``frozen`` refactorises at the configuration of a solve that took more than
+        REFRESH_ITERATIONS (the shape has moved away); where is part of the checkpoint, so a
+        resumed run rebuilds the same factor."""
         from capsim.geometry import best_rotation
 
-        if self._rest_factor is None:
-            disc = self.disc
-            X = self.rest_positions if self._factor_x is None else self._factor_x
-            mass = disc.mass_matrix(disc.geometry(X))
-            c = self.drag_scale(model) / (8.0 * np.pi)
-            a = 0.5 * (1.0 + model.viscosity_ratio)
-            mass3 = sp.kron(mass, sp.identity(3), format="csr")
-            self._rest_factor = (splu((a * mass3 + c * self.stiffness(X)).tocsc(), **SPD_LU), mass3)
-            self.factorizations += 1
-        lu, mass3 = self._rest_factor
-        rot = best_rotation(self.rest_positions if self._factor_x is None else self._factor_x, x)
-
-        def precondition(y: np.ndarray) -> np.ndarray:
-            z = lu.solve(mass3 @ (y.reshape(-1, 3) @ rot).ravel())
-            return (z.reshape(-1, 3) @ rot.T).ravel()
-
-        return precondition
+        X = self.rest_positions if self._factor_x is None else self._factor_x
+        key = (red.name, red.n)
+        if self._rest_factor is None or self._rest_factor[0] != key:
+            self._rest_factor = (key, *self._factors(model, red, X))
+        _, lu, reduced_mass, mass_factor = self._rest_factor
+        return red.preconditioner(lu, reduced_mass, best_rotation(X, x)), mass_factor
 
     # -- the velocity solve -----------------------------------------------------
     def solve(self, model: "CapsuleModel", x: np.ndarray, geo, rhs: np.ndarray, normals: np.ndarray | None,
               ) -> np.ndarray:
         """u of (V4) to the relative residual ``model.solver_tol``; sets the model's
         ``last_solve_info`` (the model raises when the residual missed the tolerance) and
-        warm starts, counts its layer applications."""
-        import scipy.sparse as sp
-        from scipy.sparse.linalg import splu
+        warm starts, counts its layer applications.
 
+        The unknowns are those the mesh's symmetry leaves (a quarter of the nodes' components
+        under quarter symmetry: ``_Reduction``), weighted by the square root of their orbit's
+        size, so that the Euclidean norm GMRES minimises is that of the full nodal vector and
+        the iterates are those of the full solve (Krylov vectors of an equivariant system stay
+        equivariant): the sparse products, mass solves and triangular solves of every
+        iteration shrink with the unknowns, the layer sums are evaluated at the targets anyway."""
+        from capsim.kernels import solve_reduced_mass
         from capsim.krylov import gmres
 
         disc, counts, lam = model.disc, model.counts, model.viscosity_ratio
         self._operators = None  # a new configuration: assembled once, kept for the observables
-        K, mass, mass_lu = self.operators(x, geo)
+        K, mass = self.operators(x, geo)
+        red = self._reduction()
+        r = red.reduced
         double = model.double_layer_operator(x, geo, normals) if lam != 1.0 else None
         elements = disc.elements
+        mass_data = r.data(mass.data)
 
-        def apply(u: np.ndarray) -> np.ndarray:
-            density = mass_lu.solve(np.asfortranarray((K @ u.ravel()).reshape(-1, 3)))
+        if self.preconditioner == "local":  # factorised here, at x
+            lu, reduced_mass, mass_factor = self._factors(model, red, x, K, mass)
+            precondition = red.preconditioner(lu, reduced_mass, None)
+        elif self.preconditioner in ("rest", "frozen"):
+            precondition, mass_factor = self._rest_preconditioner(model, red, x)
+        else:
+            from capsim.membrane import MassFactor
+
+            precondition, mass_factor = None, MassFactor.of(r, mass_data)
+        zeros = np.zeros((disc.n_nodes, 3))
+        # the inner mass solves, to well below the outer tolerance (GMRES's operator then is
+        # linear to that accuracy), not below round-off
+        mass_tol = max(1e-3 * model.solver_tol, 1e-13)
+
+        def apply(w: np.ndarray) -> np.ndarray:
+            u = red.full(w)
+            density, _ = solve_reduced_mass(
+                r.indptr, r.indices, mass_data, (K @ u.ravel()).reshape(-1, 3), zeros, r.col, r.sign,
+                r.target_node, r.target_comp, r.inv_mult, mass_tol, 200, *mass_factor.arrays)
             sl = disc.single_layer(x, geo, np.ascontiguousarray(density[elements]))
             counts["single_layer_applications"] += 1
             base = u if double is None else double(u)
-            return base + sl / (8.0 * np.pi)
+            return red.restrict(base + sl / (8.0 * np.pi))
 
-        if self.preconditioner == "local":
-            # the local-drag approximation of the operator (module docstring)
-            c = self.drag_scale(model) / (8.0 * np.pi)
-            a = 0.5 * (1.0 + lam)
-            mass3 = sp.kron(mass, sp.identity(3), format="csr")
-            pre_lu = splu((a * mass3 + c * K).tocsc(), **SPD_LU)
-            self.factorizations += 1
-
-            def precondition(y: np.ndarray) -> np.ndarray:
-                return pre_lu.solve(mass3 @ y)
-        elif self.preconditioner in ("rest", "frozen"):
-            precondition = self._rest_preconditioner(model, x)
-        else:
+        identity = precondition is None
+        if identity:
             def precondition(y: np.ndarray) -> np.ndarray:
                 return y
 
+        b = red.restrict(rhs)
         last_u, last_rhs = model._last_velocity, model._last_rhs
         if last_u is not None and last_u.shape == rhs.shape:
-            guess = last_u
+            guess = red.restrict(last_u)
             if last_rhs is not None and last_rhs.shape == rhs.shape:
-                guess = guess + precondition((rhs - last_rhs).ravel()).reshape(rhs.shape)
+                guess = guess + precondition(b - red.restrict(last_rhs))
         else:
-            guess = precondition(rhs.ravel()).reshape(rhs.shape)
+            guess = precondition(b)
         model._last_rhs = rhs
-        bnorm = max(float(np.linalg.norm(rhs)), 1e-300)
-        r = rhs - apply(guess)
-        residual = float(np.linalg.norm(r)) / bnorm
-        u, iterations = guess, 0
+        bnorm = max(float(np.linalg.norm(b)), 1e-300)
+        res = b - apply(guess)
+        residual = float(np.linalg.norm(res)) / bnorm
+        w, iterations = guess, 0
         if residual > model.solver_tol:
             restart = min(60, model.solver_max_iter)
             delta, iterations, rnorm = gmres(
-                lambda v: apply(v.reshape(-1, 3)).ravel(), r.ravel(), model.solver_tol * bnorm,
-                precondition=None if self.preconditioner == "none" else precondition,
+                apply, res, model.solver_tol * bnorm, precondition=None if identity else precondition,
                 max_iter=model.solver_max_iter * restart, restart=restart, callback=model.interrupt_check)
-            u = guess + delta.reshape(-1, 3)
+            w = guess + delta
             residual = rnorm / bnorm
         self.iterations += int(iterations)
         if self.preconditioner == "frozen" and iterations > self.REFRESH_ITERATIONS:
             self._factor_x, self._rest_factor = np.array(x, copy=True), None
         model.last_solve_info = {"iterations": int(iterations), "residual": residual}
+        u = red.full(w)
         if not residual <= 10.0 * model.solver_tol:  # the model raises SolverDivergence
             return u
         model._last_velocity = u
-        if disc.symmetry != "none":  # the sparse and dense products need not treat mirror rows alike
-            u = disc.expand(u[disc.targets])
         return u
+
+
+@dataclass(frozen=True)
+class _Reduction:
+    """The unknowns of the viscous solve: w[k] = √m_k · u[target_node[k], target_comp[k]]
+    for the unknowns of ``membrane.ReducedMass`` (m_k the size of its orbit: the number of
+    nodal components that are ± that one), u = E w/√m with E (3N × n) the signed expansion.
+    For an equivariant u, |w|₂ = |u|₂."""
+
+    name: str
+    reduced: Any           # membrane.ReducedMass
+    expansion: Any         # E, CSR (3N × n)
+    restriction: Any       # Eᵀ, CSR
+    pick: np.ndarray       # (n,) flat index 3 j + c of each unknown's target component
+    weight: np.ndarray     # (n,) √m
+
+    @property
+    def n(self) -> int:
+        return int(self.pick.size)
+
+    @classmethod
+    def of(cls, reduced, n_nodes: int, name: str) -> "_Reduction":
+        import scipy.sparse as sp
+
+        valid = reduced.col >= 0
+        rows = (3 * np.arange(n_nodes)[:, None] + np.arange(3)[None, :])[valid]
+        expansion = sp.csr_matrix((reduced.sign[valid], (rows, reduced.col[valid])),
+                                  shape=(3 * n_nodes, reduced.size))
+        return cls(name, reduced, expansion,
+                   expansion.T.tocsr(), 3 * reduced.target_node + reduced.target_comp,
+                   np.sqrt(1.0 / reduced.inv_mult))
+
+    def full(self, w: np.ndarray) -> np.ndarray:
+        """u (N, 3) of the weighted unknowns w."""
+        return (self.expansion @ (w / self.weight)).reshape(-1, 3)
+
+    def restrict(self, u: np.ndarray) -> np.ndarray:
+        """w of an equivariant nodal field u (N, 3)."""
+        return self.weight * u.ravel()[self.pick]
+
+    def csr(self, reduced_data: np.ndarray):
+        import scipy.sparse as sp
+
+        r = self.reduced
+        return sp.csr_matrix((reduced_data, r.indices, r.indptr), shape=(r.size, r.size))
+
+    def project(self, matrix):
+        """Eᵀ A E of a (3N × 3N) matrix A that commutes with the symmetry."""
+        return (self.restriction @ matrix @ self.expansion).tocsr()
+
+    def preconditioner(self, lu, mass, rot: np.ndarray | None):
+        """w ↦ the local-drag approximation of the operator's inverse (module docstring) on
+        the unknowns: z = (Eᵀ D E)⁻¹ (Eᵀ M⊗I₃ E) y, with D the drag matrix and M the mass
+        matrix where ``lu`` was factorised (``KelvinVoigtMembrane._factors``; the reduced
+        mass matrix ``mass``), applied in the frame of the rotation rot from there (None:
+        the same frame). A rotation about the symmetry axis keeps a field equivariant."""
+        def turn(v: np.ndarray, r: np.ndarray) -> np.ndarray:  # unweighted unknowns, turned by r
+            return ((self.expansion @ v).reshape(-1, 3) @ r).ravel()[self.pick]
+
+        def precondition(w: np.ndarray) -> np.ndarray:
+            y = w / self.weight
+            if rot is not None:
+                y = turn(y, rot)
+            z = lu.solve(mass @ y)
+            if rot is not None:
+                z = turn(z, rot.T)
+            return self.weight * z
+
+        return precondition
 
 
 @dataclass(frozen=True)

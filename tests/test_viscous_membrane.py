@@ -43,14 +43,22 @@ def test_dissipation_of_a_straining_sphere_is_the_analytic_one(level, tol):
     assert abs(K - K.T).max() < 1e-12
 
 
-def test_velocity_solves_the_viscous_boundary_integral_equation():
+@pytest.mark.parametrize("deformation, symmetry", [
+    ("stretched", "quarter"),  # keeps the quarter symmetry: the solve on a quarter of the unknowns
+    ("stretched", "none"),     # every node's unknowns
+    ("sheared", "none"),       # a shape without any symmetry
+])
+def test_velocity_solves_the_viscous_boundary_integral_equation(deformation, symmetry):
     """u + SL[M⁻¹K u]/(8π) = u∞ − SL[Δf]/(8πG) (eq. V4), checked against a dense solve built
-    from the single-layer matrix, at a deformed state, λ = 1."""
-    case = case_from_dict({"name": "d", "mesh": {"level": 1}, "flow": {"shear_rate_G": 0.1},
+    from the single-layer matrix, at a deformed state, λ = 1: with the unknowns the symmetry
+    leaves, and with all of them."""
+    case = case_from_dict({"name": "d", "mesh": {"level": 1, "symmetry": symmetry}, "flow": {"shear_rate_G": 0.1},
                            "solver": {"tol": 1e-11, "volume_correction": False},
                            "membrane": {"viscosity": {"shear": 2.0, "dilatational": 0.3}}})
     model, X = build_model(case)
     x = X * np.array([1.1, 1 / 1.1, 1.0])
+    if deformation == "sheared":
+        x[:, 0] += 0.1 * x[:, 2] + 0.05 * x[:, 1] ** 2
     state = model.membrane(x)
     u = model.velocity(x, state)
     disc, geo = model.disc, state.geometry
