@@ -120,8 +120,11 @@ def test_first_order_deformation_does_not_depend_on_lambda(tmp_path, lam, G_pair
 @pytest.mark.slow
 @pytest.mark.parametrize("lam", [0.01, 100.0])
 def test_extreme_viscosity_ratios_run_with_converged_solves(tmp_path, lam):
-    """G = 0.1, level 2, to kt = 2: every velocity solve meets its tolerance
-    (measured: λ = 0.01 mean 6.4 GMRES iterations, max 7; λ = 100 mean 8.8, max 11)."""
+    """G = 0.1, level 2, to kt = 2, the default scheme: every velocity solve meets its
+    tolerance. At λ = 100 auto picks linearly_implicit, whose dense stage preconditioner's LU
+    of the double-layer operator A preconditions the velocity solves too: a solve at the
+    configuration where A was factorised needs no iteration (measured: 0 on steps 2-3, then
+    1-3; with rkf23 5-7 each), so the check is the residual, not the count."""
     from capsim.config import case_from_dict
     from capsim.runner import run_case
     from capsim.store import read_trajectory
@@ -141,7 +144,8 @@ def test_extreme_viscosity_ratios_run_with_converged_solves(tmp_path, lam):
     assert summary["status"] == "completed" and summary["t"] == pytest.approx(2.0)
     ts = read_trajectory(path)["timeseries"]
     assert (ts["solver_residual"] <= 1e-6).all()
-    assert (ts["solver_iterations"][1:] >= 1).all() and ts["solver_iterations"].max() <= 30
+    assert ts["solver_iterations"].max() <= 30
+    assert ts["solver_iterations"].sum() >= len(ts["solver_iterations"])  # solves iterated (not all skipped)
     assert abs(summary["volume_drift"]) < 1e-4
 
 
