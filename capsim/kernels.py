@@ -256,6 +256,95 @@ def single_layer_singular_correction(
     return out
 
 
+@njit(inline="always")
+def _kernel_entries(dx, dy, dz, double, mx, my, mz, w):
+    """The symmetric 3×3 kernel matrix (xx, xy, xz, yy, yz, zz) of one rule point at
+    r = (dx, dy, dz): the Stokeslet w (I/r + r rᵀ/r³) (single layer, seed 2.12a), or the
+    stresslet contracted with the weighted normal m, −6 (r·m) r rᵀ/r⁵ (double layer, 2.12b)."""
+    rinv2 = 1.0 / (dx * dx + dy * dy + dz * dz)
+    rinv = np.sqrt(rinv2)
+    if double:
+        c = -6.0 * (dx * mx + dy * my + dz * mz) * rinv2 * rinv2 * rinv
+        return c * dx * dx, c * dx * dy, c * dx * dz, c * dy * dy, c * dy * dz, c * dz * dz, 0.0
+    c = w * rinv2 * rinv
+    d = w * rinv
+    return d + c * dx * dx, c * dx * dy, c * dx * dz, d + c * dy * dy, c * dy * dz, d + c * dz * dz, 0.0
+
+
+@njit(parallel=True, **_JIT)
+def singular_correction_weights(
+    x, elements, inc_offsets, inc_elem, inc_local, reg_points, reg_weights, reg_normals_w, reg_phi,
+    sing_phi, sing_dxi, sing_deta, sing_w, targets, pair_start, double,
+):
+    """The singular corrections of one configuration as weights: W (pairs, 6, 6) such that
+    ``single_layer_singular_correction`` = Σ over a target's incident elements e (its pairs,
+    from pair_start[i]) and their nodes a of W[pair, a]·f[e, a] (f the element-nodal density),
+    and ``double_layer_singular_correction`` = Σ W[pair, a]·(u[e, a] − u0): the Duffy rule's
+    integral minus the regular rule's, each rule point's kernel matrix (``_kernel_entries``,
+    symmetric: six entries) times the basis value of node a there. Costs about one direct
+    correction; each application after it ~1/20 of one (level 3), for the solves that apply a
+    layer many times at one configuration (λ ≠ 1, a viscous membrane)."""
+    xe = _gather(x, elements)
+    out = np.zeros((pair_start[-1], 6, 6))
+    n_sing = sing_w.shape[1]
+    n_reg = reg_weights.shape[1]
+    for i_t in prange(targets.shape[0]):
+        p = targets[i_t]
+        x0, y0, z0 = x[p, 0], x[p, 1], x[p, 2]
+        for c in range(inc_offsets[p], inc_offsets[p + 1]):
+            e = inc_elem[c]
+            k = inc_local[c]
+            slot = pair_start[i_t] + c - inc_offsets[p]
+            for j in range(n_sing):
+                px, py, pz, nx, ny, nz, _, _, _ = _element_point(xe, xe, e, sing_phi[k, j], sing_dxi[k, j],
+                                                                 sing_deta[k, j])
+                w = sing_w[k, j]
+                ent = _kernel_entries(px - x0, py - y0, pz - z0, double, nx * w, ny * w, nz * w,
+                                      w * np.sqrt(nx * nx + ny * ny + nz * nz))
+                for a in range(6):
+                    f = sing_phi[k, j, a]
+                    for m in range(6):
+                        out[slot, a, m] += f * ent[m]
+            for q in range(n_reg):
+                ent = _kernel_entries(reg_points[e, q, 0] - x0, reg_points[e, q, 1] - y0, reg_points[e, q, 2] - z0,
+                                      double, reg_normals_w[e, q, 0], reg_normals_w[e, q, 1], reg_normals_w[e, q, 2],
+                                      reg_weights[e, q])
+                for a in range(6):
+                    f = reg_phi[q, a]
+                    for m in range(6):
+                        out[slot, a, m] -= f * ent[m]
+    return out
+
+
+@njit(parallel=True, **_JIT)
+def apply_correction_weights(weights, pair_start, inc_offsets, inc_elem, targets, values, subtract):
+    """Σ over each target's pairs and nodes a of W[pair, a]·(values[e, a] − subtract[i]) (len(targets), 3):
+    the singular correction from ``singular_correction_weights`` (values the element-nodal
+    density and subtract 0 for the single layer; u per element and u0 for the double layer)."""
+    out = np.zeros((targets.shape[0], 3))
+    for i_t in prange(targets.shape[0]):
+        p = targets[i_t]
+        s0, s1, s2 = subtract[i_t, 0], subtract[i_t, 1], subtract[i_t, 2]
+        ax = 0.0
+        ay = 0.0
+        az = 0.0
+        for c in range(inc_offsets[p], inc_offsets[p + 1]):
+            e = inc_elem[c]
+            slot = pair_start[i_t] + c - inc_offsets[p]
+            for a in range(6):
+                vx = values[e, a, 0] - s0
+                vy = values[e, a, 1] - s1
+                vz = values[e, a, 2] - s2
+                w = weights[slot, a]
+                ax += w[0] * vx + w[1] * vy + w[2] * vz
+                ay += w[1] * vx + w[3] * vy + w[4] * vz
+                az += w[2] * vx + w[4] * vy + w[5] * vz
+        out[i_t, 0] = ax
+        out[i_t, 1] = ay
+        out[i_t, 2] = az
+    return out
+
+
 @njit(**_JIT)
 def surface_flux(elements, phi, normals, weights, u):
     """∫ u·n dS of the nodal field u (N_p, 3) interpolated quadratically: Σ over the
