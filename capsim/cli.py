@@ -6,7 +6,9 @@ Exit codes: 0 success, 1 the run ended unstable/failed/interrupted, 2 user error
 
 from __future__ import annotations
 
+import atexit
 import enum
+import gc
 import json
 import sys
 from pathlib import Path
@@ -21,6 +23,12 @@ try:  # typer >= 0.2x carries its own copy of click
     from typer import _click as click
 except ImportError:  # pragma: no cover - older typer on the real click
     import click
+
+# A command's last ~0.2 s went to the interpreter's teardown collecting the whole heap (numba's,
+# pydantic's, scipy's objects) several times. Frozen at exit, it is left to the OS: objects are
+# still freed by reference counting, and only cycles alive at exit skip finalizers, which Python
+# does not promise to run at exit anyway (capsim closes every file it writes before it returns).
+atexit.register(gc.freeze)
 
 
 class _OneLineErrors(TyperGroup):

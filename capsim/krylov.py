@@ -10,7 +10,6 @@ import math
 from typing import Callable
 
 import numpy as np
-import scipy.linalg
 
 
 class LinearSolveFailed(RuntimeError):
@@ -30,6 +29,10 @@ def gmres(matvec: Callable[[np.ndarray], np.ndarray], b: np.ndarray, tol: float,
     application per solve). Returns (x, iterations, residual) from x0 = 0;
     iterations counts every product, a restart's true residual included; the
     caller decides what a residual above ``tol`` means."""
+    # here, not at the top: capsim.config imports this module (through the scheme registry),
+    # and `capsim validate`/`plot`/`summarize` need none of scipy.linalg's ~0.15 s of imports
+    from scipy.linalg import solve_triangular
+
     n = b.size
     apply_m = precondition if precondition is not None else (lambda v: v)
     x = np.zeros(n)
@@ -68,7 +71,7 @@ def gmres(matvec: Callable[[np.ndarray], np.ndarray], b: np.ndarray, tol: float,
                 break
             basis[j + 1] = w / h_next
         k = j + 1
-        coef = scipy.linalg.solve_triangular(hess[:k, :k], g[:k], check_finite=False)
+        coef = solve_triangular(hess[:k, :k], g[:k], check_finite=False)
         x += apply_m(coef @ basis[:k])
         if abs(g[k]) <= tol or iterations >= max_iter:
             return x, iterations, abs(g[k])

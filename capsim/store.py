@@ -326,7 +326,8 @@ class TrajectoryWriter:
         self._snapshot_t.resize((n_snapshots,))
         self._timeseries = f["timeseries"]
         self._keys = tuple(self._timeseries) or None
-        for ds in self._timeseries.values():
+        self._columns = [self._timeseries[key] for key in self._keys or ()]
+        for ds in self._columns:
             ds.resize((n_steps,))
         for name in ("summary", "run"):  # rewritten when the run ends
             if name in f:
@@ -394,13 +395,18 @@ class TrajectoryWriter:
     def _write_pending(self) -> None:
         if not self._pending:
             return
-        block = np.array(self._pending, dtype=np.float64)
+        # one column after another, as Dataset.resize and Dataset.__setitem__ do, but through
+        # the low-level calls with the handles kept: h5py's name lookup and selection building
+        # cost ~0.2 ms a column, ~8 ms a flush of ~40 columns (more than a level-3 step's observables)
+        columns = np.array(self._pending, dtype=np.float64).T.copy()  # C order: each column contiguous
         n = self._n_steps
-        start = n - block.shape[0]
-        for j, key in enumerate(self._keys):
-            ds = self._timeseries[key]
-            ds.resize((n,))
-            ds[start:n] = block[:, j]
+        m = columns.shape[1]
+        memory = h5py.h5s.create_simple((m,))
+        for ds, column in zip(self._columns, columns):
+            ds.id.set_extent((n,))
+            space = ds.id.get_space()
+            space.select_hyperslab((n - m,), (m,))
+            ds.id.write(memory, space, column)
         self._pending = []
 
     def _create_timeseries(self, keys: tuple[str, ...]) -> None:
@@ -418,6 +424,7 @@ class TrajectoryWriter:
                 if key != "t":
                     self._timeseries[key].dims[0].attach_scale(t)
         self._keys = keys
+        self._columns = [self._timeseries[key] for key in keys]
 
     def append_snapshot(self, t: float, positions: np.ndarray) -> None:
         positions = np.asarray(positions, dtype=np.float64)

@@ -67,6 +67,28 @@ def test_a_mesh_without_the_rotation_falls_back_to_the_mirror_and_then_to_none()
     assert disc.symmetry == "mirror_z"
 
 
+@pytest.mark.parametrize("base", ["octahedron", "icosahedron"])
+@pytest.mark.parametrize("kind,params,tilt", SHAPES)
+def test_the_image_search_finds_what_a_kd_tree_finds(base, kind, params, tilt):
+    """solver._images_within (no scipy.spatial at start-up, issue 29) gives cKDTree's nearest
+    node wherever every node has an image within the tolerance, and None where one has not."""
+    from scipy.spatial import cKDTree
+
+    from capsim.solver import _images_within
+
+    x = rest_shape_mesh(kind, base, 2, tilt, **params).positions
+    tol = 1e-9 * np.abs(x).max()
+    signs = [*GROUP.values(), GROUP["mirror"] * GROUP["rotation"], np.array([1.0, -1.0, 1.0])]
+    for points in (x, x + np.random.default_rng(3).normal(scale=1e-4, size=x.shape)):
+        for g in signs:
+            dist, image = cKDTree(points).query(points * g)
+            found = _images_within(points, points * g, tol)
+            if dist.max() <= tol:
+                np.testing.assert_array_equal(found, image)
+            else:
+                assert found is None
+
+
 def test_a_flow_without_the_symmetry_is_refused():
     mesh = rest_shape_mesh("sphere", "octahedron", 1)
     disc = Discretization(mesh.elements, mesh.n_vertices)

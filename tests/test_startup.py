@@ -1,0 +1,71 @@
+"""`capsim run`'s start-up (issue 29): the run path imports no module it does not use.
+
+`make demo` is a 2-3 s command of which the imports were a third; a module pulled in
+by one careless top-level import (scipy.spatial for one nearest-neighbour query,
+scipy.linalg through the scheme registry of capsim.config, a plotting or units stack)
+costs every run ~0.1 s. Each check runs in a fresh interpreter and reads sys.modules.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: never needed by `capsim run` (plots, the xarray view of a run file, units, exports)
+NOT_FOR_A_RUN = ("scipy.spatial", "matplotlib", "xarray", "pint", "dask", "pandas", "meshio", "netCDF4", "h5netcdf")
+
+
+def _loaded_after(code: str, cwd: Path, watch: tuple[str, ...]) -> list[str]:
+    """The modules of `watch` in sys.modules once `code` has run (its exit included)."""
+    probe = (f"import atexit, json, sys\n"
+             f"atexit.register(lambda: print(json.dumps(sorted(m for m in {list(watch)!r} if m in sys.modules))))\n"
+             f"{code}\n")
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_", "CAPSIM_"))}
+    env["PYTHONPATH"] = str(ROOT)
+    out = subprocess.run([sys.executable, "-c", probe], cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_reading_a_case_loads_no_numerics():
+    """The CLI, a case and the checkpoint module (what `capsim validate` and the start of
+    `capsim run` load) import neither scipy nor numba nor HDF5."""
+    loaded = _loaded_after("import capsim.cli, capsim.config, capsim.checkpoint\n"
+                           "capsim.config.load_case_with('configs/sphere.yaml', [])", ROOT,
+                           ("scipy", "numba", "h5py", *NOT_FOR_A_RUN))
+    assert loaded == []
+
+
+def test_the_run_path_imports_nothing_it_does_not_use(tmp_path):
+    """A whole (tiny) `capsim run` of the demo's case: no plotting, xarray, units or KD-tree."""
+    import yaml
+
+    data = yaml.safe_load((ROOT / "configs" / "sphere.yaml").read_text())
+    data["mesh"]["level"] = 1
+    data["time"]["t_end"] = 0.2
+    data["output"] = {"path": "runs/tiny.h5", "snapshot_every": 0.1}
+    (tmp_path / "sphere.yaml").write_text(yaml.safe_dump(data))
+    run = ("from capsim.cli import app\n"
+           "sys.argv = ['capsim', 'run', 'sphere.yaml']\n"
+           "try:\n    app()\nexcept SystemExit as exc:\n    assert not exc.code, exc.code")
+    loaded = _loaded_after(run, tmp_path, ("h5py", "numba", *NOT_FOR_A_RUN))
+    assert (tmp_path / "runs" / "tiny.h5").exists()
+    assert loaded == ["h5py", "numba"]  # what the run does need: the probe sees the imports made while it runs
+
+
+def test_the_cli_leaves_its_heap_to_the_os_at_exit():
+    """capsim.cli freezes the heap at exit (atexit handlers run last-registered first, so this
+    probe, registered before the import, runs after it): the interpreter's teardown then skips
+    collecting numba's, pydantic's and scipy's objects, ~0.2 s of every command."""
+    code = ("import atexit, gc\n"
+            "atexit.register(lambda: print('frozen' if gc.get_freeze_count() else 'not frozen'))\n"
+            "import capsim.cli\n")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "frozen"
