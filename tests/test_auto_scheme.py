@@ -16,6 +16,8 @@ from capsim.timestepping import SCHEMES, build_integrator
 CASE_A = {"mesh": {"level": 3}, "flow": {"shear_rate_G": 0.1}}
 CASE_G = {"mesh": {"level": 2}, "flow": {"shear_rate_G": 0.001}}
 CASE_C = {"mesh": {"level": 3}, "flow": {"shear_rate_G": 0.0125}}
+CASE_E = {"shape": {"kind": "oblate", "aspect_ratio": 0.5}, "mesh": {"level": 3},
+          "membrane": {"bending_modulus": 1e-3}, "flow": {"shear_rate_G": 0.2, "viscosity_ratio": 10.0}}
 
 
 def _chosen(spec: dict, **time):
@@ -42,6 +44,14 @@ def test_auto_picks_linearly_implicit_on_g_and_not_on_a_or_c():
     assert "stiff" in g.choice and g.evaluations > 0  # the measurement is counted
     for spec in (CASE_A, CASE_C):
         assert _chosen(spec).name == "rkc"
+
+
+def test_auto_picks_the_dense_linearly_implicit_scheme_on_e():
+    """(e), λ = 10, a tumbling oblate: the linearly implicit scheme with the dense preconditioner,
+    the best fixed choice there (benchmarks/time_schemes.md: 9516 layer applications against
+    rkc's 16612 and rkf23's 19956 at equal accuracy)."""
+    e = _chosen(CASE_E)
+    assert e.name == "linearly_implicit" and e.stage_solver.preconditioner == "dense", e.choice
 
 
 @pytest.mark.parametrize("rtol", [1e-2, 1e-5])
