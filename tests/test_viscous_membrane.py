@@ -139,7 +139,8 @@ def test_resumed_viscous_run_repeats_the_uninterrupted_one(tmp_path, scheme):
 
 def test_both_explicit_schemes_agree_and_record_the_solves(tmp_path):
     """rkf23 and rkc on the same viscous case (λ = 5, so the solve holds the double layer
-    too) agree to their tolerance; every step records the GMRES iterations of its solve."""
+    too) agree to their tolerance; every step records the GMRES iterations of its solve (0
+    where the extrapolated warm start already met the tolerance, at the first steps)."""
     runs = {}
     for scheme in ("rkf23", "rkc"):
         case = _case(tmp_path, f"s{scheme}", **{"time.scheme": scheme, "time.t_end": 1.0, "time.rtol": 1e-5,
@@ -150,8 +151,31 @@ def test_both_explicit_schemes_agree_and_record_the_solves(tmp_path):
     assert a["D_xy"][-1] == pytest.approx(b["D_xy"][-1], rel=2e-3)
     assert a["theta"][-1] == pytest.approx(b["theta"][-1], abs=2e-3)
     for ts in runs.values():
-        assert np.all(ts["solver_iterations"][1:] >= 1)
+        assert ts["solver_iterations"].sum() >= 2 * len(ts["solver_iterations"])  # the solves iterate
         assert np.all(ts["solver_residual"] <= 1e-5)
+
+
+@pytest.mark.parametrize("scheme, most", [("rkf23", 0.9), ("rkc", 0.8)])  # measured 0.77, 0.70
+def test_extrapolated_warm_start_saves_iterations_and_not_accuracy(tmp_path, monkeypatch, scheme, most):
+    """The solve's warm start extrapolates the last two solves' velocity and right-hand side
+    (KelvinVoigtMembrane._extrapolation): against the last solve's alone (EXTRAPOLATION_LIMIT
+    0), fewer GMRES iterations (level 3, kt 0-2: 12 % fewer layer applications with rkf23,
+    27 % with rkc, whose stages lie on a smooth path; here level 2) and the same D_xy at the
+    end to the solve's tolerance."""
+    import capsim.viscosity as viscosity
+
+    runs = {}
+    for limit in (viscosity.KelvinVoigtMembrane.EXTRAPOLATION_LIMIT, 0.0):
+        monkeypatch.setattr(viscosity.KelvinVoigtMembrane, "EXTRAPOLATION_LIMIT", limit)
+        case = _case(tmp_path, f"x{scheme}{limit:g}", **{"mesh.level": 2, "time.scheme": scheme, "time.t_end": 1.0,
+                                                          "membrane.viscosity": {"shear": 1.0}})
+        result = run_case(case)
+        assert result["status"] == "completed"
+        runs[limit] = (result, read_trajectory(case.output.path)["timeseries"])
+    (new, a), (old, b) = runs.values()
+    per_solve = [r["layer_applications"] / r["velocity_evaluations"] for r in (new, old)]
+    assert per_solve[0] <= most * per_solve[1]
+    assert a["D_xy"][-1] == pytest.approx(b["D_xy"][-1], abs=1e-6)  # the step sequences may differ
 
 
 def test_viscosity_removes_stiffness_so_rkc_runs_at_two_stages(tmp_path):
