@@ -321,8 +321,8 @@ class KelvinVoigtMembrane:
         return u
 
     #: the warm start extrapolates no further than this many times the last two solves' distance
-    #: (a spectral-radius probe's configurations lie ~1e-8 apart, and their velocities differ by
-    #: the solve's tolerance: extrapolating that would amplify it)
+    #: (a spectral-radius probe's configurations lie ~1e-4 apart, relative, and their velocities
+    #: differ by that times ρ plus the solve's tolerance: extrapolating far would amplify the latter)
     EXTRAPOLATION_LIMIT = 4.0
 
     def _extrapolation(self, x: np.ndarray, rhs: np.ndarray) -> float | None:
