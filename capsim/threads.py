@@ -270,7 +270,8 @@ def policy_attrs() -> dict[str, str | int]:
 #: full-mesh nodes from which a run's parallel kernels use every thread they were given: below it
 #: one thread (measured on the demo, level 3 = 1026 nodes with quarter symmetry: one thread
 #: 3.6 s, two 4.0 s, a second thread's fork-join cost outweighs its share of ~1 ms of
-#: sums; level 4 = 4098 nodes: two threads 1.18x faster per evaluation; issue 29, docs/user_guide.md "Threads")
+#: sums; level 4 = 4098 nodes: two threads 1.50x faster over a run, quiet machine,
+#: benchmarks/threads_level4.md; issue 29, docs/user_guide.md "Threads")
 PARALLEL_MIN_NODES = 2000
 
 
