@@ -20,8 +20,8 @@ of ``kernels.viscous_membrane_blocks`` (eq. V3). The velocity equation of
 viscous term, which is why the Boussinesq number is the parameter. (V4) is solved
 by GMRES (``capsim.krylov``) at every velocity evaluation, warm-started from the
 last solution, right-preconditioned by the "local drag" approximation
-SL[w] ≈ s w (s the single layer's Rayleigh quotient on white noise at the rest
-shape, where the finest modes, the stiff ones, dominate):
+SL[w] ≈ s w (s a fraction of the single layer's Rayleigh quotient on white noise at the
+rest shape, where the finest modes, the stiff ones, dominate: ``drag_scale``):
 
     Z⁻¹ ≈ ( (1+λ)/2 M + s/(8π) K )⁻¹ M
 
@@ -162,15 +162,27 @@ class KelvinVoigtMembrane:
         K = cached[0] if cached is not None else self.stiffness(x)
         return float(u.ravel() @ (K @ u.ravel()))
 
+    #: the constant drag as a fraction of the single layer's Rayleigh quotient on white noise
+    #: (drag_scale): the quotient is the mean of SL's spectrum, dominated by the finest modes,
+    #: while the smooth modes, where SL is larger, are those GMRES then has to resolve; a smaller
+    #: drag balances the two (level 2, no symmetry, layer applications per solve over kt 0-1:
+    #: fraction 1 → 7.2, 0.5 → 6.5, 0.35 → 6.3, 0.25 → 6.6; docs/viscous_membrane.md)
+    DRAG_FRACTION = 0.35
+
     def drag_scale(self, model: "CapsuleModel") -> float:
-        """s = ⟨v, SL[v]⟩/⟨v, v⟩ at the rest shape for white noise v (fixed seed): computed
-        once, from the rest positions, so that a resumed run uses the same value."""
+        """s = DRAG_FRACTION · ⟨v, SL[v]⟩/⟨v, v⟩ at the rest shape for white noise v (fixed
+        seed) with the mesh's symmetry (its values at the symmetry's targets, expanded: the
+        layer sums are evaluated at the targets, so for any other field SL[v] would not be
+        v's single layer and the quotient would depend on the symmetry in use); computed once,
+        from the rest positions, so that a resumed run uses the same value."""
         if self._drag is None:
             disc = self.disc
             x = self.rest_positions
             v = np.random.default_rng(12345).standard_normal(x.shape)
+            if disc.symmetry != "none":
+                v = disc.expand(v[disc.targets])
             sl = disc.single_layer(x, disc.geometry(x), np.ascontiguousarray(v[disc.elements]))
-            self._drag = max(float(np.vdot(v, sl)) / float(np.vdot(v, v)), 0.0)
+            self._drag = self.DRAG_FRACTION * max(float(np.vdot(v, sl)) / float(np.vdot(v, v)), 0.0)
         return self._drag
 
     def _reduction(self) -> "_Reduction":
