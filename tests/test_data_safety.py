@@ -102,7 +102,8 @@ def test_second_writer_is_refused_before_anything_is_touched(tmp_path):
     --overwrite) is refused in one line and leaves its file and checkpoint alone;
     the first ends with a readable file."""
     case = case_from_dict({
-        "name": "first", "flow": {"shear_rate_G": 0.2}, "mesh": {"level": 1}, "time": {"t_end": 20.0},
+        # kt 60: the run must outlast the checks below (it is stopped by SIGTERM, not at its end)
+        "name": "first", "flow": {"shear_rate_G": 0.2}, "mesh": {"level": 1}, "time": {"t_end": 60.0},
         "output": {"path": str(tmp_path / "first.h5"), "checkpoint_every_steps": 1},
     })
     case_file = _case_file(case, tmp_path / "first.yaml")

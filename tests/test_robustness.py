@@ -346,10 +346,11 @@ def test_sigkill_sigterm_and_resume_match_uninterrupted_run(tmp_path):
     seed = int.from_bytes(os.urandom(4), "little")
     rng = random.Random(seed)
     case = case_from_dict({
-        # kt 3 (67 steps): at kt 1.2 (34 steps) a fast machine ran from the chosen checkpoint
+        # kt 12 (~270 steps): at kt 1.2 (34 steps) a fast machine ran from the chosen checkpoint
         # to within 4 steps of the end before the kill landed, and the resumed run finished
-        # before the SIGTERM this test sends it
-        "name": "killed", "flow": {"shear_rate_G": 0.2}, "mesh": {"level": 1}, "time": {"t_end": 3.0},
+        # before the SIGTERM this test sends it; at kt 3 (67 steps, 0.3 s once the run file's
+        # flushes got cheaper) the resumed run could end before the test saw its checkpoint
+        "name": "killed", "flow": {"shear_rate_G": 0.2}, "mesh": {"level": 1}, "time": {"t_end": 12.0},
         "output": {"path": str(tmp_path / "killed.h5"), "snapshot_every": 0.5, "checkpoint_every_steps": 2},
     })
     case_file = tmp_path / "case.yaml"
@@ -357,7 +358,7 @@ def test_sigkill_sigterm_and_resume_match_uninterrupted_run(tmp_path):
     path, ckpt = Path(case.output.path), checkpoint_path(case.output.path)
     cmd = [sys.executable, "-m", "capsim.cli", "run", str(case_file), "-q"]
 
-    # SIGKILL somewhere after a random checkpoint (the run takes about 67 steps)
+    # SIGKILL somewhere after a random checkpoint (the run takes about 270 steps)
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     _wait_for_checkpoint(proc, ckpt, rng.randrange(0, 16, 2))
     time.sleep(rng.uniform(0.0, 0.1))
