@@ -18,8 +18,9 @@ of ``kernels.viscous_membrane_blocks`` (eq. V3). The velocity equation of
 
 (A = I at λ = 1, else the deflated double-layer operator); G cancels from the
 viscous term, which is why the Boussinesq number is the parameter. (V4) is solved
-by GMRES (``capsim.krylov``) at every velocity evaluation, warm-started from the
-last solution, right-preconditioned by the "local drag" approximation
+by GMRES (``capsim.krylov``) at every velocity evaluation, on the unknowns the mesh's
+symmetry leaves (``_Reduction``), warm-started from the last two solutions extrapolated
+(``_extrapolation``), right-preconditioned by the "local drag" approximation
 SL[w] ≈ s w (s a fraction of the single layer's Rayleigh quotient on white noise at the
 rest shape, where the finest modes, the stiff ones, dominate: ``drag_scale``):
 
