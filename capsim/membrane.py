@@ -505,7 +505,9 @@ class MembraneForce:
         self._mass_factor_x = fx
         self.evaluations = int(state.get("evaluations", 0))
 
-    def _reduced(self) -> ReducedMass:
+    def reduced_mass(self) -> ReducedMass:
+        """The tables of the mass solve on the unknowns the mesh's symmetry leaves, built once
+        per symmetry (the viscous membrane's solve uses the same unknowns)."""
         if self._reduced_mass is None or self._reduced_mass[0] != self.disc.symmetry:
             self._reduced_mass = (self.disc.symmetry, ReducedMass.of(self.disc))
         return self._reduced_mass[1]
@@ -514,7 +516,7 @@ class MembraneForce:
         """The factorisation in use: the kept one, else that at _mass_factor_x (a restored
         state), else that at x (data: the reduced mass matrix at x)."""
         if self._mass_factor is None:
-            reduced = self._reduced()
+            reduced = self.reduced_mass()
             if self._mass_factor_x is None:
                 self._mass_factor_x = np.array(x, copy=True)
             else:
@@ -531,10 +533,10 @@ class MembraneForce:
         at x for the next solve. A configuration without the symmetry is solved in full."""
         if not self._symmetric(x):
             return self._solve_full(mass_data, rhs)
-        return self._solve_reduced(x, self._reduced().data(mass_data), rhs)
+        return self._solve_reduced(x, self.reduced_mass().data(mass_data), rhs)
 
     def _symmetric(self, x: Array) -> bool:
-        reduced = self._reduced()
+        reduced = self.reduced_mass()
         return kernels.asymmetry(x, reduced.col, reduced.sign, reduced.target_node) <= ASYMMETRY_TOL * np.abs(x).max()
 
     def _solve_full(self, mass_data: Array, rhs: Array) -> tuple[Array, int]:
@@ -551,7 +553,7 @@ class MembraneForce:
 
     def _solve_reduced(self, x: Array, data: Array, rhs: Array) -> tuple[Array, int]:
         """The reduced solve with K's values ``data`` at x (see solve_mass)."""
-        reduced = self._reduced()
+        reduced = self.reduced_mass()
         guess = self._last_traction if self._last_traction is not None else np.zeros_like(rhs)
         factor = self._factor(x, data)
         traction, iterations = kernels.solve_reduced_mass(

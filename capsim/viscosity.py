@@ -104,7 +104,7 @@ class KelvinVoigtMembrane:
         self._rest_factor = None
         self._factor_x: np.ndarray | None = None  # frozen: where the factor is built (None: the rest shape)
         self._operators: tuple | None = None  # (x, K, mass matrix, its LU or None) of the last assembly
-        self._reductions: dict = {}  # _Reduction per symmetry of the discretisation
+        self._reduction: _Reduction | None = None  # the solve's unknowns (_reduction_for)
         # (x, u, rhs) of the last two converged solves: the warm start's extrapolation (solve);
         # part of the checkpoint (the model's state "warm_viscous_history")
         self.history: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
@@ -186,18 +186,15 @@ class KelvinVoigtMembrane:
             self._drag = self.DRAG_FRACTION * max(float(np.vdot(v, sl)) / float(np.vdot(v, v)), 0.0)
         return self._drag
 
-    def _reduction(self) -> "_Reduction":
-        """The unknowns of the solve: those the mesh's symmetry leaves (membrane.ReducedMass's;
-        every node's three components without one). The layer sums are evaluated at the
-        symmetry's targets and expanded (solver.Discretization), so the velocity is
-        equivariant whatever the unknowns."""
-        from capsim.membrane import ReducedMass
-
-        name = self.disc.symmetry
-        red = self._reductions.get(name)
-        if red is None:
-            red = self._reductions[name] = _Reduction.of(ReducedMass.of(self.disc), self.disc.n_nodes, name)
-        return red
+    def _reduction_for(self, model: "CapsuleModel") -> "_Reduction":
+        """The unknowns of the solve: those the mesh's symmetry leaves, the membrane force's
+        (``MembraneForce.reduced_mass``; every node's three components without a symmetry).
+        The layer sums are evaluated at the symmetry's targets and expanded
+        (solver.Discretization), so the velocity is equivariant whatever the unknowns."""
+        reduced = model.membrane.reduced_mass()
+        if self._reduction is None or self._reduction.reduced is not reduced:
+            self._reduction = _Reduction.of(reduced, self.disc.n_nodes)
+        return self._reduction
 
     def _factors(self, model: "CapsuleModel", red: "_Reduction", X: np.ndarray, K=None, mass=None) -> tuple:
         """At configuration X: the LU of the local-drag matrix Eᵀ((1+λ)/2 M⊗I₃ + s/(8π) K)E
@@ -232,9 +229,8 @@ class KelvinVoigtMembrane:
         from capsim.geometry import best_rotation
 
         X = self.rest_positions if self._factor_x is None else self._factor_x
-        key = (red.name, red.n)
-        if self._rest_factor is None or self._rest_factor[0] != key:
-            self._rest_factor = (key, *self._factors(model, red, X))
+        if self._rest_factor is None or self._rest_factor[0] is not red:
+            self._rest_factor = (red, *self._factors(model, red, X))
         _, lu, reduced_mass, mass_factor = self._rest_factor
         return red.preconditioner(lu, reduced_mass, best_rotation(X, x)), mass_factor
 
@@ -257,7 +253,7 @@ class KelvinVoigtMembrane:
         disc, counts, lam = model.disc, model.counts, model.viscosity_ratio
         self._operators = None  # a new configuration: assembled once, kept for the observables
         K, mass = self.operators(x, geo)
-        red = self._reduction()
+        red = self._reduction_for(model)
         r = red.reduced
         double = model.double_layer_operator(x, geo, normals) if lam != 1.0 else None
         elements = disc.elements
@@ -359,27 +355,21 @@ class _Reduction:
     nodal components that are ± that one), u = E w/√m with E (3N × n) the signed expansion.
     For an equivariant u, |w|₂ = |u|₂."""
 
-    name: str
     reduced: Any           # membrane.ReducedMass
     expansion: Any         # E, CSR (3N × n)
     restriction: Any       # Eᵀ, CSR
     pick: np.ndarray       # (n,) flat index 3 j + c of each unknown's target component
     weight: np.ndarray     # (n,) √m
 
-    @property
-    def n(self) -> int:
-        return int(self.pick.size)
-
     @classmethod
-    def of(cls, reduced, n_nodes: int, name: str) -> "_Reduction":
+    def of(cls, reduced, n_nodes: int) -> "_Reduction":
         import scipy.sparse as sp
 
         valid = reduced.col >= 0
         rows = (3 * np.arange(n_nodes)[:, None] + np.arange(3)[None, :])[valid]
         expansion = sp.csr_matrix((reduced.sign[valid], (rows, reduced.col[valid])),
                                   shape=(3 * n_nodes, reduced.size))
-        return cls(name, reduced, expansion,
-                   expansion.T.tocsr(), 3 * reduced.target_node + reduced.target_comp,
+        return cls(reduced, expansion, expansion.T.tocsr(), 3 * reduced.target_node + reduced.target_comp,
                    np.sqrt(1.0 / reduced.inv_mult))
 
     def full(self, w: np.ndarray) -> np.ndarray:
