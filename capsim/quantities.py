@@ -401,41 +401,30 @@ FLAGS: dict[str, tuple[str, ...]] = {
 #: The CF version the netCDF files (and the run file) follow.
 CONVENTIONS = "CF-1.10"
 
-#: The capsim scales named by the ``scale`` attribute of a dimensionless value (units "1").
-SCALES: dict[str, str] = {
-    "a": "length: the equal-volume radius of the capsule, (3V/4π)^(1/3)",
-    "1/k": "time: the inverse shear rate of the simple shear v = (k y, 0, 0)",
-    "E_s": "membrane elastic modulus (surface tension for a drop), N/m; G = μka/E_s",
-    "mu": "viscosity of the outer fluid",
-    "mu k a": "membrane tension (N/m) of the flow: G × E_s",
-    "5/2 mu k V": "particle stresslet of a rigid sphere of the capsule's volume V",
-    "E_s a^2": "bending energy (κ)",
-    "a^2": "area", "a^3": "volume",
-    "mu k^2 a^3": "power (W): a rate of dissipation or of work of the flow",
-    "k/(4 pi)": "frequency: f_s = k/(4π), the revolutions per unit time of a rigid sphere's surface",
-    "a k": "velocity",
-    "E_s/a": "traction (force per area): a membrane load Δf",
+#: The capsim scales named by the ``scale`` attribute of a dimensionless value (units "1"):
+#: (what it measures, its SI unit, the unit shown with ``--units physical``). The one place a
+#: scale and its physical unit are spelled: every writer (closing table, summary, figures,
+#: export) takes the unit from here through :func:`physical_units`; both UDUNITS (CF) and pint
+#: read these strings. Frequencies are revolutions per second, Hz.
+_SCALE_TABLE: dict[str, tuple[str, str, str]] = {
+    "a": ("length: the equal-volume radius of the capsule, (3V/4π)^(1/3)", "m", "um"),
+    "1/k": ("time: the inverse shear rate of the simple shear v = (k y, 0, 0)", "s", "s"),
+    "E_s": ("membrane elastic modulus (surface tension for a drop), N/m; G = μka/E_s", "N/m", "uN/m"),
+    "mu": ("viscosity of the outer fluid", "Pa*s", "mPa*s"),
+    "mu k a": ("membrane tension (N/m) of the flow: G × E_s", "N/m", "uN/m"),
+    "5/2 mu k V": ("particle stresslet of a rigid sphere of the capsule's volume V", "N*m", "pN*um"),
+    "E_s a^2": ("bending energy (κ)", "J", "J"),
+    "a^2": ("area", "m^2", "um^2"),
+    "a^3": ("volume", "m^3", "um^3"),
+    "mu k^2 a^3": ("power (W): a rate of dissipation or of work of the flow", "W", "fW"),
+    "k/(4 pi)": ("frequency: f_s = k/(4π), the revolutions per unit time of a rigid sphere's surface", "Hz", "Hz"),
+    "a k": ("velocity", "m/s", "um/s"),
+    "E_s/a": ("traction (force per area): a membrane load Δf", "Pa", "Pa"),
 }
-
-#: Each capsim scale in physical units (``--units physical``): (its SI unit, the unit shown).
-#: The one place a physical unit is spelled: every writer (closing table, summary, figures,
-#: export) takes it from here through :func:`physical_units`; both UDUNITS (CF) and pint read
-#: these strings. Frequencies are revolutions per second, Hz.
-SCALE_UNITS: dict[str, tuple[str, str]] = {
-    "a": ("m", "um"),
-    "1/k": ("s", "s"),
-    "E_s": ("N/m", "uN/m"),
-    "mu": ("Pa*s", "mPa*s"),
-    "mu k a": ("N/m", "uN/m"),
-    "5/2 mu k V": ("N*m", "pN*um"),
-    "E_s a^2": ("J", "J"),
-    "a^2": ("m^2", "um^2"),
-    "a^3": ("m^3", "um^3"),
-    "mu k^2 a^3": ("W", "fW"),
-    "k/(4 pi)": ("Hz", "Hz"),
-    "a k": ("m/s", "um/s"),
-    "E_s/a": ("Pa", "Pa"),
-}
+#: capsim scale → what it measures (the rows of _SCALE_TABLE)
+SCALES: dict[str, str] = {k: v[0] for k, v in _SCALE_TABLE.items()}
+#: capsim scale → (its SI unit, the unit shown) (the rows of _SCALE_TABLE)
+SCALE_UNITS: dict[str, tuple[str, str]] = {k: (v[1], v[2]) for k, v in _SCALE_TABLE.items()}
 
 #: The fields of `capsim export` (ParaView files, not netCDF): name → (what it is, its capsim
 #: scale; "" for a pure number). Their units, in either system, are SCALE_UNITS' and SCALES'.
