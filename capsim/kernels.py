@@ -632,31 +632,16 @@ def element_tractions(x, elements, vertex_tension, s_gl, w_gl, areas):
 
 # ---------------------------------------------------------------- Galerkin membrane forces
 
-@njit(parallel=True, **_JIT)
-def gauss_point_strain(x, X, elements, dxi, deta):
-    """Strain invariants and dual tangent vectors at the Gauss points.
-
-    With covariant tangents t_a = ∂x/∂ξ_a (current) and T_a (reference), metrics
-    g_ab = t_a·t_b and G_ab = T_a·T_b:  λ1²λ2² = det g / det G,
-    λ1² + λ2² = G^{ab} g_ab. Returns Λ1, Λ2 (N_e, q), the current dual basis
-    t^a = g^{ab} t_b and the "reference-dual" vectors G^{ab} t_b (N_e, q, 2, 3),
-    and the reference area element J0 (N_e, q).
-    """
+@njit(**_JIT)
+def rest_metric(X, elements, dxi, deta):
+    """The reference (rest-shape) metric at the Gauss points, built once per run: the
+    inverse metric G^{11}, G^{12}, G^{22} of the covariant tangents T_a = ∂X/∂ξ_a and the
+    reference area element J0 = √det G, as (N_e, q, 4)."""
     ne = elements.shape[0]
     nq = dxi.shape[0]
-    inv1 = np.empty((ne, nq))
-    inv2 = np.empty((ne, nq))
-    dual_cur = np.empty((ne, nq, 2, 3))
-    dual_ref = np.empty((ne, nq, 2, 3))
-    jac0 = np.empty((ne, nq))
-    for e in prange(ne):
+    out = np.empty((ne, nq, 4))
+    for e in range(ne):
         for q in range(nq):
-            a0 = 0.0
-            a1 = 0.0
-            a2 = 0.0
-            b0 = 0.0
-            b1 = 0.0
-            b2 = 0.0
             A0 = 0.0
             A1 = 0.0
             A2 = 0.0
@@ -667,72 +652,115 @@ def gauss_point_strain(x, X, elements, dxi, deta):
                 node = elements[e, k]
                 d1 = dxi[q, k]
                 d2 = deta[q, k]
-                a0 += d1 * x[node, 0]
-                a1 += d1 * x[node, 1]
-                a2 += d1 * x[node, 2]
-                b0 += d2 * x[node, 0]
-                b1 += d2 * x[node, 1]
-                b2 += d2 * x[node, 2]
                 A0 += d1 * X[node, 0]
                 A1 += d1 * X[node, 1]
                 A2 += d1 * X[node, 2]
                 B0 += d2 * X[node, 0]
                 B1 += d2 * X[node, 1]
                 B2 += d2 * X[node, 2]
-            g11 = a0 * a0 + a1 * a1 + a2 * a2
-            g12 = a0 * b0 + a1 * b1 + a2 * b2
-            g22 = b0 * b0 + b1 * b1 + b2 * b2
             G11 = A0 * A0 + A1 * A1 + A2 * A2
             G12 = A0 * B0 + A1 * B1 + A2 * B2
             G22 = B0 * B0 + B1 * B1 + B2 * B2
-            detg = g11 * g22 - g12 * g12
             detG = G11 * G22 - G12 * G12
+            out[e, q, 0] = G22 / detG
+            out[e, q, 1] = -G12 / detG
+            out[e, q, 2] = G11 / detG
+            out[e, q, 3] = np.sqrt(detG)
+    return out
+
+
+@njit(parallel=True, **_JIT)
+def gauss_point_strain(x, elements, elems, dxi, deta, rest):
+    """Strain invariants and dual tangent vectors at the Gauss points of the elements
+    ``elems`` (indices into ``elements``; all of them, or under a symmetry those holding a
+    target node), with the rest shape's metric ``rest`` from ``rest_metric``.
+
+    With covariant tangents t_a = ∂x/∂ξ_a (current) and T_a (reference), metrics
+    g_ab = t_a·t_b and G_ab = T_a·T_b:  λ1²λ2² = det g / det G,
+    λ1² + λ2² = G^{ab} g_ab. Returns Λ1, Λ2 (len(elems), q), the current dual basis
+    t^a = g^{ab} t_b and the "reference-dual" vectors G^{ab} t_b (len(elems), q, 2, 3),
+    and the reference area element J0 (len(elems), q).
+    """
+    ne = elems.shape[0]
+    nq = dxi.shape[0]
+    inv1 = np.empty((ne, nq))
+    inv2 = np.empty((ne, nq))
+    dual_cur = np.empty((ne, nq, 2, 3))
+    dual_ref = np.empty((ne, nq, 2, 3))
+    jac0 = np.empty((ne, nq))
+    for i in prange(ne):
+        e = elems[i]
+        for q in range(nq):
+            a0 = 0.0
+            a1 = 0.0
+            a2 = 0.0
+            b0 = 0.0
+            b1 = 0.0
+            b2 = 0.0
+            for k in range(6):
+                node = elements[e, k]
+                d1 = dxi[q, k]
+                d2 = deta[q, k]
+                a0 += d1 * x[node, 0]
+                a1 += d1 * x[node, 1]
+                a2 += d1 * x[node, 2]
+                b0 += d2 * x[node, 0]
+                b1 += d2 * x[node, 1]
+                b2 += d2 * x[node, 2]
+            g11 = a0 * a0 + a1 * a1 + a2 * a2
+            g12 = a0 * b0 + a1 * b1 + a2 * b2
+            g22 = b0 * b0 + b1 * b1 + b2 * b2
+            detg = g11 * g22 - g12 * g12
             # inverse metrics
             gi11 = g22 / detg
             gi12 = -g12 / detg
             gi22 = g11 / detg
-            Gi11 = G22 / detG
-            Gi12 = -G12 / detG
-            Gi22 = G11 / detG
-            inv1[e, q] = 0.5 * np.log(detg / detG)
-            inv2[e, q] = 0.5 * (Gi11 * g11 + 2.0 * Gi12 * g12 + Gi22 * g22) - 1.0
-            dual_cur[e, q, 0, 0] = gi11 * a0 + gi12 * b0
-            dual_cur[e, q, 0, 1] = gi11 * a1 + gi12 * b1
-            dual_cur[e, q, 0, 2] = gi11 * a2 + gi12 * b2
-            dual_cur[e, q, 1, 0] = gi12 * a0 + gi22 * b0
-            dual_cur[e, q, 1, 1] = gi12 * a1 + gi22 * b1
-            dual_cur[e, q, 1, 2] = gi12 * a2 + gi22 * b2
-            dual_ref[e, q, 0, 0] = Gi11 * a0 + Gi12 * b0
-            dual_ref[e, q, 0, 1] = Gi11 * a1 + Gi12 * b1
-            dual_ref[e, q, 0, 2] = Gi11 * a2 + Gi12 * b2
-            dual_ref[e, q, 1, 0] = Gi12 * a0 + Gi22 * b0
-            dual_ref[e, q, 1, 1] = Gi12 * a1 + Gi22 * b1
-            dual_ref[e, q, 1, 2] = Gi12 * a2 + Gi22 * b2
-            jac0[e, q] = np.sqrt(detG)
+            Gi11 = rest[e, q, 0]
+            Gi12 = rest[e, q, 1]
+            Gi22 = rest[e, q, 2]
+            J0 = rest[e, q, 3]
+            inv1[i, q] = 0.5 * np.log(detg / (J0 * J0))
+            inv2[i, q] = 0.5 * (Gi11 * g11 + 2.0 * Gi12 * g12 + Gi22 * g22) - 1.0
+            dual_cur[i, q, 0, 0] = gi11 * a0 + gi12 * b0
+            dual_cur[i, q, 0, 1] = gi11 * a1 + gi12 * b1
+            dual_cur[i, q, 0, 2] = gi11 * a2 + gi12 * b2
+            dual_cur[i, q, 1, 0] = gi12 * a0 + gi22 * b0
+            dual_cur[i, q, 1, 1] = gi12 * a1 + gi22 * b1
+            dual_cur[i, q, 1, 2] = gi12 * a2 + gi22 * b2
+            dual_ref[i, q, 0, 0] = Gi11 * a0 + Gi12 * b0
+            dual_ref[i, q, 0, 1] = Gi11 * a1 + Gi12 * b1
+            dual_ref[i, q, 0, 2] = Gi11 * a2 + Gi12 * b2
+            dual_ref[i, q, 1, 0] = Gi12 * a0 + Gi22 * b0
+            dual_ref[i, q, 1, 1] = Gi12 * a1 + Gi22 * b1
+            dual_ref[i, q, 1, 2] = Gi12 * a2 + Gi22 * b2
+            jac0[i, q] = J0
     return inv1, inv2, dual_cur, dual_ref, jac0
 
 
 @njit(**_JIT)
-def galerkin_energy_gradient(elements, n_nodes, dxi, deta, w, jac0, w1, w2, dual_cur, dual_ref):
-    """b_i = ∂E/∂x_i = ∫ φ_i Δf dA for E = Σ_e ∫ W(Λ1, Λ2) dA_0.
+def galerkin_energy_gradient(elements, elems, n_nodes, dxi, deta, w, jac0, w1, w2, dual_cur, dual_ref):
+    """b_i = ∂E/∂x_i = ∫ φ_i Δf dA for E = Σ_e ∫ W(Λ1, Λ2) dA_0, summed over the elements
+    ``elems`` (the Gauss-point arrays are theirs, from ``gauss_point_strain``): complete at
+    every node all of whose elements are in ``elems``.
 
     ∂Λ1/∂t_a = g^{ab} t_b and ∂Λ2/∂t_a = G^{ab} t_b, with t_a = Σ_i ∂φ_i/∂ξ_a x_i.
     Returns (N_p, 3).
     """
-    ne = elements.shape[0]
+    ne = elems.shape[0]
     nq = w.shape[0]
     out = np.zeros((n_nodes, 3))
-    for e in range(ne):
+    for i in range(ne):
+        e = elems[i]
         for q in range(nq):
-            s = w[q] * jac0[e, q]
-            c1 = s * w1[e, q]
-            c2 = s * w2[e, q]
-            v00 = c1 * dual_cur[e, q, 0, 0] + c2 * dual_ref[e, q, 0, 0]
-            v01 = c1 * dual_cur[e, q, 0, 1] + c2 * dual_ref[e, q, 0, 1]
-            v02 = c1 * dual_cur[e, q, 0, 2] + c2 * dual_ref[e, q, 0, 2]
-            v10 = c1 * dual_cur[e, q, 1, 0] + c2 * dual_ref[e, q, 1, 0]
-            v11 = c1 * dual_cur[e, q, 1, 1] + c2 * dual_ref[e, q, 1, 1]
-            v12 = c1 * dual_cur[e, q, 1, 2] + c2 * dual_ref[e, q, 1, 2]
+            s = w[q] * jac0[i, q]
+            c1 = s * w1[i, q]
+            c2 = s * w2[i, q]
+            v00 = c1 * dual_cur[i, q, 0, 0] + c2 * dual_ref[i, q, 0, 0]
+            v01 = c1 * dual_cur[i, q, 0, 1] + c2 * dual_ref[i, q, 0, 1]
+            v02 = c1 * dual_cur[i, q, 0, 2] + c2 * dual_ref[i, q, 0, 2]
+            v10 = c1 * dual_cur[i, q, 1, 0] + c2 * dual_ref[i, q, 1, 0]
+            v11 = c1 * dual_cur[i, q, 1, 1] + c2 * dual_ref[i, q, 1, 1]
+            v12 = c1 * dual_cur[i, q, 1, 2] + c2 * dual_ref[i, q, 1, 2]
             for k in range(6):
                 node = elements[e, k]
                 d1 = dxi[q, k]
@@ -744,13 +772,15 @@ def galerkin_energy_gradient(elements, n_nodes, dxi, deta, w, jac0, w1, w2, dual
 
 
 @njit(**_JIT)
-def assemble_mass_matrix(elements, csr_slot, phi, weights, nnz):
+def assemble_mass_matrix(elems, csr_slot, phi, weights, nnz):
     """Values of the consistent mass matrix M_ij = ∫ φ_i φ_j dA in a fixed CSR
-    pattern; csr_slot (N_e, 6, 6) maps element pairs to CSR positions."""
+    pattern, summed over the elements ``elems`` (all, or those holding a target node: then
+    the rows of the target nodes are complete); csr_slot (N_e, 6, 6) maps element pairs
+    to CSR positions."""
     data = np.zeros(nnz)
-    ne = elements.shape[0]
     nq = phi.shape[0]
-    for e in range(ne):
+    for i in range(elems.shape[0]):
+        e = elems[i]
         for k in range(6):
             # the element matrix is symmetric: each pair once (the same products, the same bits)
             for l in range(k, 6):
@@ -840,25 +870,38 @@ def block_cg(indptr, indices, data, rhs, x0, tol, max_iter):
 
 
 @njit(**_JIT)
-def _factor_solve(r, z, w, l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r, perm_c):
-    """z = A0⁻¹ r for Pr A0 Pc = L U (scipy's splu): the strictly lower part of the unit
-    lower L and the strictly upper part of U in CSR, U's inverse diagonal, both
-    permutations; w is workspace. Vectors of length n."""
+def _csr_matvec(indptr, indices, data, v, out):
+    """out = A v for one vector (a row's sum in a register: ~3× faster than the block
+    product _csr_matmul with one column, which stores into out at every entry)."""
+    for i in range(out.shape[0]):
+        s = 0.0
+        for p in range(indptr[i], indptr[i + 1]):
+            s += data[p] * v[indices[p]]
+        out[i] = s
+
+
+@njit(**_JIT)
+def _factor_solve(r, z, w, l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r, perm_c,
+                  scale):
+    """z = S A0⁻¹ S r for Pr A0 Pc = L U (scipy's splu) and S = diag(scale): the strictly
+    lower part of the unit lower L and the strictly upper part of U by columns (CSC), U's
+    inverse diagonal, both permutations; w is workspace. Vectors of length n. By columns
+    each entry is an independent update of w (a row-wise solve chains every entry of a row
+    through one sum: 1.5× slower here)."""
     n = r.shape[0]
     for i in range(n):
-        w[perm_r[i]] = r[i]
+        w[perm_r[i]] = r[i] * scale[i]
+    for j in range(n):
+        wj = w[j]
+        for p in range(l_indptr[j], l_indptr[j + 1]):
+            w[l_indices[p]] -= l_data[p] * wj
+    for j in range(n - 1, -1, -1):
+        wj = w[j] * u_dinv[j]
+        w[j] = wj
+        for p in range(u_indptr[j], u_indptr[j + 1]):
+            w[u_indices[p]] -= u_data[p] * wj
     for i in range(n):
-        s = w[i]
-        for p in range(l_indptr[i], l_indptr[i + 1]):
-            s -= l_data[p] * w[l_indices[p]]
-        w[i] = s
-    for i in range(n - 1, -1, -1):
-        s = w[i]
-        for p in range(u_indptr[i], u_indptr[i + 1]):
-            s -= u_data[p] * w[u_indices[p]]
-        w[i] = s * u_dinv[i]
-    for i in range(n):
-        z[i] = w[perm_c[i]]
+        z[i] = w[perm_c[i]] * scale[i]
 
 
 @njit(**_JIT)
@@ -891,29 +934,28 @@ def asymmetry(x, col, sign, target_node):
 
 
 @njit(**_JIT)
-def solve_reduced_mass(indptr, indices, data, rhs, last, col, sign, target_node, target_comp, inv_mult, tol,
-                       max_iter, l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r, perm_c):
-    """Δf (N, 3) with M Δf = rhs for an equivariant rhs, solved as K y = Eᵀ rhs with
-    Δf = E y (E: the unknown y[col[j, c]] of node j, component c, times sign[j, c]; 0
-    where col is −1), K = Eᵀ (M ⊗ I₃) E in CSR (indptr, indices, data). Conjugate
-    gradients from y = the targets' values of ``last``, preconditioned by the exact
-    factorisation of a nearby K (``_factor_solve``): with K itself the first iteration
-    solves, and as K drifts each iteration gains about −log10 ‖K0⁻¹K − I‖ digits.
-    Stops when max|r| ≤ tol·max|rhs| over the nodes (Eᵀ sums an orbit: its row u
-    is the node's value times the orbit's size, 1/inv_mult[u]). Returns (Δf, iterations)."""
+def solve_reduced_mass(indptr, indices, data, b, last, col, sign, target_node, target_comp, inv_mult, tol,
+                       max_iter, l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r, perm_c,
+                       diag0, diag_slot):
+    """Δf (N, 3) with M Δf = rhs for an equivariant rhs, solved as K y = b = Eᵀ rhs
+    (``reduce_rhs``, or ``reduce_rhs_at_targets`` from the target nodes' rows) with Δf = E y (E: the unknown y[col[j, c]] of node j, component c, times sign[j, c]; 0
+    where col is −1), K = Eᵀ (M ⊗ I₃) E in CSR (indptr, indices, data; diag_slot: the
+    position of each row's diagonal entry). Conjugate gradients from y = the targets'
+    values of ``last``, preconditioned by S K0⁻¹ S with K0 = L U the exact factorisation
+    of a nearby K (``_factor_solve``) and S = diag(√(diag K0 / diag K)): the scaling
+    takes up the local change of area since K0 (K ≈ S⁻¹ K0 S⁻¹ when each node's
+    neighbourhood dilates uniformly), which the factor alone does not see; measured at
+    level 3, it keeps the solve at 2-3 iterations over a strain of 0.3 without a new
+    factor (without it 3-5 and a refactorisation every ~100 evaluations). With K = K0
+    the first iteration solves. Stops when max|r| ≤ tol·max|rhs| over the nodes (Eᵀ
+    sums an orbit: its row u is the node's value times the orbit's size, 1/inv_mult[u]).
+    Returns (Δf, iterations)."""
     n = target_node.shape[0]
-    b = np.zeros(n)
-    for j in range(col.shape[0]):
-        for c in range(3):
-            u = col[j, c]
-            if u >= 0:
-                b[u] += sign[j, c] * rhs[j, c]
     y = np.empty(n)
     for u in range(n):
         y[u] = last[target_node[u], target_comp[u]]
     Ap = np.empty(n)
-    y_col, Ap_col = y.reshape((n, 1)), Ap.reshape((n, 1))  # views: the block product, one column
-    _csr_matmul(indptr, indices, data, y_col, Ap_col)
+    _csr_matvec(indptr, indices, data, y, Ap)
     r = b - Ap
     bmax = 0.0
     rmax = 0.0
@@ -923,15 +965,19 @@ def solve_reduced_mass(indptr, indices, data, rhs, last, col, sign, target_node,
     thresh = tol * (bmax + 1e-300)
     it = 0
     if rmax > thresh:
+        scale = np.empty(n)
+        for u in range(n):
+            scale[u] = np.sqrt(diag0[u] / data[diag_slot[u]])
         w = np.empty(n)
         z = np.empty(n)
-        _factor_solve(r, z, w, l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r, perm_c)
+        _factor_solve(r, z, w, l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r, perm_c,
+                      scale)
         pvec = z.copy()
         rz = 0.0
         for u in range(n):
             rz += r[u] * z[u]
         while it < max_iter:
-            _csr_matmul(indptr, indices, data, pvec.reshape((n, 1)), Ap_col)
+            _csr_matvec(indptr, indices, data, pvec, Ap)
             pAp = 0.0
             for u in range(n):
                 pAp += pvec[u] * Ap[u]
@@ -944,7 +990,8 @@ def solve_reduced_mass(indptr, indices, data, rhs, last, col, sign, target_node,
             it += 1
             if rmax <= thresh:
                 break
-            _factor_solve(r, z, w, l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r, perm_c)
+            _factor_solve(r, z, w, l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r,
+                          perm_c, scale)
             rz_new = 0.0
             for u in range(n):
                 rz_new += r[u] * z[u]
@@ -952,13 +999,54 @@ def solve_reduced_mass(indptr, indices, data, rhs, last, col, sign, target_node,
             rz = rz_new
             for u in range(n):
                 pvec[u] = z[u] + beta * pvec[u]
-    out = np.zeros(rhs.shape)
+    out = np.zeros(col.shape)
     for j in range(col.shape[0]):
         for c in range(3):
             u = col[j, c]
             if u >= 0:
                 out[j, c] = sign[j, c] * y[u]
     return out, it
+
+
+@njit(**_JIT)
+def reduce_rhs(rhs, col, sign, n):
+    """b = Eᵀ rhs (n unknowns): each node's components summed, with their signs, into the
+    unknown of their orbit."""
+    b = np.zeros(n)
+    for j in range(col.shape[0]):
+        for c in range(3):
+            u = col[j, c]
+            if u >= 0:
+                b[u] += sign[j, c] * rhs[j, c]
+    return b
+
+
+@njit(**_JIT)
+def reduce_rhs_at_targets(rhs, target_node, target_comp, inv_mult):
+    """b = Eᵀ rhs for an equivariant rhs from the target nodes' rows alone: each of an
+    orbit's 1/inv_mult[u] terms of Eᵀ rhs equals the target's value (so rows elsewhere
+    need not be computed)."""
+    n = target_node.shape[0]
+    b = np.empty(n)
+    for u in range(n):
+        b[u] = rhs[target_node[u], target_comp[u]] / inv_mult[u]
+    return b
+
+
+@njit(**_JIT)
+def reduced_mass_data_rows(data, entries, slot, weight, nnz):
+    """Values of K = Eᵀ (M ⊗ I₃) E from the rows of M at the target nodes alone (M's values
+    elsewhere need not be assembled): entry entries[i] of M, for each component c with
+    slot[i, c] ≥ 0, goes to slot[i, c] times weight[i, c] (its sign times the orbit's size:
+    by the symmetry each row of an orbit contributes what the target's row does)."""
+    out = np.zeros(nnz)
+    for i in range(entries.shape[0]):
+        a = data[entries[i]]
+        for c in range(3):
+            k = slot[i, c]
+            if k >= 0:
+                out[k] += weight[i, c] * a
+    return out
 
 
 # ---------------------------------------------------------------- double layer

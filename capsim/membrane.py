@@ -321,6 +321,9 @@ class ReducedMass:
     indices: Array
     slot: Array
     slot_sign: Array
+    row_entries: Array
+    row_slot: Array
+    row_weight: Array
 
     @property
     def size(self) -> int:
@@ -352,26 +355,56 @@ class ReducedMass:
         slot[valid] = inverse
         indptr = np.concatenate([[0], np.cumsum(np.bincount(uniq // n_red, minlength=n_red))]).astype(np.int64)
         slot_sign = signs[rows] * signs[cols]
+        # the entries of the target nodes' rows, each weighted by its orbit's size (row_weight)
+        is_target = np.zeros(n, dtype=bool)
+        is_target[targets] = True
+        entries = np.flatnonzero(is_target[rows])
+        row_u = u[entries]
+        row_weight = np.where(row_u >= 0, slot_sign[entries] / inv_mult[np.maximum(row_u, 0)], 0.0)
         return cls(
             col=np.ascontiguousarray(col, dtype=np.int64), sign=np.ascontiguousarray(signs, dtype=np.float64),
             target_node=targets[t_idx].astype(np.int64), target_comp=comp.astype(np.int64),
             inv_mult=np.ascontiguousarray(inv_mult), indptr=indptr, indices=(uniq % n_red).astype(np.int64),
-            slot=slot, slot_sign=np.ascontiguousarray(slot_sign),
+            slot=slot, slot_sign=np.ascontiguousarray(slot_sign), row_entries=entries.astype(np.int64),
+            row_slot=np.ascontiguousarray(slot[entries]), row_weight=np.ascontiguousarray(row_weight),
         )
+
+    def diagonal_slots(self) -> Array:
+        """The position of each row's diagonal entry in K's CSR values."""
+        rows = np.repeat(np.arange(self.size), np.diff(self.indptr))
+        slots = np.flatnonzero(self.indices == rows)
+        assert slots.size == self.size
+        return slots.astype(np.int64)
 
     def data(self, mass_data: Array) -> Array:
         """K's values from M's (``Discretization.mass_matrix_data``). Through M: a scatter
         straight from the elements to K's slots (N_e × 36 × 3 of them) measured 1.4× slower."""
         return kernels.reduced_mass_data(mass_data, self.slot, self.slot_sign, int(self.indices.size))
 
+    def data_from_target_rows(self, mass_data: Array) -> Array:
+        """K's values from the rows of M at the target nodes alone (``Discretization.
+        mass_matrix_data`` over ``target_elements``: the other rows need not be assembled);
+        equal to ``data`` of the full M to rounding at a configuration with the symmetry."""
+        return kernels.reduced_mass_data_rows(mass_data, self.row_entries, self.row_slot, self.row_weight,
+                                              int(self.indices.size))
+
+    def rhs(self, rhs: Array) -> Array:
+        """b = Eᵀ rhs, the reduced system's right-hand side."""
+        return kernels.reduce_rhs(rhs, self.col, self.sign, self.size)
+
+    def rhs_from_target_rows(self, rhs: Array) -> Array:
+        """b = Eᵀ rhs for an equivariant rhs from its target nodes' rows alone."""
+        return kernels.reduce_rhs_at_targets(rhs, self.target_node, self.target_comp, self.inv_mult)
+
 
 @dataclass(frozen=True)
 class MassFactor:
-    """The exact factorisation of the reduced mass matrix K at one configuration, as the
-    arrays ``kernels.solve_reduced_mass`` takes: Pr K Pc = L U with L's strictly lower
-    part and U's strictly upper part in CSR, U's inverse diagonal and the permutations.
-    K is SPD and factored without pivoting (scipy's symmetric mode), so the
-    preconditioner it gives is SPD too."""
+    """The exact factorisation of the reduced mass matrix K0 at one configuration, as the
+    arrays ``kernels.solve_reduced_mass`` takes: Pr K0 Pc = L U with L's strictly lower
+    part and U's strictly upper part by columns (CSC), U's inverse diagonal, the
+    permutations, K0's diagonal and the position of the diagonal in K's pattern (the
+    solve scales the factor by √(diag K0 / diag K)). K0 is SPD and factored without
+    pivoting (scipy's symmetric mode), so the preconditioner it gives is SPD too."""
 
     arrays: tuple
 
@@ -383,14 +416,16 @@ class MassFactor:
         n = reduced.size
         k = sp.csc_matrix(sp.csr_matrix((data, reduced.indices, reduced.indptr), shape=(n, n)))
         lu = splu(k, permc_spec=MASS_ORDERING, diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-        lower = sp.tril(lu.L, k=-1, format="csr")
-        upper = sp.triu(lu.U, k=1, format="csr")
+        lower = sp.tril(lu.L, k=-1, format="csc")
+        upper = sp.triu(lu.U, k=1, format="csc")
 
-        def csr(a):
+        def csc(a):
             return (a.indptr.astype(np.int64), a.indices.astype(np.int64), np.ascontiguousarray(a.data))
 
-        return cls((*csr(lower), *csr(upper), np.ascontiguousarray(1.0 / lu.U.diagonal()),
-                    lu.perm_r.astype(np.int64), lu.perm_c.astype(np.int64)))
+        diag_slot = reduced.diagonal_slots()
+        return cls((*csc(lower), *csc(upper), np.ascontiguousarray(1.0 / lu.U.diagonal()),
+                    lu.perm_r.astype(np.int64), lu.perm_c.astype(np.int64),
+                    np.ascontiguousarray(data[diag_slot]), diag_slot))
 
 
 @dataclass
@@ -520,7 +555,9 @@ class MembraneForce:
             if self._mass_factor_x is None:
                 self._mass_factor_x = np.array(x, copy=True)
             else:
-                data = reduced.data(self.disc.mass_matrix_data(self.disc.geometry(self._mass_factor_x)))
+                disc = self.disc
+                geo = disc.geometry(self._mass_factor_x)
+                data = reduced.data_from_target_rows(disc.mass_matrix_data(geo, disc.target_elements))
             self._mass_factor = MassFactor.of(reduced, data)
             self.mass_factorizations += 1
         return self._mass_factor
@@ -533,7 +570,9 @@ class MembraneForce:
         at x for the next solve. A configuration without the symmetry is solved in full."""
         if not self._symmetric(x):
             return self._solve_full(mass_data, rhs)
-        return self._solve_reduced(x, self.reduced_mass().data(mass_data), rhs)
+        reduced = self.reduced_mass()
+        # from the target nodes' rows, as a run's evaluation assembles them (the same bits)
+        return self._solve_reduced(x, reduced.data_from_target_rows(mass_data), reduced.rhs_from_target_rows(rhs))
 
     def _symmetric(self, x: Array) -> bool:
         reduced = self.reduced_mass()
@@ -551,13 +590,13 @@ class MembraneForce:
         self._last_traction = traction
         return traction, int(iterations)
 
-    def _solve_reduced(self, x: Array, data: Array, rhs: Array) -> tuple[Array, int]:
-        """The reduced solve with K's values ``data`` at x (see solve_mass)."""
+    def _solve_reduced(self, x: Array, data: Array, b: Array) -> tuple[Array, int]:
+        """The reduced solve with K's values ``data`` at x and b = Eᵀ rhs (see solve_mass)."""
         reduced = self.reduced_mass()
-        guess = self._last_traction if self._last_traction is not None else np.zeros_like(rhs)
+        guess = self._last_traction if self._last_traction is not None else np.zeros(reduced.col.shape)
         factor = self._factor(x, data)
         traction, iterations = kernels.solve_reduced_mass(
-            reduced.indptr, reduced.indices, data, rhs, guess, reduced.col, reduced.sign, reduced.target_node,
+            reduced.indptr, reduced.indices, data, b, guess, reduced.col, reduced.sign, reduced.target_node,
             reduced.target_comp, reduced.inv_mult, self.mass_tol, self.mass_max_iter, *factor.arrays,
         )
         if iterations > self.mass_refactor_iterations:
@@ -575,14 +614,34 @@ class MembraneForce:
         strain = strain_from_gradient(A, n_cur)
         return strain, tension_tensor(strain, self.law, self.law_params)
 
-    def _energy_gradient(self, x: Array) -> Array:
+    @property
+    def rest_positions(self) -> Array:
+        return self._rest_positions
+
+    @rest_positions.setter
+    def rest_positions(self, value: Array) -> None:
+        self._rest_positions = value
+        self._rest_metric = None  # the rest shape's metric at the Gauss points, built on first use
+
+    def gauss_point_strain(self, x: Array, elems: Array | None = None) -> tuple[Array, ...]:
+        """Λ1, Λ2, the dual tangents and J0 at the Gauss points of ``elems`` (default: every
+        element) at configuration x (``kernels.gauss_point_strain``)."""
         disc = self.disc
-        inv1, inv2, dual_cur, dual_ref, jac0 = kernels.gauss_point_strain(
-            x, self.rest_positions, disc.elements, disc.mem_dxi, disc.mem_deta,
-        )
+        if self._rest_metric is None:
+            self._rest_metric = kernels.rest_metric(
+                np.ascontiguousarray(self.rest_positions, dtype=np.float64), disc.elements, disc.mem_dxi,
+                disc.mem_deta)
+        elems = disc.all_elements if elems is None else elems
+        return kernels.gauss_point_strain(x, disc.elements, elems, disc.mem_dxi, disc.mem_deta, self._rest_metric)
+
+    def _energy_gradient(self, x: Array, elems: Array | None = None) -> Array:
+        """∂E/∂x, complete at every node all of whose elements are in ``elems`` (default all)."""
+        disc = self.disc
+        elems = disc.all_elements if elems is None else elems
+        inv1, inv2, dual_cur, dual_ref, jac0 = self.gauss_point_strain(x, elems)
         w1, w2 = self.law.derivatives(inv1, inv2, **self.law_params)
         rhs = kernels.galerkin_energy_gradient(
-            disc.elements, disc.n_nodes, disc.mem_dxi, disc.mem_deta, disc.mem_w,
+            disc.elements, elems, disc.n_nodes, disc.mem_dxi, disc.mem_deta, disc.mem_w,
             jac0, np.ascontiguousarray(w1), np.ascontiguousarray(w2), dual_cur, dual_ref,
         )
         if self.bending is not None:
@@ -625,11 +684,22 @@ class MembraneForce:
             self.stage_times["membrane"] += time.perf_counter() - t1
             clock.lap("contour_traction")
             return state
-        rhs = self._energy_gradient(x)
-        clock.lap("strain")
-        data = disc.mass_matrix_data(geo)
-        clock.lap("mass_assembly")
-        traction, iterations = self.solve_mass(x, data, rhs)
+        if self._symmetric(x):
+            # every quantity of the reduced solve from the target nodes' rows: the strain, the
+            # energy gradient and the mass matrix on the elements holding a target (175 of 512
+            # at level 3 under quarter symmetry)
+            reduced, elems = self.reduced_mass(), disc.target_elements
+            b = reduced.rhs_from_target_rows(self._energy_gradient(x, elems))
+            clock.lap("strain")
+            data = reduced.data_from_target_rows(disc.mass_matrix_data(geo, elems))
+            clock.lap("mass_assembly")
+            traction, iterations = self._solve_reduced(x, data, b)
+        else:
+            rhs = self._energy_gradient(x)
+            clock.lap("strain")
+            data = disc.mass_matrix_data(geo)
+            clock.lap("mass_assembly")
+            traction, iterations = self._solve_full(data, rhs)
         self.last_mass_iterations = iterations
         clock.lap("mass_solve")
         density = kernels.gather_nodal(traction, disc.elements)

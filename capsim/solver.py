@@ -206,6 +206,8 @@ class Discretization:
         self.mem_phi, self.mem_dxi, self.mem_deta, self.mem_w = mphi, mdxi, mdeta, mw
         self._build_mass_pattern()
         self.targets = np.arange(n_nodes, dtype=np.int64)
+        self.all_elements = np.arange(self.elements.shape[0], dtype=np.int64)
+        self.target_elements = self.all_elements  # the elements holding a target node
         self.symmetry = "none"  # or a key of SYMMETRY_GROUPS (enable_symmetry)
         fxi, feta, fw = subdivided_rule(self.regular_order, self.near_field_levels)
         fphi, fdxi, fdeta = shape_functions(fxi, feta)
@@ -249,6 +251,10 @@ class Discretization:
         self._near = None
         self._weights, self._pair_start = {}, None
         self.targets, self._sym_source, self._sym_signs, self._sym_zero = table
+        holds_target = np.zeros(self.elements.shape[0], dtype=bool)
+        for p in self.targets:
+            holds_target[self.inc_elem[self.inc_offsets[p]:self.inc_offsets[p + 1]]] = True
+        self.target_elements = np.flatnonzero(holds_target).astype(np.int64)
         return self.expand(positions[self.targets])
 
     def enable_mirror_symmetry(self, positions: np.ndarray) -> np.ndarray | None:
@@ -278,8 +284,11 @@ class Discretization:
         self.mass_slot = inverse.reshape(ne, 6, 6).astype(np.int64)
         self.mass_nnz = uniq.size
 
-    def mass_matrix_data(self, geo: ElementGeometry) -> np.ndarray:
-        return kernels.assemble_mass_matrix(self.elements, self.mass_slot, self.reg_phi, geo.weights, self.mass_nnz)
+    def mass_matrix_data(self, geo: ElementGeometry, elems: np.ndarray | None = None) -> np.ndarray:
+        """M's values in its CSR pattern, summed over ``elems`` (default every element;
+        ``target_elements``: the rows of the target nodes are complete, the others not)."""
+        elems = self.all_elements if elems is None else elems
+        return kernels.assemble_mass_matrix(elems, self.mass_slot, self.reg_phi, geo.weights, self.mass_nnz)
 
     def mass_matrix(self, geo: ElementGeometry):
         """The mass matrix at this geometry as a SciPy CSR matrix (N_p × N_p)."""
