@@ -207,6 +207,52 @@ def _double_layer_element_regular(x0, y0, z0, u0, v0, w0, e, reg_points, reg_nor
 
 
 @njit(**_JIT)
+def expand_symmetric(values_at_targets, source, signs, zero):
+    """Nodal vectors (N, 3) from their values at the target nodes: node j's component c is
+    signs[j, c] times its orbit's target's, 0 where zero[j, c] (a symmetry that fixes j
+    reverses it). One pass (numpy's gather, product and masked store took three)."""
+    n = source.shape[0]
+    out = np.empty((n, 3))
+    for j in range(n):
+        t = source[j]
+        for c in range(3):
+            out[j, c] = 0.0 if zero[j, c] else values_at_targets[t, c] * signs[j, c]
+    return out
+
+
+@njit(**_JIT)
+def surface_fluxes(elements, phi, normals, weights, u, v):
+    """(∫ u·n dS, ∫ v·n dS) of two nodal fields interpolated quadratically, in one pass
+    over the elements (the volume correction needs both, for the velocity and the normals)."""
+    tu = 0.0
+    tv = 0.0
+    for e in range(elements.shape[0]):
+        for q in range(phi.shape[0]):
+            ux = 0.0
+            uy = 0.0
+            uz = 0.0
+            vx = 0.0
+            vy = 0.0
+            vz = 0.0
+            for a in range(6):
+                node = elements[e, a]
+                f = phi[q, a]
+                ux += f * u[node, 0]
+                uy += f * u[node, 1]
+                uz += f * u[node, 2]
+                vx += f * v[node, 0]
+                vy += f * v[node, 1]
+                vz += f * v[node, 2]
+            w = weights[e, q]
+            nx = normals[e, q, 0]
+            ny = normals[e, q, 1]
+            nz = normals[e, q, 2]
+            tu += w * (ux * nx + uy * ny + uz * nz)
+            tv += w * (vx * nx + vy * ny + vz * nz)
+    return tu, tv
+
+
+@njit(**_JIT)
 def gather_nodal(values, elements):
     """Element-nodal copy (N_e, 6, 3) of a nodal field (N_p, 3): values[elements]."""
     return _gather(values, elements)

@@ -266,9 +266,8 @@ class Discretization:
         orbit's target), components that a symmetry fixing j reverses set to 0."""
         if self.symmetry == "none":
             return values_at_targets
-        out = values_at_targets[self._sym_source] * self._sym_signs
-        out[self._sym_zero] = 0.0
-        return out
+        return kernels.expand_symmetric(np.ascontiguousarray(values_at_targets, dtype=np.float64),
+                                        self._sym_source, self._sym_signs, self._sym_zero)
 
     def _build_mass_pattern(self) -> None:
         """CSR pattern of the consistent mass matrix and the slot of every
@@ -393,6 +392,13 @@ class Discretization:
         """∫ u·n dS of a nodal field u interpolated quadratically over the elements."""
         return float(kernels.surface_flux(self.elements, self.reg_phi, geo.normals, geo.weights,
                                           np.ascontiguousarray(u, dtype=np.float64)))
+
+    def fluxes(self, geo: ElementGeometry, u: np.ndarray, v: np.ndarray) -> tuple[float, float]:
+        """(∫ u·n dS, ∫ v·n dS) in one pass (``flux`` of each)."""
+        a, b = kernels.surface_fluxes(self.elements, self.reg_phi, geo.normals, geo.weights,
+                                      np.ascontiguousarray(u, dtype=np.float64),
+                                      np.ascontiguousarray(v, dtype=np.float64))
+        return float(a), float(b)
 
     def double_layer(self, x: np.ndarray, geo: ElementGeometry, u: np.ndarray, u_target: np.ndarray | None = None) -> np.ndarray:
         """D[u](x0) = ∫ (u − u0)·T·n dS at every node, u quadratic over elements.
@@ -697,8 +703,10 @@ class CapsuleModel:
         """The volume correction P: u − n ⟨n, u⟩/⟨n, n⟩ (fluxes over the surface);
         ``normal_flux``, ⟨n, n⟩, when the caller applies P many times at one configuration."""
         if normal_flux is None:
-            normal_flux = self.disc.flux(geo, normals)
-        return u - (self.disc.flux(geo, u) / normal_flux) * normals
+            flux, normal_flux = self.disc.fluxes(geo, u, normals)
+        else:
+            flux = self.disc.flux(geo, u)
+        return u - (flux / normal_flux) * normals
 
     def double_layer_operator(self, x: np.ndarray, geo: ElementGeometry, normals: np.ndarray):
         """u ↦ A u = u − (1−λ)/(8π) D[u] + (1−λ) n ⟨n, u⟩/S at configuration x,
