@@ -270,6 +270,135 @@ def _gather(values, elements):
     return out
 
 
+# The singular corrections below run one Duffy rule per (target, incident element) pair: at
+# level 3 under quarter symmetry 832 pairs × 16 points. Their layout is chosen for the
+# vectoriser: the rule's basis tables by node ([k, a, q], q contiguous), the six element
+# nodes' values in a 6×6 scratch block that the point loop only reads (no stores in it, so
+# LLVM hoists the 36 values and vectorises over q), and the Stokeslet (stresslet) evaluated
+# in the same loop as the interpolation. Same products and sums as _single_layer_element /
+# _double_layer_element, only reassociated (the reductions over q).
+
+#: the Duffy rule's point count for the default singular_order 2 (m = 4 n²): passed as a
+#: literal so that LLVM sees a fixed trip count and vectorises the 16 points as whole
+#: vectors (about 1.6x faster than the same loop with a run-time count, level 3)
+_DUFFY_M = 16
+#: targets per parallel chunk of the singular corrections (one scratch block each)
+_CHUNK = 16
+
+
+@njit(**_JIT)
+def _basis_by_node(table):
+    """A Duffy-rule basis table (6, m, 6) [k, q, a] as (6, 6, m) [k, a, q]: the point index
+    contiguous, the inner loop of _duffy_single / _duffy_double."""
+    nk, m, na = table.shape
+    out = np.empty((nk, na, m))
+    for k in range(nk):
+        for a in range(na):
+            for q in range(m):
+                out[k, a, q] = table[k, q, a]
+    return out
+
+
+@njit(inline="always")
+def _element_block(ev, x, elements, e, values, per_element):
+    """Fill ev (6, 6) with element e's node positions (columns 0–2) and a field's values
+    there (3–5): values (N_e, 6, 3) per element if per_element, else nodal (N_p, 3)."""
+    for a in range(6):
+        node = elements[e, a]
+        ev[a, 0] = x[node, 0]
+        ev[a, 1] = x[node, 1]
+        ev[a, 2] = x[node, 2]
+        if per_element:
+            ev[a, 3] = values[e, a, 0]
+            ev[a, 4] = values[e, a, 1]
+            ev[a, 5] = values[e, a, 2]
+        else:
+            ev[a, 3] = values[node, 0]
+            ev[a, 4] = values[node, 1]
+            ev[a, 5] = values[node, 2]
+
+
+@njit(inline="always")
+def _duffy_single(x0, y0, z0, ev, phi, dxi, deta, w, m):
+    """_single_layer_element over the first m points of one node's Duffy rule, from the
+    element block ev (_element_block) and the tables phi, dxi, deta (6, m) [a, q]."""
+    ux = 0.0
+    uy = 0.0
+    uz = 0.0
+    for q in range(m):
+        px = 0.0
+        py = 0.0
+        pz = 0.0
+        ax = 0.0
+        ay = 0.0
+        az = 0.0
+        bx = 0.0
+        by = 0.0
+        bz = 0.0
+        fx = 0.0
+        fy = 0.0
+        fz = 0.0
+        for a in range(6):
+            ph = phi[a, q]
+            d1 = dxi[a, q]
+            d2 = deta[a, q]
+            xa = ev[a, 0]
+            ya = ev[a, 1]
+            za = ev[a, 2]
+            px += ph * xa
+            py += ph * ya
+            pz += ph * za
+            ax += d1 * xa
+            ay += d1 * ya
+            az += d1 * za
+            bx += d2 * xa
+            by += d2 * ya
+            bz += d2 * za
+            fx += ph * ev[a, 3]
+            fy += ph * ev[a, 4]
+            fz += ph * ev[a, 5]
+        nx, ny, nz = _cross(ax, ay, az, bx, by, bz)
+        wj = w[q] * np.sqrt(nx * nx + ny * ny + nz * nz)
+        gx, gy, gz = _stokeslet(px - x0, py - y0, pz - z0, fx * wj, fy * wj, fz * wj)
+        ux += gx
+        uy += gy
+        uz += gz
+    return ux, uy, uz
+
+
+@njit(inline="always")
+def _single_layer_correction_rows(
+    x, elements, inc_offsets, inc_elem, inc_local, density, reg_points, reg_weights, reg_density,
+    phi_by_node, dxi_by_node, deta_by_node, sing_w, targets, lo, hi, ev, out,
+):
+    """Rows lo..hi−1 of single_layer_singular_correction into out (tables by node; ev a
+    6×6 scratch block)."""
+    m = sing_w.shape[1]
+    for i_t in range(lo, hi):
+        p = targets[i_t]
+        x0, y0, z0 = x[p, 0], x[p, 1], x[p, 2]
+        ox = 0.0
+        oy = 0.0
+        oz = 0.0
+        for c in range(inc_offsets[p], inc_offsets[p + 1]):
+            e = inc_elem[c]
+            k = inc_local[c]
+            _element_block(ev, x, elements, e, density, True)
+            if m == _DUFFY_M:
+                sx, sy, sz = _duffy_single(x0, y0, z0, ev, phi_by_node[k], dxi_by_node[k], deta_by_node[k],
+                                           sing_w[k], _DUFFY_M)
+            else:
+                sx, sy, sz = _duffy_single(x0, y0, z0, ev, phi_by_node[k], dxi_by_node[k], deta_by_node[k],
+                                           sing_w[k], m)
+            rx, ry, rz = _single_layer_element_regular(x0, y0, z0, e, reg_points, reg_weights, reg_density)
+            ox += sx - rx
+            oy += sy - ry
+            oz += sz - rz
+        out[i_t, 0] = ox
+        out[i_t, 1] = oy
+        out[i_t, 2] = oz
+
+
 @njit(parallel=True, **_JIT)
 def single_layer_singular_correction(
     x, elements, inc_offsets, inc_elem, inc_local,
@@ -285,20 +414,24 @@ def single_layer_singular_correction(
     sing_* (6, m, 6) and sing_w (6, m): the Duffy rule for a singularity at local
     node k. Returns the correction (len(targets), 3) to add to ``stokeslet_sum``
     evaluated at x[targets].
+
+    The targets are taken in chunks of _CHUNK, each with its own 6×6 scratch block
+    (prange over chunks: no allocation per target); each pair reads its element's nodes directly instead of an
+    element-nodal copy of all positions (_gather) made for every call.
     """
-    xe = _gather(x, elements)
-    out = np.zeros((targets.shape[0], 3))
-    for i_t in prange(targets.shape[0]):
-        p = targets[i_t]
-        x0, y0, z0 = x[p, 0], x[p, 1], x[p, 2]
-        for c in range(inc_offsets[p], inc_offsets[p + 1]):
-            e = inc_elem[c]
-            k = inc_local[c]
-            rx, ry, rz = _single_layer_element_regular(x0, y0, z0, e, reg_points, reg_weights, reg_density)
-            sx, sy, sz = _single_layer_element(x0, y0, z0, xe, density, e, sing_phi[k], sing_dxi[k], sing_deta[k], sing_w[k])
-            out[i_t, 0] += sx - rx
-            out[i_t, 1] += sy - ry
-            out[i_t, 2] += sz - rz
+    phi_by_node = _basis_by_node(sing_phi)
+    dxi_by_node = _basis_by_node(sing_dxi)
+    deta_by_node = _basis_by_node(sing_deta)
+    nt = targets.shape[0]
+    out = np.zeros((nt, 3))
+    n_chunks = (nt + _CHUNK - 1) // _CHUNK
+    scratch = np.empty((n_chunks, 6, 6))
+    for ch in prange(n_chunks):
+        _single_layer_correction_rows(
+            x, elements, inc_offsets, inc_elem, inc_local, density, reg_points, reg_weights, reg_density,
+            phi_by_node, dxi_by_node, deta_by_node, sing_w, targets, ch * _CHUNK, min(nt, (ch + 1) * _CHUNK),
+            scratch[ch], out,
+        )
     return out
 
 
@@ -1139,6 +1272,88 @@ def double_layer_sum(targets, u_targets, sources, normals_w, u_sources):
     return out
 
 
+@njit(inline="always")
+def _duffy_double(x0, y0, z0, u0, v0, w0, ev, phi, dxi, deta, w, m):
+    """_double_layer_element over the first m points of one node's Duffy rule, from the
+    element block ev (positions and nodal u, _element_block) and the tables (6, m) [a, q]."""
+    tx = 0.0
+    ty = 0.0
+    tz = 0.0
+    for q in range(m):
+        px = 0.0
+        py = 0.0
+        pz = 0.0
+        ax = 0.0
+        ay = 0.0
+        az = 0.0
+        bx = 0.0
+        by = 0.0
+        bz = 0.0
+        ux = 0.0
+        uy = 0.0
+        uz = 0.0
+        for a in range(6):
+            ph = phi[a, q]
+            d1 = dxi[a, q]
+            d2 = deta[a, q]
+            xa = ev[a, 0]
+            ya = ev[a, 1]
+            za = ev[a, 2]
+            px += ph * xa
+            py += ph * ya
+            pz += ph * za
+            ax += d1 * xa
+            ay += d1 * ya
+            az += d1 * za
+            bx += d2 * xa
+            by += d2 * ya
+            bz += d2 * za
+            ux += ph * ev[a, 3]
+            uy += ph * ev[a, 4]
+            uz += ph * ev[a, 5]
+        nx, ny, nz = _cross(ax, ay, az, bx, by, bz)
+        wq = w[q]
+        gx, gy, gz = _stresslet(px - x0, py - y0, pz - z0, nx * wq, ny * wq, nz * wq, ux - u0, uy - v0, uz - w0)
+        tx += gx
+        ty += gy
+        tz += gz
+    return tx, ty, tz
+
+
+@njit(inline="always")
+def _double_layer_correction_rows(
+    x, u, u_target, elements, inc_offsets, inc_elem, inc_local, reg_points, reg_normals_w, reg_u,
+    phi_by_node, dxi_by_node, deta_by_node, sing_w, targets, lo, hi, ev, out,
+):
+    """Rows lo..hi−1 of double_layer_singular_correction into out (tables by node; ev a
+    6×6 scratch block)."""
+    m = sing_w.shape[1]
+    for i_t in range(lo, hi):
+        p = targets[i_t]
+        x0, y0, z0 = x[p, 0], x[p, 1], x[p, 2]
+        u0, v0, w0 = u_target[p, 0], u_target[p, 1], u_target[p, 2]
+        ox = 0.0
+        oy = 0.0
+        oz = 0.0
+        for c in range(inc_offsets[p], inc_offsets[p + 1]):
+            e = inc_elem[c]
+            k = inc_local[c]
+            _element_block(ev, x, elements, e, u, False)
+            if m == _DUFFY_M:
+                sx, sy, sz = _duffy_double(x0, y0, z0, u0, v0, w0, ev, phi_by_node[k], dxi_by_node[k],
+                                           deta_by_node[k], sing_w[k], _DUFFY_M)
+            else:
+                sx, sy, sz = _duffy_double(x0, y0, z0, u0, v0, w0, ev, phi_by_node[k], dxi_by_node[k],
+                                           deta_by_node[k], sing_w[k], m)
+            rx, ry, rz = _double_layer_element_regular(x0, y0, z0, u0, v0, w0, e, reg_points, reg_normals_w, reg_u)
+            ox += sx - rx
+            oy += sy - ry
+            oz += sz - rz
+        out[i_t, 0] = ox
+        out[i_t, 1] = oy
+        out[i_t, 2] = oz
+
+
 @njit(parallel=True, **_JIT)
 def double_layer_singular_correction(
     x, u, u_target, elements, inc_offsets, inc_elem, inc_local,
@@ -1149,24 +1364,20 @@ def double_layer_singular_correction(
     holding each node by the Duffy rule singular at that node. The desingularised
     integrand (u − u0)·T·n is bounded but not smooth there. u: nodal values of
     the density; u_target: the value u0 subtracted at each node (normally u).
-    Returns (len(targets), 3)."""
-    xe = _gather(x, elements)
-    ue = _gather(u, elements)
-    out = np.zeros((targets.shape[0], 3))
-    for i_t in prange(targets.shape[0]):
-        p = targets[i_t]
-        x0, y0, z0 = x[p, 0], x[p, 1], x[p, 2]
-        u0, v0, w0 = u_target[p, 0], u_target[p, 1], u_target[p, 2]
-        for c in range(inc_offsets[p], inc_offsets[p + 1]):
-            e = inc_elem[c]
-            k = inc_local[c]
-            rx, ry, rz = _double_layer_element_regular(x0, y0, z0, u0, v0, w0, e, reg_points, reg_normals_w, reg_u)
-            sx, sy, sz = _double_layer_element(
-                x0, y0, z0, u0, v0, w0, xe, ue, e, sing_phi[k], sing_dxi[k], sing_deta[k], sing_w[k]
-            )
-            out[i_t, 0] += sx - rx
-            out[i_t, 1] += sy - ry
-            out[i_t, 2] += sz - rz
+    Returns (len(targets), 3). Laid out as single_layer_singular_correction."""
+    phi_by_node = _basis_by_node(sing_phi)
+    dxi_by_node = _basis_by_node(sing_dxi)
+    deta_by_node = _basis_by_node(sing_deta)
+    nt = targets.shape[0]
+    out = np.zeros((nt, 3))
+    n_chunks = (nt + _CHUNK - 1) // _CHUNK
+    scratch = np.empty((n_chunks, 6, 6))
+    for ch in prange(n_chunks):
+        _double_layer_correction_rows(
+            x, u, u_target, elements, inc_offsets, inc_elem, inc_local, reg_points, reg_normals_w, reg_u,
+            phi_by_node, dxi_by_node, deta_by_node, sing_w, targets, ch * _CHUNK, min(nt, (ch + 1) * _CHUNK),
+            scratch[ch], out,
+        )
     return out
 
 
