@@ -319,6 +319,45 @@ def _element_block(ev, x, elements, e, values, per_element):
 
 
 @njit(inline="always")
+def _block_point(ev, phi, dxi, deta, q):
+    """Position, unnormalised normal ∂x/∂ξ × ∂x/∂η and field value at point q of a Duffy
+    rule (tables (6, m) [a, q]) from the element block ev (_element_block)."""
+    px = 0.0
+    py = 0.0
+    pz = 0.0
+    ax = 0.0
+    ay = 0.0
+    az = 0.0
+    bx = 0.0
+    by = 0.0
+    bz = 0.0
+    fx = 0.0
+    fy = 0.0
+    fz = 0.0
+    for a in range(6):
+        ph = phi[a, q]
+        d1 = dxi[a, q]
+        d2 = deta[a, q]
+        xa = ev[a, 0]
+        ya = ev[a, 1]
+        za = ev[a, 2]
+        px += ph * xa
+        py += ph * ya
+        pz += ph * za
+        ax += d1 * xa
+        ay += d1 * ya
+        az += d1 * za
+        bx += d2 * xa
+        by += d2 * ya
+        bz += d2 * za
+        fx += ph * ev[a, 3]
+        fy += ph * ev[a, 4]
+        fz += ph * ev[a, 5]
+    nx, ny, nz = _cross(ax, ay, az, bx, by, bz)
+    return px, py, pz, nx, ny, nz, fx, fy, fz
+
+
+@njit(inline="always")
 def _duffy_single(x0, y0, z0, ev, phi, dxi, deta, w, m):
     """_single_layer_element over the first m points of one node's Duffy rule, from the
     element block ev (_element_block) and the tables phi, dxi, deta (6, m) [a, q]."""
@@ -326,38 +365,7 @@ def _duffy_single(x0, y0, z0, ev, phi, dxi, deta, w, m):
     uy = 0.0
     uz = 0.0
     for q in range(m):
-        px = 0.0
-        py = 0.0
-        pz = 0.0
-        ax = 0.0
-        ay = 0.0
-        az = 0.0
-        bx = 0.0
-        by = 0.0
-        bz = 0.0
-        fx = 0.0
-        fy = 0.0
-        fz = 0.0
-        for a in range(6):
-            ph = phi[a, q]
-            d1 = dxi[a, q]
-            d2 = deta[a, q]
-            xa = ev[a, 0]
-            ya = ev[a, 1]
-            za = ev[a, 2]
-            px += ph * xa
-            py += ph * ya
-            pz += ph * za
-            ax += d1 * xa
-            ay += d1 * ya
-            az += d1 * za
-            bx += d2 * xa
-            by += d2 * ya
-            bz += d2 * za
-            fx += ph * ev[a, 3]
-            fy += ph * ev[a, 4]
-            fz += ph * ev[a, 5]
-        nx, ny, nz = _cross(ax, ay, az, bx, by, bz)
+        px, py, pz, nx, ny, nz, fx, fy, fz = _block_point(ev, phi, dxi, deta, q)
         wj = w[q] * np.sqrt(nx * nx + ny * ny + nz * nz)
         gx, gy, gz = _stokeslet(px - x0, py - y0, pz - z0, fx * wj, fy * wj, fz * wj)
         ux += gx
@@ -1280,38 +1288,7 @@ def _duffy_double(x0, y0, z0, u0, v0, w0, ev, phi, dxi, deta, w, m):
     ty = 0.0
     tz = 0.0
     for q in range(m):
-        px = 0.0
-        py = 0.0
-        pz = 0.0
-        ax = 0.0
-        ay = 0.0
-        az = 0.0
-        bx = 0.0
-        by = 0.0
-        bz = 0.0
-        ux = 0.0
-        uy = 0.0
-        uz = 0.0
-        for a in range(6):
-            ph = phi[a, q]
-            d1 = dxi[a, q]
-            d2 = deta[a, q]
-            xa = ev[a, 0]
-            ya = ev[a, 1]
-            za = ev[a, 2]
-            px += ph * xa
-            py += ph * ya
-            pz += ph * za
-            ax += d1 * xa
-            ay += d1 * ya
-            az += d1 * za
-            bx += d2 * xa
-            by += d2 * ya
-            bz += d2 * za
-            ux += ph * ev[a, 3]
-            uy += ph * ev[a, 4]
-            uz += ph * ev[a, 5]
-        nx, ny, nz = _cross(ax, ay, az, bx, by, bz)
+        px, py, pz, nx, ny, nz, ux, uy, uz = _block_point(ev, phi, dxi, deta, q)
         wq = w[q]
         gx, gy, gz = _stresslet(px - x0, py - y0, pz - z0, nx * wq, ny * wq, nz * wq, ux - u0, uy - v0, uz - w0)
         tx += gx
