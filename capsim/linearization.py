@@ -34,9 +34,10 @@ Preconditioner ``local``: the membrane operator exactly, the single layer as a
 local drag, SL[w] ≈ s w. Then the stage operator ≈ I + τ M⁻¹H, τ = γ h s/(8πG),
 applied as (M + τH)⁻¹ M with H assembled by coloured finite differences of the
 energy gradient (Curtis, Powell & Reid 1974: nodes coupled through no common
-element share a colour) and factorised by a sparse LU. s is the single layer's
-Rayleigh quotient on white noise (which the finest modes dominate, where the
-local approximation is best): one single-layer application per build.
+element share a colour) and factorised by a sparse LU. s is DRAG_FRACTION of the
+single layer's Rayleigh quotient on white noise with the mesh's symmetry (which the
+finest modes dominate, where the local approximation is best): one single-layer
+application per build.
 
 Preconditioner ``dense``: the stage operator from the dense layer matrices
 (``Discretization.layer_matrix``), LU-factorised (``_dense_operators``): at
@@ -352,14 +353,22 @@ class StageSolver:
         factor = lu(d["a"] - gamma_h * d["b_prime_p"], overwrite_a=True, check_finite=False)
         return lambda y: self._rotate_out(scipy.linalg.lu_solve(factor, self._rotate_in(y), check_finite=False))
 
+    #: the local preconditioner's drag as a fraction of the single layer's Rayleigh quotient on
+    #: white noise with the mesh's symmetry (_drag_scale). Layer applications, li, rtol as in
+    #: benchmarks/stepping.py, kt 0-2 of (g) (level 2, G = 0.001) and kt 0-1 of (c) (level 3,
+    #: G = 0.0125), quarter symmetry: fraction 0.125 → 1270, 1344; 0.18 → 1242, 1228;
+    #: 0.25 → 1213, 1157; 0.5 → 1222, 1191; 1 → 1289, —. The quotient used to be taken with
+    #: noise without the symmetry, a quarter of the true one under quarter symmetry (1211, 1152
+    #: there) and the whole of it without symmetry (1310, 1427, now 1211, 1158).
+    DRAG_FRACTION = 0.25
+
     def _drag_scale(self) -> float:
-        """s = ⟨v, SL[v]⟩/⟨v, v⟩ for a random nodal field v (fixed seed): white noise is
-        dominated by the finest modes, where the single layer acts most locally."""
+        """s = DRAG_FRACTION · ⟨v, SL[v]⟩/⟨v, v⟩ for white noise v with the mesh's symmetry
+        (``Discretization.noise_rayleigh_quotient``): the same s whatever the symmetry in use."""
         model, fr = self.model, self._frozen
-        v = np.random.default_rng(12345).standard_normal(fr.x.shape)
-        sl = model.disc.single_layer(fr.x, fr.geo, np.ascontiguousarray(v[model.disc.elements]))
+        quotient = model.disc.noise_rayleigh_quotient(fr.x, fr.geo)
         model.counts["single_layer_applications"] += 1
-        return max(float(np.vdot(v, sl)) / float(np.vdot(v, v)), 0.0)
+        return self.DRAG_FRACTION * max(quotient, 0.0)
 
     def _preconditioner(self, gamma_h: float):
         """y ↦ (approximately) Z⁻¹ y at this γh, or None (``none``). The factorisation is

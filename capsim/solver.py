@@ -377,6 +377,18 @@ class Discretization:
         return u
 
 
+    def noise_rayleigh_quotient(self, x: np.ndarray, geo: ElementGeometry, seed: int = 12345) -> float:
+        """⟨v, SL[v]⟩/⟨v, v⟩ for white noise v (fixed seed) with the mesh's symmetry (its values
+        at the symmetry's targets, expanded): the mean of the single layer's spectrum, dominated
+        by the finest modes, where it acts most locally. The layer sums are evaluated at the
+        targets, so for noise without the symmetry SL[v] would not be v's single layer and the
+        quotient would depend on the symmetry in use (a quarter of it under quarter symmetry)."""
+        v = np.random.default_rng(seed).standard_normal(x.shape)
+        if self.symmetry != "none":
+            v = self.expand(v[self.targets])
+        sl = self.single_layer(x, geo, np.ascontiguousarray(v[self.elements]))
+        return float(np.vdot(v, sl)) / float(np.vdot(v, v))
+
     def nodal_normals(self, x: np.ndarray) -> np.ndarray:
         """Unit normals at all nodes: mean of the element normals at each node
         (symmetric to the bit when a symmetry is in use)."""

@@ -177,13 +177,8 @@ class KelvinVoigtMembrane:
         v's single layer and the quotient would depend on the symmetry in use); computed once,
         from the rest positions, so that a resumed run uses the same value."""
         if self._drag is None:
-            disc = self.disc
             x = self.rest_positions
-            v = np.random.default_rng(12345).standard_normal(x.shape)
-            if disc.symmetry != "none":
-                v = disc.expand(v[disc.targets])
-            sl = disc.single_layer(x, disc.geometry(x), np.ascontiguousarray(v[disc.elements]))
-            self._drag = self.DRAG_FRACTION * max(float(np.vdot(v, sl)) / float(np.vdot(v, v)), 0.0)
+            self._drag = self.DRAG_FRACTION * max(self.disc.noise_rayleigh_quotient(x, self.disc.geometry(x)), 0.0)
         return self._drag
 
     def _reduction_for(self, model: "CapsuleModel") -> "_Reduction":

@@ -223,9 +223,10 @@ def test_gmres_meets_its_tolerance_with_restarts_and_counts_one_product_per_iter
 def test_a_stale_preconditioner_leaves_the_steps_unchanged(tmp_path, preconditioner):
     """time.jacobian_refresh_steps = 4 keeps the preconditioner's Hessian (and the dense
     matrices) for 4 steps, but J, in the Jacobian products, is every step's own: the steps
-    are those of refresh 1 and D_xy agrees to the stage solves' tolerance (G = 0.002,
-    kt 0.6: 16 steps both, |ΔD_xy| ≤ 1.7e-6 measured; with the stale Hessian in the
-    products it was 19 steps and 1e-5)."""
+    are those of refresh 1 and D_xy agrees well inside the stage solves' tolerance,
+    linear_tol × rtol = 1e-4 per step (G = 0.002, kt 0.6: 16 steps both, |ΔD_xy| = 1.7e-6
+    measured, 5.1e-6 since the local preconditioner's drag is taken on noise with the mesh's
+    symmetry; with the stale Hessian in the products it was 19 steps and 1e-5)."""
     runs = {}
     for refresh in (1, 4):
         case = _case(tmp_path, f"stale{refresh}", **{
@@ -236,7 +237,7 @@ def test_a_stale_preconditioner_leaves_the_steps_unchanged(tmp_path, preconditio
     (fresh, a), (stale, b) = runs[1], runs[4]
     assert fresh["status"] == stale["status"] == "completed"
     assert stale["steps"] == fresh["steps"]
-    assert np.abs(a["D_xy"] - np.interp(a["t"], b["t"], b["D_xy"])).max() <= 3e-6
+    assert np.abs(a["D_xy"] - np.interp(a["t"], b["t"], b["D_xy"])).max() <= 1e-5
 
 
 def test_linearly_implicit_capsule_matches_a_tight_rkf23_reference(tmp_path):
@@ -348,8 +349,10 @@ def test_a_preconditioner_from_before_a_rotation_is_applied_in_the_rotated_frame
 def test_dense_and_local_preconditioners_give_the_same_run_without_symmetry_and_with_near_field(tmp_path, lam):
     """The preconditioner changes the iterations, not the answer: an oblate capsule with
     the near field on and no symmetry (every row of the layer matrices its own), kt 0.4,
-    rtol 1e-4: the same steps and D_xy to 1e-5 = linear_tol × rtol, the stage solves'
-    tolerance (measured 4.5e-6 at λ = 1), with fewer stage iterations for dense."""
+    rtol 1e-4: the same steps and D_xy to twice linear_tol × rtol = 1e-5, the stage solves'
+    tolerance per step (measured 4.5e-6 at λ = 1; 1.1e-5 since the local preconditioner's
+    drag is taken on noise with the mesh's symmetry, which changes where its GMRES stops),
+    with fewer stage iterations for dense."""
     runs = {}
     for name in ("local", "dense"):
         case = _case(tmp_path, f"same-{name}", **{
@@ -361,9 +364,25 @@ def test_dense_and_local_preconditioners_give_the_same_run_without_symmetry_and_
         runs[name] = (result, read_trajectory(result["path"])["timeseries"])
     (local, a), (dense, b) = runs["local"], runs["dense"]
     assert dense["steps"] == local["steps"]
-    assert np.abs(a["D_xy"] - b["D_xy"]).max() <= 1e-5
+    assert np.abs(a["D_xy"] - b["D_xy"]).max() <= 2e-5
     assert dense["linear_iterations"] < local["linear_iterations"]
     # matrices: one single and one double layer per rebuild (every 10 steps), none for local
     assert b["layer_matrices"][-1] == dense["layer_matrices"] == (2 if lam != 1.0 else 1) * math.ceil(
         dense["steps"] / 10)  # a build at the first of every 10 step starts (a retry keeps its start)
     assert local["layer_matrices"] == 0
+
+
+def test_local_preconditioner_drag_does_not_depend_on_the_symmetry_in_use(tmp_path):
+    """The local preconditioner's drag, DRAG_FRACTION times the single layer's Rayleigh
+    quotient on white noise with the mesh's symmetry, is the same under quarter symmetry and
+    without (on noise without the symmetry the quotient under quarter symmetry was a quarter
+    of the one without), and so are the GMRES iterations of a run: (g) of
+    benchmarks/stepping.py (level 2, G = 0.001, kt 2), 1213 and 1211 layer applications
+    (before: 1211 with quarter symmetry, 1310 without, 8 % more)."""
+    results = {}
+    for symmetry in ("quarter", "none"):
+        results[symmetry] = run_case(_case(tmp_path, f"drag-{symmetry}", **{
+            "time.scheme": "linearly_implicit", "time.rtol": 1e-3, "flow.shear_rate_G": 0.001,
+            "mesh.symmetry": symmetry}))
+    layers = {k: r["layer_applications"] for k, r in results.items()}
+    assert abs(layers["none"] / layers["quarter"] - 1.0) <= 0.03, layers
