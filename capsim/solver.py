@@ -214,9 +214,6 @@ class Discretization:
         self.fine_phi, self.fine_dxi, self.fine_deta = (np.ascontiguousarray(a) for a in (fphi, fdxi, fdeta))
         self.fine_w = np.ascontiguousarray(fw)
         self._near: tuple | None = None  # (geometry, offsets, elements) of the last configuration
-        # per layer kind: [geometry, its singular-correction weights or None] (correction_weights)
-        self._weights: dict[str, list] = {}
-        self._pair_start: np.ndarray | None = None  # each target's first (target, element) pair
         # the per-stage split of an evaluation, shared with the membrane force (capsim bench)
         self.clock = StageClock()
 
@@ -249,7 +246,6 @@ class Discretization:
             return None
         self.symmetry = name
         self._near = None
-        self._weights, self._pair_start = {}, None
         self.targets, self._sym_source, self._sym_signs, self._sym_zero = table
         holds_target = np.zeros(self.elements.shape[0], dtype=bool)
         for p in self.targets:
@@ -299,29 +295,6 @@ class Discretization:
     def geometry(self, x: np.ndarray) -> ElementGeometry:
         return element_geometry(x, self.elements, self.regular_order)
 
-    def correction_weights(self, kind: str, x: np.ndarray, geo: ElementGeometry) -> np.ndarray | None:
-        """The singular correction of the ``kind`` ("single", "double") layer at this
-        configuration as weights (``kernels.singular_correction_weights``), from its second
-        application on: a solve that applies a layer many times at one configuration (λ ≠ 1,
-        a viscous membrane) pays about one direct correction for them and then a twentieth
-        of one per application, while an evaluation that applies it once (the elastic
-        λ = 1 velocity) computes it directly, as before. None: compute it directly."""
-        entry = self._weights.get(kind)
-        if entry is None or entry[0] is not geo:
-            self._weights[kind] = [geo, None]
-            return None
-        if entry[1] is None:
-            t = self.targets
-            if self._pair_start is None:
-                counts = self.inc_offsets[t + 1] - self.inc_offsets[t]
-                self._pair_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-            nw = np.ascontiguousarray(geo.normals * geo.weights[..., None])
-            entry[1] = kernels.singular_correction_weights(
-                np.ascontiguousarray(x), self.elements, self.inc_offsets, self.inc_elem, self.inc_local,
-                geo.points, geo.weights, nw, self.reg_phi, self.sing_phi, self.sing_dxi, self.sing_deta,
-                self.sing_w, t, self._pair_start, kind == "double")
-        return entry[1]
-
     def near_pairs(self, x: np.ndarray, geo: ElementGeometry) -> tuple[np.ndarray, np.ndarray] | None:
         """(offsets, elements) of the near-field pairs at this configuration, found
         once per geometry (the λ ≠ 1 solve applies the double layer many times)."""
@@ -354,16 +327,11 @@ class Discretization:
         clock.lap("interpolation")
         u = kernels.stokeslet_sum(x[self.targets], geo.points.reshape(-1, 3), strengths)
         clock.lap("stokeslet_sum")
-        weights = self.correction_weights("single", x, geo)
-        if weights is None:
-            u += kernels.single_layer_singular_correction(
-                x, self.elements, self.inc_offsets, self.inc_elem, self.inc_local,
-                nodal, geo.points, geo.weights, point_density,
-                self.sing_phi, self.sing_dxi, self.sing_deta, self.sing_w, self.targets,
-            )
-        else:
-            u += kernels.apply_correction_weights(weights, self._pair_start, self.inc_offsets, self.inc_elem,
-                                                  self.targets, nodal, np.zeros((self.targets.size, 3)))
+        u += kernels.single_layer_singular_correction(
+            x, self.elements, self.inc_offsets, self.inc_elem, self.inc_local,
+            nodal, geo.points, geo.weights, point_density,
+            self.sing_phi, self.sing_dxi, self.sing_deta, self.sing_w, self.targets,
+        )
         clock.lap("singular_correction")
         near = self.near_pairs(x, geo)
         if near is not None:
@@ -426,16 +394,10 @@ class Discretization:
         out = kernels.double_layer_sum(
             x[t], np.ascontiguousarray(u_target[t]), geo.points.reshape(-1, 3), nw.reshape(-1, 3), u_pts.reshape(-1, 3)
         )
-        weights = self.correction_weights("double", x, geo)
-        if weights is None:
-            out += kernels.double_layer_singular_correction(
-                x, u, u_target, self.elements, self.inc_offsets, self.inc_elem, self.inc_local,
-                geo.points, nw, u_pts, self.sing_phi, self.sing_dxi, self.sing_deta, self.sing_w, t,
-            )
-        else:
-            out += kernels.apply_correction_weights(
-                weights, self._pair_start, self.inc_offsets, self.inc_elem, t,
-                np.ascontiguousarray(u[self.elements]), np.ascontiguousarray(u_target[t]))
+        out += kernels.double_layer_singular_correction(
+            x, u, u_target, self.elements, self.inc_offsets, self.inc_elem, self.inc_local,
+            geo.points, nw, u_pts, self.sing_phi, self.sing_dxi, self.sing_deta, self.sing_w, t,
+        )
         near = self.near_pairs(x, geo)
         if near is not None:
             out += kernels.double_layer_near_correction(

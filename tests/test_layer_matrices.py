@@ -53,30 +53,6 @@ def test_double_layer_matrix_annihilates_rigid_motions_and_flux_weights_give_the
     assert (disc.flux_weights(geo) * u).sum() == pytest.approx(disc.flux(geo, u), rel=1e-13)
 
 
-@pytest.mark.parametrize("shape, tilt", [({"kind": "sphere"}, 0.0), ({"kind": "oblate", "aspect_ratio": 0.4}, 20.0)])
-def test_repeated_applications_use_correction_weights_equal_to_the_direct_correction(shape, tilt):
-    """The second application of a layer at one configuration (a GMRES solve's) takes its
-    singular correction from weights built once (Discretization.correction_weights): the
-    same layer to 1e-14 relative, for a density the first application did not see, and for
-    the double layer with a u0 other than u; the first application computes it directly."""
-    model, X = _model(shape, tilt)
-    disc = model.disc
-    x = X * np.array([1.1, 0.95, 1.02])
-    geo = disc.geometry(x)
-    rng = np.random.default_rng(3)
-    first, second = (disc.expand(rng.standard_normal(x.shape)[disc.targets]) for _ in range(2))
-    for kind in ("single", "double"):
-        apply = ((lambda f: disc.single_layer(x, geo, np.ascontiguousarray(f[disc.elements]))) if kind == "single"
-                 else (lambda f: disc.double_layer(x, geo, f, 0.5 * f)))
-        direct = apply(second)  # at a new configuration for this kind: direct
-        assert disc.correction_weights(kind, x, disc.geometry(x)) is None  # another geometry: direct again
-        apply(first)
-        assert disc._weights[kind][1] is None  # one application so far: no weights
-        weighted = apply(second)
-        assert disc._weights[kind][1] is not None
-        assert np.abs(weighted - direct).max() <= 1e-14 * np.abs(direct).max()
-
-
 def _reference_corrections(disc, x, geo, density, u, u_target, targets):
     """The singular corrections as the first kernels computed them, in NumPy over all
     (target, incident element) pairs at once: the Duffy rule of the target's local node
