@@ -740,22 +740,7 @@ def rest_metric(X, elements, dxi, deta):
     out = np.empty((ne, nq, 4))
     for e in range(ne):
         for q in range(nq):
-            A0 = 0.0
-            A1 = 0.0
-            A2 = 0.0
-            B0 = 0.0
-            B1 = 0.0
-            B2 = 0.0
-            for k in range(6):
-                node = elements[e, k]
-                d1 = dxi[q, k]
-                d2 = deta[q, k]
-                A0 += d1 * X[node, 0]
-                A1 += d1 * X[node, 1]
-                A2 += d1 * X[node, 2]
-                B0 += d2 * X[node, 0]
-                B1 += d2 * X[node, 1]
-                B2 += d2 * X[node, 2]
+            A0, A1, A2, B0, B1, B2 = _tangents(X, elements, e, dxi, deta, q)
             G11 = A0 * A0 + A1 * A1 + A2 * A2
             G12 = A0 * B0 + A1 * B1 + A2 * B2
             G22 = B0 * B0 + B1 * B1 + B2 * B2
@@ -789,22 +774,7 @@ def gauss_point_strain(x, elements, elems, dxi, deta, rest):
     for i in prange(ne):
         e = elems[i]
         for q in range(nq):
-            a0 = 0.0
-            a1 = 0.0
-            a2 = 0.0
-            b0 = 0.0
-            b1 = 0.0
-            b2 = 0.0
-            for k in range(6):
-                node = elements[e, k]
-                d1 = dxi[q, k]
-                d2 = deta[q, k]
-                a0 += d1 * x[node, 0]
-                a1 += d1 * x[node, 1]
-                a2 += d1 * x[node, 2]
-                b0 += d2 * x[node, 0]
-                b1 += d2 * x[node, 1]
-                b2 += d2 * x[node, 2]
+            a0, a1, a2, b0, b1, b2 = _tangents(x, elements, e, dxi, deta, q)
             g11 = a0 * a0 + a1 * a1 + a2 * a2
             g12 = a0 * b0 + a1 * b1 + a2 * b2
             g22 = b0 * b0 + b1 * b1 + b2 * b2
