@@ -272,7 +272,8 @@ def _gather(values, elements):
 
 # The singular corrections below run one Duffy rule per (target, incident element) pair: at
 # level 3 under quarter symmetry 832 pairs × 16 points. Their layout is chosen for the
-# vectoriser: the rule's basis tables by node ([k, a, q], q contiguous), the six element
+# vectoriser: the rule's basis tables by node ([k, a, q], q contiguous, made once per
+# discretisation), the six element
 # nodes' values in a 6×6 scratch block that the point loop only reads (no stores in it, so
 # LLVM hoists the 36 values and vectorises over q), and the Stokeslet (stresslet) evaluated
 # in the same loop as the interpolation. Same products and sums as _single_layer_element /
@@ -284,19 +285,6 @@ def _gather(values, elements):
 _DUFFY_M = 16
 #: targets per parallel chunk of the singular corrections (one scratch block each)
 _CHUNK = 16
-
-
-@njit(**_JIT)
-def _basis_by_node(table):
-    """A Duffy-rule basis table (6, m, 6) [k, q, a] as (6, 6, m) [k, a, q]: the point index
-    contiguous, the inner loop of _duffy_single / _duffy_double."""
-    nk, m, na = table.shape
-    out = np.empty((nk, na, m))
-    for k in range(nk):
-        for a in range(na):
-            for q in range(m):
-                out[k, a, q] = table[k, q, a]
-    return out
 
 
 @njit(inline="always")
@@ -411,7 +399,7 @@ def _single_layer_correction_rows(
 def single_layer_singular_correction(
     x, elements, inc_offsets, inc_elem, inc_local,
     density, reg_points, reg_weights, reg_density,
-    sing_phi, sing_dxi, sing_deta, sing_w, targets,
+    phi_by_node, dxi_by_node, deta_by_node, sing_w, targets,
 ):
     """Replace the regular-rule contribution of the elements holding each node by
     a Duffy-rule integral singular at that node (seed §3, "polar" treatment).
@@ -419,17 +407,15 @@ def single_layer_singular_correction(
     density (N_e, 6, 3): per-element nodal values of the density (equal values for
     the element-constant traction of seed 3.7); reg_density (N_e, q, 3) the same at
     the regular points reg_points (N_e, q, 3) with weights reg_weights (N_e, q).
-    sing_* (6, m, 6) and sing_w (6, m): the Duffy rule for a singularity at local
-    node k. Returns the correction (len(targets), 3) to add to ``stokeslet_sum``
-    evaluated at x[targets].
+    *_by_node (6, 6, m) [k, a, q] and sing_w (6, m): the basis values, derivatives and
+    weights of the Duffy rule for a singularity at local node k, the point index contiguous
+    (``Discretization.duffy_by_node``). Returns the correction (len(targets), 3) to add to
+    ``stokeslet_sum`` evaluated at x[targets].
 
     The targets are taken in chunks of _CHUNK, each with its own 6×6 scratch block
     (prange over chunks: no allocation per target); each pair reads its element's nodes directly instead of an
     element-nodal copy of all positions (_gather) made for every call.
     """
-    phi_by_node = _basis_by_node(sing_phi)
-    dxi_by_node = _basis_by_node(sing_dxi)
-    deta_by_node = _basis_by_node(sing_deta)
     nt = targets.shape[0]
     out = np.zeros((nt, 3))
     n_chunks = (nt + _CHUNK - 1) // _CHUNK
@@ -1216,16 +1202,13 @@ def _double_layer_correction_rows(
 def double_layer_singular_correction(
     x, u, u_target, elements, inc_offsets, inc_elem, inc_local,
     reg_points, reg_normals_w, reg_u,
-    sing_phi, sing_dxi, sing_deta, sing_w, targets,
+    phi_by_node, dxi_by_node, deta_by_node, sing_w, targets,
 ):
     """Replace the regular-rule double-layer contribution of the elements
     holding each node by the Duffy rule singular at that node. The desingularised
     integrand (u − u0)·T·n is bounded but not smooth there. u: nodal values of
     the density; u_target: the value u0 subtracted at each node (normally u).
     Returns (len(targets), 3). Laid out as single_layer_singular_correction."""
-    phi_by_node = _basis_by_node(sing_phi)
-    dxi_by_node = _basis_by_node(sing_dxi)
-    deta_by_node = _basis_by_node(sing_deta)
     nt = targets.shape[0]
     out = np.zeros((nt, 3))
     n_chunks = (nt + _CHUNK - 1) // _CHUNK

@@ -196,6 +196,8 @@ class Discretization:
         for k in range(6):
             phi[k], dxi[k], deta[k] = shape_functions(sx[k], se[k])
         self.sing_phi, self.sing_dxi, self.sing_deta, self.sing_w = phi, dxi, deta, np.ascontiguousarray(sw)
+        # the same tables as the singular corrections read them: [k, a, q], the points contiguous
+        self.duffy_by_node = tuple(np.ascontiguousarray(t.transpose(0, 2, 1)) for t in (phi, dxi, deta))
         _, vdxi, vdeta = shape_functions(NODE_XI[:3], NODE_ETA[:3])
         self.vertex_dxi, self.vertex_deta = np.ascontiguousarray(vdxi), np.ascontiguousarray(vdeta)
         self.contour_s, self.contour_w = gauss_legendre_01(self.contour_order)
@@ -329,8 +331,7 @@ class Discretization:
         clock.lap("stokeslet_sum")
         u += kernels.single_layer_singular_correction(
             x, self.elements, self.inc_offsets, self.inc_elem, self.inc_local,
-            nodal, geo.points, geo.weights, point_density,
-            self.sing_phi, self.sing_dxi, self.sing_deta, self.sing_w, self.targets,
+            nodal, geo.points, geo.weights, point_density, *self.duffy_by_node, self.sing_w, self.targets,
         )
         clock.lap("singular_correction")
         near = self.near_pairs(x, geo)
@@ -396,7 +397,7 @@ class Discretization:
         )
         out += kernels.double_layer_singular_correction(
             x, u, u_target, self.elements, self.inc_offsets, self.inc_elem, self.inc_local,
-            geo.points, nw, u_pts, self.sing_phi, self.sing_dxi, self.sing_deta, self.sing_w, t,
+            geo.points, nw, u_pts, *self.duffy_by_node, self.sing_w, t,
         )
         near = self.near_pairs(x, geo)
         if near is not None:

@@ -119,7 +119,7 @@ def test_singular_corrections_equal_a_direct_reference(singular_order):
     point_density, _ = kernels.point_strengths(disc.reg_phi, density, geo.weights)
     nw = np.ascontiguousarray(geo.normals * geo.weights[..., None])
     u_pts = np.ascontiguousarray(np.einsum("qa,ead->eqd", disc.reg_phi, u[disc.elements]))
-    tables = (disc.sing_phi, disc.sing_dxi, disc.sing_deta, disc.sing_w)
+    tables = (*disc.duffy_by_node, disc.sing_w)
     for targets in (disc.targets, np.arange(disc.n_nodes, dtype=np.int64)):
         single = kernels.single_layer_singular_correction(
             x, disc.elements, disc.inc_offsets, disc.inc_elem, disc.inc_local,
