@@ -221,38 +221,6 @@ def expand_symmetric(values_at_targets, source, signs, zero):
 
 
 @njit(**_JIT)
-def surface_fluxes(elements, phi, normals, weights, u, v):
-    """(∫ u·n dS, ∫ v·n dS) of two nodal fields interpolated quadratically, in one pass
-    over the elements (the volume correction needs both, for the velocity and the normals)."""
-    tu = 0.0
-    tv = 0.0
-    for e in range(elements.shape[0]):
-        for q in range(phi.shape[0]):
-            ux = 0.0
-            uy = 0.0
-            uz = 0.0
-            vx = 0.0
-            vy = 0.0
-            vz = 0.0
-            for a in range(6):
-                node = elements[e, a]
-                f = phi[q, a]
-                ux += f * u[node, 0]
-                uy += f * u[node, 1]
-                uz += f * u[node, 2]
-                vx += f * v[node, 0]
-                vy += f * v[node, 1]
-                vz += f * v[node, 2]
-            w = weights[e, q]
-            nx = normals[e, q, 0]
-            ny = normals[e, q, 1]
-            nz = normals[e, q, 2]
-            tu += w * (ux * nx + uy * ny + uz * nz)
-            tv += w * (vx * nx + vy * ny + vz * nz)
-    return tu, tv
-
-
-@njit(**_JIT)
 def gather_nodal(values, elements):
     """Element-nodal copy (N_e, 6, 3) of a nodal field (N_p, 3): values[elements]."""
     return _gather(values, elements)

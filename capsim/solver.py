@@ -374,13 +374,6 @@ class Discretization:
         return float(kernels.surface_flux(self.elements, self.reg_phi, geo.normals, geo.weights,
                                           np.ascontiguousarray(u, dtype=np.float64)))
 
-    def fluxes(self, geo: ElementGeometry, u: np.ndarray, v: np.ndarray) -> tuple[float, float]:
-        """(∫ u·n dS, ∫ v·n dS) in one pass (``flux`` of each)."""
-        a, b = kernels.surface_fluxes(self.elements, self.reg_phi, geo.normals, geo.weights,
-                                      np.ascontiguousarray(u, dtype=np.float64),
-                                      np.ascontiguousarray(v, dtype=np.float64))
-        return float(a), float(b)
-
     def double_layer(self, x: np.ndarray, geo: ElementGeometry, u: np.ndarray, u_target: np.ndarray | None = None) -> np.ndarray:
         """D[u](x0) = ∫ (u − u0)·T·n dS at every node, u quadratic over elements.
 
@@ -678,10 +671,8 @@ class CapsuleModel:
         """The volume correction P: u − n ⟨n, u⟩/⟨n, n⟩ (fluxes over the surface);
         ``normal_flux``, ⟨n, n⟩, when the caller applies P many times at one configuration."""
         if normal_flux is None:
-            flux, normal_flux = self.disc.fluxes(geo, u, normals)
-        else:
-            flux = self.disc.flux(geo, u)
-        return u - (flux / normal_flux) * normals
+            normal_flux = self.disc.flux(geo, normals)
+        return u - (self.disc.flux(geo, u) / normal_flux) * normals
 
     def double_layer_operator(self, x: np.ndarray, geo: ElementGeometry, normals: np.ndarray):
         """u ↦ A u = u − (1−λ)/(8π) D[u] + (1−λ) n ⟨n, u⟩/S at configuration x,
