@@ -324,6 +324,7 @@ class ReducedMass:
     row_entries: Array
     row_slot: Array
     row_weight: Array
+    diag_slot: Array   # the position of each row's diagonal entry in K's CSR values
 
     @property
     def size(self) -> int:
@@ -361,20 +362,17 @@ class ReducedMass:
         entries = np.flatnonzero(is_target[rows])
         row_u = u[entries]
         row_weight = np.where(row_u >= 0, slot_sign[entries] / inv_mult[np.maximum(row_u, 0)], 0.0)
+        red_indices = (uniq % n_red).astype(np.int64)
+        diag_slot = np.flatnonzero(red_indices == np.repeat(np.arange(n_red), np.diff(indptr)))
+        assert diag_slot.size == n_red
         return cls(
             col=np.ascontiguousarray(col, dtype=np.int64), sign=np.ascontiguousarray(signs, dtype=np.float64),
             target_node=targets[t_idx].astype(np.int64), target_comp=comp.astype(np.int64),
-            inv_mult=np.ascontiguousarray(inv_mult), indptr=indptr, indices=(uniq % n_red).astype(np.int64),
+            inv_mult=np.ascontiguousarray(inv_mult), indptr=indptr, indices=red_indices,
             slot=slot, slot_sign=np.ascontiguousarray(slot_sign), row_entries=entries.astype(np.int64),
             row_slot=np.ascontiguousarray(slot[entries]), row_weight=np.ascontiguousarray(row_weight),
+            diag_slot=diag_slot.astype(np.int64),
         )
-
-    def diagonal_slots(self) -> Array:
-        """The position of each row's diagonal entry in K's CSR values."""
-        rows = np.repeat(np.arange(self.size), np.diff(self.indptr))
-        slots = np.flatnonzero(self.indices == rows)
-        assert slots.size == self.size
-        return slots.astype(np.int64)
 
     def data(self, mass_data: Array) -> Array:
         """K's values from M's (``Discretization.mass_matrix_data``). Through M: a scatter
@@ -422,10 +420,9 @@ class MassFactor:
         def csc(a):
             return (a.indptr.astype(np.int64), a.indices.astype(np.int64), np.ascontiguousarray(a.data))
 
-        diag_slot = reduced.diagonal_slots()
         return cls((*csc(lower), *csc(upper), np.ascontiguousarray(1.0 / lu.U.diagonal()),
                     lu.perm_r.astype(np.int64), lu.perm_c.astype(np.int64),
-                    np.ascontiguousarray(data[diag_slot]), diag_slot))
+                    np.ascontiguousarray(data[reduced.diag_slot]), reduced.diag_slot))
 
 
 @dataclass
