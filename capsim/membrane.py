@@ -565,10 +565,15 @@ class MembraneForce:
         the last Δf, preconditioned by the kept factorisation; one that no longer serves
         (more than mass_refactor_iterations iterations) is replaced by the factorisation
         at x for the next solve. A configuration without the symmetry is solved in full."""
-        if not self._symmetric(x):
+        return self._solve(x, mass_data, rhs, self._symmetric(x))
+
+    def _solve(self, x: Array, mass_data: Array, rhs: Array, symmetric: bool) -> tuple[Array, int]:
+        """solve_mass for a configuration known to have the mesh's symmetry or not: the reduced
+        system from the target nodes' rows of M and rhs (the others may be incomplete, as an
+        evaluation assembles them only on ``Discretization.target_elements``), else in full."""
+        if not symmetric:
             return self._solve_full(mass_data, rhs)
         reduced = self.reduced_mass()
-        # from the target nodes' rows, as a run's evaluation assembles them (the same bits)
         return self._solve_reduced(x, reduced.data_from_target_rows(mass_data), reduced.rhs_from_target_rows(rhs))
 
     def _symmetric(self, x: Array) -> bool:
@@ -681,22 +686,16 @@ class MembraneForce:
             self.stage_times["membrane"] += time.perf_counter() - t1
             clock.lap("contour_traction")
             return state
-        if self._symmetric(x):
-            # every quantity of the reduced solve from the target nodes' rows: the strain, the
-            # energy gradient and the mass matrix on the elements holding a target (175 of 512
-            # at level 3 under quarter symmetry)
-            reduced, elems = self.reduced_mass(), disc.target_elements
-            b = reduced.rhs_from_target_rows(self._energy_gradient(x, elems))
-            clock.lap("strain")
-            data = reduced.data_from_target_rows(disc.mass_matrix_data(geo, elems))
-            clock.lap("mass_assembly")
-            traction, iterations = self._solve_reduced(x, data, b)
-        else:
-            rhs = self._energy_gradient(x)
-            clock.lap("strain")
-            data = disc.mass_matrix_data(geo)
-            clock.lap("mass_assembly")
-            traction, iterations = self._solve_full(data, rhs)
+        # with the symmetry the reduced solve reads only the target nodes' rows: the strain, the
+        # energy gradient and the mass matrix on the elements holding a target (175 of 512 at
+        # level 3 under quarter symmetry)
+        symmetric = self._symmetric(x)
+        elems = disc.target_elements if symmetric else None
+        rhs = self._energy_gradient(x, elems)
+        clock.lap("strain")
+        data = disc.mass_matrix_data(geo, elems)
+        clock.lap("mass_assembly")
+        traction, iterations = self._solve(x, data, rhs, symmetric)
         self.last_mass_iterations = iterations
         clock.lap("mass_solve")
         density = kernels.gather_nodal(traction, disc.elements)
