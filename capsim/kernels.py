@@ -960,8 +960,8 @@ def solve_reduced_mass(indptr, indices, data, b, last, col, sign, target_node, t
                        max_iter, l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r, perm_c,
                        diag0, diag_slot):
     """Δf (N, 3) with M Δf = rhs for an equivariant rhs, solved as K y = b = Eᵀ rhs
-    (``reduce_rhs``, or ``reduce_rhs_at_targets`` from the target nodes' rows) with Δf = E y (E: the unknown y[col[j, c]] of node j, component c, times sign[j, c]; 0
-    where col is −1), K = Eᵀ (M ⊗ I₃) E in CSR (indptr, indices, data; diag_slot: the
+    (``reduce_rhs_at_targets``: from the target nodes' rows) with Δf = E y (E: the unknown
+    y[col[j, c]] of node j, component c, times sign[j, c]; 0 where col is −1), K = Eᵀ (M ⊗ I₃) E in CSR (indptr, indices, data; diag_slot: the
     position of each row's diagonal entry). Conjugate gradients from y = the targets'
     values of ``last``, preconditioned by S K0⁻¹ S with K0 = L U the exact factorisation
     of a nearby K (``_factor_solve``) and S = diag(√(diag K0 / diag K)): the scaling
@@ -1028,19 +1028,6 @@ def solve_reduced_mass(indptr, indices, data, b, last, col, sign, target_node, t
             if u >= 0:
                 out[j, c] = sign[j, c] * y[u]
     return out, it
-
-
-@njit(**_JIT)
-def reduce_rhs(rhs, col, sign, n):
-    """b = Eᵀ rhs (n unknowns): each node's components summed, with their signs, into the
-    unknown of their orbit."""
-    b = np.zeros(n)
-    for j in range(col.shape[0]):
-        for c in range(3):
-            u = col[j, c]
-            if u >= 0:
-                b[u] += sign[j, c] * rhs[j, c]
-    return b
 
 
 @njit(**_JIT)

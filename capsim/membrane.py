@@ -386,10 +386,6 @@ class ReducedMass:
         return kernels.reduced_mass_data_rows(mass_data, self.row_entries, self.row_slot, self.row_weight,
                                               int(self.indices.size))
 
-    def rhs(self, rhs: Array) -> Array:
-        """b = Eᵀ rhs, the reduced system's right-hand side."""
-        return kernels.reduce_rhs(rhs, self.col, self.sign, self.size)
-
     def rhs_from_target_rows(self, rhs: Array) -> Array:
         """b = Eᵀ rhs for an equivariant rhs from its target nodes' rows alone."""
         return kernels.reduce_rhs_at_targets(rhs, self.target_node, self.target_comp, self.inv_mult)

@@ -271,7 +271,7 @@ class KelvinVoigtMembrane:
         def apply(w: np.ndarray) -> np.ndarray:
             u = red.full(w)
             density, _ = solve_reduced_mass(
-                r.indptr, r.indices, mass_data, r.rhs((K @ u.ravel()).reshape(-1, 3)), zeros, r.col, r.sign,
+                r.indptr, r.indices, mass_data, r.rhs_from_target_rows((K @ u.ravel()).reshape(-1, 3)), zeros, r.col, r.sign,
                 r.target_node, r.target_comp, r.inv_mult, mass_tol, 200, *mass_factor.arrays)
             sl = disc.single_layer(x, geo, np.ascontiguousarray(density[elements]))
             counts["single_layer_applications"] += 1
