@@ -927,19 +927,6 @@ def _factor_solve(r, z, w, l_indptr, l_indices, l_data, u_indptr, u_indices, u_d
 
 
 @njit(**_JIT)
-def reduced_mass_data(data, slot, slot_sign, nnz):
-    """Values of the reduced mass matrix K = Eᵀ (M ⊗ I₃) E from those of M (CSR): entry p
-    of M goes, for each component c with slot[p, c] ≥ 0, to slot[p, c] with its sign."""
-    out = np.zeros(nnz)
-    for p in range(slot.shape[0]):
-        for c in range(3):
-            k = slot[p, c]
-            if k >= 0:
-                out[k] += slot_sign[p, c] * data[p]
-    return out
-
-
-@njit(**_JIT)
 def asymmetry(x, col, sign, target_node):
     """max over nodes and components of |x[j, c] − sign[j, c]·x[its target, c]| (|x[j, c]|
     where the symmetry forces it to zero): 0 for a configuration with the symmetry."""

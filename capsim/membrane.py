@@ -309,8 +309,10 @@ class ReducedMass:
     For an equivariant b (the energy gradient at a symmetric configuration) the Galerkin
     system K y = Eᵀ b, K = Eᵀ (M ⊗ I₃) E (SPD), has the solution of the full system, at
     about a quarter of its size under quarter symmetry; without symmetry K is M three
-    times on the diagonal. Built once per discretisation: K's CSR pattern and, for
-    every entry p of M's pattern and component c, its slot in K (−1: none) and sign."""
+    times on the diagonal. Built once per discretisation: K's CSR pattern and, for every
+    entry of M's rows at the target nodes and component c, its slot in K (−1: none) and
+    weight (its sign times the orbit's size): K from the target rows alone
+    (``data_from_target_rows``)."""
 
     col: Array
     sign: Array
@@ -319,8 +321,6 @@ class ReducedMass:
     inv_mult: Array
     indptr: Array
     indices: Array
-    slot: Array
-    slot_sign: Array
     row_entries: Array
     row_slot: Array
     row_weight: Array
@@ -369,20 +369,17 @@ class ReducedMass:
             col=np.ascontiguousarray(col, dtype=np.int64), sign=np.ascontiguousarray(signs, dtype=np.float64),
             target_node=targets[t_idx].astype(np.int64), target_comp=comp.astype(np.int64),
             inv_mult=np.ascontiguousarray(inv_mult), indptr=indptr, indices=red_indices,
-            slot=slot, slot_sign=np.ascontiguousarray(slot_sign), row_entries=entries.astype(np.int64),
+            row_entries=entries.astype(np.int64),
             row_slot=np.ascontiguousarray(slot[entries]), row_weight=np.ascontiguousarray(row_weight),
             diag_slot=diag_slot.astype(np.int64),
         )
 
-    def data(self, mass_data: Array) -> Array:
-        """K's values from M's (``Discretization.mass_matrix_data``). Through M: a scatter
-        straight from the elements to K's slots (N_e × 36 × 3 of them) measured 1.4× slower."""
-        return kernels.reduced_mass_data(mass_data, self.slot, self.slot_sign, int(self.indices.size))
-
     def data_from_target_rows(self, mass_data: Array) -> Array:
         """K's values from the rows of M at the target nodes alone (``Discretization.
-        mass_matrix_data`` over ``target_elements``: the other rows need not be assembled);
-        equal to ``data`` of the full M to rounding at a configuration with the symmetry."""
+        mass_matrix_data`` over ``target_elements``: the other rows need not be assembled, and
+        a full M serves as well); by the group's invariance each row of an orbit contributes
+        what the target's does, so this is Eᵀ (M ⊗ I₃) E to rounding at a configuration with
+        the symmetry."""
         return kernels.reduced_mass_data_rows(mass_data, self.row_entries, self.row_slot, self.row_weight,
                                               int(self.indices.size))
 

@@ -207,7 +207,7 @@ class KelvinVoigtMembrane:
             K = self.stiffness(X)
         c = self.drag_scale(model) / (8.0 * np.pi)
         a = 0.5 * (1.0 + model.viscosity_ratio)
-        mass_data = red.reduced.data(mass.data)
+        mass_data = red.reduced.data_from_target_rows(mass.data)
         reduced_mass = red.csr(mass_data)
         drag = red.project(c * K) + a * reduced_mass
         self.factorizations += 1
@@ -252,7 +252,7 @@ class KelvinVoigtMembrane:
         r = red.reduced
         double = model.double_layer_operator(x, geo, normals) if lam != 1.0 else None
         elements = disc.elements
-        mass_data = r.data(mass.data)
+        mass_data = r.data_from_target_rows(mass.data)
 
         if self.preconditioner == "local":  # factorised here, at x
             lu, reduced_mass, mass_factor = self._factors(model, red, x, K, mass)
