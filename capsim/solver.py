@@ -345,7 +345,6 @@ class Discretization:
         clock.lap("expand")
         return u
 
-
     def noise_rayleigh_quotient(self, x: np.ndarray, geo: ElementGeometry, seed: int = 12345) -> float:
         """⟨v, SL[v]⟩/⟨v, v⟩ for white noise v (fixed seed) with the mesh's symmetry (its values
         at the symmetry's targets, expanded): the mean of the single layer's spectrum, dominated
