@@ -3,8 +3,12 @@ Stokeslet sum of the same size, with a per-stage breakdown, and the layer time
 (single layer + λ ≠ 1 solve) under each symmetry the mesh has.
 
 Timings are medians over ``repeat`` runs with a warm JIT cache; the bare sum and
-the evaluations are interleaved so that load from other processes on a shared
-machine affects all of them alike.
+the evaluations are interleaved in blocks (BARE_BLOCK evaluations, then as many bare
+sums) so that load from other processes on a shared machine affects all of them alike,
+while the evaluations run back to back as in a run: a bare full-size sum (~4× an
+evaluation's own under quarter symmetry) just before each evaluation slowed the stages
+after it (level 3: the singular correction 0.045 → 0.05–0.08 ms, the mass solve 0.024 →
+0.03–0.05 ms, alternated in one process), which no run sees.
 """
 
 from __future__ import annotations
@@ -34,6 +38,8 @@ def _model(case: Case, symmetry: bool | str) -> tuple[CapsuleModel, np.ndarray]:
 
 #: most timed repetitions (each is one velocity evaluation: up to minutes at level 6)
 MAX_REPEAT = 1000
+#: evaluations between two blocks of bare sums (module docstring)
+BARE_BLOCK = 10
 
 
 def bench_case(
@@ -91,16 +97,18 @@ def bench_velocity(
     strengths = np.ones_like(sources)
     kernels.stokeslet_sum(x, sources, strengths)
 
-    bare, full, stages, splits, iters, mass_iters = [], [], [], [], [], []
+    bare, full, stages, splits, iters = [], [], [], [], []
     layer: dict[str, list[float]] = {k: [] for k in models}
     noise = np.random.default_rng(0).standard_normal(x.shape)
     # each repeat a step further along a smooth in-plane strain (it keeps every symmetry), as
-    # successive evaluations of a run are: the warm starts (mass matrix, GMRES) work as in a run
+    # successive evaluations of a run are: the warm starts (GMRES) work as in a run
     step = np.eye(3) + 1e-3 * np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        kernels.stokeslet_sum(x, sources, strengths)
-        bare.append(time.perf_counter() - t0)
+    for i in range(repeat):
+        if i % BARE_BLOCK == 0:
+            for _ in range(min(BARE_BLOCK, repeat - i)):
+                t0 = time.perf_counter()
+                kernels.stokeslet_sum(x, sources, strengths)
+                bare.append(time.perf_counter() - t0)
         for k, (m, _) in models.items():
             m.reset_stage_times()
             # a perturbation with the configuration's symmetry (expand makes it exact)
@@ -116,7 +124,6 @@ def bench_velocity(
                 stages.append(times)
                 splits.append(m.split_times)
                 iters.append(m.last_solve_info["iterations"])
-                mass_iters.append(m.membrane.last_mass_iterations)
     med_stage = {k: float(np.median([s[k] for s in stages])) for k in stages[0]}
     med_split = {k: float(np.median([s.get(k, 0.0) for s in splits])) for k in splits[0]}
     # everything an evaluation does besides its Stokeslet sum (at the targets), against that sum,
@@ -143,7 +150,6 @@ def bench_velocity(
         "split_s": med_split,
         "split_total_s": float(sum(med_split.values())),
         "outside_sum_ratio": float(outside),
-        "mass_iterations_median": float(np.median(mass_iters)),
         "layer_s": float(np.median(layer["main"])),
         "solver_iterations_median": float(np.median(iters)),
     }
@@ -157,7 +163,7 @@ def bench_velocity(
 
 #: the stages of the split in the order an evaluation runs them, each with its group
 SPLIT_STAGES = {
-    "geometry": "membrane", "strain": "membrane", "mass_assembly": "membrane", "mass_solve": "membrane",
+    "geometry": "membrane", "strain": "membrane", "mass_solve": "membrane",
     "gather": "membrane", "contour_traction": "membrane",
     "interpolation": "single layer", "stokeslet_sum": "single layer", "singular_correction": "single layer",
     "near_correction": "single layer", "expand": "single layer",
@@ -178,6 +184,5 @@ def split_lines(result: dict) -> str:
         lines.append(f"  {k:<20} {SPLIT_STAGES.get(k, ''):<13} {1e3 * split[k]:8.3f} ms  {split[k] / total_sum:6.2f} x sum")
     lines.append(f"  {'all stages':<20} {'':<13} {1e3 * result['split_total_s']:8.3f} ms"
                  f"  (whole evaluation: {1e3 * result['velocity_eval_s']:.3f} ms)")
-    lines.append(f"work outside the Stokeslet sum: {result['outside_sum_ratio']:.2f} x the sum "
-                 f"(mass-matrix solve: {result['mass_iterations_median']:.0f} iterations)")
+    lines.append(f"work outside the Stokeslet sum: {result['outside_sum_ratio']:.2f} x the sum")
     return "\n".join(lines)

@@ -123,10 +123,9 @@ def snapshot_fields(model, x: np.ndarray, rest: np.ndarray) -> tuple[dict[str, n
         point["traction_jump"] = traction
     point.update(membrane_fields(model, x, state))
     density = np.asarray(state.density)
-    w = state.geometry.weights
-    if density.ndim == 3:  # (N_e, 6, 3) nodal values of each element
-        integral = np.einsum("qk,ekd,eq->ed", model.disc.reg_phi, density, w)
-        cell_traction = integral / w.sum(axis=1)[:, None]
+    if density.ndim == 3:  # (N_e, 6, 3) nodal values of each element: the cell's force over its area
+        integral = np.einsum("qk,ekd,eq->ed", model.disc.reg_phi, density, state.weights)
+        cell_traction = integral / state.geometry.weights.sum(axis=1)[:, None]
     else:                  # (N_e, 3) element-constant
         cell_traction = density
     return point, {"traction": np.ascontiguousarray(cell_traction, dtype=np.float64)}

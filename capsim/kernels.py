@@ -139,14 +139,16 @@ def _stresslet(dx, dy, dz, mx, my, mz, vx, vy, vz):
 
 
 @njit(inline="always")
-def _single_layer_element(x0, y0, z0, xe, fe, e, phi, dxi, deta, w):
-    """∫_e G·f dS by the rule (phi, dxi, deta (m, 6), w (m,)) on element e."""
+def _single_layer_element(x0, y0, z0, xe, fe, e, phi, dxi, deta, w, measure_w, weighted):
+    """∫_e G·f dS by the rule (phi, dxi, deta (m, 6), w (m,)) on element e: f per unit area of
+    the surface xe, or, if weighted, per unit rest area with measure_w (m,) the rule's weights
+    times the rest shape's Jacobian."""
     ux = 0.0
     uy = 0.0
     uz = 0.0
     for j in range(w.shape[0]):
         px, py, pz, nx, ny, nz, fx, fy, fz = _element_point(xe, fe, e, phi[j], dxi[j], deta[j])
-        wj = w[j] * np.sqrt(nx * nx + ny * ny + nz * nz)
+        wj = measure_w[j] if weighted else w[j] * np.sqrt(nx * nx + ny * ny + nz * nz)
         gx, gy, gz = _stokeslet(px - x0, py - y0, pz - z0, fx * wj, fy * wj, fz * wj)
         ux += gx
         uy += gy
@@ -331,13 +333,45 @@ def _duffy_single(x0, y0, z0, ev, phi, dxi, deta, w, m):
 
 
 @njit(inline="always")
+def _duffy_single_weighted(x0, y0, z0, ev, phi, wj, m):
+    """_duffy_single with the rule's weights times the measure's Jacobian given (wj, m):
+    a density per unit area of the rest shape, whose Jacobian J0 at the Duffy points is
+    a table built once (``solver.RestMeasure``), so no tangents are needed."""
+    ux = 0.0
+    uy = 0.0
+    uz = 0.0
+    for q in range(m):
+        px = 0.0
+        py = 0.0
+        pz = 0.0
+        fx = 0.0
+        fy = 0.0
+        fz = 0.0
+        for a in range(6):
+            ph = phi[a, q]
+            px += ph * ev[a, 0]
+            py += ph * ev[a, 1]
+            pz += ph * ev[a, 2]
+            fx += ph * ev[a, 3]
+            fy += ph * ev[a, 4]
+            fz += ph * ev[a, 5]
+        w = wj[q]
+        gx, gy, gz = _stokeslet(px - x0, py - y0, pz - z0, fx * w, fy * w, fz * w)
+        ux += gx
+        uy += gy
+        uz += gz
+    return ux, uy, uz
+
+
+@njit(inline="always")
 def _single_layer_correction_rows(
     x, elements, inc_offsets, inc_elem, inc_local, density, reg_points, reg_weights, reg_density,
-    phi_by_node, dxi_by_node, deta_by_node, sing_w, targets, lo, hi, ev, out,
+    phi_by_node, dxi_by_node, deta_by_node, sing_w, measure_w, targets, lo, hi, ev, out,
 ):
     """Rows lo..hi−1 of single_layer_singular_correction into out (tables by node; ev a
     6×6 scratch block)."""
     m = sing_w.shape[1]
+    rest = measure_w.shape[0] > 0
     for i_t in range(lo, hi):
         p = targets[i_t]
         x0, y0, z0 = x[p, 0], x[p, 1], x[p, 2]
@@ -348,7 +382,12 @@ def _single_layer_correction_rows(
             e = inc_elem[c]
             k = inc_local[c]
             _element_block(ev, x, elements, e, density, True)
-            if m == _DUFFY_M:
+            if rest:
+                if m == _DUFFY_M:
+                    sx, sy, sz = _duffy_single_weighted(x0, y0, z0, ev, phi_by_node[k], measure_w[e, k], _DUFFY_M)
+                else:
+                    sx, sy, sz = _duffy_single_weighted(x0, y0, z0, ev, phi_by_node[k], measure_w[e, k], m)
+            elif m == _DUFFY_M:
                 sx, sy, sz = _duffy_single(x0, y0, z0, ev, phi_by_node[k], dxi_by_node[k], deta_by_node[k],
                                            sing_w[k], _DUFFY_M)
             else:
@@ -367,7 +406,7 @@ def _single_layer_correction_rows(
 def single_layer_singular_correction(
     x, elements, inc_offsets, inc_elem, inc_local,
     density, reg_points, reg_weights, reg_density,
-    phi_by_node, dxi_by_node, deta_by_node, sing_w, targets,
+    phi_by_node, dxi_by_node, deta_by_node, sing_w, measure_w, targets,
 ):
     """Replace the regular-rule contribution of the elements holding each node by
     a Duffy-rule integral singular at that node (seed §3, "polar" treatment).
@@ -377,7 +416,11 @@ def single_layer_singular_correction(
     the regular points reg_points (N_e, q, 3) with weights reg_weights (N_e, q).
     *_by_node (6, 6, m) [k, a, q] and sing_w (6, m): the basis values, derivatives and
     weights of the Duffy rule for a singularity at local node k, the point index contiguous
-    (``Discretization.duffy_by_node``). Returns the correction (len(targets), 3) to add to
+    (``Discretization.duffy_by_node``). The density is per unit area of x's surface when
+    measure_w is empty ((0, 6, m): the Jacobian at each Duffy point from x's tangents), else
+    per unit area of the rest shape, measure_w (N_e, 6, m) the rule's weights times J0 at
+    element e's Duffy points for its node k (``solver.RestMeasure``; reg_weights then the
+    rest shape's too). Returns the correction (len(targets), 3) to add to
     ``stokeslet_sum`` evaluated at x[targets].
 
     The targets are taken in chunks of _CHUNK, each with its own 6×6 scratch block
@@ -391,8 +434,8 @@ def single_layer_singular_correction(
     for ch in prange(n_chunks):
         _single_layer_correction_rows(
             x, elements, inc_offsets, inc_elem, inc_local, density, reg_points, reg_weights, reg_density,
-            phi_by_node, dxi_by_node, deta_by_node, sing_w, targets, ch * _CHUNK, min(nt, (ch + 1) * _CHUNK),
-            scratch[ch], out,
+            phi_by_node, dxi_by_node, deta_by_node, sing_w, measure_w, targets, ch * _CHUNK,
+            min(nt, (ch + 1) * _CHUNK), scratch[ch], out,
         )
     return out
 
@@ -1018,6 +1061,28 @@ def solve_reduced_mass(indptr, indices, data, b, last, col, sign, target_node, t
 
 
 @njit(**_JIT)
+def solve_reduced_direct(rhs, target_node, target_comp, inv_mult, col, sign, l_indptr, l_indices, l_data, u_indptr,
+                         u_indices, u_data, u_dinv, perm_r, perm_c):
+    """Δf (N, 3) with M Δf = rhs for an equivariant rhs by the exact factorisation of
+    K = Eᵀ (M ⊗ I₃) E (``membrane.MassFactor``): b = Eᵀ rhs from the target nodes' rows
+    (``reduce_rhs_at_targets``), y = K⁻¹ b (``_factor_solve``), Δf = E y."""
+    n = target_node.shape[0]
+    b = np.empty(n)
+    for u in range(n):
+        b[u] = rhs[target_node[u], target_comp[u]] / inv_mult[u]
+    y = np.empty(n)
+    _factor_solve(b, y, np.empty(n), l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r,
+                  perm_c, np.ones(n))
+    out = np.zeros(col.shape)
+    for j in range(col.shape[0]):
+        for c in range(3):
+            u = col[j, c]
+            if u >= 0:
+                out[j, c] = sign[j, c] * y[u]
+    return out
+
+
+@njit(**_JIT)
 def reduce_rhs_at_targets(rhs, target_node, target_comp, inv_mult):
     """b = Eᵀ rhs for an equivariant rhs from the target nodes' rows alone: each of an
     orbit's 1/inv_mult[u] terms of Eᵀ rhs equals the target's value (so rows elsewhere
@@ -1158,8 +1223,8 @@ def double_layer_singular_correction(
     for ch in prange(n_chunks):
         _double_layer_correction_rows(
             x, u, u_target, elements, inc_offsets, inc_elem, inc_local, reg_points, reg_normals_w, reg_u,
-            phi_by_node, dxi_by_node, deta_by_node, sing_w, targets, ch * _CHUNK, min(nt, (ch + 1) * _CHUNK),
-            scratch[ch], out,
+            phi_by_node, dxi_by_node, deta_by_node, sing_w, targets, ch * _CHUNK,
+            min(nt, (ch + 1) * _CHUNK), scratch[ch], out,
         )
     return out
 
@@ -1357,11 +1422,14 @@ def near_field_pairs(x, elements, inc_offsets, inc_elem, targets, factor):
 @njit(parallel=True, **_JIT)
 def single_layer_near_correction(
     x, elements, nodal_density, reg_points, reg_weights, reg_density,
-    fine_phi, fine_dxi, fine_deta, fine_w, targets, pair_offsets, pair_elem,
+    fine_phi, fine_dxi, fine_deta, fine_w, measure_w, targets, pair_offsets, pair_elem,
 ):
     """For each (target, near element) pair: the element's ∫ G·f dS by the
     subdivided rule minus its regular-rule share already in the Stokeslet sum.
-    nodal_density (N_e, 6, 3); reg_density (N_e, q, 3) at the regular points."""
+    nodal_density (N_e, 6, 3); reg_density (N_e, q, 3) at the regular points. measure_w:
+    empty (0, m), a density per unit area of x's surface, else (N_e, m) the subdivided
+    rule's weights times the rest shape's Jacobian (a density per unit rest area)."""
+    rest = measure_w.shape[0] > 0
     xe = _gather(x, elements)
     out = np.zeros((targets.shape[0], 3))
     for it in prange(targets.shape[0]):
@@ -1370,7 +1438,8 @@ def single_layer_near_correction(
         for k in range(pair_offsets[it], pair_offsets[it + 1]):
             e = pair_elem[k]
             rx, ry, rz = _single_layer_element_regular(x0, y0, z0, e, reg_points, reg_weights, reg_density)
-            sx, sy, sz = _single_layer_element(x0, y0, z0, xe, nodal_density, e, fine_phi, fine_dxi, fine_deta, fine_w)
+            sx, sy, sz = _single_layer_element(x0, y0, z0, xe, nodal_density, e, fine_phi, fine_dxi, fine_deta,
+                                               fine_w, measure_w[e] if rest else fine_w, rest)
             out[it, 0] += sx - rx
             out[it, 1] += sy - ry
             out[it, 2] += sz - rz
@@ -1459,12 +1528,16 @@ def _add_stresslet_block(out, i, nodes, phi, dx, dy, dz, mx, my, mz, sign):
 
 
 @njit(inline="always")
-def _layer_element(out, i, x0, y0, z0, xe, nodes, e, phi, dxi, deta, w, double, sign):
-    """One element's rule (phi, dxi, deta (m, 6), w (m,)) into row i of a layer matrix."""
+def _layer_element(out, i, x0, y0, z0, xe, nodes, e, phi, dxi, deta, w, measure_w, weighted, double, sign):
+    """One element's rule (phi, dxi, deta (m, 6), w (m,)) into row i of a layer matrix;
+    weighted: the single layer's density is per unit rest area, measure_w (m,) the rule's
+    weights times the rest shape's Jacobian (else per unit area of x's surface)."""
     for j in range(w.shape[0]):
         # (the density slot of _element_point reads the positions again, unused here)
         px, py, pz, nx, ny, nz, _, _, _ = _element_point(xe, xe, e, phi[j], dxi[j], deta[j])
-        if double:
+        if weighted and not double:
+            _add_stokeslet_block(out, i, nodes, phi[j], px - x0, py - y0, pz - z0, measure_w[j], sign)
+        elif double:
             _add_stresslet_block(out, i, nodes, phi[j], px - x0, py - y0, pz - z0,
                                  nx * w[j], ny * w[j], nz * w[j], sign)
         else:
@@ -1491,12 +1564,16 @@ def _layer_element_regular(out, i, x0, y0, z0, nodes, e, reg_points, reg_weights
 def layer_matrix(
     x, elements, reg_points, reg_weights, reg_normals_w, reg_phi,
     inc_offsets, inc_elem, inc_local, sing_phi, sing_dxi, sing_deta, sing_w,
-    fine_phi, fine_dxi, fine_deta, fine_w, pair_offsets, pair_elem, double,
+    fine_phi, fine_dxi, fine_deta, fine_w, pair_offsets, pair_elem, double, duffy_measure_w, fine_measure_w,
 ):
     """The single layer ∫ G·f dS (double=False) or the double layer
     ∫ (u − u0)·T·n dS (double=True) at every node as an (N, 3, N, 3) matrix acting
     on nodal values. pair_offsets/pair_elem: the near pairs of every node as target
-    (empty offsets, all zero, when the near field is off)."""
+    (empty offsets, all zero, when the near field is off). duffy_measure_w (N_e, 6, m),
+    fine_measure_w (N_e, m_f): for a single-layer density per unit rest area, the rules'
+    weights times the rest shape's Jacobian (reg_weights the rest shape's too); empty
+    ((0, 6, m), (0, m_f)) for a density per unit area of x's surface."""
+    rest = duffy_measure_w.shape[0] > 0
     n = x.shape[0]
     ne = elements.shape[0]
     xe = _gather(x, elements)
@@ -1512,13 +1589,13 @@ def layer_matrix(
             _layer_element_regular(out, i, x0, y0, z0, elements[e], e, reg_points, reg_weights,
                                    reg_normals_w, reg_phi, double, -1.0)
             _layer_element(out, i, x0, y0, z0, xe, elements[e], e, sing_phi[k], sing_dxi[k], sing_deta[k],
-                           sing_w[k], double, 1.0)
+                           sing_w[k], duffy_measure_w[e, k] if rest else sing_w[k], rest, double, 1.0)
         for c in range(pair_offsets[i], pair_offsets[i + 1]):
             e = pair_elem[c]
             _layer_element_regular(out, i, x0, y0, z0, elements[e], e, reg_points, reg_weights,
                                    reg_normals_w, reg_phi, double, -1.0)
             _layer_element(out, i, x0, y0, z0, xe, elements[e], e, fine_phi, fine_dxi, fine_deta, fine_w,
-                           double, 1.0)
+                           fine_measure_w[e] if rest else fine_w, rest, double, 1.0)
     return out
 
 

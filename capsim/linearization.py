@@ -6,7 +6,7 @@ order for any J, so the geometric dependence of the layers, which is not
 stiff, may be left out). The stiffness is the membrane's: with the velocity of
 ``CapsuleModel.velocity``,
 
-    u = P A⁻¹ b(x),   b = u∞ − SL[Δf]/(8πG),   M·Δf = ∂E/∂x,
+    u = P A⁻¹ b(x),   b = u∞ − SL[F]/(8πG),   M0·F = ∂E/∂x,
 
 (A = I at λ = 1, else the deflated double-layer operator; P the volume
 correction u ↦ u − n ⟨n, u⟩/⟨n, n⟩, identity when it is off) the frozen
@@ -18,7 +18,10 @@ H v the change of the energy gradient ∂E/∂x along v (the sparse Hessian of
 ``MembraneForce.energy_gradient`` built at x_n, or, when the preconditioner's
 Hessian is older than the step, a forward difference of the gradient: J is
 always the step's own; bending included; the contour method differentiates
-its element tractions instead) and M the consistent mass matrix at x_n.
+its element tractions instead), F the force per unit rest area, integrated over
+the rest shape's measure, and M0 the rest shape's mass matrix (constant:
+``membrane.MembraneForce``; for a clean drop, whose traction is solved per unit
+current area, Δf and M(x_n) in their place).
 
 λ = 1: GMRES solves the stage equation itself, (I − γh P B') k = r, whose
 right-hand side needs no product. λ ≠ 1 does not nest a double-layer solve in
@@ -122,8 +125,10 @@ class _Frozen:
     geo: Any
     normals: np.ndarray | None
     normal_flux: float | None    # ⟨n, n⟩ of the volume correction P (applied at every product)
-    mass: sp.csr_matrix | None   # scalar consistent mass matrix (galerkin), applied per component
+    mass: sp.csr_matrix | None   # the traction solve's scalar mass matrix (galerkin: M0, or M(x_n) for a
+                                 # drop), applied per component
     mass_lu: Any | None          # its LU
+    measure: Any | None          # the rest shape's area element when the density is per unit rest area
     gradient: np.ndarray | None  # ∂E/∂x at x_n (galerkin)
     traction: np.ndarray | None  # element Δf at x_n (contour)
     double_layer: Any | None     # z ↦ A z (λ ≠ 1)
@@ -198,16 +203,15 @@ class StageSolver:
         needs_normals = lam != 1.0 or model.volume_correction
         normals = disc.nodal_normals(x) if needs_normals else None
         normal_flux = disc.flux(geo, normals) if model.volume_correction else None
-        mass = mass_lu = gradient = traction = None
+        mass = mass_lu = measure = gradient = traction = None
         membrane = model.membrane
         if membrane.traction_method == "galerkin":
-            mass = disc.mass_matrix(geo)
-            mass_lu = splu(mass.tocsc())
+            mass, mass_lu, measure = membrane.traction_solve.frozen(x, geo)
             gradient = membrane.energy_gradient(x)
         else:
             traction = membrane.element_traction(x)
         double_layer = model.double_layer_operator(x, geo, normals) if lam != 1.0 else None
-        return _Frozen(x, geo, normals, normal_flux, mass, mass_lu, gradient, traction, double_layer)
+        return _Frozen(x, geo, normals, normal_flux, mass, mass_lu, measure, gradient, traction, double_layer)
 
     def _project(self, v: np.ndarray) -> np.ndarray:
         """The frozen volume correction P."""
@@ -217,7 +221,7 @@ class StageSolver:
         return self.model.remove_net_flux(fr.geo, v, fr.normals, fr.normal_flux)
 
     def _traction_change(self, v: np.ndarray) -> np.ndarray:
-        """The density change along v: M⁻¹ H v at the nodes (galerkin: H the sparse
+        """The density change along v: M0⁻¹ H v at the nodes (galerkin: H the sparse
         Hessian when it is this step's, else a difference of the energy gradient, so
         that J is always the step's own), or the element tractions' change (contour)."""
         fr, membrane = self._frozen, self.model.membrane
@@ -234,7 +238,7 @@ class StageSolver:
         model, fr = self.model, self._frozen
         change = self._traction_change(v)
         density = change[model.disc.elements] if fr.gradient is not None else change  # nodal or per element
-        sl = model.disc.single_layer(fr.x, fr.geo, np.ascontiguousarray(density))
+        sl = model.disc.single_layer(fr.x, fr.geo, np.ascontiguousarray(density), fr.measure)
         model.counts["single_layer_applications"] += 1
         return v @ model.far_field.matrix.T - sl / (8.0 * np.pi * model.shear_rate_G)
 
@@ -288,7 +292,7 @@ class StageSolver:
         layer matrices, LU-factorised per γh."""
         model, fr, disc = self.model, self._frozen, self.model.disc
         n = disc.n_nodes
-        single = disc.layer_matrix(fr.x, fr.geo, "single")
+        single = disc.layer_matrix(fr.x, fr.geo, "single", fr.measure)
         self.layer_matrices += 1
         if fr.normals is not None:  # flux weights w: ⟨n, u⟩ = w·u (P, and A's deflation)
             normals = fr.normals.ravel()

@@ -61,6 +61,12 @@ class MembraneLaw:
     shear_modulus: Callable[..., float]
     area_modulus: Callable[..., float]
     parameters: tuple[str, ...] = field(default_factory=tuple)
+    #: the area the Galerkin traction is solved per (a key of TRACTION_MEASURES): "rest" for an
+    #: elastic membrane, whose nodes stay with its material and whose area change is smooth and
+    #: bounded; "current" for a clean drop, whose rest shape means nothing and whose nodes drift
+    #: with the surface flow (per unit rest area its level-2 N1* at Ca = 0.05 was 4.6 % above
+    #: theory and growing, against 1.4 % per unit current area: docs/method.md)
+    measure: str = "rest"
 
 
 def _thin_shell_w(l1, l2):
@@ -128,7 +134,7 @@ LAWS: dict[str, MembraneLaw] = {
         lambda skalak_c=10.0: _SKALAK_GS * (1.0 + 2.0 * skalak_c), ("skalak_c",),
     ),
     "surface_tension": MembraneLaw(
-        "surface_tension", _surface_tension_w, _surface_tension_dw, lambda: 0.0, lambda: 0.0,
+        "surface_tension", _surface_tension_w, _surface_tension_dw, lambda: 0.0, lambda: 0.0, measure="current",
     ),
 }
 
@@ -424,13 +430,21 @@ class MembraneState:
 
     The vertex strain and tension are computed on first use: the Galerkin
     traction does not need them, so the three evaluations of an RKF23 step skip
-    them and only the recorded (accepted) states pay for them.
+    them and only the recorded (accepted) states pay for them. So is the Galerkin
+    traction per unit current area (``traction``): the evaluation solves for the force
+    per unit rest area (``rest_traction``), which is what the single layer integrates
+    over the rest shape's ``measure``.
     """
 
-    traction: Array    # Δf: (N_p, 3) nodal (galerkin) or (N_e, 3) element-averaged (contour)
     geometry: Any      # geometry.ElementGeometry of the configuration
-    density: Array     # Δf as the single layer takes it: (N_e, 6, 3) or (N_e, 3)
+    density: Array     # Δf as the single layer takes it: (N_e, 6, 3) nodal (galerkin) or (N_e, 3) (contour)
     vertex_state: Callable[[], tuple[VertexStrain, Array]] = field(repr=False)
+    #: galerkin: the measure the density is per (RestTractionSolve: the rest shape's area
+    #: element, solver.RestMeasure); None: per unit current area
+    measure: Any = None
+    #: galerkin: the solved nodal field (N_p, 3): F per unit rest area with a measure, else Δf
+    solved: Array | None = None
+    current_traction: Callable[[], Array] | None = field(default=None, repr=False)
     mass_iterations: int = 0
 
     @cached_property
@@ -446,6 +460,214 @@ class MembraneState:
         """(N_v, 3, 3) Cauchy tension at the vertex nodes (seed 2.7)."""
         return self._vertex[1]
 
+    @cached_property
+    def traction(self) -> Array:
+        """Δf per unit current area: (N_p, 3) nodal (galerkin; with a rest measure the
+        quadratic field with the same moments ∫ φ_i Δf dA as the rest traction's
+        ∫ φ_i F dA0, solved when read), or (N_e, 3) per element (contour)."""
+        if self.current_traction is not None:
+            return self.current_traction()
+        return self.density if self.solved is None else self.solved
+
+    @property
+    def rest_traction(self) -> Array | None:
+        """F = Δf dA/dA0 at the nodes (N_p, 3) when the solve was per unit rest area, else None."""
+        return None if self.measure is None else self.solved
+
+    @property
+    def weights(self) -> Array:
+        """The regular rule's weights that ``density`` is integrated with: the rest shape's
+        (galerkin) or the configuration's (contour)."""
+        return self.geometry.weights if self.measure is None else self.measure.reg_weights
+
+
+class RestTractionSolve:
+    """The Galerkin traction per unit rest area (measure "rest", the elastic laws): F with
+    M0·F = ∂E/∂x, M0 the rest shape's mass matrix, factorised once on the unknowns the
+    mesh's symmetry leaves (``ReducedMass``) and solved exactly by that factor at every
+    evaluation (no assembly, no iterations, no state); the single layer integrates F over
+    the rest shape's ``measure`` (``solver.RestMeasure``). ``MembraneForce`` explains why."""
+
+    name = "rest"
+
+    def __init__(self, force: "MembraneForce"):
+        self.force = force
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget everything built from the rest shape (a new one)."""
+        self._measure = None
+        self._mass_data: Array | None = None
+        self._factor: MassFactor | None = None
+        self._factor_for: ReducedMass | None = None  # the unknowns it was made on
+        self._full_lu = None
+
+    @property
+    def measure(self):
+        """The rest shape's area element at every rule point (``solver.RestMeasure``)."""
+        if self._measure is None:
+            self._measure = self.force.disc.rest_measure(self.force.rest_positions)
+        return self._measure
+
+    def mass_matrix(self):
+        """M0, the (scalar) mass matrix of the rest shape, as a SciPy CSR matrix (N_p × N_p)."""
+        import scipy.sparse as sp
+
+        disc = self.force.disc
+        if self._mass_data is None:
+            self._mass_data = disc.mass_matrix_data(disc.geometry(np.ascontiguousarray(self.force.rest_positions)))
+        return sp.csr_matrix((self._mass_data, disc.mass_indices, disc.mass_indptr), shape=(disc.n_nodes,) * 2)
+
+    def mass_lu(self):
+        """SciPy's LU of the whole M0 (made once): solves for any right-hand side."""
+        if self._full_lu is None:
+            from scipy.sparse.linalg import splu
+
+            self._full_lu = splu(self.mass_matrix().tocsc())
+        return self._full_lu
+
+    def frozen(self, x: Array, geo) -> tuple:
+        """(M, its LU, the measure) of the linearly implicit scheme's step at x: M0's."""
+        return self.mass_matrix(), self.mass_lu(), self.measure
+
+    def solve(self, x: Array, geo, rhs: Array, symmetric: bool, clock) -> tuple[Array, int]:
+        """F with M0·F = rhs (N_p, 3), and 0 iterations. With the mesh's symmetry (rhs
+        equivariant: the energy gradient at a symmetric configuration) on the reduced
+        unknowns from the target nodes' rows of rhs, by the factor of the reduced M0 (made
+        once); otherwise (a finite-difference probe without the symmetry) by the LU of the
+        whole M0."""
+        if not symmetric:
+            traction = self.mass_lu().solve(np.asfortranarray(rhs))
+        else:
+            reduced = self.force.reduced_mass()
+            if self._factor is None or self._factor_for is not reduced:
+                self.mass_matrix()
+                self._factor = MassFactor.of(reduced, reduced.data_from_target_rows(self._mass_data))
+                self._factor_for = reduced
+            traction = kernels.solve_reduced_direct(rhs, reduced.target_node, reduced.target_comp, reduced.inv_mult,
+                                                    reduced.col, reduced.sign, *self._factor.arrays[:9])
+        clock.lap("mass_solve")
+        return traction, 0
+
+    def state(self) -> dict:
+        return {}
+
+    def restore(self, state: dict) -> None:
+        pass
+
+
+class CurrentTractionSolve:
+    """The Galerkin traction per unit current area (measure "current", the clean drop): Δf
+    with M(x)·Δf = ∂E/∂x, M assembled at every evaluation (under a symmetry only on the
+    elements holding a target: its target rows) and solved on the unknowns the symmetry
+    leaves by conjugate gradients from the previous Δf, preconditioned by a factorisation
+    kept while it serves and scaled on both sides by √(diag K0 / diag K), the local change
+    of area since it was made (``kernels.solve_reduced_mass``): 2-3 iterations at level 3.
+    The previous Δf and where the factor was made are the warm start, part of ``state()``."""
+
+    name = "current"
+    measure = None
+
+    def __init__(self, force: "MembraneForce", *, tol: float = 1e-8, max_iter: int = 500,
+                 refactor_iterations: int = 4):
+        self.force = force
+        self.tol = tol
+        self.max_iter = max_iter
+        # refactored where a solve needed more than refactor_iterations iterations; the
+        # pattern never changes, the values slowly
+        self.refactor_iterations = int(refactor_iterations)
+        self.factor: MassFactor | None = None
+        self.factor_x: Array | None = None
+        self.factorizations = 0
+        self.last: Array | None = None
+
+    def reset(self) -> None:
+        pass
+
+    def frozen(self, x: Array, geo) -> tuple:
+        """(M, its LU, the measure) of the linearly implicit scheme's step at x: M(x)'s."""
+        from scipy.sparse.linalg import splu
+
+        mass = self.force.disc.mass_matrix(geo)
+        return mass, splu(mass.tocsc()), None
+
+    def solve(self, x: Array, geo, rhs: Array, symmetric: bool, clock) -> tuple[Array, int]:
+        """Δf with M(x)·Δf = rhs and the iterations (the reduced system from the target
+        nodes' rows of M and rhs with the symmetry, else the full one)."""
+        disc = self.force.disc
+        data = disc.mass_matrix_data(geo, disc.target_elements if symmetric else None)
+        clock.lap("mass_assembly")
+        if symmetric:
+            reduced = self.force.reduced_mass()
+            out = self._solve_reduced(x, reduced.data_from_target_rows(data), reduced.rhs_from_target_rows(rhs))
+        else:
+            out = self._solve_full(data, rhs)
+        clock.lap("mass_solve")
+        return out
+
+    def _factor(self, x: Array, data: Array) -> MassFactor:
+        """The factorisation in use: the kept one, else that at factor_x (a restored state),
+        else that at x (data: the reduced mass matrix at x)."""
+        if self.factor is None:
+            reduced = self.force.reduced_mass()
+            if self.factor_x is None:
+                self.factor_x = np.array(x, copy=True)
+            else:
+                disc = self.force.disc
+                geo = disc.geometry(self.factor_x)
+                data = reduced.data_from_target_rows(disc.mass_matrix_data(geo, disc.target_elements))
+            self.factor = MassFactor.of(reduced, data)
+            self.factorizations += 1
+        return self.factor
+
+    def _solve_full(self, mass_data: Array, rhs: Array) -> tuple[Array, int]:
+        # a configuration without the mesh's symmetry (a finite-difference probe of a
+        # Jacobian): the right-hand side is not equivariant and the reduced system would
+        # drop its other part; the full system by Jacobi-preconditioned CG, the kept
+        # factorisation untouched
+        disc = self.force.disc
+        guess = self.last if self.last is not None else np.zeros_like(rhs)
+        traction, iterations = kernels.block_cg(
+            disc.mass_indptr, disc.mass_indices, mass_data, rhs, guess, self.tol, self.max_iter)
+        self.last = traction
+        return traction, int(iterations)
+
+    def _solve_reduced(self, x: Array, data: Array, b: Array) -> tuple[Array, int]:
+        reduced = self.force.reduced_mass()
+        guess = self.last if self.last is not None else np.zeros(reduced.col.shape)
+        factor = self._factor(x, data)
+        traction, iterations = kernels.solve_reduced_mass(
+            reduced.indptr, reduced.indices, data, b, guess, reduced.col, reduced.sign, reduced.target_node,
+            reduced.target_comp, reduced.inv_mult, self.tol, self.max_iter, *factor.arrays,
+        )
+        if iterations > self.refactor_iterations:
+            self.factor = MassFactor.of(reduced, data)
+            self.factor_x = np.array(x, copy=True)
+            self.factorizations += 1
+        self.last = traction
+        return traction, int(iterations)
+
+    def state(self) -> dict:
+        """The warm start: the last Δf and where the mass matrix was factored (together they
+        make the next solve bit for bit)."""
+        def copy(a):
+            return None if a is None else np.array(a, copy=True)
+
+        return {"traction": copy(self.last), "factor_x": copy(self.factor_x)}
+
+    def restore(self, state: dict) -> None:
+        t = state.get("traction")
+        self.last = None if t is None else np.array(t, dtype=np.float64, copy=True)
+        fx = state.get("factor_x")
+        fx = None if fx is None else np.array(fx, dtype=np.float64, copy=True)
+        if fx is None or self.factor_x is None or not np.array_equal(fx, self.factor_x):
+            self.factor = None  # refactored at fx (or at the next configuration) on first use
+        self.factor_x = fx
+
+
+#: how the Galerkin traction is solved, by the measure its law names (MembraneLaw.measure)
+TRACTION_MEASURES = {"rest": RestTractionSolve, "current": CurrentTractionSolve}
+
 
 class MembraneForce:
     """Positions → membrane state with the traction jump Δf (bending included).
@@ -455,16 +677,23 @@ class MembraneForce:
     the law and its parameters, the bending modulus κ (0: none) and the traction
     method:
 
-    galerkin: Δf is the quadratic field whose moments against every basis
-    function equal the energy gradient, M·Δf = ∂E/∂x with E = ∫ W dA_0 (+ the
-    hinge bending energy; principle of virtual work; every node, mid-edge nodes
-    included, is elastically restrained). M·Δf = ∂E/∂x is solved on the unknowns
-    the mesh's symmetry leaves (``ReducedMass``) by conjugate gradients from the
-    previous Δf, preconditioned by a factorisation kept while it serves; the
-    previous Δf and where the factorisation was made are the warm start, part of
-    ``state()``.
+    galerkin: by virtual work (every node, mid-edge nodes included, is elastically
+    restrained), the traction's moments against every basis function are the energy
+    gradient, ∫ φ_i Δf dA = ∂E/∂x_i with E = ∫ W dA_0 (+ the hinge bending energy).
+    How it is solved is the law's ``measure`` (``TRACTION_MEASURES``): per unit rest
+    area for the elastic laws (``RestTractionSolve``): with F = Δf dA/dA0 the same
+    moments read ∫ φ_i F dA0 = ∂E/∂x_i, M0·F = ∂E/∂x with M0 the rest shape's mass
+    matrix, the same at every configuration (a total Lagrangian form), and the single
+    layer integrates F over the rest shape's measure, ∫ G·F dA0 = ∫ G·Δf dS. The
+    quadratic F and the quadratic Δf of M(x)·Δf = ∂E/∂x have the same moments against
+    every quadratic, so every integral of a quadratic against them agrees (the
+    stresslet's ∫ Δf x dS among them: x is quadratic) and their single layers differ
+    only by the kernel's departure from a quadratic, O(h³) (docs/known_answers.md,
+    "Exact and classical": the traction's measure). Per unit current area for the
+    clean drop (``CurrentTractionSolve``), whose nodes drift with the surface flow.
+    ``MembraneState.traction`` is Δf per unit current area either way.
     contour: the seed's element average (3.6), −(1/S_e)∮ T·b dl from vertex
-    tensions, used element-constant (3.7).
+    tensions, used element-constant (3.7), per unit current area.
 
     ``stage_times`` accumulates the seconds spent on the geometry and on the
     membrane mechanics; ``evaluations`` counts the calls.
@@ -480,15 +709,13 @@ class MembraneForce:
         bending_modulus: float = 0.0,
         bending: HingeBending | None = None,
         traction_method: str = "galerkin",
-        mass_tol: float = 1e-8,
-        mass_max_iter: int = 500,
-        mass_refactor_iterations: int = 4,
     ):
         if traction_method not in TRACTION_METHODS:
             raise ValueError(f"unknown traction method {traction_method!r} (allowed: {TRACTION_METHODS})")
         self.disc = disc
-        self.rest_positions = rest_positions
         self.law = law if law is not None else get_law("thin_shell")
+        self.traction_solve = TRACTION_MEASURES[self.law.measure](self)
+        self.rest_positions = rest_positions
         self.law_params = dict(law_params or {})
         if bending is None and bending_modulus > 0.0:
             bending = HingeBending.from_rest(rest_positions, disc.elements, bending_modulus)
@@ -496,38 +723,18 @@ class MembraneForce:
             raise ValueError("bending needs the galerkin traction method")
         self.bending = bending
         self.traction_method = traction_method
-        self.mass_tol = mass_tol
-        self.mass_max_iter = mass_max_iter
-        # the mass solve is preconditioned by the factorisation of the mass matrix at
-        # _mass_factor_x (kept while it serves: refactored where a solve needed more than
-        # mass_refactor_iterations iterations); the pattern never changes, the values slowly
-        self.mass_refactor_iterations = int(mass_refactor_iterations)
-        self._mass_factor: MassFactor | None = None
         self._reduced_mass: tuple[str, ReducedMass] | None = None  # (the symmetry it is for, the tables)
-        self._mass_factor_x: Array | None = None
-        self.mass_factorizations = 0
         self.stage_times = {"geometry": 0.0, "membrane": 0.0}
         self.evaluations = 0
         self.last_mass_iterations = 0  # iterations of the last mass-matrix solve
-        self._last_traction: Array | None = None
 
     def state(self) -> dict[str, Array | None]:
-        """Warm-start memory (the last Δf of the mass-matrix solve and where the mass
-        matrix was factored: together they make the next solve bit for bit) and the counter."""
-        return {
-            "traction": None if self._last_traction is None else self._last_traction.copy(),
-            "factor_x": None if self._mass_factor_x is None else self._mass_factor_x.copy(),
-            "evaluations": np.array(self.evaluations, dtype=np.int64),
-        }
+        """The traction solve's warm start (per unit current area: the last Δf and where the
+        mass matrix was factored; per unit rest area: none) and the counter."""
+        return {**self.traction_solve.state(), "evaluations": np.array(self.evaluations, dtype=np.int64)}
 
     def restore(self, state: dict) -> None:
-        t = state.get("traction")
-        self._last_traction = None if t is None else np.array(t, dtype=np.float64, copy=True)
-        fx = state.get("factor_x")
-        fx = None if fx is None else np.array(fx, dtype=np.float64, copy=True)
-        if fx is None or self._mass_factor_x is None or not np.array_equal(fx, self._mass_factor_x):
-            self._mass_factor = None  # refactored at fx (or at the next configuration) on first use
-        self._mass_factor_x = fx
+        self.traction_solve.restore(state)
         self.evaluations = int(state.get("evaluations", 0))
 
     def reduced_mass(self) -> ReducedMass:
@@ -537,78 +744,6 @@ class MembraneForce:
             self._reduced_mass = (self.disc.symmetry, ReducedMass.of(self.disc))
         return self._reduced_mass[1]
 
-    def _factor(self, x: Array, data: Array) -> MassFactor:
-        """The factorisation in use: the kept one, else that at _mass_factor_x (a restored
-        state), else that at x (data: the reduced mass matrix at x)."""
-        if self._mass_factor is None:
-            reduced = self.reduced_mass()
-            if self._mass_factor_x is None:
-                self._mass_factor_x = np.array(x, copy=True)
-            else:
-                disc = self.disc
-                geo = disc.geometry(self._mass_factor_x)
-                data = reduced.data_from_target_rows(disc.mass_matrix_data(geo, disc.target_elements))
-            self._mass_factor = MassFactor.of(reduced, data)
-            self.mass_factorizations += 1
-        return self._mass_factor
-
-    def solve_mass(self, x: Array, mass_data: Array, rhs: Array) -> tuple[Array, int]:
-        """Δf with M·Δf = rhs (M the mass matrix at x, in the CSR values ``mass_data``) on
-        the unknowns the symmetry leaves (``ReducedMass``), by conjugate gradients from
-        the last Δf, preconditioned by the kept factorisation; one that no longer serves
-        (more than mass_refactor_iterations iterations) is replaced by the factorisation
-        at x for the next solve. A configuration without the symmetry is solved in full."""
-        return self._solve(x, mass_data, rhs, self._symmetric(x))
-
-    def _solve(self, x: Array, mass_data: Array, rhs: Array, symmetric: bool) -> tuple[Array, int]:
-        """solve_mass for a configuration known to have the mesh's symmetry or not: the reduced
-        system from the target nodes' rows of M and rhs (the others may be incomplete, as an
-        evaluation assembles them only on ``Discretization.target_elements``), else in full."""
-        if not symmetric:
-            return self._solve_full(mass_data, rhs)
-        reduced = self.reduced_mass()
-        return self._solve_reduced(x, reduced.data_from_target_rows(mass_data), reduced.rhs_from_target_rows(rhs))
-
-    def _symmetric(self, x: Array) -> bool:
-        reduced = self.reduced_mass()
-        return kernels.asymmetry(x, reduced.col, reduced.sign, reduced.target_node) <= ASYMMETRY_TOL * np.abs(x).max()
-
-    def _solve_full(self, mass_data: Array, rhs: Array) -> tuple[Array, int]:
-        # a configuration without the mesh's symmetry (a finite-difference probe of a
-        # Jacobian): the right-hand side is not equivariant and the reduced system would
-        # drop its other part; the full system by Jacobi-preconditioned CG, the kept
-        # factorisation untouched
-        disc = self.disc
-        guess = self._last_traction if self._last_traction is not None else np.zeros_like(rhs)
-        traction, iterations = kernels.block_cg(
-            disc.mass_indptr, disc.mass_indices, mass_data, rhs, guess, self.mass_tol, self.mass_max_iter)
-        self._last_traction = traction
-        return traction, int(iterations)
-
-    def _solve_reduced(self, x: Array, data: Array, b: Array) -> tuple[Array, int]:
-        """The reduced solve with K's values ``data`` at x and b = Eᵀ rhs (see solve_mass)."""
-        reduced = self.reduced_mass()
-        guess = self._last_traction if self._last_traction is not None else np.zeros(reduced.col.shape)
-        factor = self._factor(x, data)
-        traction, iterations = kernels.solve_reduced_mass(
-            reduced.indptr, reduced.indices, data, b, guess, reduced.col, reduced.sign, reduced.target_node,
-            reduced.target_comp, reduced.inv_mult, self.mass_tol, self.mass_max_iter, *factor.arrays,
-        )
-        if iterations > self.mass_refactor_iterations:
-            self._mass_factor = MassFactor.of(reduced, data)
-            self._mass_factor_x = np.array(x, copy=True)
-            self.mass_factorizations += 1
-        self._last_traction = traction
-        return traction, int(iterations)
-
-    def _vertex_state(self, x: Array) -> tuple[VertexStrain, Array]:
-        disc = self.disc
-        A, n_cur, _ = kernels.vertex_deformation_gradient(
-            x, self.rest_positions, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta,
-        )
-        strain = strain_from_gradient(A, n_cur)
-        return strain, tension_tensor(strain, self.law, self.law_params)
-
     @property
     def rest_positions(self) -> Array:
         return self._rest_positions
@@ -617,6 +752,26 @@ class MembraneForce:
     def rest_positions(self, value: Array) -> None:
         self._rest_positions = value
         self._rest_metric = None  # the rest shape's metric at the Gauss points, built on first use
+        self.traction_solve.reset()
+
+    def _symmetric(self, x: Array) -> bool:
+        reduced = self.reduced_mass()
+        return kernels.asymmetry(x, reduced.col, reduced.sign, reduced.target_node) <= ASYMMETRY_TOL * np.abs(x).max()
+
+    def current_traction(self, geo, rhs: Array) -> Array:
+        """Δf per unit current area: M(x)·Δf = rhs by the sparse LU of M at x (not the
+        evaluation's path when the solve is per unit rest area: read by the exports)."""
+        from scipy.sparse.linalg import splu
+
+        return splu(self.disc.mass_matrix(geo).tocsc()).solve(np.asfortranarray(rhs))
+
+    def _vertex_state(self, x: Array) -> tuple[VertexStrain, Array]:
+        disc = self.disc
+        A, n_cur, _ = kernels.vertex_deformation_gradient(
+            x, self.rest_positions, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta,
+        )
+        strain = strain_from_gradient(A, n_cur)
+        return strain, tension_tensor(strain, self.law, self.law_params)
 
     def gauss_point_strain(self, x: Array, elems: Array | None = None) -> tuple[Array, ...]:
         """Λ1, Λ2, the dual tangents and J0 at the Gauss points of ``elems`` (default: every
@@ -674,24 +829,25 @@ class MembraneForce:
         clock.lap("geometry")
         vertex_state = lambda: self._vertex_state(x)  # noqa: E731
         if self.traction_method == "contour":
-            state = MembraneState(np.empty(0), geo, np.empty(0), vertex_state)
-            state.traction = state.density = self.element_traction(x, geo, state.tension)
+            state = MembraneState(geo, np.empty(0), vertex_state)
+            state.density = self.element_traction(x, geo, state.tension)
             self.stage_times["membrane"] += time.perf_counter() - t1
             clock.lap("contour_traction")
             return state
-        # with the symmetry the reduced solve reads only the target nodes' rows: the strain, the
-        # energy gradient and the mass matrix on the elements holding a target (175 of 512 at
-        # level 3 under quarter symmetry)
+        # with the symmetry the reduced solve reads only the target nodes' rows: the strain and
+        # the energy gradient on the elements holding a target (175 of 512 at level 3 under
+        # quarter symmetry)
         symmetric = self._symmetric(x)
-        elems = disc.target_elements if symmetric else None
-        rhs = self._energy_gradient(x, elems)
+        rhs = self._energy_gradient(x, disc.target_elements if symmetric else None)
         clock.lap("strain")
-        data = disc.mass_matrix_data(geo, elems)
-        clock.lap("mass_assembly")
-        traction, iterations = self._solve(x, data, rhs, symmetric)
+        solved, iterations = self.traction_solve.solve(x, geo, rhs, symmetric, clock)
         self.last_mass_iterations = iterations
-        clock.lap("mass_solve")
-        density = kernels.gather_nodal(traction, disc.elements)
+        density = kernels.gather_nodal(solved, disc.elements)
         self.stage_times["membrane"] += time.perf_counter() - t1
         clock.lap("gather")
-        return MembraneState(traction, geo, density, vertex_state, iterations)
+        measure = self.traction_solve.measure
+        current = None
+        if measure is not None:  # Δf per unit current area when read (the other rows of rhs expanded then)
+            def current() -> Array:
+                return self.current_traction(geo, disc.expand(rhs[disc.targets]) if symmetric else rhs)
+        return MembraneState(geo, density, vertex_state, measure, solved, current, iterations)

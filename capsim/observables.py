@@ -182,6 +182,7 @@ def particle_stresslet(
     volume: float,
     shear_rate_G: float,
     viscosity_ratio: float,
+    weights: np.ndarray | None = None,
 ) -> np.ndarray:
     """Particle stresslet (seed 2.15) over its rigid-sphere value, a (3, 3) array.
 
@@ -191,15 +192,18 @@ def particle_stresslet(
     symmetrised (its antisymmetric part is the torque, zero up to discretisation).
 
     density: Δf as the single layer takes it, (N_e, 6, 3) element-nodal values
-    interpolated with ``phi`` (q, 6), or (N_e, 3) element-constant. velocity:
-    nodal u (N_p, 3), interpolated quadratically to the Gauss points.
+    interpolated with ``phi`` (q, 6), or (N_e, 3) element-constant, per unit area of the
+    surface, or per unit rest area with ``weights`` the rest shape's (``MembraneState.
+    weights``: Δf dS = F dS0). velocity: nodal u (N_p, 3), interpolated quadratically to
+    the Gauss points.
     """
+    weights = geo.weights if weights is None else weights
     if density.ndim == 3:
         df = interpolate(phi, density)
     else:
         df = np.broadcast_to(density[:, None, :], geo.points.shape)
     x = geo.points - center
-    elastic = (df * geo.weights[..., None]).reshape(-1, 3).T @ x.reshape(-1, 3)
+    elastic = (df * weights[..., None]).reshape(-1, 3).T @ x.reshape(-1, 3)
     S = 0.5 * (elastic + elastic.T) / shear_rate_G
     if viscosity_ratio != 1.0:
         u = interpolate(phi, velocity[elements])
@@ -767,14 +771,14 @@ class StepObserver:
         row["min_tension"] = float(tau2.min()) / model.shear_rate_G
         row["compressed_fraction"] = float(np.mean(tau2 < -COMPRESSION_TOL))
         center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
-        density = state.density
-        if model.viscous is not None:
-            density, viscous_row = self._viscous(y, u, state, center, row["volume"])
-            row.update(viscous_row)
         S_star = particle_stresslet(
-            state.geometry, density, u, elements, model.disc.reg_phi, center, row["volume"],
-            model.shear_rate_G, model.viscosity_ratio,
+            state.geometry, state.density, u, elements, model.disc.reg_phi, center, row["volume"],
+            model.shear_rate_G, model.viscosity_ratio, state.weights,
         )
+        if model.viscous is not None:
+            S_v, viscous_row = self._viscous(y, u, state, center, row["volume"])
+            S_star = S_star + S_v
+            row.update(viscous_row)
         row.update(stresslet_observables(S_star))
         row.update(self.tracker.update(y, u, center))
         row["solver_iterations"] = float(model.last_solve_info.get("iterations", 0))
@@ -785,18 +789,18 @@ class StepObserver:
 
     def _viscous(self, y: np.ndarray, u: np.ndarray, state, center: np.ndarray, volume: float) -> tuple:
         """A viscous membrane's traction joins the elastic one in the stresslet (Batchelor's
-        surface formula holds for any interfacial force; docs/viscous_membrane.md, eq. V12);
-        its own share of S*_xy, its dissipation rate uᵀK u (μk²a³) and that over the power the
+        surface formula holds for any interfacial force; docs/viscous_membrane.md, eq. V12):
+        its share of S* (the stresslet is linear in the traction: Δf_v/G's at G = 1, λ = 1 is
+        what it adds to the elastic one's at G), its dissipation rate uᵀK u (μk²a³) and that over the power the
         flow spends on the particle, S:E (the elastic energy is stored, not dissipated: in a
         steady state the rest of S:E is the fluids')."""
         model = self.model
         elements = model.disc.elements
         traction = model.viscous.traction(y, state.geometry, u)  # Δf_v/G, units μk
-        density = state.density + model.shear_rate_G * traction[elements]
         S_v = particle_stresslet(state.geometry, np.ascontiguousarray(traction[elements]), u, elements,
                                  model.disc.reg_phi, center, volume, 1.0, 1.0)
         dissipation = model.viscous.dissipation(y, u)  # K of the solve at these positions
-        return density, {"Sxy_viscous_star": float(S_v[0, 1]), "viscous_dissipation": dissipation}
+        return S_v, {"Sxy_viscous_star": float(S_v[0, 1]), "viscous_dissipation": dissipation}
 
     def _remember(self, row: dict) -> None:
         if self.first is None:

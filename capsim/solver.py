@@ -167,6 +167,21 @@ def _symmetry_table(positions: np.ndarray, generators: list[np.ndarray]):
     return targets, source, signs, zero
 
 
+@dataclass(frozen=True)
+class RestMeasure:
+    """The area element of the rest shape at every rule point, for a density given per unit
+    rest area (the Galerkin membrane traction, ``membrane.MembraneForce``): the integrals
+    of such a density F take F dA0 where a density per unit current area takes f dA
+    (F dA0 = f dA). Built once per rest shape (``Discretization.rest_measure``):
+    reg_weights (N_e, q) the regular rule's weights times J0, duffy_weights (N_e, 6, m)
+    the Duffy rule's for a singularity at each local node, fine_weights (N_e, m_f) the
+    near field's subdivided rule's."""
+
+    reg_weights: np.ndarray
+    duffy_weights: np.ndarray
+    fine_weights: np.ndarray
+
+
 @dataclass
 class Discretization:
     """Static tables of a mesh and its quadrature rules (built once per run)."""
@@ -216,6 +231,8 @@ class Discretization:
         self.fine_phi, self.fine_dxi, self.fine_deta = (np.ascontiguousarray(a) for a in (fphi, fdxi, fdeta))
         self.fine_w = np.ascontiguousarray(fw)
         self._near: tuple | None = None  # (geometry, offsets, elements) of the last configuration
+        # the kernels' "no rest measure" (a density per unit area of the current surface)
+        self._current_measure = RestMeasure(np.zeros((0, 0)), np.zeros((0, 6, m)), np.zeros((0, fw.size)))
         # the per-stage split of an evaluation, shared with the membrane force (capsim bench)
         self.clock = StageClock()
 
@@ -310,35 +327,56 @@ class Discretization:
             self._near = (geo, offsets, elems)
         return self._near[1], self._near[2]
 
-    def single_layer(self, x: np.ndarray, geo: ElementGeometry, density: np.ndarray) -> np.ndarray:
+    def rest_measure(self, rest_positions: np.ndarray) -> RestMeasure:
+        """The rest shape's area element at every rule point (``RestMeasure``)."""
+        X = np.ascontiguousarray(rest_positions, dtype=np.float64)
+        Xe = X[self.elements]
+
+        def jacobian(dxi: np.ndarray, deta: np.ndarray, spec: str) -> np.ndarray:
+            a = np.einsum(spec, dxi, Xe)
+            b = np.einsum(spec, deta, Xe)
+            return np.linalg.norm(np.cross(a, b), axis=-1)
+
+        duffy = jacobian(self.sing_dxi, self.sing_deta, "kqa,ead->ekqd") * self.sing_w[None]
+        fine = jacobian(self.fine_dxi, self.fine_deta, "qa,ead->eqd") * self.fine_w[None]
+        return RestMeasure(np.ascontiguousarray(self.geometry(X).weights), np.ascontiguousarray(duffy),
+                           np.ascontiguousarray(fine))
+
+    def single_layer(self, x: np.ndarray, geo: ElementGeometry, density: np.ndarray,
+                     measure: RestMeasure | None = None) -> np.ndarray:
         """∫ G·f dS at every node for a density given per element.
 
         density: (N_e, 3) element-constant (seed 3.7) or (N_e, 6, 3) element
-        nodal values interpolated quadratically.
+        nodal values interpolated quadratically; per unit area of the surface x, or per
+        unit area of the rest shape with its ``measure`` (∫ G·F dA0).
         """
         clock = self.clock
         clock.start()
+        weights = geo.weights if measure is None else measure.reg_weights
+        measure = self._current_measure if measure is None else measure
         if density.ndim == 2:
             nodal = np.repeat(density[:, None, :], 6, axis=1)
-            point_density = np.repeat(density[:, None, :], geo.weights.shape[1], axis=1)
-            strengths = (point_density * geo.weights[..., None]).reshape(-1, 3)
+            point_density = np.repeat(density[:, None, :], weights.shape[1], axis=1)
+            strengths = (point_density * weights[..., None]).reshape(-1, 3)
         else:
             nodal = np.ascontiguousarray(density)
-            point_density, strengths = kernels.point_strengths(self.reg_phi, nodal, geo.weights)
+            point_density, strengths = kernels.point_strengths(self.reg_phi, nodal, weights)
         nodal, point_density = np.ascontiguousarray(nodal), np.ascontiguousarray(point_density)
         clock.lap("interpolation")
         u = kernels.stokeslet_sum(x[self.targets], geo.points.reshape(-1, 3), strengths)
         clock.lap("stokeslet_sum")
         u += kernels.single_layer_singular_correction(
             x, self.elements, self.inc_offsets, self.inc_elem, self.inc_local,
-            nodal, geo.points, geo.weights, point_density, *self.duffy_by_node, self.sing_w, self.targets,
+            nodal, geo.points, weights, point_density, *self.duffy_by_node, self.sing_w, measure.duffy_weights,
+            self.targets,
         )
         clock.lap("singular_correction")
         near = self.near_pairs(x, geo)
         if near is not None:
             u += kernels.single_layer_near_correction(
-                x, self.elements, nodal, geo.points, geo.weights, point_density,
-                self.fine_phi, self.fine_dxi, self.fine_deta, self.fine_w, self.targets, near[0], near[1],
+                x, self.elements, nodal, geo.points, weights, point_density,
+                self.fine_phi, self.fine_dxi, self.fine_deta, self.fine_w, measure.fine_weights, self.targets,
+                near[0], near[1],
             )
             clock.lap("near_correction")
         u = self.expand(u)
@@ -399,11 +437,13 @@ class Discretization:
             )
         return self.expand(out)
 
-    def layer_matrix(self, x: np.ndarray, geo: ElementGeometry, kind: str) -> np.ndarray:
+    def layer_matrix(self, x: np.ndarray, geo: ElementGeometry, kind: str,
+                     measure: RestMeasure | None = None) -> np.ndarray:
         """The single (kind "single") or double ("double") layer as a dense
         (3N, 3N) matrix on nodal values (node-major, then component), with the
         rules of ``single_layer``/``double_layer`` (density interpolated
-        quadratically; u_target = u): ``single_layer(x, geo, f[elements]).ravel()
+        quadratically; u_target = u; the single layer's density per unit rest area with
+        a ``measure``): ``single_layer(x, geo, f[elements], measure).ravel()
         == S @ f.ravel()`` to round-off. Every row is computed, symmetry or not: the
         kernel evaluations of about four applications under quarter symmetry, each
         scattered into six node columns (8–13 ms at level 2, 85 ms at level 3, about
@@ -416,11 +456,15 @@ class Discretization:
         else:
             offsets, elems = np.zeros(n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64)
         nw = np.ascontiguousarray(geo.normals * geo.weights[..., None])
+        double = kind == "double"
+        rest = self._current_measure if measure is None or double else measure
+        weights = geo.weights if measure is None or double else measure.reg_weights
         out = kernels.layer_matrix(
-            np.ascontiguousarray(x), self.elements, geo.points, geo.weights, nw, self.reg_phi,
+            np.ascontiguousarray(x), self.elements, geo.points, weights, nw, self.reg_phi,
             self.inc_offsets, self.inc_elem, self.inc_local,
             self.sing_phi, self.sing_dxi, self.sing_deta, self.sing_w,
-            self.fine_phi, self.fine_dxi, self.fine_deta, self.fine_w, offsets, elems, kind == "double")
+            self.fine_phi, self.fine_dxi, self.fine_deta, self.fine_w, offsets, elems, double,
+            rest.duffy_weights, rest.fine_weights)
         return out.reshape(3 * n, 3 * n)
 
     def flux_weights(self, geo: ElementGeometry) -> np.ndarray:
@@ -512,15 +556,6 @@ class CapsuleModel:
         self.membrane.rest_positions = value
 
     @property
-    def _last_traction(self) -> np.ndarray | None:
-        """The membrane's mass-matrix warm start (read by old checkpoint code; use state())."""
-        return self.membrane._last_traction
-
-    @_last_traction.setter
-    def _last_traction(self, value: np.ndarray | None) -> None:
-        self.membrane._last_traction = value
-
-    @property
     def stage_times(self) -> dict:
         """Seconds spent per stage so far: geometry and membrane (membrane force),
         single layer and λ ≠ 1 solve (this model). A fresh dict on every read."""
@@ -541,15 +576,20 @@ class CapsuleModel:
         return dict(self.disc.clock.times)
 
     # ---- checkpoints
+    #: the membrane force's warm-start entries → their names in the model state (warm_<name>)
+    MEMBRANE_WARM_STARTS = {"traction": "traction", "factor_x": "mass_factor_x"}
+
     def state(self) -> dict[str, np.ndarray | None]:
-        """All memory a bit-identical restart needs: the warm starts (membrane CG,
-        GMRES solution and right-hand side) and the cumulative work counters."""
+        """All memory a bit-identical restart needs: the warm starts (GMRES solution and
+        right-hand side) and the cumulative work counters. (The membrane's rest traction is
+        solved directly: no warm start.)"""
         def copy(a):
             return None if a is None else np.array(a, copy=True)
 
+        membrane = self.membrane.state()
         out: dict[str, np.ndarray | None] = {
-            "warm_traction": copy(self.membrane._last_traction),
-            "warm_mass_factor_x": copy(self.membrane._mass_factor_x),
+            # the traction solve's warm start, where it has one (per unit current area: a drop)
+            **{f"warm_{k}": copy(membrane[m]) for m, k in self.MEMBRANE_WARM_STARTS.items() if m in membrane},
             "warm_velocity": copy(self._last_velocity),
             "warm_rhs": copy(self._last_rhs),
             "membrane_evaluations": np.array(self.membrane.evaluations, dtype=np.int64),
@@ -567,7 +607,10 @@ class CapsuleModel:
         return out
 
     def restore(self, state: dict) -> None:
-        """Undo to a ``state()``: missing warm starts are cleared, missing counters 0."""
+        """Undo to a ``state()``: missing warm starts are cleared, missing counters 0. The
+        membrane's warm starts (warm_traction, warm_mass_factor_x: the iterative solve per
+        unit current area's) are taken and ignored by a solve per unit rest area, which
+        has none (a checkpoint written before it was the elastic laws' solve)."""
         known = {"warm_traction", "warm_mass_factor_x", "warm_velocity", "warm_rhs", "membrane_evaluations",
                  *COUNTERS}
         if self.viscous is not None:
@@ -582,7 +625,7 @@ class CapsuleModel:
             a = state.get(key)
             return None if a is None else np.array(a, dtype=np.float64, copy=True)
 
-        self.membrane.restore({"traction": copy("warm_traction"), "factor_x": copy("warm_mass_factor_x"),
+        self.membrane.restore({**{m: copy(f"warm_{k}") for m, k in self.MEMBRANE_WARM_STARTS.items()},
                                "evaluations": state.get("membrane_evaluations", 0)})
         self._last_velocity = copy("warm_velocity")
         self._last_rhs = copy("warm_rhs")
@@ -624,7 +667,7 @@ class CapsuleModel:
         self.counts["velocity_evaluations"] += 1
         lam = self.viscosity_ratio
         t0 = time.perf_counter()
-        sl = self.disc.single_layer(x, state.geometry, state.density)
+        sl = self.disc.single_layer(x, state.geometry, state.density, state.measure)
         self.counts["single_layer_applications"] += 1
         t1 = time.perf_counter()
         self.solver_times["single_layer"] += t1 - t0

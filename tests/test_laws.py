@@ -138,8 +138,9 @@ def _energy_and_virtual_work(disc, X, law, params, method):
         fq = np.einsum("qk,ekd->eqd", disc.reg_phi, state.density)
     else:
         fq = np.repeat(state.density[:, None, :], geo.weights.shape[1], axis=1)
-    # Δf = −∇ˢ·T (docs/conventions.md), so the virtual work is δE = +∫ Δf·δx dS
-    return dE, float(np.einsum("eqd,eqd,eq->", fq, dxq, geo.weights))
+    # Δf = −∇ˢ·T (docs/conventions.md), so the virtual work is δE = +∫ Δf·δx dS (= ∫ F·δx dS0 for the
+    # galerkin density, per unit rest area: state.weights are the rest shape's)
+    return dE, float(np.einsum("eqd,eqd,eq->", fq, dxq, state.weights))
 
 
 @pytest.mark.parametrize("name,params,g_s,k_s", CASES, ids=IDS)

@@ -120,10 +120,11 @@ def test_singular_corrections_equal_a_direct_reference(singular_order):
     nw = np.ascontiguousarray(geo.normals * geo.weights[..., None])
     u_pts = np.ascontiguousarray(np.einsum("qa,ead->eqd", disc.reg_phi, u[disc.elements]))
     tables = (*disc.duffy_by_node, disc.sing_w)
+    no_measure = np.zeros((0, 6, disc.sing_w.shape[1]))  # a density per unit area of x's surface
     for targets in (disc.targets, np.arange(disc.n_nodes, dtype=np.int64)):
         single = kernels.single_layer_singular_correction(
             x, disc.elements, disc.inc_offsets, disc.inc_elem, disc.inc_local,
-            density, geo.points, geo.weights, point_density, *tables, targets)
+            density, geo.points, geo.weights, point_density, *tables, no_measure, targets)
         double = kernels.double_layer_singular_correction(
             x, u, u_target, disc.elements, disc.inc_offsets, disc.inc_elem, disc.inc_local,
             geo.points, nw, u_pts, *tables, targets)

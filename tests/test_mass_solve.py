@@ -1,7 +1,8 @@
-"""The Galerkin traction's mass-matrix solve M·Δf = ∂E/∂x (issue 29, item 3): solved on the
-unknowns the mesh's symmetry leaves, preconditioned by a kept factorisation, it gives the
-full system's solution; the factorisation's place is part of the model state, so that a
-restored model continues bit for bit; the benchmark builds its model with build_model."""
+"""The Galerkin traction's mass-matrix solve (issue 29, item 3): the force per unit rest area F
+solves M0·F = ∂E/∂x with the rest shape's mass matrix M0, on the unknowns the mesh's symmetry
+leaves, by a factorisation made once; it equals the full system's solution, has the moments of
+the traction per unit current area, and carries no state, so a restored model continues bit for
+bit; the benchmark builds its model with build_model."""
 
 import numpy as np
 import pytest
@@ -17,73 +18,58 @@ _F = np.diag([1.15, 0.88, 1.0 / (1.15 * 0.88)]) @ np.array([[_C, -_S, 0], [_S, _
 _STEP = np.eye(3) + 2e-3 * np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
 
 
+def _mass(disc, geo) -> sp.csr_matrix:
+    return sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr), shape=(disc.n_nodes,) * 2)
+
+
 @pytest.mark.parametrize("symmetry, group, fraction", [
     ("quarter", "mirror_z+rotation_z", 0.27), ("half", "inversion", 0.51),
     ("mirror_z", "mirror_z", 0.53), ("none", "none", 1.0),
 ])
 def test_reduced_solve_is_the_full_solve(symmetry, group, fraction):
-    """Δf from the reduced system equals scipy's direct solve of the full M·Δf = b to
-    1e-9 (the CG tolerance is 1e-8 of max|b| on the residual; M's condition number is
-    about 30), its residual meets that tolerance, it has the configuration's symmetry
-    exactly, and the reduced system has about 1/4 (quarter), 1/2 (half, mirror) of the
-    full system's unknowns (a node on a mirror plane has a component forced to zero)."""
+    """F from the reduced system's factor equals scipy's direct solve of the full M0·F = b to
+    1e-12 (a direct solve; M0's condition number is about 30), it has the configuration's
+    symmetry exactly, and the reduced system has about 1/4 (quarter), 1/2 (half, mirror) of
+    the full system's unknowns (a node on a mirror plane has a component forced to zero)."""
     model, X = build_model(bench_case(2), symmetry=symmetry)
     disc, membrane = model.disc, model.membrane
     assert disc.symmetry == group
     x = X @ _F
-    data = disc.mass_matrix_data(disc.geometry(x))
+    state = membrane(x)
     rhs = membrane.energy_gradient(x)
-    traction, iterations = membrane.solve_mass(x, data, rhs)
-    mass = sp.csr_matrix((data, disc.mass_indices, disc.mass_indptr), shape=(disc.n_nodes,) * 2)
-    exact = spsolve(mass.tocsc(), rhs)
-    scale = np.abs(exact).max()
-    assert np.abs(traction - exact).max() <= 1e-9 * scale
-    assert np.abs(mass @ traction - rhs).max() <= 1e-8 * np.abs(rhs).max()
-    # factored at this very configuration: the first iteration solves
-    assert iterations == 1 and membrane.mass_factorizations == 1
+    exact = spsolve(_mass(disc, disc.geometry(X)).tocsc(), rhs)
+    assert np.abs(state.rest_traction - exact).max() <= 1e-12 * np.abs(exact).max()
     assert membrane.reduced_mass().size <= fraction * 3 * disc.n_nodes
     if group != "none":
-        assert np.array_equal(disc.expand(traction[disc.targets]), traction)
+        assert np.array_equal(disc.expand(state.rest_traction[disc.targets]), state.rest_traction)
 
 
-def _strain_path(membrane, disc, x, step, n):
-    """n solves along x·stepᵏ: (iterations, refactored) of each; every one meets the tolerance."""
-    history = []
-    for _ in range(n):
-        x = x @ step
-        before = membrane.mass_factorizations
-        state = membrane(x)
-        history.append((state.mass_iterations, membrane.mass_factorizations - before))
-        data = disc.mass_matrix_data(state.geometry)
-        mass = sp.csr_matrix((data, disc.mass_indices, disc.mass_indptr), shape=(disc.n_nodes,) * 2)
-        rhs = membrane.energy_gradient(x)
-        assert np.abs(mass @ state.traction - rhs).max() <= 1e-8 * np.abs(rhs).max()
-    return x, history
-
-
-def test_kept_factorisation_serves_and_is_replaced_when_it_no_longer_does():
-    """Along a path of small strain steps (8 % in all) the factorisation at the start serves
-    every solve in at most 3 iterations: the diagonal scaling √(diag K0 / diag K) takes up
-    the change of area (without it the same path needed 3-5 iterations and a new factor).
-    Along steps ten times larger (80 %) a factor is replaced, at the configuration of a solve
-    that needed more than mass_refactor_iterations, and only there."""
+def test_rest_traction_has_the_moments_of_the_current_traction():
+    """∫ φ_i F dA0 = ∫ φ_i Δf dA = ∂E/∂x_i: the traction per unit current area (solved when
+    read, M(x)·Δf = ∂E/∂x) and the rest traction give the same integral of every quadratic,
+    so the same elastic stresslet ∫ Δf x dS to 1e-12, while the fields themselves differ by
+    the change of area (here up to ~15 %); the factor is made once along a path of strain."""
     model, X = build_model(bench_case(2))
-    membrane, disc = model.membrane, model.disc
+    disc, membrane = model.disc, model.membrane
     x = X @ _F
-    model.velocity(x)
-    assert membrane.mass_factorizations == 1
-    x, history = _strain_path(membrane, disc, x, _STEP, 40)
-    assert membrane.mass_factorizations == 1 and max(its for its, _ in history) <= 3
-    _, history = _strain_path(membrane, disc, x, np.eye(3) + 10.0 * (_STEP - np.eye(3)), 40)
-    limit = membrane.mass_refactor_iterations
-    assert all(refactored == (its > limit) for its, refactored in history)
-    assert 1 <= sum(refactored for _, refactored in history) <= 10
+    for _ in range(5):
+        x = x @ _STEP
+        state = membrane(x)
+        factor = membrane.traction_solve._factor
+        rhs = membrane.energy_gradient(x)
+        geo = state.geometry
+        assert np.abs(_mass(disc, geo) @ state.traction - rhs).max() <= 1e-12 * np.abs(rhs).max()
+        moments = [np.einsum("qa,ead,eq,eqj->dj", disc.reg_phi, f[disc.elements], w, geo.points)
+                   for f, w in ((state.rest_traction, state.weights), (state.traction, geo.weights))]
+        assert np.abs(moments[0] - moments[1]).max() <= 1e-12 * np.abs(moments[1]).max()
+        assert np.abs(state.rest_traction - state.traction).max() >= 0.02 * np.abs(state.traction).max()
+    assert membrane.traction_solve._factor is factor
 
 
 def test_restored_model_continues_bit_for_bit():
-    """The factorisation's configuration is in the model state (warm_mass_factor_x): a
-    model restored from another's state, even one that never factored, gives the same
-    velocities to the bit, and a fresh state (no factor) refactors on first use."""
+    """The rest traction's solve keeps no state: a model restored from another's state gives
+    the same velocities to the bit, and the warm-start entries of earlier versions' checkpoints
+    (warm_traction, warm_mass_factor_x) are taken and change nothing."""
     a, X = build_model(bench_case(2))
     b, _ = build_model(bench_case(2))
     x = X @ _F
@@ -91,17 +77,11 @@ def test_restored_model_continues_bit_for_bit():
         x = x @ _STEP
         a.velocity(x)
     saved = a.state()
-    # factored at the first configuration: b, left alone, would factor at its next one
-    assert np.array_equal(saved["warm_mass_factor_x"], X @ _F @ _STEP)
-    b.restore(saved)
+    assert "warm_traction" not in saved and "warm_mass_factor_x" not in saved
+    b.restore({**saved, "warm_traction": np.ones(X.shape), "warm_mass_factor_x": X})
     for _ in range(5):
         x = x @ _STEP
         assert np.array_equal(a.velocity(x), b.velocity(x))
-    assert np.array_equal(a.state()["warm_mass_factor_x"], b.state()["warm_mass_factor_x"])
-    b.restore({})
-    assert b.membrane._mass_factor is None and b.membrane._mass_factor_x is None
-    b.velocity(x)
-    assert np.array_equal(b.state()["warm_mass_factor_x"], x)
 
 
 def test_benchmark_model_is_the_run_model():
@@ -123,7 +103,7 @@ def test_bench_prints_the_split_per_stage():
     """capsim bench's split: every stage of an evaluation at λ = 1 is timed (and only
     those of the registry), the Stokeslet sum among them, and the lines name each."""
     r = bench_velocity(level=1, repeat=2, compare_symmetry=False)
-    assert set(r["split_s"]) == {"geometry", "strain", "mass_assembly", "mass_solve", "gather", "interpolation",
+    assert set(r["split_s"]) == {"geometry", "strain", "mass_solve", "gather", "interpolation",
                                  "stokeslet_sum", "singular_correction", "expand", "far_field", "normals",
                                  "volume_correction"}
     assert set(r["split_s"]) <= set(SPLIT_STAGES)
@@ -137,25 +117,21 @@ def test_bench_prints_the_split_per_stage():
 def test_configuration_without_the_symmetry_is_solved_in_full():
     """A finite-difference probe x + εv with a random v (ε = 1e-7) has no symmetry: its
     energy gradient is not equivariant, and the reduced system would drop that part. It is
-    solved in full (its residual within the CG tolerance, 1e-8 of max|b|, and scipy's direct
-    solve to 1e-7: M's condition number is about 30) and the kept factorisation is untouched;
-    a perturbation with the symmetry keeps the reduced solve."""
+    solved in full (scipy's direct solve of M0·F = b to 1e-12) and the reduced factor is
+    untouched; a perturbation with the symmetry keeps the reduced solve."""
     model, X = build_model(bench_case(2))
     disc, membrane = model.disc, model.membrane
     x = X @ _F
     model.velocity(x)
-    kept = membrane._mass_factor
+    kept = membrane.traction_solve._factor
+    mass0 = _mass(disc, disc.geometry(X)).tocsc()
     v = np.random.default_rng(3).standard_normal(x.shape)
     for probe, reduced in ((x + 1e-7 * v, False), (x + 1e-7 * disc.expand(v[disc.targets]), True)):
         state = membrane(probe)
-        data = disc.mass_matrix_data(state.geometry)
-        mass = sp.csr_matrix((data, disc.mass_indices, disc.mass_indptr), shape=(disc.n_nodes,) * 2)
-        rhs = membrane.energy_gradient(probe)
-        exact = spsolve(mass.tocsc(), rhs)
-        assert np.abs(mass @ state.traction - rhs).max() <= 1e-8 * np.abs(rhs).max()
-        assert np.abs(state.traction - exact).max() <= 1e-7 * np.abs(exact).max()
-        assert membrane._mass_factor is kept
-        symmetric = np.array_equal(disc.expand(state.traction[disc.targets]), state.traction)
+        exact = spsolve(mass0, membrane.energy_gradient(probe))
+        assert np.abs(state.rest_traction - exact).max() <= 1e-12 * np.abs(exact).max()
+        assert membrane.traction_solve._factor is kept
+        symmetric = np.array_equal(disc.expand(state.rest_traction[disc.targets]), state.rest_traction)
         assert symmetric == reduced
 
 

@@ -87,7 +87,7 @@ def test_galerkin_and_contour_tractions_have_the_same_first_moment(sphere3):
             fq = np.einsum("qk,ekd->eqd", disc.reg_phi, st.density)
         else:
             fq = np.repeat(st.density[:, None, :], geo.weights.shape[1], axis=1)
-        moments.append(np.einsum("eqi,eqj,eq->ij", fq, geo.points, geo.weights))
+        moments.append(np.einsum("eqi,eqj,eq->ij", fq, geo.points, st.weights))  # Δf dS = F dS0
     scale = np.abs(moments[0]).max()
     assert np.abs(moments[0] - moments[1]).max() / scale < 0.02
 

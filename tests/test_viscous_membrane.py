@@ -49,7 +49,8 @@ def test_dissipation_of_a_straining_sphere_is_the_analytic_one(level, tol):
     ("sheared", "none"),       # a shape without any symmetry
 ])
 def test_velocity_solves_the_viscous_boundary_integral_equation(deformation, symmetry):
-    """u + SL[M⁻¹K u]/(8π) = u∞ − SL[Δf]/(8πG) (eq. V4), checked against a dense solve built
+    """u + SL[M⁻¹K u]/(8π) = u∞ − SL[Δf]/(8πG) (eq. V4; SL[Δf] = SL0[F], the rest traction over
+    the rest measure), checked against a dense solve built
     from the single-layer matrix, at a deformed state, λ = 1: with the unknowns the symmetry
     leaves, and with all of them."""
     case = case_from_dict({"name": "d", "mesh": {"level": 1, "symmetry": symmetry}, "flow": {"shear_rate_G": 0.1},
@@ -66,7 +67,10 @@ def test_velocity_solves_the_viscous_boundary_integral_equation(deformation, sym
     S = disc.layer_matrix(x, geo, "single")
     mass = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr), shape=(n, n))
     minv_k = sp.linalg.spsolve(sp.kron(mass, sp.identity(3), format="csc"), model.viscous.stiffness(x).tocsc())
-    rhs = model.far_field(x).ravel() - S @ state.traction.ravel() / (8 * np.pi * 0.1)
+    # the elastic traction per unit rest area, integrated over the rest shape's measure; the
+    # viscous one per unit current area (M = M(x))
+    s_rest = disc.layer_matrix(x, geo, "single", state.measure)
+    rhs = model.far_field(x).ravel() - s_rest @ state.rest_traction.ravel() / (8 * np.pi * 0.1)
     want = np.linalg.solve(np.eye(3 * n) + S @ minv_k.toarray() / (8 * np.pi), rhs).reshape(-1, 3)
     np.testing.assert_allclose(u, want, rtol=0, atol=1e-8 * np.abs(want).max())
     assert model.last_solve_info["iterations"] > 0
