@@ -113,9 +113,12 @@ def table(result: dict) -> str:
         "| stage | group | before (ms) | after (ms) | before (× sum) | after (× sum) |",
         "|---|---|---:|---:|---:|---:|",
     ]
+    def cells(split: dict, k: str, total: float) -> tuple[str, str]:  # "—": the tree has no such stage
+        return (f"{split[k]:.3f}", f"{split[k] / total:.2f}") if k in split else ("—", "—")
+
     for k in stages:
-        b, a = before["split_ms"].get(k, 0.0), after["split_ms"].get(k, 0.0)
-        lines.append(f"| {k} | {SPLIT_STAGES[k]} | {b:.3f} | {a:.3f} | {b / sb:.2f} | {a / sa:.2f} |")
+        (b, b_sum), (a, a_sum) = cells(before["split_ms"], k, sb), cells(after["split_ms"], k, sa)
+        lines.append(f"| {k} | {SPLIT_STAGES[k]} | {b} | {a} | {b_sum} | {a_sum} |")
     lines += [
         f"| all stages | | {before['stages_total_ms']:.3f} | {after['stages_total_ms']:.3f} | "
         f"{before['stages_total_ms'] / sb:.2f} | {after['stages_total_ms'] / sa:.2f} |",
@@ -128,7 +131,7 @@ def table(result: dict) -> str:
         f"machine gives some evaluations; the whole evaluation's median may not. "
         f"Mass-matrix solve: {before['mass_iterations']:.0f} conjugate-gradient iterations per evaluation "
         f"before (M(x)·Δf = ∂E/∂x, assembled at every evaluation), after: one exact solve of M0·F = ∂E/∂x "
-        f"by the rest shape's factor (F per unit rest area; docs/method.md, \"Membrane forces\").",
+        f"by the rest shape's factor (F per unit rest area; docs/method.md, \"Numerical method\").",
     ]
     return "\n".join(lines) + "\n"
 

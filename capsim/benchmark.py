@@ -2,13 +2,14 @@
 Stokeslet sum of the same size, with a per-stage breakdown, and the layer time
 (single layer + λ ≠ 1 solve) under each symmetry the mesh has.
 
-Timings are medians over ``repeat`` runs with a warm JIT cache; the bare sum and
-the evaluations are interleaved in blocks (BARE_BLOCK evaluations, then as many bare
-sums) so that load from other processes on a shared machine affects all of them alike,
-while the evaluations run back to back as in a run: a bare full-size sum (~4× an
-evaluation's own under quarter symmetry) just before each evaluation slowed the stages
-after it (level 3: the singular correction 0.045 → 0.05–0.08 ms, the mass solve 0.024 →
-0.03–0.05 ms, alternated in one process), which no run sees.
+Timings are medians over ``repeat`` runs with a warm JIT cache. The evaluations run
+back to back, as a run makes them, and the bare sums after them: on this project's
+machines (AMD EPYC, AVX-512) a burst of vectorised sums slows the scalar code that
+follows for milliseconds (level 3, quarter symmetry: after ten bare full-size sums the
+next evaluations' singular correction took 170, 129, 114, 84, 77 µs, then ~60, against
+45 µs without; the work outside the sum against it 1.48 falling to 0.65, against
+0.55), so interleaving them, once meant to share the load of other processes alike,
+measured the bare sums' after-effect instead of the evaluation.
 """
 
 from __future__ import annotations
@@ -38,8 +39,6 @@ def _model(case: Case, symmetry: bool | str) -> tuple[CapsuleModel, np.ndarray]:
 
 #: most timed repetitions (each is one velocity evaluation: up to minutes at level 6)
 MAX_REPEAT = 1000
-#: evaluations between two blocks of bare sums (module docstring)
-BARE_BLOCK = 10
 
 
 def bench_case(
@@ -103,27 +102,38 @@ def bench_velocity(
     # each repeat a step further along a smooth in-plane strain (it keeps every symmetry), as
     # successive evaluations of a run are: the warm starts (GMRES) work as in a run
     step = np.eye(3) + 1e-3 * np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
-    for i in range(repeat):
-        if i % BARE_BLOCK == 0:
-            for _ in range(min(BARE_BLOCK, repeat - i)):
-                t0 = time.perf_counter()
-                kernels.stokeslet_sum(x, sources, strengths)
-                bare.append(time.perf_counter() - t0)
-        for k, (m, _) in models.items():
-            m.reset_stage_times()
-            # a perturbation with the configuration's symmetry (expand makes it exact)
-            configs[k] = configs[k] @ step
-            xp = configs[k] + 1e-4 * m.disc.expand(noise[m.disc.targets])
-            t0 = time.perf_counter()
-            m.velocity(xp)
-            elapsed = time.perf_counter() - t0
-            times = m.stage_times
-            layer[k].append(times["single_layer"] + times["solve"])
-            if k == "main":
-                full.append(elapsed)
-                stages.append(times)
-                splits.append(m.split_times)
-                iters.append(m.last_solve_info["iterations"])
+
+    def evaluate(k: str) -> tuple[float, dict]:
+        m = models[k][0]
+        m.reset_stage_times()
+        # a perturbation with the configuration's symmetry (expand makes it exact)
+        configs[k] = configs[k] @ step
+        xp = configs[k] + 1e-4 * m.disc.expand(noise[m.disc.targets])
+        t0 = time.perf_counter()
+        m.velocity(xp)
+        elapsed = time.perf_counter() - t0
+        times = m.stage_times
+        layer[k].append(times["single_layer"] + times["solve"])
+        return elapsed, times
+
+    # the main model alone, its evaluations back to back as a run makes them (the split and the
+    # evaluation time; another model's evaluation in between, the "none" one's full-size sum
+    # above all, slows the stages after it as the bare sums do: module docstring)
+    for _ in range(repeat):
+        elapsed, times = evaluate("main")
+        full.append(elapsed)
+        stages.append(times)
+        splits.append(model.split_times)
+        iters.append(model.last_solve_info["iterations"])
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        kernels.stokeslet_sum(x, sources, strengths)
+        bare.append(time.perf_counter() - t0)
+    # then the symmetry settings' layer times, interleaved with each other
+    if compare_symmetry:
+        for _ in range(repeat):
+            for k in SYMMETRY_SETTINGS:
+                evaluate(k)
     med_stage = {k: float(np.median([s[k] for s in stages])) for k in stages[0]}
     med_split = {k: float(np.median([s.get(k, 0.0) for s in splits])) for k in splits[0]}
     # everything an evaluation does besides its Stokeslet sum (at the targets), against that sum,
@@ -163,7 +173,7 @@ def bench_velocity(
 
 #: the stages of the split in the order an evaluation runs them, each with its group
 SPLIT_STAGES = {
-    "geometry": "membrane", "strain": "membrane", "mass_solve": "membrane",
+    "geometry": "membrane", "strain": "membrane", "mass_assembly": "membrane", "mass_solve": "membrane",
     "gather": "membrane", "contour_traction": "membrane",
     "interpolation": "single layer", "stokeslet_sum": "single layer", "singular_correction": "single layer",
     "near_correction": "single layer", "expand": "single layer",

@@ -441,11 +441,15 @@ def single_layer_singular_correction(
 
 
 @njit(**_JIT)
-def surface_flux(elements, phi, normals, weights, u):
+def surface_flux(elements, elems, sizes, phi, normals, weights, u):
     """∫ u·n dS of the nodal field u (N_p, 3) interpolated quadratically: Σ over the
-    rule points (normals (N_e, q, 3), weights (N_e, q)) in one pass over the elements."""
+    rule points (normals (N_e, q, 3), weights (N_e, q)) of the elements ``elems``, each
+    counted sizes[i] times (all elements once, or one of each orbit of an invariant
+    integrand times the orbit's size)."""
     total = 0.0
-    for e in range(elements.shape[0]):
+    for i in range(elems.shape[0]):
+        e = elems[i]
+        part = 0.0
         for q in range(phi.shape[0]):
             ux = 0.0
             uy = 0.0
@@ -456,7 +460,8 @@ def surface_flux(elements, phi, normals, weights, u):
                 ux += f * u[node, 0]
                 uy += f * u[node, 1]
                 uz += f * u[node, 2]
-            total += weights[e, q] * (ux * normals[e, q, 0] + uy * normals[e, q, 1] + uz * normals[e, q, 2])
+            part += weights[e, q] * (ux * normals[e, q, 0] + uy * normals[e, q, 1] + uz * normals[e, q, 2])
+        total += sizes[i] * part
     return total
 
 

@@ -89,6 +89,29 @@ def test_the_image_search_finds_what_a_kd_tree_finds(base, kind, params, tilt):
                 assert found is None
 
 
+@pytest.mark.parametrize("symmetry, group, orbits", [
+    ("quarter", "mirror_z+rotation_z", 32), ("half", "inversion", 64), ("mirror_z", "mirror_z", 64), ("none", "none", 128),
+])
+def test_the_flux_of_an_equivariant_field_over_element_orbits_is_the_whole_flux(symmetry, group, orbits):
+    """u·n is the same on every element of an orbit when u has the mesh's symmetry: the
+    velocity's volume correction sums one element of each orbit times its size (a quarter of
+    the elements under quarter symmetry), equal to the sum over every element to 1e-13 for the
+    nodal normals (flux ≈ the area) and a velocity; the orbits' sizes add up to the elements."""
+    spec = {"name": "m", "mesh": {"level": 2}, "shape": {"kind": "prolate", "aspect_ratio": 2.0},
+            "initial_tilt_deg": 30.0}
+    model, X = build_model(case_from_dict(spec), symmetry=symmetry)
+    disc = model.disc
+    assert disc.symmetry == group and disc.orbit_elements.size == orbits
+    assert disc.orbit_sizes.sum() == disc.elements.shape[0]
+    x = X * np.array([1.1, 0.95, 1.0])
+    geo = disc.geometry(x)
+    u = model.velocity(x)
+    u = u + 0.3 * disc.nodal_normals(x)  # a field with a net flux
+    for field in (disc.nodal_normals(x), u):
+        whole, by_orbit = disc.flux(geo, field), disc.flux(geo, field, equivariant=True)
+        assert abs(by_orbit - whole) <= 1e-13 * np.einsum("eq->", geo.weights) * np.abs(field).max()
+
+
 def test_a_flow_without_the_symmetry_is_refused():
     mesh = rest_shape_mesh("sphere", "octahedron", 1)
     disc = Discretization(mesh.elements, mesh.n_vertices)
