@@ -54,7 +54,7 @@ bench: venv
 # (several minutes): writes benchmarks/threads.md and benchmarks/threads.json
 bench-threads: venv
 	$(BIN)/python benchmarks/threads.py
-	$(BIN)/python benchmarks/threads.py --level 4 --t-end 0.5 --repeat 3 --loads quiet \
+	$(BIN)/python benchmarks/threads.py --level 4 --t-end 2 --repeat 3 --loads quiet \
 		--settings capsim,omp-passive,default --out benchmarks/threads_level4
 
 # time schemes at equal accuracy (about 1.5 h on 2 cores, 40 min of it case h5; CASES=a c to run some):

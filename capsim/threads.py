@@ -272,8 +272,8 @@ def policy_attrs() -> dict[str, str | int]:
 #: 3.6 s, two 4.0 s, a second thread's fork-join cost outweighs its share of ~1 ms of
 #: sums; again after the evaluation was made 2.3x cheaper: the run 1.3-1.5 s on one thread
 #: against 1.6-1.7 s on two, alternated five times, docs/user_guide.md "Performance"); level
-#: 4 = 4098 nodes: two threads 1.50x faster over a run, quiet machine,
-#: benchmarks/threads_level4.md; issue 29, docs/user_guide.md "Threads")
+#: 4 = 4098 nodes: two threads 1.53x faster over a run (kt 2), 1.5-1.8x per evaluation, quiet
+#: machine, benchmarks/threads_level4.md; issue 29, docs/user_guide.md "Threads")
 PARALLEL_MIN_NODES = 2000
 
 
