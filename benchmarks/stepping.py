@@ -389,12 +389,26 @@ def _write_promise(here: Path, rows: list[dict], keys: list[str]) -> None:
     (here / "rtol_promise.md").write_text(promise_markdown(rows))
 
 
+def _refuse(message: str) -> None:
+    """Bad input: one line on stderr, exit status 2."""
+    print(message, file=sys.stderr)
+    sys.exit(2)
+
+
 def main(args: list[str]) -> None:
+    if "-h" in args or "--help" in args:
+        print(__doc__)
+        return
+    # an unknown option must not fall through to "every case" (about 1.5 h)
+    bad = [a for a in args if a.startswith("-") and a not in ("--promise", "--table") and not a.startswith("--scheme=")]
+    if bad:
+        _refuse(f"benchmarks/stepping.py: unknown option {bad[0]!r}: allowed --promise, --table, --scheme=NAME, "
+                f"-h/--help and cases {', '.join(sorted(CASES))}")
     if "--promise" in args:
         keys = [a for a in args if not a.startswith("--")] or ([] if "--table" in args else list(PROMISE_CASES))
         unknown = sorted(set(keys) - set(PROMISE_CASES))
         if unknown:
-            sys.exit(f"unknown cases {unknown}; allowed: {sorted(PROMISE_CASES)}")
+            _refuse(f"benchmarks/stepping.py: unknown cases {unknown}; allowed: {sorted(PROMISE_CASES)}")
         promise_main(keys)
         return
     here = Path(__file__).parent
@@ -408,7 +422,7 @@ def main(args: list[str]) -> None:
     keys = [a for a in args if not a.startswith("--")] or list(CASES)
     unknown = sorted(set(keys) - set(CASES))
     if unknown:
-        sys.exit(f"unknown cases {unknown}; allowed: {sorted(CASES)}")
+        _refuse(f"benchmarks/stepping.py: unknown cases {unknown}; allowed: {sorted(CASES)}")
     with tempfile.TemporaryDirectory(prefix="capsim-stepping-") as tmp:
         rows = [bench_case(key, Path(tmp), schemes) for key in keys]
     previous = here / "time_schemes.json"
