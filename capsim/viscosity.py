@@ -17,7 +17,11 @@ of ``kernels.viscous_membrane_blocks`` (eq. V3). The velocity equation of
     A u + SL[M⁻¹K u]/(8π) = u∞ − SL[Δf_e]/(8πG)                     (V4)
 
 (A = I at λ = 1, else the deflated double-layer operator); G cancels from the
-viscous term, which is why the Boussinesq number is the parameter. (V4) is solved
+viscous term, which is why the Boussinesq number is the parameter. As the elastic
+traction (``membrane.MembraneForce``), the viscous one is solved per unit rest area for
+an elastic membrane, M = M0 the rest shape's mass matrix and SL over the rest shape's
+measure (the inner solves M0⁻¹K u then exact, by the elastic traction's factor), and
+per unit current area for a drop, M = M(x) (conjugate gradients). (V4) is solved
 by GMRES (``capsim.krylov``) at every velocity evaluation, on the unknowns the mesh's
 symmetry leaves (``_Reduction``), warm-started from the last two solutions extrapolated
 (``_extrapolation``), right-preconditioned by the "local drag" approximation
@@ -134,15 +138,25 @@ class KelvinVoigtMembrane:
         return None
 
     def operators(self, x: np.ndarray, geo):
-        """(K, the mass matrix) at configuration x: those of the last solve when it was at x
-        (the accepted positions, which the observables then read), else assembled."""
+        """(K, the mass matrix M(x)) at configuration x: those of the last solve when it was at x
+        (the accepted positions, which the observables then read), else assembled (M(x) only
+        when asked: a solve per unit rest area needs none)."""
         cached = self._cached(x)
-        if cached is not None:
+        if cached is not None and cached[1] is not None:
             return cached
+        K = cached[0] if cached is not None else self.stiffness(x)
         mass = self.disc.mass_matrix(geo)
-        K = self.stiffness(x)
         self._operators = (np.array(x, copy=True), K, mass, None)
         return K, mass
+
+    def _stiffness_at(self, x: np.ndarray):
+        """K at x, kept for the observables (the mass matrix assembled only if they ask)."""
+        cached = self._cached(x)
+        if cached is not None:
+            return cached[0]
+        K = self.stiffness(x)
+        self._operators = (np.array(x, copy=True), K, None, None)
+        return K
 
     def traction(self, x: np.ndarray, geo, u: np.ndarray) -> np.ndarray:
         """M⁻¹K u at the nodes (N_p, 3): the viscous traction jump Δf_v over G, i.e. in units
@@ -181,6 +195,14 @@ class KelvinVoigtMembrane:
             self._drag = self.DRAG_FRACTION * max(self.disc.noise_rayleigh_quotient(x, self.disc.geometry(x)), 0.0)
         return self._drag
 
+    @staticmethod
+    def _rest_traction(model: "CapsuleModel"):
+        """The elastic traction's solve when it is per unit rest area (``membrane.
+        RestTractionSolve``: the viscous one then is too, M0·Δf_v = G K u, by its factor), else
+        None (a drop: per unit current area, M(x)·Δf_v = G K u)."""
+        solve = model.membrane.traction_solve
+        return solve if solve.measure is not None else None
+
     def _reduction_for(self, model: "CapsuleModel") -> "_Reduction":
         """The unknowns of the solve: those the mesh's symmetry leaves, the membrane force's
         (``MembraneForce.reduced_mass``; every node's three components without a symmetry).
@@ -195,13 +217,17 @@ class KelvinVoigtMembrane:
         """At configuration X: the LU of the local-drag matrix Eᵀ((1+λ)/2 M⊗I₃ + s/(8π) K)E
         on the solve's unknowns and the factorisation of the reduced mass matrix EᵀM⊗I₃E
         (``membrane.MassFactor``), which preconditions the mass solves of nearby configurations
-        (the mass matrix is that of the shape: unchanged by a rotation)."""
+        (the mass matrix is that of the shape: unchanged by a rotation). M is the rest shape's
+        M0 when the tractions are per unit rest area (``_rest_traction``)."""
         from scipy.sparse.linalg import splu
 
         from capsim.membrane import MassFactor
 
         disc = self.disc
-        if mass is None:
+        rest = self._rest_traction(model)
+        if rest is not None:
+            mass = rest.mass_matrix()
+        elif mass is None:
             mass = disc.mass_matrix(disc.geometry(X))
         if K is None:
             K = self.stiffness(X)
@@ -211,7 +237,9 @@ class KelvinVoigtMembrane:
         reduced_mass = red.csr(mass_data)
         drag = red.project(c * K) + a * reduced_mass
         self.factorizations += 1
-        return splu(drag.tocsc(), **SPD_LU), reduced_mass, MassFactor.of(red.reduced, mass_data)
+        # (per unit rest area the inner mass solves use the elastic traction's exact factor)
+        mass_factor = None if rest is not None else MassFactor.of(red.reduced, mass_data)
+        return splu(drag.tocsc(), **SPD_LU), reduced_mass, mass_factor
 
     def _rest_preconditioner(self, model: "CapsuleModel", red: "_Reduction", x: np.ndarray):
         """(preconditioner, mass factor): the local-drag preconditioner factorised at the rest
@@ -247,12 +275,15 @@ class KelvinVoigtMembrane:
 
         disc, counts, lam = model.disc, model.counts, model.viscosity_ratio
         self._operators = None  # a new configuration: assembled once, kept for the observables
-        K, mass = self.operators(x, geo)
+        rest = self._rest_traction(model)
+        if rest is None:
+            K, mass = self.operators(x, geo)
+        else:
+            K, mass = self._stiffness_at(x), None
         red = self._reduction_for(model)
         r = red.reduced
         double = model.double_layer_operator(x, geo, normals) if lam != 1.0 else None
         elements = disc.elements
-        mass_data = r.data_from_target_rows(mass.data)
 
         if self.preconditioner == "local":  # factorised here, at x
             lu, reduced_mass, mass_factor = self._factors(model, red, x, K, mass)
@@ -262,18 +293,29 @@ class KelvinVoigtMembrane:
         else:
             from capsim.membrane import MassFactor
 
-            precondition, mass_factor = None, MassFactor.of(r, mass_data)
-        zeros = np.zeros((disc.n_nodes, 3))
-        # the inner mass solves, to well below the outer tolerance (GMRES's operator then is
-        # linear to that accuracy), not below round-off
-        mass_tol = max(1e-3 * model.solver_tol, 1e-13)
+            precondition = None
+            mass_factor = None if rest is not None else MassFactor.of(r, r.data_from_target_rows(mass.data))
+
+        if rest is not None:  # Δf_v per unit rest area: M0⁻¹ K u by the elastic traction's factor, exactly
+            measure = rest.measure
+
+            def viscous_density(rhs: np.ndarray) -> np.ndarray:
+                return rest.solve(x, geo, rhs, True, disc.clock)[0]
+        else:  # per unit current area: conjugate gradients on M(x), preconditioned by the factor
+            measure, mass_data, zeros = None, r.data_from_target_rows(mass.data), np.zeros((disc.n_nodes, 3))
+            # the inner mass solves, to well below the outer tolerance (GMRES's operator then is
+            # linear to that accuracy), not below round-off
+            mass_tol = max(1e-3 * model.solver_tol, 1e-13)
+
+            def viscous_density(rhs: np.ndarray) -> np.ndarray:
+                return solve_reduced_mass(
+                    r.indptr, r.indices, mass_data, r.rhs_from_target_rows(rhs), zeros, r.col, r.sign,
+                    r.target_node, r.target_comp, r.inv_mult, mass_tol, 200, *mass_factor.arrays)[0]
 
         def apply(w: np.ndarray) -> np.ndarray:
             u = red.full(w)
-            density, _ = solve_reduced_mass(
-                r.indptr, r.indices, mass_data, r.rhs_from_target_rows((K @ u.ravel()).reshape(-1, 3)), zeros, r.col, r.sign,
-                r.target_node, r.target_comp, r.inv_mult, mass_tol, 200, *mass_factor.arrays)
-            sl = disc.single_layer(x, geo, np.ascontiguousarray(density[elements]))
+            density = viscous_density((K @ u.ravel()).reshape(-1, 3))
+            sl = disc.single_layer(x, geo, np.ascontiguousarray(density[elements]), measure)
             counts["single_layer_applications"] += 1
             base = u if double is None else double(u)
             return red.restrict(base + sl / (8.0 * np.pi))

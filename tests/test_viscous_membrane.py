@@ -43,19 +43,21 @@ def test_dissipation_of_a_straining_sphere_is_the_analytic_one(level, tol):
     assert abs(K - K.T).max() < 1e-12
 
 
-@pytest.mark.parametrize("deformation, symmetry", [
-    ("stretched", "quarter"),  # keeps the quarter symmetry: the solve on a quarter of the unknowns
-    ("stretched", "none"),     # every node's unknowns
-    ("sheared", "none"),       # a shape without any symmetry
+@pytest.mark.parametrize("deformation, symmetry, law", [
+    ("stretched", "quarter", "thin_shell"),  # keeps the quarter symmetry: the solve on a quarter of the unknowns
+    ("stretched", "none", "thin_shell"),     # every node's unknowns
+    ("sheared", "none", "thin_shell"),       # a shape without any symmetry
+    ("stretched", "quarter", "surface_tension"),  # a drop: its tractions per unit current area
 ])
-def test_velocity_solves_the_viscous_boundary_integral_equation(deformation, symmetry):
-    """u + SL[M⁻¹K u]/(8π) = u∞ − SL[Δf]/(8πG) (eq. V4; SL[Δf] = SL0[F], the rest traction over
-    the rest measure), checked against a dense solve built
+def test_velocity_solves_the_viscous_boundary_integral_equation(deformation, symmetry, law):
+    """u + SL[M⁻¹K u]/(8π) = u∞ − SL[Δf]/(8πG) (eq. V4), checked against a dense solve built
     from the single-layer matrix, at a deformed state, λ = 1: with the unknowns the symmetry
-    leaves, and with all of them."""
+    leaves, and with all of them. An elastic membrane's tractions are per unit rest area
+    (M = M0, the rest shape's mass matrix, and SL over the rest shape's measure), a drop's per
+    unit current area (M = M(x))."""
     case = case_from_dict({"name": "d", "mesh": {"level": 1, "symmetry": symmetry}, "flow": {"shear_rate_G": 0.1},
                            "solver": {"tol": 1e-11, "volume_correction": False},
-                           "membrane": {"viscosity": {"shear": 2.0, "dilatational": 0.3}}})
+                           "membrane": {"law": law, "viscosity": {"shear": 2.0, "dilatational": 0.3}}})
     model, X = build_model(case)
     x = X * np.array([1.1, 1 / 1.1, 1.0])
     if deformation == "sheared":
@@ -64,13 +66,14 @@ def test_velocity_solves_the_viscous_boundary_integral_equation(deformation, sym
     u = model.velocity(x, state)
     disc, geo = model.disc, state.geometry
     n = disc.n_nodes
-    S = disc.layer_matrix(x, geo, "single")
-    mass = sp.csr_matrix((disc.mass_matrix_data(geo), disc.mass_indices, disc.mass_indptr), shape=(n, n))
+    rest = state.measure is not None
+    assert rest == (law != "surface_tension")
+    S = disc.layer_matrix(x, geo, "single", state.measure)
+    mass = sp.csr_matrix((disc.mass_matrix_data(disc.geometry(X) if rest else geo), disc.mass_indices,
+                          disc.mass_indptr), shape=(n, n))
     minv_k = sp.linalg.spsolve(sp.kron(mass, sp.identity(3), format="csc"), model.viscous.stiffness(x).tocsc())
-    # the elastic traction per unit rest area, integrated over the rest shape's measure; the
-    # viscous one per unit current area (M = M(x))
-    s_rest = disc.layer_matrix(x, geo, "single", state.measure)
-    rhs = model.far_field(x).ravel() - s_rest @ state.rest_traction.ravel() / (8 * np.pi * 0.1)
+    traction = state.rest_traction if rest else state.traction
+    rhs = model.far_field(x).ravel() - S @ traction.ravel() / (8 * np.pi * 0.1)
     want = np.linalg.solve(np.eye(3 * n) + S @ minv_k.toarray() / (8 * np.pi), rhs).reshape(-1, 3)
     np.testing.assert_allclose(u, want, rtol=0, atol=1e-8 * np.abs(want).max())
     assert model.last_solve_info["iterations"] > 0
