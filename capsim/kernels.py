@@ -1056,13 +1056,19 @@ def solve_reduced_mass(indptr, indices, data, b, last, col, sign, target_node, t
             rz = rz_new
             for u in range(n):
                 pvec[u] = z[u] + beta * pvec[u]
+    return _expand_reduced(y, col, sign), it
+
+
+@njit(inline="always")
+def _expand_reduced(y, col, sign):
+    """Δf = E y (N, 3): node j's component c is sign[j, c]·y[col[j, c]], 0 where col is −1."""
     out = np.zeros(col.shape)
     for j in range(col.shape[0]):
         for c in range(3):
             u = col[j, c]
             if u >= 0:
                 out[j, c] = sign[j, c] * y[u]
-    return out, it
+    return out
 
 
 @njit(**_JIT)
@@ -1071,20 +1077,12 @@ def solve_reduced_direct(rhs, target_node, target_comp, inv_mult, col, sign, l_i
     """Δf (N, 3) with M Δf = rhs for an equivariant rhs by the exact factorisation of
     K = Eᵀ (M ⊗ I₃) E (``membrane.MassFactor``): b = Eᵀ rhs from the target nodes' rows
     (``reduce_rhs_at_targets``), y = K⁻¹ b (``_factor_solve``), Δf = E y."""
-    n = target_node.shape[0]
-    b = np.empty(n)
-    for u in range(n):
-        b[u] = rhs[target_node[u], target_comp[u]] / inv_mult[u]
+    b = reduce_rhs_at_targets(rhs, target_node, target_comp, inv_mult)
+    n = b.shape[0]
     y = np.empty(n)
     _factor_solve(b, y, np.empty(n), l_indptr, l_indices, l_data, u_indptr, u_indices, u_data, u_dinv, perm_r,
                   perm_c, np.ones(n))
-    out = np.zeros(col.shape)
-    for j in range(col.shape[0]):
-        for c in range(3):
-            u = col[j, c]
-            if u >= 0:
-                out[j, c] = sign[j, c] * y[u]
-    return out
+    return _expand_reduced(y, col, sign)
 
 
 @njit(**_JIT)

@@ -405,6 +405,12 @@ class MassFactor:
 
     arrays: tuple
 
+    @property
+    def triangular(self) -> tuple:
+        """The factor's own arrays (L, U, U's inverse diagonal, the permutations) without the
+        diagonal scaling's: what an exact solve with K0 takes (``kernels.solve_reduced_direct``)."""
+        return self.arrays[:-2]
+
     @classmethod
     def of(cls, reduced: ReducedMass, data: Array) -> "MassFactor":
         import scipy.sparse as sp
@@ -497,7 +503,7 @@ class RestTractionSolve:
     def reset(self) -> None:
         """Forget everything built from the rest shape (a new one)."""
         self._measure = None
-        self._mass_data: Array | None = None
+        self._data: Array | None = None  # M0's values (_mass_data)
         self._factor: MassFactor | None = None
         self._factor_for: ReducedMass | None = None  # the unknowns it was made on
         self._full_lu = None
@@ -509,14 +515,19 @@ class RestTractionSolve:
             self._measure = self.force.disc.rest_measure(self.force.rest_positions)
         return self._measure
 
+    def _mass_data(self) -> Array:
+        """M0's values in the mass-matrix pattern (assembled once)."""
+        if self._data is None:
+            disc = self.force.disc
+            self._data = disc.mass_matrix_data(disc.geometry(np.ascontiguousarray(self.force.rest_positions)))
+        return self._data
+
     def mass_matrix(self):
         """M0, the (scalar) mass matrix of the rest shape, as a SciPy CSR matrix (N_p × N_p)."""
         import scipy.sparse as sp
 
         disc = self.force.disc
-        if self._mass_data is None:
-            self._mass_data = disc.mass_matrix_data(disc.geometry(np.ascontiguousarray(self.force.rest_positions)))
-        return sp.csr_matrix((self._mass_data, disc.mass_indices, disc.mass_indptr), shape=(disc.n_nodes,) * 2)
+        return sp.csr_matrix((self._mass_data(), disc.mass_indices, disc.mass_indptr), shape=(disc.n_nodes,) * 2)
 
     def mass_lu(self):
         """SciPy's LU of the whole M0 (made once): solves for any right-hand side."""
@@ -530,22 +541,22 @@ class RestTractionSolve:
         """(M, its LU, the measure) of the linearly implicit scheme's step at x: M0's."""
         return self.mass_matrix(), self.mass_lu(), self.measure
 
+    def solve_equivariant(self, rhs: Array) -> Array:
+        """M0⁻¹ rhs (N_p, 3) for an equivariant rhs (read at the target nodes only), on the
+        unknowns the mesh's symmetry leaves, by the factor of the reduced M0 (made once per
+        symmetry); the viscous membrane's inner solves use it too."""
+        reduced = self.force.reduced_mass()
+        if self._factor is None or self._factor_for is not reduced:
+            self._factor = MassFactor.of(reduced, reduced.data_from_target_rows(self._mass_data()))
+            self._factor_for = reduced
+        return kernels.solve_reduced_direct(rhs, reduced.target_node, reduced.target_comp, reduced.inv_mult,
+                                            reduced.col, reduced.sign, *self._factor.triangular)
+
     def solve(self, x: Array, geo, rhs: Array, symmetric: bool, clock) -> tuple[Array, int]:
-        """F with M0·F = rhs (N_p, 3), and 0 iterations. With the mesh's symmetry (rhs
-        equivariant: the energy gradient at a symmetric configuration) on the reduced
-        unknowns from the target nodes' rows of rhs, by the factor of the reduced M0 (made
-        once); otherwise (a finite-difference probe without the symmetry) by the LU of the
-        whole M0."""
-        if not symmetric:
-            traction = self.mass_lu().solve(np.asfortranarray(rhs))
-        else:
-            reduced = self.force.reduced_mass()
-            if self._factor is None or self._factor_for is not reduced:
-                self.mass_matrix()
-                self._factor = MassFactor.of(reduced, reduced.data_from_target_rows(self._mass_data))
-                self._factor_for = reduced
-            traction = kernels.solve_reduced_direct(rhs, reduced.target_node, reduced.target_comp, reduced.inv_mult,
-                                                    reduced.col, reduced.sign, *self._factor.arrays[:9])
+        """F with M0·F = rhs (N_p, 3), and 0 iterations: ``solve_equivariant`` with the mesh's
+        symmetry (rhs the energy gradient at a symmetric configuration), otherwise (a
+        finite-difference probe without the symmetry) the LU of the whole M0."""
+        traction = self.solve_equivariant(rhs) if symmetric else self.mass_lu().solve(np.asfortranarray(rhs))
         clock.lap("mass_solve")
         return traction, 0
 

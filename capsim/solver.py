@@ -343,19 +343,18 @@ class Discretization:
         return self._near[1], self._near[2]
 
     def rest_measure(self, rest_positions: np.ndarray) -> RestMeasure:
-        """The rest shape's area element at every rule point (``RestMeasure``)."""
+        """The rest shape's area element at every rule point (``RestMeasure``): the weights
+        of ``kernels.element_quadrature`` at the rest shape for each rule."""
         X = np.ascontiguousarray(rest_positions, dtype=np.float64)
-        Xe = X[self.elements]
 
-        def jacobian(dxi: np.ndarray, deta: np.ndarray, spec: str) -> np.ndarray:
-            a = np.einsum(spec, dxi, Xe)
-            b = np.einsum(spec, deta, Xe)
-            return np.linalg.norm(np.cross(a, b), axis=-1)
+        def weights(phi: np.ndarray, dxi: np.ndarray, deta: np.ndarray, w: np.ndarray) -> np.ndarray:
+            return kernels.element_quadrature(X, self.elements, np.ascontiguousarray(phi), np.ascontiguousarray(dxi),
+                                              np.ascontiguousarray(deta), np.ascontiguousarray(w))[2]
 
-        duffy = jacobian(self.sing_dxi, self.sing_deta, "kqa,ead->ekqd") * self.sing_w[None]
-        fine = jacobian(self.fine_dxi, self.fine_deta, "qa,ead->eqd") * self.fine_w[None]
-        return RestMeasure(np.ascontiguousarray(self.geometry(X).weights), np.ascontiguousarray(duffy),
-                           np.ascontiguousarray(fine))
+        duffy = np.stack([weights(self.sing_phi[k], self.sing_dxi[k], self.sing_deta[k], self.sing_w[k])
+                          for k in range(6)], axis=1)
+        fine = weights(self.fine_phi, self.fine_dxi, self.fine_deta, self.fine_w)
+        return RestMeasure(np.ascontiguousarray(self.geometry(X).weights), np.ascontiguousarray(duffy), fine)
 
     def single_layer(self, x: np.ndarray, geo: ElementGeometry, density: np.ndarray,
                      measure: RestMeasure | None = None) -> np.ndarray:

@@ -297,10 +297,7 @@ class KelvinVoigtMembrane:
             mass_factor = None if rest is not None else MassFactor.of(r, r.data_from_target_rows(mass.data))
 
         if rest is not None:  # Δf_v per unit rest area: M0⁻¹ K u by the elastic traction's factor, exactly
-            measure = rest.measure
-
-            def viscous_density(rhs: np.ndarray) -> np.ndarray:
-                return rest.solve(x, geo, rhs, True, disc.clock)[0]
+            measure, viscous_density = rest.measure, rest.solve_equivariant
         else:  # per unit current area: conjugate gradients on M(x), preconditioned by the factor
             measure, mass_data, zeros = None, r.data_from_target_rows(mass.data), np.zeros((disc.n_nodes, 3))
             # the inner mass solves, to well below the outer tolerance (GMRES's operator then is
