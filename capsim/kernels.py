@@ -277,40 +277,46 @@ def _element_block(ev, x, elements, e, values, per_element):
 
 
 @njit(inline="always")
-def _block_point(ev, phi, dxi, deta, q):
-    """Position, unnormalised normal ∂x/∂ξ × ∂x/∂η and field value at point q of a Duffy
-    rule (tables (6, m) [a, q]) from the element block ev (_element_block)."""
+def _block_value(ev, phi, q):
+    """Position and field value at point q of a Duffy rule (table (6, m) [a, q]) from the
+    element block ev (_element_block)."""
     px = 0.0
     py = 0.0
     pz = 0.0
+    fx = 0.0
+    fy = 0.0
+    fz = 0.0
+    for a in range(6):
+        ph = phi[a, q]
+        px += ph * ev[a, 0]
+        py += ph * ev[a, 1]
+        pz += ph * ev[a, 2]
+        fx += ph * ev[a, 3]
+        fy += ph * ev[a, 4]
+        fz += ph * ev[a, 5]
+    return px, py, pz, fx, fy, fz
+
+
+@njit(inline="always")
+def _block_point(ev, phi, dxi, deta, q):
+    """_block_value and the unnormalised normal ∂x/∂ξ × ∂x/∂η at point q of a Duffy rule
+    (tables (6, m) [a, q])."""
+    px, py, pz, fx, fy, fz = _block_value(ev, phi, q)
     ax = 0.0
     ay = 0.0
     az = 0.0
     bx = 0.0
     by = 0.0
     bz = 0.0
-    fx = 0.0
-    fy = 0.0
-    fz = 0.0
     for a in range(6):
-        ph = phi[a, q]
         d1 = dxi[a, q]
         d2 = deta[a, q]
-        xa = ev[a, 0]
-        ya = ev[a, 1]
-        za = ev[a, 2]
-        px += ph * xa
-        py += ph * ya
-        pz += ph * za
-        ax += d1 * xa
-        ay += d1 * ya
-        az += d1 * za
-        bx += d2 * xa
-        by += d2 * ya
-        bz += d2 * za
-        fx += ph * ev[a, 3]
-        fy += ph * ev[a, 4]
-        fz += ph * ev[a, 5]
+        ax += d1 * ev[a, 0]
+        ay += d1 * ev[a, 1]
+        az += d1 * ev[a, 2]
+        bx += d2 * ev[a, 0]
+        by += d2 * ev[a, 1]
+        bz += d2 * ev[a, 2]
     nx, ny, nz = _cross(ax, ay, az, bx, by, bz)
     return px, py, pz, nx, ny, nz, fx, fy, fz
 
@@ -341,20 +347,7 @@ def _duffy_single_weighted(x0, y0, z0, ev, phi, wj, m):
     uy = 0.0
     uz = 0.0
     for q in range(m):
-        px = 0.0
-        py = 0.0
-        pz = 0.0
-        fx = 0.0
-        fy = 0.0
-        fz = 0.0
-        for a in range(6):
-            ph = phi[a, q]
-            px += ph * ev[a, 0]
-            py += ph * ev[a, 1]
-            pz += ph * ev[a, 2]
-            fx += ph * ev[a, 3]
-            fy += ph * ev[a, 4]
-            fz += ph * ev[a, 5]
+        px, py, pz, fx, fy, fz = _block_value(ev, phi, q)
         w = wj[q]
         gx, gy, gz = _stokeslet(px - x0, py - y0, pz - z0, fx * w, fy * w, fz * w)
         ux += gx
