@@ -528,6 +528,9 @@ class RungeKuttaChebyshev(Integrator):
             dv = self.velocity(y + v) - u0
             self.rho_evaluations += 1
             dnorm = float(np.linalg.norm(dv))
+            if not math.isfinite(dnorm):  # overflowed: no finite spectral radius to report
+                sigma = math.inf
+                break
             if not dnorm > 0.0:
                 break
             sigma_new = dnorm / delta
@@ -545,6 +548,10 @@ class RungeKuttaChebyshev(Integrator):
         if self.rho_age >= self.rho_refresh_steps:
             self.spectral_radius()
         cut = False
+        if not math.isfinite(self.rho):
+            # the Jacobian overflowed (an absurdly stiff membrane): no stage count is stable, and
+            # the run's non-finite guard, not an OverflowError in the stage count, ends it
+            return Trial(False, False, h, math.inf, 0), self.y, cut
         s = rkc_stages_for(h * self.rho, self.max_stages)
         coef = rkc_coefficients(s)
         if h * self.rho > coef.beta:  # at the bound: the longest step s_max stages keep stable
@@ -894,6 +901,11 @@ class Automatic(Integrator):
         finally:
             counters = {k: v for k, v in model.state().items() if not k.startswith("warm_")}
             model.restore({**saved, **counters})
+        if not math.isfinite(rho):
+            # the velocity's Jacobian overflowed (e.g. bending 1e300): no scheme is stable; rkf23
+            # needs no stage count, and the run's guards end it with status unstable
+            return (EmbeddedRungeKutta, f"ρ = {rho:g} (the velocity's Jacobian overflowed): no scheme is stable "
+                    "at any step", spent, case)
         h_acc = min(case.time.dt_max, cls.H_ACC * (case.time.rtol / 1e-3) ** 0.5)
         stages = math.sqrt(max(rho * h_acc, 0.0) / 0.65)
         stiffness = math.sqrt(max(rho * cls.H_ACC, 0.0) / 0.65)  # stages at H_ACC: rtol-free
