@@ -152,7 +152,8 @@ class RunResult(Mapping):
         return len(self.as_dict())
 
 
-def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool = False) -> RunResult:
+def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool = False,
+             overwrite: bool = True) -> RunResult:
     """Run one case and write its trajectory; returns the run's result.
 
     With ``resume`` the run continues from the checkpoint ``<output>.ckpt.npz``
@@ -167,9 +168,27 @@ def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool 
     :class:`capsim.store.LockedError` and changes nothing. A failure to write (a
     full disk) raises :class:`capsim.store.StorageError` with one line, after
     recording 'failed' and the reason in the file where that can still be written.
+    With ``overwrite=False`` (the CLI without --overwrite) an existing run file found once the
+    lock is held is refused (:class:`capsim.files.OutputError`). A stop during set-up (before
+    the first row) returns status 'interrupted' with nothing written.
     """
     with _StopSignals() as stop, FileLock(case.output.path):
-        return _Run(case, progress, resume, stop).execute()
+        if not overwrite and not resume and Path(case.output.path).exists():
+            # checked again under the lock: another run may have written this path since the
+            # caller's check (the first run after an install compiles its kernels in between)
+            from capsim.files import OutputError
+
+            raise OutputError(f"{case.output.path} exists (written by another run since this one was started); "
+                              "use --overwrite to replace it or --resume to continue it")
+        try:
+            run = _Run(case, progress, resume, stop)
+        except (KeyboardInterrupt, _StopRequested):
+            # stopped while the mesh, the model or the automatic scheme's probe were being set up:
+            # no row, no checkpoint, no file of this run yet (an existing one is left as it was)
+            return RunResult("interrupted", f"interrupted by {stop.name or 'SIGINT'} during set-up, before the "
+                             "first step: nothing was computed or written; run it again (a sweep's --resume does)",
+                             str(case.output.path))
+        return run.execute()
 
 
 # ---------------------------------------------------------------- one run
