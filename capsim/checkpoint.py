@@ -60,11 +60,40 @@ def read_checkpoint(path: str | os.PathLike) -> dict[str, np.ndarray]:
     if not os.path.exists(source):
         raise CheckpointError(f"{source}: no checkpoint (nothing to resume)")
     try:
+        with open(source, "rb") as fh:
+            head = fh.read(len(_NPZ_MAGIC[0]))
+    except OSError as exc:
+        raise CheckpointError(f"{source}: unreadable checkpoint: {exc.strerror or first_line(exc)}") from None
+    try:
+        return _npz_arrays(source, head)
+    except _Damaged as exc:
+        raise CheckpointError(f"{source}: unreadable checkpoint: the file is damaged ({exc}); it cannot be resumed "
+                              "from: --overwrite starts the run again") from None
+
+
+#: how an .npz (a zip archive) begins: a member, or an empty archive
+_NPZ_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")
+
+
+class _Damaged(Exception):
+    """What is wrong with bytes that should be an .npz of the checkpoint's format (one line)."""
+
+
+def _npz_arrays(source: Any, head: bytes) -> dict[str, np.ndarray]:
+    """The arrays of an .npz (a path or a file object) whose first bytes are `head`; :class:`_Damaged`
+    otherwise. Never loads pickled objects, and never suggests to: capsim writes plain arrays only,
+    so anything else means a damaged file, not one to be trusted."""
+    if not head.startswith(_NPZ_MAGIC):
+        raise _Damaged("not an .npz archive" + (": it is empty" if not head else ""))
+    try:
         with np.load(source, allow_pickle=False) as data:
             return {key: data[key] for key in data.files}
-    except Exception as exc:  # zipfile, ValueError, OSError: all mean a damaged file
-        first = first_line(exc, default="")
-        raise CheckpointError(f"{source}: unreadable checkpoint: {type(exc).__name__}: {first}".rstrip(": ")) from None
+    except ValueError as exc:
+        if "pickle" in str(exc).lower():  # numpy's advice to load it "unsafely" does not apply
+            raise _Damaged("a member holds Python objects, not arrays") from None
+        raise _Damaged(f"{type(exc).__name__}: {first_line(exc, default='')}".rstrip(": ")) from None
+    except Exception as exc:  # noqa: BLE001 - zipfile, OSError, EOFError: all mean a damaged file
+        raise _Damaged(f"{type(exc).__name__}: {first_line(exc, default='')}".rstrip(": ")) from None
 
 
 def remove_checkpoint(path: str | os.PathLike) -> None:
@@ -168,10 +197,10 @@ def load_end_state(blob: bytes, path: Path, case: Case) -> tuple[dict[str, dict[
     import io
 
     try:
-        with np.load(io.BytesIO(blob), allow_pickle=False) as data:
-            saved = {key: data[key] for key in data.files}
-    except Exception as exc:  # noqa: BLE001 - a damaged blob, one line
-        raise ResumeError(f"{path}: unreadable end state: {type(exc).__name__}: {first_line(exc, default='')}") from None
+        saved = _npz_arrays(io.BytesIO(blob), blob[:len(_NPZ_MAGIC[0])])
+    except _Damaged as exc:
+        raise ResumeError(f"{path}: unreadable end state: the run file's end_state is damaged ({exc}); the run "
+                          "cannot be extended: run the case to the later t_end with --overwrite") from None
     parts, wall = _validated(saved, path, case, extending=True)
     t_stop = float(parts["integrator"]["t"])
     if not case.time.t_end > t_stop + end_tolerance(t_stop):

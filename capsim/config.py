@@ -507,8 +507,9 @@ class _TimeCommon(_Model):
     )
     max_wall_s: Optional[float] = Field(
         None, gt=0, le=1e9,
-        description="wall-time limit in seconds: the run stops as 'interrupted' at the first step past it, "
-        "with its checkpoint, so that --resume continues it (default: none)",
+        description="wall-time limit of one invocation in seconds: the run stops as 'interrupted' at the first "
+        "step past it, with its checkpoint; --resume (or a sweep, which resumes) continues it with the limit "
+        "counted afresh, so a long run advances by up to this much per invocation (default: none)",
     )
 
     @model_validator(mode="after")

@@ -80,7 +80,7 @@ class LoopState:
     finite: bool = True               # ... and it produced finite values
     accepted: bool = False            # ... and it was accepted
     h: float = 0.0                    # its step size
-    wall_s: float = 0.0               # wall time the run has spent (resumed parts included)
+    wall_s: float = 0.0               # wall time of this invocation (time.max_wall_s is per invocation)
 
 
 def _settled(history: dict[str, list[float]], aspect_ratio: float) -> bool:
