@@ -300,6 +300,9 @@ def expand_campaign(campaign: Campaign, source: str = "<campaign>") -> list[RunS
             # Only what the campaign sets (coerced by the schema, so 1 and 1.0 agree): a default
             # added to capsim later does not rename every run of an existing campaign.
             physics = case.model_dump(mode="json", exclude_unset=True, exclude={"name", "output"})
+            # nor t_end: a campaign extended to a later t_end (sweep --set time.t_end=...) keeps its
+            # run files, which are extended in place
+            physics.get("time", {}).pop("t_end", None)
             digest = hashlib.sha1(json.dumps(physics, sort_keys=True).encode()).hexdigest()[:8]
             readable = "-".join(f"{short_name(k)}{_show_value(v)}" for k, v in params.items())
             run_id = f"{readable}-{digest}" if readable else digest
@@ -354,7 +357,7 @@ def execute_run(spec: RunSpec, progress: Any = None) -> dict[str, Any]:
 
         case = spec.case()
         summary = None
-        if checkpoint_path(spec.path).exists() and Path(spec.path).exists():
+        if (checkpoint_path(spec.path).exists() and Path(spec.path).exists()) or _file_status(spec) == EXTENDABLE:
             try:
                 summary = run_case(case, progress=progress, resume=True)
             except ResumeError:
@@ -403,13 +406,39 @@ def _file_status(spec: RunSpec) -> str | None:
     status, digest = read_run_identity(spec.path)
     if status is None:
         return None
-    return FOREIGN if digest != spec.digest() else status
+    if digest == spec.digest():
+        return status
+    return EXTENDABLE if status == "completed" and _extends(spec) else FOREIGN
+
+
+#: a completed run file of this run's case to an earlier t_end, with the end state that
+#: ``--resume`` extends (the campaign's base time.t_end raised: ``sweep --set time.t_end=...``)
+EXTENDABLE = "extendable"
+
+
+def _extends(spec: RunSpec) -> bool:
+    """Whether the file at the run's path holds this run's case run to an earlier t_end and
+    can be extended to the run's t_end (it kept its end state: it reached its t_end)."""
+    from capsim.config import case_digest
+    from capsim.store import read_case, read_end_state
+
+    try:
+        stored = read_case(spec.path)
+        ours = spec.case()
+        if not stored.time.t_end < ours.time.t_end:
+            return False
+        same_end = stored.model_copy(update={"time": stored.time.model_copy(update={"t_end": ours.time.t_end})})
+        return case_digest(same_end) == case_digest(ours) and read_end_state(spec.path) is not None
+    except Exception:  # noqa: BLE001 - an unreadable file is not this run's to extend
+        return False
 
 
 def campaign_digest(campaign: Campaign) -> str:
     """The identity of a campaign: a hash of its name, base, sweep and zip (not of
     its output.dir, so that a copied or moved directory stays the campaign's)."""
     data = campaign.model_dump(mode="json", exclude={"output"})
+    # not of the base's t_end either: raising it (sweep --set time.t_end=...) extends the same campaign
+    data["base"].get("time", {}).pop("t_end", None)
     return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -570,7 +599,8 @@ def plan_lines(campaign: Campaign, source: str = "<campaign>") -> list[str]:
     a sweep would do (run, or skip a completed file that holds this run's case), its
     path and swept values."""
     specs = expand_campaign(campaign, source=source)
-    actions = ["skip (completed)" if _file_status(spec) == "completed" else "run" for spec in specs]
+    actions = [{"completed": "skip (completed)", EXTENDABLE: "extend"}.get(_file_status(spec), "run")
+               for spec in specs]
     lines = [f"{campaign.name}: {len(specs)} runs, {actions.count('run')} to run -> {campaign.output.dir}"]
     width = max(len(spec.run_id) for spec in specs)
     for spec, action in zip(specs, actions):

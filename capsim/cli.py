@@ -105,11 +105,21 @@ def _user_error(message: str) -> typer.Exit:
 
 
 def _load(case_path: Path, sets: list[str] | None = None, **overrides: Any):
-    """The case at `case_path` with --set fields and the command's own options; user errors exit 2."""
+    """The case at `case_path` (a case file, or a run file: the case it ran, written back to it)
+    with --set fields and the command's own options; user errors exit 2."""
     from capsim.config import ConfigError, load_case_with
+    from capsim.files import is_hdf5
 
+    source: Any = case_path
+    if is_hdf5(case_path):  # capsim run RUN.h5 --resume --t-end 60
+        from capsim.store import TrajectoryError, read_case
+
+        try:
+            source, overrides["output.path"] = read_case(case_path), overrides.get("output.path") or str(case_path)
+        except TrajectoryError as exc:
+            raise _user_error(str(exc)) from None
     try:
-        return load_case_with(case_path, sets, **overrides)
+        return load_case_with(source, sets, **overrides)
     except ConfigError as exc:
         raise _user_error(str(exc)) from None
 
@@ -136,7 +146,7 @@ def _files_call(fn, *args, **kwargs):
 
 @app.command()
 def run(
-    case_path: Path = typer.Argument(..., metavar="CASE.yaml", help="case file"),
+    case_path: Path = typer.Argument(..., metavar="CASE.yaml|RUN.h5", help="case file, or a run file: its case"),
     output: Optional[Path] = typer.Option(None, "-o", "--output", help="output HDF5 path"),
     error_estimate: bool = typer.Option(
         False, "--error-estimate", help="also run one level coarser and rtol x 10; store the differences"
@@ -146,8 +156,7 @@ def run(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress line"),
     resume: bool = typer.Option(
         False, "--resume", help="continue an interrupted run from the checkpoint beside its output, "
-        "or extend a completed one to a later --t-end (appended to the same file)"
-    ),
+        "or extend a completed one to a later --t-end (appended to the same file)"),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing file at the output path"),
     sets: Optional[list[str]] = typer.Option(None, "--set", metavar="FIELD=VALUE", help=_SET_HELP),
     units: UnitSystem = typer.Option("capsim", "--units", help="the closing table's units: " + _UNITS_HELP),
@@ -162,18 +171,18 @@ def run(
 
     capsim run configs/sphere.yaml --resume   (after an interruption)
 
-    capsim run configs/sphere.yaml --resume --t-end 12   (a completed run, extended to kt = 12)
+    capsim run runs/sphere-G0.1.h5 --resume --t-end 12   (a completed run, extended to kt = 12)
     """
     from capsim import api
     from capsim.checkpoint import ResumeError
     from capsim.config import ConfigError
-    from capsim.files import LockedError, OutputError, StorageError
+    from capsim.files import LockedError, OutputError, StorageError, is_hdf5
 
     case = _load(case_path, sets, **{"output.path": str(output) if output is not None else None,
                                      "time.t_end": t_end, "mesh.level": level})
     factors = _factors(case, str(case_path)) if units.value == "physical" else None  # refused before the run
     try:
-        summary = api.run(case, inputs=[case_path], overwrite=overwrite, resume=resume, progress=not quiet)
+        summary = api.run(case, inputs=[] if is_hdf5(case_path) else [case_path], overwrite=overwrite, resume=resume, progress=not quiet)
     except ResumeError as exc:
         raise _user_error(f"cannot resume: {exc}") from None
     except (ConfigError, OutputError, LockedError, StorageError) as exc:
@@ -253,9 +262,8 @@ def validate(
 ) -> None:
     """Check a case file (print it resolved) or dry-run a campaign (list its runs).
 
-    A case is printed with every default filled in. A campaign is listed run by run:
-    its run id, whether `capsim sweep` would run it or skip it (completed), its output
-    path and swept values.
+    A case is printed with every default filled in; a campaign run by run: its id, what a sweep
+    would do (run, skip it completed, extend it to a later t_end), its path and swept values.
 
     Examples:
 
@@ -340,12 +348,11 @@ def units(
                        else "only one of --surface-modulus and --shear-modulus")
     if missing:
         raise _user_error(f"units: give {', '.join(missing)} (quantities with units, e.g. --radius '2.8 um')")
-    for kind, value in given.items():
-        if value is not None:
-            try:
-                parse(value, kind)
-            except UnitsError as exc:
-                raise _user_error(f"units: {_option(kind)}: {exc}") from None
+    for kind, value in ((k, v) for k, v in given.items() if v is not None):
+        try:
+            parse(value, kind)
+        except UnitsError as exc:
+            raise _user_error(f"units: {_option(kind)}: {exc}") from None
     out = conversion(shear_rate, viscosity, radius, surface_modulus, shear_modulus, membrane_viscosity)
     typer.echo(json.dumps(out) if as_json else describe_conversion(out))
 
@@ -420,10 +427,7 @@ def sweep(
                            overwrite=overwrite, progress=not quiet)
     except (ConfigError, LockedError, StorageError) as exc:
         raise _user_error(str(exc)) from None
-    for record in result["records"]:
-        if record["status"] != "completed":
-            typer.echo(f"{record['run_id']}: {record['status']}: {record['status_reason']}", err=True)
-    from capsim.display import print_sweep_result
+    from capsim.display import print_sweep_result  # it names every run that did not complete, once
 
     print_sweep_result(result, campaign, table=not quiet)
     raise typer.Exit(code=0 if result["failed"] == 0 and not result["interrupted"] else 1)
@@ -532,9 +536,9 @@ def _number_list(text: str, kind: type, option: str) -> list:
     try:
         values = [kind(v) for v in "".join(text.split()).split(",") if v]
     except ValueError:
-        raise _user_error(f"{option} must be a comma-separated list of {kind.__name__}s, got {text!r}") from None
+        values = []
     if not values:
-        raise _user_error(f"{option} is empty")
+        raise _user_error(f"{option} must be a non-empty comma-separated list of {kind.__name__}s, got {text!r}")
     return values
 
 

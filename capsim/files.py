@@ -199,6 +199,18 @@ def is_study_file(path: str | os.PathLike) -> bool:
 #: the first bytes of a figure of each format: an existing file that starts so is one capsim may redraw
 FIGURE_MAGIC = {"png": b"\x89PNG\r\n\x1a\n", "pdf": b"%PDF-", "svg": b"<?xml"}
 
+#: the first bytes of an HDF5 file (a run file; capsim writes no user block before them)
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def is_hdf5(path: str | os.PathLike) -> bool:
+    """Whether `path` is a readable file that starts as an HDF5 file does (without loading h5py)."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(len(HDF5_SIGNATURE)) == HDF5_SIGNATURE
+    except OSError:
+        return False
+
 
 def protected(path: Path) -> str | None:
     """What an existing file is that no command replaces unless told to (--overwrite); None if not one."""

@@ -381,7 +381,8 @@ class _Run:
                 self._accepted(trial)
             state = LoopState(ig.t, ig.dt, ig.steps, signal=stop.name, attempted=True, finite=trial.finite,
                               accepted=trial.accepted, h=trial.h,
-                              wall_s=self._wall())
+                              # time.max_wall_s limits each invocation: a run it stopped resumes
+                              wall_s=time.perf_counter() - self.wall0)
         return outcome
 
     def execute(self) -> RunResult:

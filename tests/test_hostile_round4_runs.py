@@ -136,3 +136,107 @@ def test_a_run_file_written_between_the_check_and_the_lock_is_not_replaced(tmp_p
     from capsim.store import read_case
 
     assert read_case(written).name == "second"  # the other run's file is intact
+
+
+# ---------------------------------------------------------------- wall-clock stops that resume (finding 3)
+
+
+def test_a_wall_clock_stop_resumes_with_the_same_case_and_advances_each_invocation(tmp_path):
+    """Finding 3: time.max_wall_s counted the run's total time, so --resume of the same case
+    stopped again at once (t unchanged). Per invocation, every resume advances."""
+    case = case_from_dict(_case(tmp_path, time={"t_end": 0.3, "max_wall_s": 1e-3}))
+    result = run_case(case)
+    assert result.status == "interrupted" and "max_wall_s" in result.status_reason
+    times = [result.t]
+    for _ in range(3):
+        result = run_case(case, resume=True)
+        assert result.status in ("interrupted", "completed")
+        assert result.t > times[-1], times
+        times.append(result.t)
+
+
+def test_a_sweep_resumes_runs_its_wall_clock_limit_stopped(tmp_path):
+    from capsim.campaign import campaign_from_dict, run_campaign
+
+    base = _case(tmp_path, time={"t_end": 0.2, "max_wall_s": 1e-3})
+    base.pop("name")
+    base["output"] = {"checkpoint_every_steps": 3}
+    campaign = campaign_from_dict({"name": "w", "base": base, "sweep": {"flow.shear_rate_G": [0.1]},
+                                   "output": {"dir": str(tmp_path / "runs")}})
+    first = run_campaign(campaign, workers=1)
+    assert first["records"][0]["status"] == "interrupted", first["records"]
+    from capsim.store import read_trajectory
+
+    path = tmp_path / "runs" / (first["records"][0]["run_id"] + ".h5")
+    t_first = read_trajectory(path)["timeseries"]["t"][-1]
+    run_campaign(campaign, workers=1)
+    assert read_trajectory(path)["timeseries"]["t"][-1] > t_first
+
+
+# ---------------------------------------------------------------- extending runs and campaigns (finding 4)
+
+
+def _campaign_file(tmp: Path, t_end: float) -> Path:
+    base = _case(tmp, time={"t_end": t_end})
+    base.pop("name")
+    base["output"] = {"snapshot_every": 0.1}
+    path = tmp / "c.yaml"
+    path.write_text(yaml.safe_dump({"name": "ext", "base": base, "sweep": {"flow.shear_rate_G": [0.1, 0.2]},
+                                    "output": {"dir": str(tmp / "runs")}}))
+    return path
+
+
+def test_a_campaign_extends_to_a_later_t_end_with_one_command(tmp_path):
+    """Finding 4: sweep --set time.t_end=... was refused as another campaign."""
+    from capsim.store import read_trajectory
+
+    path = _campaign_file(tmp_path, 0.2)
+    assert cli.invoke(app, ["sweep", str(path), "-q", "--workers", "1"]).exit_code == 0
+    files = sorted((tmp_path / "runs").glob("*.h5"))
+    short = {f.name: read_trajectory(f)["timeseries"]["t"] for f in files}
+    plan = cli.invoke(app, ["validate", str(path), "--set", "time.t_end=0.4"])
+    assert plan.exit_code == 0 and plan.output.count("  extend  ") == 2, plan.output
+    result = cli.invoke(app, ["sweep", str(path), "-q", "--workers", "1", "--set", "time.t_end=0.4"])
+    assert result.exit_code == 0, result.output
+    for f in files:
+        t = read_trajectory(f)["timeseries"]["t"]
+        assert t[-1] == pytest.approx(0.4)
+        np.testing.assert_array_equal(t[: short[f.name].size], short[f.name])  # appended, not redone
+    summary = cli.invoke(app, ["summarize", str(tmp_path / "runs")])
+    assert summary.exit_code == 0, summary.output
+    import xarray as xr
+
+    with xr.open_dataset(tmp_path / "runs" / "summary.nc") as ds:
+        assert set(ds["status"].values.ravel()) == {"completed"}
+        assert float(ds["averaging_t_to"].max()) == pytest.approx(0.4)
+
+
+def test_a_run_file_given_as_the_case_extends_that_run(tmp_path):
+    """Finding 4: capsim run RUN.h5 --resume --t-end 0.4 read the run file as YAML."""
+    from capsim.store import read_trajectory
+
+    case_path = tmp_path / "r.yaml"
+    case_path.write_text(yaml.safe_dump(_case(tmp_path)))
+    assert cli.invoke(app, ["run", str(case_path), "-q"]).exit_code == 0
+    moved = tmp_path / "moved.h5"
+    (tmp_path / "r.h5").rename(moved)  # the run file's own path wins over the output.path it stored
+    result = cli.invoke(app, ["run", str(moved), "--resume", "--t-end", "0.4", "-q"])
+    assert result.exit_code == 0, result.output
+    assert read_trajectory(moved)["timeseries"]["t"][-1] == pytest.approx(0.4)
+    assert not (tmp_path / "r.h5").exists()
+    refused = cli.invoke(app, ["run", str(moved), "--t-end", "0.5", "-q"])
+    assert refused.exit_code == 2 and "--resume" in refused.output
+
+
+def test_sweep_quiet_names_each_unfinished_run_once(tmp_path):
+    """Finding 20: sweep -q printed each run that did not complete twice."""
+    base = _case(tmp_path, time={"t_end": 0.2, "max_wall_s": 1e-3})
+    base.pop("name")
+    base["output"] = {"checkpoint_every_steps": 3}
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump({"name": "w", "base": base, "sweep": {"flow.shear_rate_G": [0.1]},
+                                    "output": {"dir": str(tmp_path / "runs")}}))
+    result = cli.invoke(app, ["sweep", str(path), "-q", "--workers", "1"])
+    assert result.exit_code == 1
+    lines = [line for line in result.output.splitlines() if "interrupted: wall-time limit" in line]
+    assert len(lines) == 1, result.output
