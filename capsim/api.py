@@ -1,30 +1,44 @@
-"""The library face of capsim: what ``import capsim`` offers, and what every CLI command calls.
+"""The library face of capsim: what `import capsim` offers, and what every CLI command calls.
 
 Each function does what its CLI command does, with the same checks and the same
 one-line errors, but returns Python objects instead of printing:
 
-========================  ==========================  ==========================================
-function                  CLI command                 returns
-========================  ==========================  ==========================================
-:func:`load_case`         ``capsim validate CASE``    :class:`capsim.config.Case`
-:func:`run`               ``capsim run``              :class:`capsim.runner.RunResult`
-:func:`sweep`             ``capsim sweep``            dict of counts and one record per run
-:func:`summarize`         ``capsim summarize``        ``xarray.Dataset`` (also written as netCDF)
-:func:`study`             ``capsim study``            ``xarray.Dataset`` (written when ``output``)
-:func:`open_run`          --                          ``xarray.DataTree`` of a run file
-:func:`warm_up`           ``capsim warm-up [CASE]``   seconds spent compiling or loading kernels
-========================  ==========================  ==========================================
+| function | CLI command | returns |
+|---|---|---|
+| [`load_case`][capsim.api.load_case] | `capsim validate CASE` | a [`Case`][capsim.config.Case] |
+| [`run`][capsim.api.run] | `capsim run` | a [`RunResult`][capsim.runner.RunResult] |
+| [`sweep`][capsim.api.sweep] | `capsim sweep` | a dict of counts and one record per run |
+| [`summarize`][capsim.api.summarize] | `capsim summarize` | an `xarray.Dataset` (also written as netCDF) |
+| [`study`][capsim.api.study] | `capsim study` | an `xarray.Dataset` (written when `output` is given) |
+| [`open_run`][capsim.api.open_run] | (none) | an `xarray.DataTree` of a run file |
+| [`warm_up`][capsim.api.warm_up] | `capsim warm-up [CASE]` | the seconds spent compiling or loading kernels |
 
-Nothing here imports numba at import time: :func:`run`, :func:`sweep` and
-:func:`study` first apply the thread policy (:func:`capsim.threads.apply_policy`,
-the same one the CLI applies), then load the kernels.
+Nothing here imports numba at import time: `run`, `sweep` and `study` first apply
+the thread policy (`capsim.threads.apply_policy`, the same one the CLI applies), then
+load the kernels.
 
-Errors are exceptions whose message is the line the CLI prints after ``error:``:
-:class:`capsim.config.ConfigError` for a bad case or campaign,
-:class:`capsim.files.OutputError` for an output that must not be written (an
-existing run file without ``overwrite``), :class:`capsim.files.LockedError` when
-another process writes the same file, :class:`capsim.files.StorageError` when
-writing fails, :class:`capsim.checkpoint.ResumeError` when a run cannot resume.
+An argument that takes a list (`sets`, `inputs`, `levels`, `rtols`, `quad`, the cases
+of `warm_up`) also takes a single value, as a list of one: `sets="mesh.level=1"` is
+`sets=["mesh.level=1"]`. `levels` and `rtols` take numbers, not texts.
+
+`sweep`, and `study` with `workers` > 1, run in worker processes started by spawn. The
+workers do not import the calling script again, so a plain script works as it is, with
+or without an `if __name__ == "__main__":` guard. Called while a process of the
+script's own (a `multiprocessing` pool started by spawn) imports the script again, they
+refuse: put the call under that guard.
+
+Every failure that is the caller's raises one of these exceptions, its message one line
+(the line the CLI prints after `error:`):
+
+| exception | when |
+|---|---|
+| [`capsim.config.ConfigError`][capsim.config.ConfigError] | a bad case, campaign or argument (`workers=0`, `units="bogus"`, `levels=[]`, `overwrite` with `resume`, a directory that holds no campaign) |
+| [`capsim.files.OutputError`][capsim.files.OutputError] | an output that must not be written (an existing run file without `overwrite`) |
+| [`capsim.files.LockedError`][capsim.files.LockedError] | another process writes the same file or directory |
+| [`capsim.files.StorageError`][capsim.files.StorageError] | writing fails (a full disk, a file-size limit) |
+| [`capsim.checkpoint.ResumeError`][capsim.checkpoint.ResumeError] | a run cannot resume or be extended (no or a damaged checkpoint, another case) |
+| [`capsim.store.TrajectoryError`][capsim.store.TrajectoryError] | a run file cannot be read: missing, not a capsim run file, damaged, or being written (`open_run`) |
+| [`capsim.units.UnitsError`][capsim.units.UnitsError] | physical units asked of a case or campaign without a `physical:` block |
 """
 
 from __future__ import annotations
@@ -45,40 +59,46 @@ if TYPE_CHECKING:  # pragma: no cover - types only
 __all__ = ["load_case", "load_campaign", "run", "sweep", "summarize", "study", "open_run", "warm_up"]
 
 PathLike = str | os.PathLike
-#: ``progress=`` of :func:`run`, :func:`sweep`, :func:`study`: False (silent), True (the CLI's
-#: display on stderr), or a callable given each progress state
+#: `progress=` of `run`, `sweep`, `study`: False (silent), True (the CLI's display on
+#: stderr), or a callable given each progress state
 Progress = bool | Callable[[Any], None]
 
 
-def load_case(source: "PathLike | Mapping[str, Any] | Case", sets: Sequence[str] | None = None,
+def load_case(source: "PathLike | Mapping[str, Any] | Case", sets: "str | Sequence[str] | None" = None,
               **overrides: Any) -> "Case":
-    """A case from a YAML file, a dict of the same sections, or an existing :class:`~capsim.config.Case`.
+    """A case from a YAML file, a dict of the same sections, or an existing
+    [`Case`][capsim.config.Case].
 
-    ``sets`` are ``--set`` texts (``"mesh.level=1"``, the value read as YAML);
-    ``overrides`` are fields by dotted name, written with ``**{"time.t_end": 2.0}``
-    or with a double underscore for the dot, ``time__t_end=2.0`` (None leaves a
-    field as it is). Every value is checked against the schema
-    (the case file reference of the docs); a mistake raises
-    :class:`capsim.config.ConfigError` with one line naming the field, the value and
-    what is allowed.
+    `sets` are `--set` texts (`"mesh.level=1"`, the value read as YAML; one text or a
+    list); `overrides` are fields by dotted name, written with `**{"time.t_end": 2.0}`
+    or with a double underscore for the dot, `time__t_end=2.0` (None leaves a field as
+    it is). Every value is checked against the schema (the case file reference of the
+    docs); a mistake raises `capsim.config.ConfigError` with one line naming the
+    field, the value and what is allowed.
 
-    >>> import capsim
-    >>> case = capsim.load_case("configs/sphere.yaml", mesh__level=1)
-    >>> case.mesh.level
-    1
+    ```python
+    import capsim
+    case = capsim.load_case("configs/sphere.yaml", mesh__level=1)
+    case.mesh.level  # 1
+    ```
     """
     from capsim.config import resolve_case
+    from capsim.executor import text_list
 
-    return resolve_case(dict(source) if isinstance(source, Mapping) else source, sets, **overrides)
+    return resolve_case(dict(source) if isinstance(source, Mapping) else source, text_list(sets, "sets"),
+                        **overrides)
 
 
-def load_campaign(source: PathLike, sets: Sequence[str] | None = None, *, max_runs: int | None = None) -> "Campaign":
-    """A campaign file (a ``base`` case, a ``sweep`` grid and/or ``zip`` lists, an ``output.dir``),
-    with ``--set`` texts written into its base; one-line :class:`capsim.config.ConfigError`."""
+def load_campaign(source: PathLike, sets: "str | Sequence[str] | None" = None, *,
+                  max_runs: int | None = None) -> "Campaign":
+    """A campaign file (a `base` case, a `sweep` grid and/or `zip` lists, an `output.dir`),
+    with `--set` texts (one text or a list) written into its base; a mistake raises a
+    one-line `capsim.config.ConfigError`."""
     from capsim.campaign import MAX_RUNS, load_campaign_with
+    from capsim.executor import check_workers, text_list
 
-    return load_campaign_with(source, list(sets) if sets else None,
-                              max_runs=MAX_RUNS if max_runs is None else max_runs)
+    limit = MAX_RUNS if max_runs is None else check_workers(max_runs, "max_runs", default=None)
+    return load_campaign_with(source, text_list(sets, "sets"), max_runs=limit)
 
 
 def _apply_thread_policy(workers: int = 1) -> None:
@@ -94,7 +114,10 @@ def _progress(progress: Progress, make: Callable[[], Any]):
     if progress is False or progress is None:
         return None
     if not callable(progress):
-        raise TypeError(f"progress must be True, False or a callable, got {type(progress).__name__}")
+        from capsim.config import ConfigError
+        from capsim.errors import bounded_repr
+
+        raise ConfigError(f"progress = {bounded_repr(progress)}: must be True, False or a callable")
     return progress
 
 
@@ -105,30 +128,39 @@ def _finish(display: Any) -> None:
 
 
 def run(case: "PathLike | Mapping[str, Any] | Case", *, output: PathLike | None = None, overwrite: bool = False,
-        resume: bool = False, progress: Progress = False, sets: Sequence[str] | None = None,
-        inputs: Sequence[PathLike] = (), **overrides: Any) -> "RunResult":
-    """Run one case and write its run file (HDF5); what ``capsim run`` does.
+        resume: bool = False, progress: Progress = False, sets: "str | Sequence[str] | None" = None,
+        inputs: "PathLike | Sequence[PathLike]" = (), **overrides: Any) -> "RunResult":
+    """Run one case and write its run file (HDF5); what `capsim run` does.
 
-    ``case`` is a case file, a dict or a :class:`~capsim.config.Case`; ``sets`` and
-    ``overrides`` change fields as in :func:`load_case`; ``output`` replaces
-    ``output.path``. Before anything is computed the output is checked exactly as
-    the CLI checks it: an existing file is refused
-    (:class:`capsim.files.OutputError`, the CLI's one-line message) unless
-    ``overwrite`` (start again) or ``resume`` (continue an interrupted run from its
-    checkpoint). The thread policy is applied before numba loads. ``progress=True``
-    shows the CLI's progress line on stderr; a callable receives
-    ``{t, dt, D_xy, step, t_end}`` after each step. ``inputs``: more files the run
-    must never write over (the case file is one when ``case`` is a path).
+    `case` is a case file, a dict or a [`Case`][capsim.config.Case]; `sets` and
+    `overrides` change fields as in [`load_case`][capsim.api.load_case]; `output`
+    replaces `output.path`. Before anything is computed the output is checked exactly
+    as the CLI checks it: an existing file is refused (`capsim.files.OutputError`, the
+    CLI's one-line message) unless `overwrite` (start again) or `resume` (continue an
+    interrupted run from its checkpoint, or extend a completed one to a later
+    `time.t_end`); the two exclude each other (`capsim.config.ConfigError`). The thread
+    policy is applied before numba loads. `progress=True` shows the CLI's progress line
+    on stderr; a callable receives `{t, dt, D_xy, step, t_end}` after each step.
+    `inputs`: more files the run must never write over (the case file is one when
+    `case` is a path).
 
-    Returns a :class:`~capsim.runner.RunResult`: ``status`` (``"completed"`` when the
+    Returns a [`RunResult`][capsim.runner.RunResult]: `status` (`"completed"` when the
     run reached its end), the path, cost, and the summary of the motion
-    (``result["D_xy"]``, ``result["theta"]``: means over the last window).
+    (`result["D_xy"]`, `result["theta"]`: means over the last window).
 
-    >>> result = capsim.run("configs/sphere.yaml", overwrite=True)   # doctest: +SKIP
-    >>> result.status, round(result["D_xy"], 4)                       # doctest: +SKIP
-    ('completed', 0.3899)
+    ```python
+    result = capsim.run("configs/sphere.yaml", overwrite=True)
+    result.status, round(result["D_xy"], 4)  # ('completed', 0.3899)
+    ```
     """
-    inputs = [Path(p) for p in inputs] + ([Path(case)] if isinstance(case, (str, os.PathLike)) else [])
+    from capsim.executor import path_list
+
+    if overwrite and resume:
+        from capsim.config import ConfigError
+
+        raise ConfigError("overwrite and resume exclude each other: overwrite starts the run again from kt = 0, "
+                          "resume continues the one in the file; give one")
+    inputs = path_list(inputs, "inputs") + ([Path(case)] if isinstance(case, (str, os.PathLike)) else [])
     if output is not None:
         overrides["output.path"] = os.fspath(output)
     case = load_case(case, sets, **overrides)
@@ -148,25 +180,29 @@ def run(case: "PathLike | Mapping[str, Any] | Case", *, output: PathLike | None 
 
     display = _progress(progress, RunProgress)
     try:
-        return run_case(case, progress=display, resume=resume, overwrite=overwrite)
+        return run_case(case, progress=display, resume=resume)
     finally:
         _finish(display)
 
 
 def sweep(campaign: "PathLike | Campaign", *, workers: int | None = None, scheduler: str | None = None,
           resume: bool = True, overwrite: bool = False, progress: Progress = False,
-          sets: Sequence[str] | None = None, max_runs: int | None = None) -> dict[str, Any]:
-    """Run every case of a campaign into its ``output.dir``; what ``capsim sweep`` does.
+          sets: "str | Sequence[str] | None" = None, max_runs: int | None = None) -> dict[str, Any]:
+    """Run every case of a campaign into its `output.dir`; what `capsim sweep` does.
 
-    Completed runs are skipped unless ``resume=False``; a directory that holds another
-    campaign is refused unless ``overwrite``. ``workers`` local processes (default one
-    per core) or a Dask ``scheduler`` address. Returns ``{"total", "skipped",
-    "completed", "failed", "interrupted", "records"}`` (one record per run, with its
-    ``run_id``, ``status`` and ``status_reason``); :func:`summarize` then collects
-    the directory into one Dataset.
+    Completed runs are skipped unless `resume=False`; a directory that holds another
+    campaign is refused unless `overwrite`. `workers` local processes (a whole number
+    >= 1, default one per core) or a Dask `scheduler` address. Works from a plain script
+    (the worker processes do not run the script again). Returns `{"total", "skipped",
+    "completed", "failed", "interrupted", "records"}` (one record per run, with its
+    `run_id`, `status` and `status_reason`); [`summarize`][capsim.api.summarize] then
+    collects the directory into one Dataset.
     """
     from capsim.campaign import Campaign, expand_campaign, run_campaign
+    from capsim.executor import check_workers, refuse_in_spawned_import_of_main
 
+    refuse_in_spawned_import_of_main("capsim.sweep")
+    workers = check_workers(workers)
     if not isinstance(campaign, Campaign):
         campaign = load_campaign(campaign, sets, max_runs=max_runs)
     _apply_thread_policy()
@@ -185,22 +221,27 @@ def sweep(campaign: "PathLike | Campaign", *, workers: int | None = None, schedu
 
 
 def summary_path(directory: PathLike, output: PathLike | None = None) -> Path:
-    """Where :func:`summarize` writes: ``output``, else ``DIR/summary.nc``."""
+    """Where [`summarize`][capsim.api.summarize] writes: `output`, else `DIR/summary.nc`."""
     return Path(output) if output is not None else Path(directory) / "summary.nc"
 
 
 def summarize(directory: PathLike, output: PathLike | None = None, *, overwrite: bool = False,
               units: str = "capsim") -> "xr.Dataset":
-    """Collect a campaign directory's runs into one ``xarray.Dataset`` and write it as netCDF
-    (to ``output``, default :func:`summary_path`); what ``capsim summarize`` does.
+    """Collect a campaign directory's runs into one `xarray.Dataset` and write it as netCDF
+    (to `output`, default [`summary_path`][capsim.api.summary_path]); what
+    `capsim summarize` does.
 
-    The Dataset has one dimension per swept field (named by the field's last part,
-    e.g. ``G``, ``lam``) and one variable per quantity of
-    :mod:`capsim.quantities` (``D_xy``, ``theta``, ..., with units and meaning in
-    their attributes) plus ``status``. An existing file that is not a summary is
-    replaced only with ``overwrite`` (:class:`capsim.files.OutputError`). ``units="physical"``:
-    the variables with a capsim scale in physical units from each run's ``physical:`` block
-    (:class:`capsim.units.UnitsError` for a campaign without one).
+    `directory` is a campaign's `output.dir` (with the `campaign.yaml` and `runs.json`
+    that `sweep` writes); another directory or a file is refused
+    (`capsim.config.ConfigError`). The Dataset has one dimension per swept field, named
+    by the field's last part (`flow.shear_rate_G` gives `shear_rate_G`,
+    `flow.viscosity_ratio` gives `viscosity_ratio`; a `run` dimension for a campaign that
+    is not a full grid), and one variable per quantity of the quantity table (`D_xy`,
+    `theta`, ..., with units and meaning in their attributes) plus `status`. An existing
+    file that is not a summary is replaced only with `overwrite`
+    (`capsim.files.OutputError`). `units="physical"` (or `"capsim"`, the default): the
+    variables with a capsim scale in physical units from each run's `physical:` block
+    (`capsim.units.UnitsError` for a campaign without one).
     """
     from capsim.summary import summarize_to_file
 
@@ -208,32 +249,51 @@ def summarize(directory: PathLike, output: PathLike | None = None, *, overwrite:
     return ds
 
 
-def study(case: "PathLike | Mapping[str, Any] | Case", levels: Sequence[int] = (2, 3, 4),
-          rtols: Sequence[float] = (1e-3, 1e-4, 1e-5), **options: Any) -> "xr.Dataset":
-    """Accuracy against cost; see :func:`capsim.study.study` (``capsim.study(...)`` calls it too)."""
+def study(case: "PathLike | Mapping[str, Any] | Case", levels: "int | Sequence[int]" = (2, 3, 4),
+          rtols: "float | Sequence[float]" = (1e-3, 1e-4, 1e-5), **options: Any) -> "xr.Dataset":
+    """Accuracy against cost; see [`capsim.study.study`][capsim.study.study]
+    (`capsim.study(...)` calls it too)."""
     from capsim.study import study as _study
 
     return _study(case, levels, rtols, **options)
 
 
 def open_run(path: PathLike):
-    """A run file as an ``xarray.DataTree``: one node per group (``/timeseries`` with ``D_xy``,
-    ``theta``... over ``t``; ``/snapshots`` with the node positions; ``/run`` the end-of-run
-    record; the case in the root's attributes). See :func:`capsim.store.open_run`."""
+    """A run file as an `xarray.DataTree`: one node per group, read into memory.
+
+    `/timeseries` holds `D_xy`, `theta`, ... over `t` (one row per step); `/mesh` the
+    surface: `elements`, `rest_positions`, and the node `positions` of each snapshot over
+    `snapshot_t`; `/summary` the motion and its window means; `/run` the state at the end
+    and the cost; `/membrane_law`, `/rest_shape` and, after `--error-estimate`,
+    `/error_estimate`; the root's attributes hold the status and the resolved case
+    (`config_yaml`). A path that is not a capsim run file (missing, empty, another
+    program's HDF5 file, a summary), a damaged file, or one that a running capsim process
+    writes and that cannot be read consistently just then, raises
+    `capsim.store.TrajectoryError` with one line saying which.
+    """
     from capsim.store import open_run as _open_run  # h5py and xarray only when asked for
 
     return _open_run(path)
 
 
-def warm_up(cases: "Sequence[PathLike | Mapping[str, Any] | Case]" = ()) -> float:
+def warm_up(cases: "PathLike | Mapping[str, Any] | Case | Sequence[PathLike | Mapping[str, Any] | Case]" = ()
+            ) -> float:
     """Compile every numba kernel the cases use into numba's on-disk cache (or load it from
-    there), so that their runs start computing at once; what ``capsim warm-up`` (and ``make
-    venv``, at install) does. Without cases: the default case's kernels (the demo's).
-    Returns the seconds it took. Each kind of case (law, traction, λ ≠ 1, bending, symmetry,
-    scheme, preconditioner, membrane viscosity: :func:`capsim.executor.kernel_kind`) is run
-    once at level 0 for two steps."""
+    there), so that their runs start computing at once; what `capsim warm-up` (and
+    `make venv`, at install) does.
+
+    `cases`: one case (a file, a dict or a [`Case`][capsim.config.Case]) or a list of
+    them; none: the default case's kernels (the demo's). Returns the seconds it took.
+    Each kind of case (law, traction, λ ≠ 1, bending, symmetry, scheme, preconditioner,
+    membrane viscosity: `capsim.executor.kernel_kind`) is run once at level 0 for two
+    steps.
+    """
     import time
 
+    from capsim.config import Case
+
+    if isinstance(cases, (str, os.PathLike, Mapping, Case)):
+        cases = [cases]
     loaded = [load_case(c) for c in cases] or [load_case({"name": "warm-up"})]
     _apply_thread_policy()
     from capsim.executor import warm_up as _warm_up

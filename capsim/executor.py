@@ -22,6 +22,11 @@ used them kills the child), or in this process for a study with one worker:
   files as ``interrupted``; idle workers ignore SIGTERM (they wait for work
   holding the task queue's lock; dying there would hang the pool's shutdown).
   A worker whose parent was killed stops its run and exits.
+- **the main script**: the workers run capsim's own task on capsim's own items and need
+  nothing of the program that started the batch, so they are started without importing its
+  main script again (spawn would, and a script without an ``if __name__ == "__main__":``
+  guard would then start the batch again in every worker). :func:`in_spawned_import_of_main`
+  tells a library call that it runs inside such a re-import (a pool of the user's own).
 - **progress**: a task gets a callback ``progress(state)`` (run_case's progress
   protocol); the worker forwards ``state["t"]`` to the parent at most once a
   second, and the parent calls ``on_progress({key: t})`` of the running items.
@@ -30,22 +35,29 @@ used them kills the child), or in this process for a study with one worker:
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import math
 import multiprocessing
+import numbers
 import os
 import queue
 import signal
+import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Sequence
+import types
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from capsim.errors import first_line
 from capsim import threads
 
-__all__ = ["BatchOutcome", "SigtermAsInterrupt", "kernel_kind", "one_line", "run_batch", "warm_up"]
+__all__ = ["BatchOutcome", "SigtermAsInterrupt", "check_workers", "in_spawned_import_of_main", "kernel_kind",
+           "number_list", "one_line", "path_list", "refuse_in_spawned_import_of_main", "run_batch", "text_list",
+           "warm_up"]
 
 #: task(item, progress) -> record (a dict with at least "status" and "status_reason")
 Task = Callable[[Any, Any], dict]
@@ -57,6 +69,109 @@ def one_line(exc: BaseException) -> str:
     """'Type: first line of the message' (the type alone when the message is empty)."""
     first = first_line(exc, default="")
     return f"{type(exc).__name__}: {first}" if first else type(exc).__name__
+
+
+# ---------------------------------------------------------------- the caller (the library face's arguments)
+
+
+def _config_error(name: str, value: Any, what: str):
+    from capsim.config import ConfigError
+    from capsim.errors import bounded_repr
+
+    return ConfigError(f"{name} = {bounded_repr(value)}: {what}")
+
+
+def check_workers(workers: Any, name: str = "workers", *, default: str | None = "one per core") -> int | None:
+    """`workers` as the CLI's ``--workers`` takes it: a whole number >= 1 (None where a `default`
+    is named); anything else a one-line :class:`capsim.config.ConfigError`."""
+    if workers is None and default is not None:
+        return None
+    if isinstance(workers, bool) or not isinstance(workers, numbers.Integral) or workers < 1:
+        raise _config_error(name, workers, "must be a whole number >= 1" + (f" (or None: {default})" if default else ""))
+    return int(workers)
+
+
+def text_list(value: Any, name: str) -> list[str] | None:
+    """None, one text or a sequence of texts (``sets``) as a list of texts: one text is a list of
+    one, never the list of its characters; anything else a one-line ConfigError."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        return [value]
+    items = None if isinstance(value, (bytes, Mapping)) or not isinstance(value, Iterable) else list(value)
+    if items is None or not all(isinstance(v, str) for v in items):
+        raise _config_error(name, value, "a text or a list of texts is expected (e.g. [\"mesh.level=1\"])")
+    return items
+
+
+def path_list(value: Any, name: str) -> list[Path]:
+    """One path or a sequence of paths (``inputs``) as a list of paths (one path is a list of one)."""
+    if isinstance(value, (str, os.PathLike)):
+        return [Path(value)]
+    items = None if isinstance(value, (bytes, Mapping)) or not isinstance(value, Iterable) else list(value)
+    if items is None or not all(isinstance(v, (str, os.PathLike)) for v in items):
+        raise _config_error(name, value, "a path or a list of paths is expected")
+    return [Path(v) for v in items]
+
+
+def number_list(value: Any, name: str, *, whole: bool = False) -> list:
+    """One number or a sequence of numbers (``levels``, ``rtols``) as a non-empty list (whole
+    numbers as ints where `whole`); a text, an empty list or anything else a one-line ConfigError."""
+    kind = "whole numbers" if whole else "numbers"
+
+    def number(v: Any) -> bool:
+        if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(float(v)):
+            return False
+        return not whole or float(v).is_integer()
+
+    if isinstance(value, numbers.Real) and not isinstance(value, bool):
+        value = [value]
+    elif isinstance(value, (str, bytes, Mapping)) or not isinstance(value, Iterable):
+        raise _config_error(name, value, f"a list of {kind} is expected (e.g. {name}=[...]), not a "
+                                         f"{type(value).__name__}")
+    value = list(value)
+    if not value:
+        raise _config_error(name, value, "give at least one")
+    bad = [v for v in value if not number(v)]
+    if bad:
+        raise _config_error(name, value, f"{bad[0]!r} is not a finite {'whole ' if whole else ''}number")
+    return [int(v) for v in value] if whole else [float(v) for v in value]
+
+
+def in_spawned_import_of_main() -> bool:
+    """Whether this process is a spawned child still importing its parent's main script (the
+    way ``multiprocessing`` starts a child by spawn): a batch started there would start again
+    in every child. The flag is the one ``multiprocessing`` itself checks before it refuses
+    to start a process from such an import."""
+    return bool(getattr(multiprocessing.current_process(), "_inheriting", False))
+
+
+def refuse_in_spawned_import_of_main(what: str) -> None:
+    """A one-line :class:`capsim.config.ConfigError` when :func:`in_spawned_import_of_main`."""
+    if in_spawned_import_of_main():
+        from capsim.config import ConfigError
+
+        raise ConfigError(f"{what} was called while a process started by spawn imports the main script again; "
+                          f"put the call under `if __name__ == \"__main__\":` in the script")
+
+
+@contextlib.contextmanager
+def _without_main_script():
+    """While worker processes start: the main module as an empty one, so that a spawned
+    worker does not import the main script again (the workers run capsim's task on capsim's
+    items; nothing of the script is theirs to run). Spawn re-imports the main module when it
+    has a ``__file__`` or a ``__spec__``; an empty module has neither."""
+    main = sys.modules.get("__main__")
+    if main is None or (getattr(main, "__spec__", None) is None and getattr(main, "__file__", None) is None):
+        yield
+        return
+    stand_in = types.ModuleType("__main__")
+    sys.modules["__main__"] = stand_in
+    try:
+        yield
+    finally:
+        if sys.modules.get("__main__") is stand_in:
+            sys.modules["__main__"] = main
 
 
 # ---------------------------------------------------------------- warm-up
@@ -386,6 +501,12 @@ def _run_pool(items, task, keys, order, warm, failure, done, on_progress, worker
                                kt_queue, stop, stop_signal, finished, stop_on_interrupted, name, outcome)
             if not todo:
                 break
+        # pools that broke again and again with none of these items started (workers that die
+        # as they start): each item gets its record, none is dropped from the counts
+        for i in todo:
+            if outcome.records[i] is None:
+                done(i, failure(i, "failed", f"{WORKER_DIED} as they started, {len(items) + 1} times; "
+                                             "this run never started"))
     finally:
         kt_queue.close()
 
@@ -393,9 +514,11 @@ def _run_pool(items, task, keys, order, warm, failure, done, on_progress, worker
 def _pool_round(items, task, keys, order, kinds, failure, done, on_progress, n, n_threads, ctx, kt_queue, stop,
                 stop_signal, finished, stop_on_interrupted, name, outcome) -> list[int]:
     """One pool over `order`; returns the items to run again after a worker died ([] when done)."""
-    pool = cf.ProcessPoolExecutor(min(n, len(order)), mp_context=ctx, initializer=_init_worker,
-                                  initargs=(n_threads, kt_queue, stop, kinds, stop_signal))
-    futures = {pool.submit(_pool_task, task, keys[i], items[i]): i for i in order}
+    # the workers start in the submits (spawn starts them as work arrives, up to n)
+    with _without_main_script():
+        pool = cf.ProcessPoolExecutor(min(n, len(order)), mp_context=ctx, initializer=_init_worker,
+                                      initargs=(n_threads, kt_queue, stop, kinds, stop_signal))
+        futures = {pool.submit(_pool_task, task, keys[i], items[i]): i for i in order}
     pending = set(futures)
     running: dict[str, float] = {}
     started: dict[str, int] = {}

@@ -57,7 +57,7 @@ __all__ = [
     "free_bytes", "is_run_file", "lock_path",
     "case_from_trajectory", "checkpoint_path", "guard_run_output", "mark_abandoned", "open_run", "read_case", "read_checkpoint", "read_run_record",
     "END_STATE", "read_end_state", "read_run_status", "read_trajectory", "remove_checkpoint", "write_checkpoint",
-    "write_error_estimate",
+    "write_error_estimate", "writer_of",
 ]
 
 STATUSES = frozenset({"completed", "unstable", "interrupted", "failed"})
@@ -329,7 +329,9 @@ class TrajectoryWriter:
         self._columns = [self._timeseries[key] for key in self._keys or ()]
         for ds in self._columns:
             ds.resize((n_steps,))
-        for name in ("summary", "run"):  # rewritten when the run ends
+        # rewritten when the run ends; the error estimate was of the window and the end that the
+        # run had, so it goes too (`capsim run --error-estimate` makes a new one)
+        for name in ("summary", "run", "error_estimate"):
             if name in f:
                 del f[name]
         self._n_steps, self._n_snapshots, self._unflushed_steps = n_steps, n_snapshots, 0
@@ -634,28 +636,98 @@ def read_trajectory(path: str | os.PathLike) -> dict[str, Any]:
 
     Returns ``{"attrs", "timeseries", "elements", "rest_positions", "positions",
     "snapshot_t", "summary"}``. A file cut short by a killed run is read up to
-    its last complete row (all time series trimmed to the same length).
+    its last complete row (all time series trimmed to the same length). A file that
+    is not a capsim run file, or cannot be read, raises :class:`TrajectoryError`
+    (one line; a file a running capsim process writes is retried, then named as such).
     """
+    def read(f: h5py.File) -> dict[str, Any]:
+        try:
+            return _read_open(f)
+        except KeyError as exc:
+            raise TrajectoryError(f"{os.fspath(path)}: not a capsim trajectory (missing {exc})") from None
+
+    return _read_run_file(path, read)
+
+
+#: a file a running capsim process writes is read again this often, this far apart, before
+#: it is reported as being written (a reader may meet its metadata half-flushed)
+_BUSY_TRIES, _BUSY_WAIT_S = 8, 0.25
+
+
+def writer_of(path: str | os.PathLike) -> str | None:
+    """Whether a capsim process writes `path` now (holds its lock): its pid as text ("" when the
+    lock holds none), or None when no process does. Takes no lock and creates no file."""
+    import errno
+    import fcntl
+
+    try:
+        fd = os.open(lock_path(path), os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except OSError as exc:
+            if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                return None
+            holder = os.pread(fd, 20, 0).decode("ascii", "replace").strip()
+            return holder if holder.isdigit() else ""
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return None
+    except OSError:
+        return None
+    finally:
+        os.close(fd)
+
+
+def _not_a_run_file(f: h5py.File) -> str | None:
+    """Why an open HDF5 file is not a capsim run file (None when it is one): every run file
+    has its case in the root attribute ``config_yaml`` from its first byte on disk."""
+    if "config_yaml" in f.attrs:
+        return None
+    names = set(f.attrs)
+    if "campaign_yaml" in names:
+        return "a campaign summary (capsim summarize), not a run file: open it with xarray.open_dataset"
+    if "case_yaml" in names:
+        return "an accuracy study (capsim study), not a run file: open it with xarray.open_dataset"
+    if not names and not len(f):
+        return "an empty HDF5 file, not a capsim run file"
+    return "not a capsim run file (an HDF5 file without the config_yaml attribute of every run file)"
+
+
+def _read_run_file(path: str | os.PathLike, read: Callable[[h5py.File], Any]) -> Any:
+    """``read(f)`` of the run file at `path` opened read-only without a lock (a running or killed
+    writer must not stop a reader), after checking that it is one; every failure a one-line
+    :class:`TrajectoryError`. A file that a running capsim process holds is read again a few
+    times when its metadata is met half-flushed, then refused as being written, never called
+    corrupt."""
+    import time
+
     source = os.fspath(path)
     if not os.path.exists(source):
         raise TrajectoryError(f"{source}: no such file")
     if os.path.isdir(source):
-        raise TrajectoryError(f"{source}: is a directory, not a trajectory file")
-    try:
-        is_hdf5 = h5py.is_hdf5(source)
-    except OSError as exc:
-        raise TrajectoryError(f"{source}: cannot read: {exc}") from None
-    if not is_hdf5:
-        raise TrajectoryError(f"{source}: not an HDF5 file (empty, truncated or another format)")
-    try:
-        # No lock: a running (or killed) writer must not stop us from reading.
-        with h5py.File(source, "r", locking=False) as f:
-            return _read_open(f)
-    except KeyError as exc:
-        raise TrajectoryError(f"{source}: not a capsim trajectory (missing {exc})") from None
-    except (OSError, RuntimeError, ValueError) as exc:
-        first = first_line(exc)
-        raise TrajectoryError(f"{source}: unreadable HDF5 file (truncated or corrupt?): {first}") from None
+        raise TrajectoryError(f"{source}: is a directory, not a run file")
+    for attempt in range(_BUSY_TRIES):
+        try:
+            if not h5py.is_hdf5(source):
+                problem = "not an HDF5 file (empty, truncated or another format)"
+            else:
+                with h5py.File(source, "r", locking=False) as f:
+                    why = _not_a_run_file(f)
+                    if why is not None:
+                        raise TrajectoryError(f"{source}: {why}")
+                    return read(f)
+        except (OSError, RuntimeError, ValueError) as exc:
+            problem = f"unreadable HDF5 file (truncated or corrupt?): {first_line(exc)}"
+        writer = writer_of(source)
+        if writer is None:
+            raise TrajectoryError(f"{source}: {problem}")
+        if attempt + 1 < _BUSY_TRIES:
+            time.sleep(_BUSY_WAIT_S)
+    by = f" (process {writer})" if writer else ""
+    raise TrajectoryError(f"{source}: being written by a running capsim process{by}, and not readable in a "
+                          f"consistent state just now; read it again, or once the run has ended")
 
 
 def _read_open(f: h5py.File) -> dict[str, Any]:
@@ -836,23 +908,18 @@ def open_run(path: str | os.PathLike):
     """
     import xarray as xr
 
-    source = os.fspath(path)
-    if not os.path.exists(source):
-        raise TrajectoryError(f"{source}: no such file")
-    if os.path.isdir(source) or not h5py.is_hdf5(source):
-        raise TrajectoryError(f"{source}: not an HDF5 file (empty, truncated or another format)")
-    nodes: dict[str, Any] = {}
-    try:
-        with h5py.File(source, "r", locking=False) as f:
-            def visit(name: str, item: Any) -> None:
-                if isinstance(item, h5py.Group):
-                    nodes["/" + name] = _group_dataset(item)
+    def read(f: h5py.File) -> dict[str, Any]:
+        nodes: dict[str, Any] = {}
 
-            nodes["/"] = _group_dataset(f)
-            f.visititems(visit)
-    except (OSError, RuntimeError, ValueError) as exc:
-        first = first_line(exc)
-        raise TrajectoryError(f"{source}: unreadable HDF5 file (truncated or corrupt?): {first}") from None
+        def visit(name: str, item: Any) -> None:
+            if isinstance(item, h5py.Group):
+                nodes["/" + name] = _group_dataset(item)
+
+        nodes["/"] = _group_dataset(f)
+        f.visititems(visit)
+        return nodes
+
+    nodes = _read_run_file(path, read)
     tree = getattr(xr, "DataTree", None)
     return tree.from_dict(nodes) if tree is not None else nodes
 

@@ -512,7 +512,9 @@ def error_estimate(case: Case, summary: dict[str, Any], workers: int = 2,
     error of the value at t_end: ``|Δ_mesh| + |Δ_time|``), ``q_mesh`` and
     ``q_time`` (the two signed differences, run minus coarser/looser run), and
     the same for the time mean over the run's averaging window as ``q_mean*``.
-    The mesh part is NaN at level 0 (no coarser mesh).
+    The estimate needs both parts: at level 0 (no coarser mesh, ``coarse_level`` -1) the
+    mesh part is NaN and so is ``q``, the time part alone being no bound of the error (it
+    is kept as ``q_time``); the same when a rerun did not complete.
     """
     from capsim.store import read_trajectory
 
@@ -552,8 +554,9 @@ def error_estimate(case: Case, summary: dict[str, Any], workers: int = 2,
             out[f"{key}_value"] = main[key]
             out[f"{key}_time"] = float(d_time)
             out[f"{key}_mesh"] = float(d_mesh)
-            parts = [abs(v) for v in (d_time, d_mesh) if math.isfinite(v)]
-            out[key] = float(sum(parts)) if parts else float("nan")
+            # one part alone would be read as the error (at level 0 the time part is ~1e-6,
+            # the mesh's error ~1e-2): no total without both
+            out[key] = float(abs(d_time) + abs(d_mesh))
     return out
 
 
@@ -565,13 +568,24 @@ def write_error_estimate(path: str | os.PathLike, estimate: dict[str, Any]) -> N
 
 
 def format_error_estimate(summary: dict[str, Any], estimate: dict[str, Any]) -> str:
-    """Lines 'q  value ± estimate (mesh …, time …)' for the summary values."""
-    lines = [f"error estimate (level {estimate['coarse_level']} and rtol {estimate['loose_rtol']:g} reruns, "
-             f"{estimate['wall_time_s']:.1f} s); value ± error estimate |mesh| + |time| (not a window spread), "
-             "θ in units of π as in the table above:"]
+    """Lines 'q  value ± estimate (mesh …, time …)' for the summary values; a part that could
+    not be had (level 0 has no coarser mesh) is said to be unknown, and so is the ±."""
+    coarse = int(estimate["coarse_level"])
+    if coarse >= 0:
+        lines = [f"error estimate (level {coarse} and rtol {estimate['loose_rtol']:g} reruns, "
+                 f"{estimate['wall_time_s']:.1f} s); value ± error estimate |mesh| + |time| (not a window spread), "
+                 "θ in units of π as in the table above:"]
+    else:
+        lines = [f"error estimate: the rtol {estimate['loose_rtol']:g} rerun only ({estimate['wall_time_s']:.1f} s): "
+                 "level 0 has no coarser mesh, so the mesh part, and with it the error estimate, is unknown "
+                 "(run at level >= 1 for one); the time part alone, θ in units of π as in the table above:"]
     names = {"D_xy": "D_xy", "theta": "theta/pi", "ttf_ratio": "TTF/f_s", "Sxy_star": "S*_xy"}
     scales = {"theta": math.pi}
     width = max(len(v) for v in names.values()) + len(" (t_end)")
+
+    def shown(x: Any, c: float, form: str) -> str:
+        return format(x / c, form) if isinstance(x, (int, float)) and math.isfinite(x) else "unknown"
+
     for q, label in names.items():
         for suffix, where in (("_mean", ""), ("", " (t_end)")):
             key = f"{q}{suffix}"
@@ -579,8 +593,9 @@ def format_error_estimate(summary: dict[str, Any], estimate: dict[str, Any]) -> 
             if not isinstance(value, (int, float)) or not math.isfinite(value):
                 continue
             c = scales.get(q, 1.0)
-            lines.append(f"  {label + where:<{width}}  {value / c:.6f} ± {estimate[key] / c:.2e}"
-                         f"  (mesh {estimate[f'{key}_mesh'] / c:+.1e}, time {estimate[f'{key}_time'] / c:+.1e})")
+            lines.append(f"  {label + where:<{width}}  {value / c:.6f} ± {shown(estimate.get(key), c, '.2e')}"
+                         f"  (mesh {shown(estimate.get(f'{key}_mesh'), c, '+.1e')}, "
+                         f"time {shown(estimate.get(f'{key}_time'), c, '+.1e')})")
     return "\n".join(lines)
 
 
@@ -594,32 +609,47 @@ def run_error_estimate(case: Case, summary: dict[str, Any], workers: int = 2) ->
 PathLike = str | os.PathLike
 
 
-def study(case: "PathLike | Mapping[str, Any] | Case", levels: Sequence[int] = (2, 3, 4),
-          rtols: Sequence[float] = (1e-3, 1e-4, 1e-5), *, quad: Sequence[int] | None = None,
+def study(case: "PathLike | Mapping[str, Any] | Case", levels: "int | Sequence[int]" = (2, 3, 4),
+          rtols: "float | Sequence[float]" = (1e-3, 1e-4, 1e-5), *, quad: "int | Sequence[int] | None" = None,
           reference: str = "finest", workers: int = 1, output: PathLike | None = None,
           runs_dir: PathLike | None = None, overwrite: bool = False, progress: bool | Callable[[str], None] = False,
-          sets: Sequence[str] | None = None, inputs: Sequence[PathLike] = (), **overrides: Any) -> "xr.Dataset":
-    """Accuracy against cost: run the ladder ``levels`` × ``rtols`` (× ``quad`` Gauss orders)
-    and compare each run with the ``reference`` (``"finest"`` or ``"richardson"``);
-    what ``capsim study`` does.
+          sets: "str | Sequence[str] | None" = None, inputs: "PathLike | Sequence[PathLike]" = (),
+          **overrides: Any) -> "xr.Dataset":
+    """Accuracy against cost: run the ladder `levels` × `rtols` (× `quad` Gauss orders)
+    and compare each run with the `reference` (`"finest"` or `"richardson"`);
+    what `capsim study` does.
 
-    Returns an ``xarray.Dataset`` of errors, wall times and observed orders
-    (:func:`capsim.study.format_study_table` prints it as the CLI does). With
-    ``output`` the Dataset is written there as netCDF and the Pareto plot beside it
-    (``.png``), through the same guards as the CLI. ``progress=True`` prints a line
-    per finished run on stderr; a callable receives that line. ``inputs``: more
+    `levels`, `rtols` and `quad` are numbers or lists of numbers (a single one is a list
+    of one; not texts); `workers` a whole number >= 1 (worker processes when > 1, which
+    do not run the calling script again: a plain script works). A bad argument raises a
+    one-line `capsim.config.ConfigError`.
+
+    Returns an `xarray.Dataset` of errors, wall times and observed orders
+    (`capsim.study.format_study_table` prints it as the CLI does). With
+    `output` the Dataset is written there as netCDF and the Pareto plot beside it
+    (`.png`), through the same guards as the CLI. `progress=True` prints a line
+    per finished run on stderr; a callable receives that line. `inputs`: more
     files never to write over.
     """
     from capsim.config import ConfigError, resolve_case
+    from capsim.errors import bounded_repr
+    from capsim.executor import check_workers, number_list, path_list, refuse_in_spawned_import_of_main, text_list
     from capsim.files import FIGURE_MAGIC, check_writable, guard_output, is_study_file, replace_atomically, starts_with
     from capsim.threads import apply_policy
 
-    if reference not in REFERENCES:
-        raise ConfigError(f"reference = {reference!r}: allowed: {', '.join(REFERENCES)}")
+    refuse_in_spawned_import_of_main("capsim.study")
+    levels = number_list(levels, "levels", whole=True)
+    rtols = number_list(rtols, "rtols")
+    quad = number_list(quad, "quad", whole=True) if quad is not None else None
+    workers = check_workers(workers, default=None)
+    if not isinstance(reference, str) or reference not in REFERENCES:
+        raise ConfigError(f"reference = {bounded_repr(reference)}: allowed: {', '.join(REFERENCES)}")
     if reference == "richardson" and len(set(levels)) < 2:
         raise ConfigError("reference = 'richardson' needs at least two levels")
-    inputs = [Path(p) for p in inputs] + ([Path(case)] if isinstance(case, (str, os.PathLike)) else [])
-    case = resolve_case(dict(case) if isinstance(case, Mapping) else case, sets, **overrides)
+    if not (progress is True or progress is False or progress is None or callable(progress)):
+        raise ConfigError(f"progress = {bounded_repr(progress)}: must be True, False or a callable")
+    inputs = path_list(inputs, "inputs") + ([Path(case)] if isinstance(case, (str, os.PathLike)) else [])
+    case = resolve_case(dict(case) if isinstance(case, Mapping) else case, text_list(sets, "sets"), **overrides)
     targets = []
     if output is not None:
         output = Path(output)
@@ -637,7 +667,7 @@ def study(case: "PathLike | Mapping[str, Any] | Case", levels: Sequence[int] = (
         report = progress or None
     apply_policy(workers=workers)
 
-    ds = run_study(case, list(levels), list(rtols), regular_orders=list(quad) if quad else None, reference=reference,
+    ds = run_study(case, levels, rtols, regular_orders=quad, reference=reference,
                    workers=workers, out_dir=runs_dir, progress=report, overwrite=overwrite, inputs=inputs)
     if output is not None:
         replace_atomically(output, lambda tmp: write_study(ds, tmp))
@@ -647,7 +677,7 @@ def study(case: "PathLike | Mapping[str, Any] | Case", levels: Sequence[int] = (
 
 
 class _CallableStudyModule(types.ModuleType):
-    """``capsim.study`` is both this module and the library function :func:`study`:
+    """`capsim.study` is both this module and the library function `study`:
     importing the module sets the package's attribute ``study`` to it (the import system does),
     so the module, called, is the function."""
 

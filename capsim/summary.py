@@ -30,7 +30,8 @@ import xarray as xr
 
 from capsim._version import __version__
 from capsim.campaign import CAMPAIGN_FILE, INDEX_FILE, expand_campaign, load_campaign, load_index
-from capsim.config import Case
+from capsim.config import Case, ConfigError
+from capsim.errors import bounded_repr
 from capsim.quantities import FLAGS, TABLE, TURNING_MOTIONS, UNIT_SYSTEMS, attrs_for, case_field_attrs, global_attrs, physical_attrs
 from capsim.store import case_from_trajectory, read_run_digest, read_run_record, read_run_status
 
@@ -90,6 +91,8 @@ def read_run(path: str | os.PathLike) -> dict[str, Any] | None:
         "motion": str(summary.get("motion", "")),
     }
     estimate = found.get("error_estimate", {})
+    if not _estimate_of_this_end(estimate, last):
+        estimate = {}  # of an earlier end (a file extended before issue 38): not of these values
     for name in _FLOATS:
         if name.endswith("_error_estimate"):  # of the window mean, else of the value at t_end
             q = name[: -len("_error_estimate")]
@@ -120,6 +123,17 @@ def read_run(path: str | os.PathLike) -> dict[str, Any] | None:
         if used in FLAGS["time_scheme"]:  # the scheme that ran (auto's choice), not the one asked for
             record["time_scheme"] = _flag("time_scheme", used)
     return record
+
+
+def _estimate_of_this_end(estimate: dict[str, Any], last: dict[str, float]) -> bool:
+    """Whether an error estimate was made of the run as it ends now: it keeps each quantity's
+    value at its t_end (``<q>_value``, the trajectory's last row when it was made), which is
+    the last row still unless the run was extended since (θ is stored unwrapped: not compared)."""
+    for q in ("D_xy", "ttf_ratio", "Sxy_star"):
+        then, now = estimate.get(f"{q}_value"), last.get(q)
+        if isinstance(then, float) and isinstance(now, float) and not (then == now or (then != then and now != now)):
+            return False
+    return True
 
 
 def _flag(name: str, value: str) -> int:
@@ -182,11 +196,20 @@ def summarize_campaign(directory: str | os.PathLike, units: str = "capsim") -> x
     """One Dataset for a campaign directory written by ``capsim sweep``; with ``units="physical"``
     every variable that has a capsim scale (:mod:`capsim.quantities`) is in physical units
     (:func:`to_physical`)."""
-    if units not in UNIT_SYSTEMS:
-        raise ValueError(f"units must be one of {', '.join(UNIT_SYSTEMS)}, got {units!r}")
+    if not isinstance(units, str) or units not in UNIT_SYSTEMS:
+        raise ConfigError(f"units = {bounded_repr(units)}: allowed: {', '.join(UNIT_SYSTEMS)}")
+    if not isinstance(directory, (str, os.PathLike)):
+        raise ConfigError(f"directory = {bounded_repr(directory)}: a path to a campaign's output directory is "
+                          "expected")
     directory = Path(directory)
+    if not directory.exists():
+        raise ConfigError(f"{directory}: no such directory (a campaign's output directory is expected)")
+    if not directory.is_dir():
+        raise ConfigError(f"{directory}: a directory of run files (a campaign's output.dir, written by capsim "
+                          "sweep) is expected, got a file")
     if not (directory / CAMPAIGN_FILE).exists() or not (directory / INDEX_FILE).exists():
-        raise FileNotFoundError(f"{directory}: not a campaign directory (no {CAMPAIGN_FILE} or {INDEX_FILE})")
+        raise ConfigError(f"{directory}: not a campaign directory (no {CAMPAIGN_FILE} or {INDEX_FILE}: capsim "
+                          "sweep writes them)")
     campaign = load_campaign(directory / CAMPAIGN_FILE)
     index = load_index(directory, campaign)  # a damaged runs.json: rebuilt from the run files
     if campaign.is_grid and campaign.sweep:
