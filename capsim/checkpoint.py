@@ -177,7 +177,14 @@ def load(path: Path, case: Case) -> tuple[dict[str, dict[str, Any]], float]:
         saved = read_checkpoint(path)
     except CheckpointError as exc:
         raise ResumeError(str(exc)) from None
-    return _validated(saved, path, case, extending=False)
+    # t_end may differ (--resume --t-end T on an interrupted run): the steps before the end do not
+    # depend on it; it must lie beyond where the run stopped
+    parts, wall = _validated(saved, path, case, extending=True)
+    t_stop = float(parts["integrator"]["t"])
+    if not case.time.t_end > t_stop + end_tolerance(t_stop):
+        raise ResumeError(f"{path}: the run stopped at kt = {t_stop:g}; time.t_end = {case.time.t_end:g} must be "
+                          "later to continue it (--t-end)")
+    return parts, wall
 
 
 def end_state_bytes(parts: dict[str, dict[str, Any]], config_yaml: str, wall_s: float) -> bytes:

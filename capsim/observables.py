@@ -21,6 +21,7 @@ from capsim.geometry import (
     volume_area,
 )
 from capsim.membrane import principal_tensions
+from capsim.quantities import MOTIONS as _MOTIONS
 from capsim.quantities import TURNING_MOTIONS
 
 
@@ -40,23 +41,69 @@ def unwrap_defined(theta: np.ndarray) -> np.ndarray:
     return theta
 
 
+#: eigenvalues of the second moment closer than this (relative to the largest) are one
+#: eigenvalue split by round-off (a shape of revolution at rest: ~1e-15); their eigenvectors
+#: are then arbitrary, and :func:`principal_frame` chooses them by the shear instead
+DEGENERATE_GAP = 1e-9
+#: the rate of strain of u∞ = (k y, 0, 0) in units of k, and a small weight of the vorticity
+#: axis that orders a degenerate pair the strain cannot (one perpendicular to the shear plane)
+_STRAIN = np.array([[0.0, 0.5, 0.0], [0.5, 0.0, 0.0], [0.0, 0.0, 0.0]])
+_TIE_BREAK = _STRAIN + 1e-3 * np.diag([0.0, 0.0, 1.0])
+
+
+def principal_frame(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (ascending) and unit eigenvectors (columns) of the symmetric M, with every
+    degenerate eigenspace (eigenvalues within DEGENERATE_GAP) spanned by the directions the
+    shear stretches most and least (the eigenvectors of the rate of strain restricted to it).
+
+    A shape of revolution at rest has two equal eigenvalues; numpy's eigenvectors in their
+    plane are round-off, so every axis-dependent observable (D_xy, θ, the long and the short
+    axis) at t = 0 was a tie-break of round-off, unlike the next row, where the flow has split
+    the pair along its extensional direction (issue 39: a red cell 45° off the plane gave
+    D_xy 0.52 at t = 0, then 4e-4). Choosing the pair as the flow will split it makes the t = 0
+    row the limit of the next ones."""
+    mu, vec = np.linalg.eigh(M)
+    scale = max(float(np.abs(mu).max()), np.finfo(float).tiny)
+    groups, start = [], 0
+    for k in range(1, 4):
+        if k == 3 or mu[k] - mu[k - 1] > DEGENERATE_GAP * scale:
+            groups.append(range(start, k))
+            start = k
+    for group in groups:
+        if len(group) < 2:
+            continue
+        idx = list(group)
+        V = vec[:, idx]
+        w, R = np.linalg.eigh(V.T @ _TIE_BREAK @ V)
+        vec[:, idx] = V @ R[:, ::-1]  # most stretched first
+        mu[idx] = mu[idx].mean()
+    return mu, vec
+
+
+def _line(v: np.ndarray) -> np.ndarray:
+    """A line has no sign: the first component that is not ~0 is made positive."""
+    v = v.copy()
+    lead = v[np.flatnonzero(np.abs(v) > 1e-12)[0]]
+    return v * np.sign(lead)
+
+
 def ellipsoid_axes(geo: ElementGeometry) -> dict:
     volume, area = volume_area(geo)
     center = centroid(geo, volume)
     M = second_moment(geo, center)
-    mu, vec = np.linalg.eigh(M)
+    mu, vec = principal_frame(M)
     axes = np.sqrt(np.maximum(5.0 * mu / volume, 0.0))
     out_of_plane = int(np.argmax(np.abs(vec[2, :])))
     in_plane = [k for k in range(3) if k != out_of_plane]
+    # the most stretched of a degenerate pair is listed first, and max keeps the first on a tie
     i_long = max(in_plane, key=lambda k: axes[k])
-    i_short = min(in_plane, key=lambda k: axes[k])
+    i_short = in_plane[1] if i_long == in_plane[0] else in_plane[0]
     L, l = axes[i_long], axes[i_short]
-    # the 3-D ellipsoid (issue 26): semi-axes a ≥ b ≥ c and the direction of the longest;
-    # a line has no sign: the first component that is not ~0 is made positive
-    long3 = vec[:, int(np.argmax(axes))].copy()
-    lead = long3[np.flatnonzero(np.abs(long3) > 1e-12)[0]]
-    long3 *= np.sign(lead)
-    a, b, c = np.sort(axes)[::-1]
+    # the 3-D ellipsoid (issue 26): semi-axes a ≥ b ≥ c, the direction of the longest and
+    # (issue 39) of the shortest: a disk's normal, its symmetry axis
+    order = np.argsort(-axes, kind="stable")
+    long3, short3 = _line(vec[:, order[0]]), _line(vec[:, order[2]])
+    a, b, c = axes[order]
     v = vec[:, i_long]
     theta = float(np.arctan2(v[1], v[0]))
     if theta > np.pi / 2:
@@ -83,6 +130,7 @@ def ellipsoid_axes(geo: ElementGeometry) -> dict:
         "ellipsoid_b": float(b),
         "ellipsoid_c": float(c),
         "long_axis": long3,
+        "short_axis": short3,
     }
 
 
@@ -107,6 +155,9 @@ def step_observables(x: np.ndarray, elements: np.ndarray, geo: ElementGeometry, 
         "long_axis_x": float(e["long_axis"][0]),
         "long_axis_y": float(e["long_axis"][1]),
         "long_axis_z": float(e["long_axis"][2]),
+        "short_axis_x": float(e["short_axis"][0]),
+        "short_axis_y": float(e["short_axis"][1]),
+        "short_axis_z": float(e["short_axis"][2]),
         "min_element_quality": float(vertex_triangle_quality(x, elements).min()),
         "max_principal_stretch": float(max_stretch),
     }
@@ -302,15 +353,39 @@ def revolution_rate(t: np.ndarray, angle: np.ndarray, t_from: float) -> float | 
 
 # ---------------------------------------------------------------- motion classifier
 
-MOTIONS = ("steady", "rolling", "kayaking", "oscillating", "tumbling", "transient", "unstable")
-#: the director counts as along the vorticity axis (rolling) while it stays within this
-#: angle of ±z (rad, ≈ 5.7°), and as off the shear plane (kayaking) while its mean angle
-#: from ±z stays below π/2 − OFF_PLANE_TOL (≈ 80°)
+#: the classes, their meanings and old names: capsim.quantities (MOTIONS, MOTION_MEANINGS,
+#: MOTION_ALIASES); the decision procedure: classify_orbit, and docs/method.md, "Motion classes"
+MOTIONS = _MOTIONS
+#: the body's symmetry axis counts as along the vorticity axis (rolling) while it stays
+#: within this angle of ±z over the classifier's window (rad, ≈ 5.7°) ...
 ROLLING_TOL = 0.1
+#: ... and as in the shear plane while it stays within this angle of it (≈ 10°); between the
+#: two it is off the plane (kayaking, off-plane tank-treading)
 OFF_PLANE_TOL = np.deg2rad(10.0)
-#: the orbit has settled (time.stop_when_settled) when the per-period change of the
-#: period and of the orbit constant is below this fraction
+#: an orbit has settled when its last two whole orbits agree: their periods and their mean
+#: orbit constants within this fraction
 SETTLED_RTOL = 1e-2
+#: an orbit constant that changes by this fraction or more per orbit is a transition in progress
+#: (drifting_to_rolling, drifting_to_plane); between SETTLED_RTOL and this the body kayaks but
+#: has not settled (a stiff prolate at G = 5e-4 drifts −4 % per orbit towards rolling, the
+#: issue-39 red cells 17–63 %)
+DRIFT_RTOL = 5e-2
+#: whole orbits a settled orbit needs (the last two are compared)
+SETTLED_ORBITS = 2
+#: swinging has settled when its last two cycles agree: periods and peak-to-peak of θ (or of
+#: D_xy, whichever swings) within this fraction
+CYCLE_RTOL = 5e-2
+#: the body turns (tumbling, kayaking) when its symmetry axis's azimuth advances by at least
+#: this over the last half of the run; a swinging body's goes back and forth, no net advance
+TURNING_ADVANCE = np.pi / 2
+#: below this |sin| of its polar angle the axis is on z to round-off and has no azimuth (a
+#: director on z to 1e-17 has an azimuth of round-off that "turns through π": issue 38, 13)
+AZIMUTH_FLOOR = 1e-6
+#: the rest shape is a sphere (no symmetry axis) when |r − 1| is below this
+SPHERE_TOL = 1e-3
+#: a turn is nearly rigid when the membrane's rate relative to the body is below this
+#: fraction of the body's rate
+RIGID_TURN_TOL = 0.1
 SUMMARY_QUANTITIES = ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star")
 
 
@@ -387,7 +462,16 @@ def _oscillation(t: np.ndarray, s: np.ndarray, floor: float, min_ratio: float = 
     cycles = [np.ptp(s[(t >= a) & (t <= b)]) for a, b in zip(ups[:-1], ups[1:])]
     if cycles[-1] < min_ratio * cycles[0]:
         return None
-    return {"period": float(periods[-2:].mean()), "t_from": ups[0], "t_to": ups[-1], "last_cycle": (ups[-2], ups[-1])}
+    return {"period": float(periods[-2:].mean()), "t_from": ups[0], "t_to": ups[-1], "last_cycle": (ups[-2], ups[-1]),
+            "periods": [float(p) for p in periods], "cycles": [float(c) for c in cycles]}
+
+
+def _cycles_agree(osc: dict | None, rtol: float = CYCLE_RTOL) -> bool:
+    """The last two cycles of an oscillation agree: periods and peak-to-peak within rtol."""
+    if osc is None or len(osc["periods"]) < 2:
+        return False
+    (p0, p1), (c0, c1) = osc["periods"][-2:], osc["cycles"][-2:]
+    return abs(p1 - p0) <= rtol * p1 and abs(c1 - c0) <= rtol * max(c1, c0)
 
 
 def _up_crossings(t: np.ndarray, r: np.ndarray, floor: float) -> list[float]:
@@ -440,17 +524,21 @@ def classify_motion(
       clockwise rotation); period = time for θ to turn by 2π (Jeffery's orbit
       period, seed §5), from successive passages through −π/2 (mod π);
     - steady: :func:`is_steady`;
-    - oscillating: at least two sustained regular cycles of θ or D_xy over the last
-      two thirds of the run (period from θ when it oscillates), with mean and amplitude
-      (half the peak-to-peak of the last cycle) of both;
+    - swinging (``oscillating`` before issue 39): at least two sustained regular cycles of θ
+      or D_xy over the last two thirds of the run (period from θ when it oscillates), with mean
+      and amplitude (half the peak-to-peak of the last cycle) of both;
     - transient: none of these (still evolving, or too short to tell).
+
+    ``settled`` says whether the motion has settled: steady always; swinging when its last
+    two cycles agree within CYCLE_RTOL; tumbling when its last two whole turns (θ through
+    2π) took the same time within SETTLED_RTOL.
     """
     t = np.asarray(t, float)
     D_xy = np.asarray(D_xy, float)
     theta = np.asarray(theta, float)
     nan = float("nan")
     out = {"motion": "transient", "t_from": nan, "t_to": nan, "period": nan,
-           "D_xy_mean": nan, "D_xy_amplitude": nan, "theta_mean": nan, "theta_amplitude": nan}
+           "D_xy_mean": nan, "D_xy_amplitude": nan, "theta_mean": nan, "theta_amplitude": nan, "settled": False}
     if t.size == 0:
         return out
     t_end = float(t[-1])
@@ -465,6 +553,7 @@ def classify_motion(
         return out
     if is_steady(t, D_xy, theta, rtol, theta_tol, window_fraction, min_window):
         out["motion"] = "steady"
+        out["settled"] = True
         for name, s in (("D_xy", D_xy), ("theta", theta)):
             out[f"{name}_mean"] = window_stats(t, s, out["t_from"])[0]
         return out
@@ -491,7 +580,10 @@ def _tumbling(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, out: dict) -> 
         # D_xy repeats every half turn (the shape is head-tail symmetric): its mean and half
         # peak-to-peak over the last one, the spread a researcher quotes for a periodic motion
         out["D_xy_mean"], out["D_xy_amplitude"] = _cycle_stats(t, D_xy, out["t_from"], (out["t_from"], out["t_to"]))
-    elif len(passes) == 1 and td[-1] > passes[0]:
+    if len(passes) >= 5:  # two whole turns (four half turns): settled when they took the same time
+        last, before = passes[-1] - passes[-3], passes[-3] - passes[-5]
+        out["settled"] = bool(abs(last - before) < SETTLED_RTOL * last)
+    if len(passes) == 1 and td[-1] > passes[0]:
         turned = abs(th_u[-1] - (-np.pi / 2))
         if turned > 0.1:
             out["period"] = 2 * np.pi * float(td[-1] - passes[0]) / turned
@@ -500,7 +592,7 @@ def _tumbling(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, out: dict) -> 
 
 def _oscillating(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, rtol: float, theta_tol: float,
                  out: dict) -> None:
-    """classify_motion's oscillating: two sustained regular cycles of θ or D_xy over the
+    """classify_motion's swinging: two sustained regular cycles of θ or D_xy over the
     last two thirds of the run (the start-up transient of a capsule is a few kt, and two
     whole cycles of kT ≈ 10 must fit in a run of a few tens of kt); fills `out` if so."""
     half = t >= float(t[-1]) / 3.0
@@ -511,7 +603,8 @@ def _oscillating(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, rtol: float
     osc = _oscillation(t[half], th_half, theta_tol) or _oscillation(t[half], D_xy[half], rtol * scale)
     if osc is None:
         return
-    out["motion"] = "oscillating"
+    out["motion"] = "swinging"
+    out["settled"] = _cycles_agree(osc)
     out["period"] = osc["period"]
     out["t_from"], out["t_to"] = osc["t_from"], osc["t_to"]
     for name, s in (("D_xy", D_xy[half]), ("theta", th_half)):
@@ -544,120 +637,326 @@ def jeffery_orbit_constant(polar: np.ndarray, azimuth: np.ndarray, r: float) -> 
     return tan * np.sqrt(r**2 * np.cos(azimuth) ** 2 + np.sin(azimuth) ** 2) / r
 
 
-def orbit_summary(t: np.ndarray, director: np.ndarray, aspect_ratio: float = 1.0) -> dict:
-    """The director's orbit: period, Jeffery's orbit constant and the final polar angle.
+def continuous_line(n: np.ndarray) -> np.ndarray:
+    """Unit vectors of a line (n, 3) whose stored sign is a convention (long_axis, short_axis:
+    the first component that is not ~0 positive) made continuous from row to row: each row
+    keeps the sign that points it along the row before (p and −p are one axis)."""
+    n = np.array(n, dtype=float, copy=True)
+    if n.shape[0] < 2:
+        return n
+    dots = np.einsum("ij,ij->i", n[1:], n[:-1])
+    n[1:] *= np.cumprod(np.where(dots < 0.0, -1.0, 1.0))[:, None]
+    return n
 
-    director (n, 3) unit vectors at times t. The azimuth φ = atan2(d_x, d_y), unwrapped,
-    passes through mπ (the director crossing the yz-plane, where it turns fastest) twice
-    per orbit: the period is the time from one passage to the next but one (two half
-    orbits; for a rigid spheroid both halves are alike, T = 2π(r + 1/r)/k).
-    ``orbit_constant_first`` and ``orbit_constant`` are the time means of C over the first
-    and the last whole period, ``orbit_constant_drift`` the relative change of that mean
-    per period ((C_last − C_first) / ((n − 1) C_first) over n whole periods; NaN under two),
-    ``final_polar_angle`` the director's angle from the vorticity axis at the end, folded
-    into [0, π/2] (the axis of a head-tail symmetric shape is a line)."""
+
+def _stack(series: dict, prefix: str) -> np.ndarray | None:
+    if not all(f"{prefix}_{c}" in series for c in "xyz"):
+        return None
+    return np.stack([np.asarray(series[f"{prefix}_{c}"], float) for c in "xyz"], axis=1)
+
+
+def body_axis(series: dict, aspect_ratio: float) -> np.ndarray | None:
+    """The body's symmetry axis at every row, (n, 3) unit vectors, sign-continuous: the shape's
+    own axis from the equivalent ellipsoid (issue 39), its longest axis for a prolate rest shape
+    (r > 1) and its shortest, a disk's normal, for an oblate or biconcave one (r < 1). Not the
+    material director: a tank-treading membrane carries the director round while the shape
+    stays put. Rows without the shape's axes (a run file written before issue 39, or a resumed
+    one's earlier rows) take the material director (the same axis for a body turning rigidly).
+    None for a sphere (|r − 1| < SPHERE_TOL: no symmetry axis) or without either."""
+    if not abs(aspect_ratio - 1.0) >= SPHERE_TOL:
+        return None
+    axis = _stack(series, "long_axis" if aspect_ratio > 1.0 else "short_axis")
+    director = _stack(series, "director")
+    if axis is None:
+        axis = director
+    elif director is not None:
+        missing = ~np.all(np.isfinite(axis), axis=1)
+        axis[missing] = director[missing]
+    if axis is None or axis.shape[0] == 0:
+        return None
+    return continuous_line(axis)
+
+
+def _folded_polar(d: np.ndarray) -> np.ndarray:
+    """Angle of the line d from the vorticity axis, in [0, π/2]."""
+    return np.arccos(np.clip(np.abs(d[:, 2]), 0.0, 1.0))
+
+
+def _azimuth(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows where the axis has an azimuth, its azimuth there from y towards x, unwrapped)."""
+    ok = np.hypot(d[:, 0], d[:, 1]) > AZIMUTH_FLOOR
+    return ok, np.unwrap(np.arctan2(d[ok, 0], d[ok, 1]))
+
+
+def orbit_summary(t: np.ndarray, director: np.ndarray, aspect_ratio: float = 1.0) -> dict:
+    """The orbit of an axis (director: (n, 3) unit vectors at times t, the body's symmetry
+    axis or the material director): its period, Jeffery's orbit constant and their changes.
+
+    The azimuth φ = atan2(d_x, d_y), unwrapped over the rows where the axis is off z
+    (AZIMUTH_FLOOR), passes through mπ (the axis crossing the yz-plane, where it turns
+    fastest) twice per orbit; a whole orbit is φ through 2π, from one passage to the next but
+    one (a line: p and −p are the same axis, and the count is the same for either). Whole
+    orbits are counted back from the last passage.
+
+    - ``orbit_period``: the last whole orbit's duration, 2π(r + 1/r) for Jeffery's rigid
+      spheroid; ``orbit_period_change``: |T_last − T_before| / T_last over the last two;
+    - ``orbit_constant_first``, ``orbit_constant``: time means of C over the first and the last
+      whole orbit; ``orbit_constant_drift``: (C_last − C_first) / (n C_first), n the orbits
+      between them (NaN under two whole orbits);
+    - ``orbit_constant_change``: the relative change of C per orbit now: between the means
+      over the last two whole orbits, or, with fewer, over the last two half orbits, squared to
+      a whole orbit (C repeats every half orbit: the shear flow is the same after a half turn
+      about z); NaN in the plane (C = ∞) or under two half orbits;
+    - ``orbit_periods``: the whole orbits in the run; ``final_polar_angle``: the axis's angle
+      from the vorticity axis at the end, in [0, π/2].
+    ``_passages`` (private) lists the passage times for the caller's window."""
     t = np.asarray(t, float)
     d = np.asarray(director, float)
     nan = float("nan")
-    polar = np.arccos(np.clip(d[:, 2], -1.0, 1.0))
-    folded = np.minimum(polar, np.pi - polar)
-    out = {"orbit_period": nan, "orbit_constant": nan, "orbit_constant_first": nan,
-           "orbit_constant_drift": nan, "orbit_periods": 0.0,
-           "final_polar_angle": float(folded[-1]) if t.size else nan, "jeffery_aspect_ratio": float(aspect_ratio),
-           "jeffery_period": float(2.0 * np.pi * (aspect_ratio + 1.0 / aspect_ratio))}
+    out = {"orbit_period": nan, "orbit_period_change": nan, "orbit_constant": nan, "orbit_constant_first": nan,
+           "orbit_constant_drift": nan, "orbit_constant_change": nan, "orbit_periods": 0.0,
+           "final_polar_angle": float(_folded_polar(d[-1:])[0]) if t.size and np.all(np.isfinite(d[-1])) else nan,
+           "jeffery_aspect_ratio": float(aspect_ratio),
+           "jeffery_period": float(2.0 * np.pi * (aspect_ratio + 1.0 / aspect_ratio)), "_passages": []}
     if t.size < 3 or not np.all(np.isfinite(d)):
         return out
-    phi = np.unwrap(np.arctan2(d[:, 0], d[:, 1]))
-    # the shift counts a start exactly on a passage (a director started in the yz-plane)
-    passes = np.array(_passages(t, phi, 0.0, shift=1e-9))
-    if passes.size < 3:
+    ok, phi = _azimuth(d)
+    if phi.size < 3:
         return out
+    tt = t[ok]
+    # the shift counts a start exactly on a passage (an axis started in the yz-plane)
+    passes = np.array(_passages(tt, phi, 0.0, shift=1e-9))
+    out["_passages"] = [float(p) for p in passes]
+    if passes.size < 2:
+        return out
+    polar = np.arccos(np.clip(d[ok, 2], -1.0, 1.0))
     C = jeffery_orbit_constant(polar, phi, aspect_ratio)
 
     def mean(a, b):
-        sel = (t >= a) & (t <= b)
-        return float("inf") if np.isinf(C[sel]).any() else window_stats(t, C, a, b)[0]
+        sel = (tt >= a) & (tt <= b)
+        return float("inf") if np.isinf(C[sel]).any() else window_stats(tt, C, a, b)[0]
 
-    means = [mean(a, b) for a, b in zip(passes[:-2:2], passes[2::2])]
-    out["orbit_period"] = float(passes[-1] - passes[-3])
-    out["orbit_periods"] = float(len(means))
-    out["orbit_constant_first"], out["orbit_constant"] = float(means[0]), float(means[-1])
-    if len(means) >= 2 and 0.0 < means[0] < np.inf:
-        out["orbit_constant_drift"] = float((means[-1] - means[0]) / ((len(means) - 1) * means[0]))
+    def ratio(new, old):
+        return new / old if 0.0 < old < np.inf and np.isfinite(new) else nan
+
+    if passes.size >= 3:
+        halves = [mean(a, b) for a, b in zip(passes[-3:-1], passes[-2:])]
+        out["orbit_constant_change"] = ratio(halves[1], halves[0]) ** 2 - 1.0
+        out["orbit_period"] = float(passes[-1] - passes[-3])
+        out["orbit_periods"] = float((passes.size - 1) // 2)
+        out["orbit_constant_first"] = mean(passes[0], passes[2])
+        out["orbit_constant"] = mean(passes[-3], passes[-1])
     if passes.size >= 5:
+        out["orbit_constant_change"] = ratio(out["orbit_constant"], mean(passes[-5], passes[-3])) - 1.0
         out["orbit_period_change"] = float(abs((passes[-1] - passes[-3]) - (passes[-3] - passes[-5]))
                                            / (passes[-1] - passes[-3]))
+        orbits_between = (passes.size - 3) / 2.0  # from the first whole orbit's start to the last's
+        out["orbit_constant_drift"] = (ratio(out["orbit_constant"], out["orbit_constant_first"]) - 1.0) / orbits_between
     return out
 
 
-def classify_orbit(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, director: np.ndarray,
-                   aspect_ratio: float = 1.0, **classifier_options) -> dict:
-    """:func:`classify_motion` of the shape in the shear plane, refined by the director:
+def rotation_rates(t: np.ndarray, t_from: float, t_to: float, axis: np.ndarray | None, theta: np.ndarray,
+                   tt_angle: np.ndarray | None) -> dict:
+    """The body's rotation and the membrane's tank-treading over [t_from, t_to], each as a
+    rate about the vorticity axis, clockwise (the sense of the shear) positive, over the rigid
+    sphere's k/2 (as ttf_ratio):
 
-    - unstable: as classify_motion;
-    - rolling: the shape steady (is_steady) and the director within ROLLING_TOL of ±z over
-      the last ``window_fraction`` of the run, whatever came before (the membrane
-      tank-treads about the vorticity axis); a sphere's (r = 1) director is arbitrary,
-      so a sphere is never rolling;
-    - kayaking: the director off the shear plane (its mean folded polar angle below
-      π/2 − OFF_PLANE_TOL over the window) and turning about z (its azimuth advancing by
-      at least π, half an orbit, in the last half of the run, or the shape tumbling);
-    - tumbling: the shape tumbling (classify_motion) with the director in the plane (in
-      the plane a tank-treading membrane carries the director round as well, so the
-      director's turning alone is not tumbling there);
-    - steady, oscillating, transient: as classify_motion (tank-treading or swinging in
-      the plane; an off-plane director that neither settles on z nor turns is
-      transient while it drifts).
-    Returns classify_motion's fields with the motion replaced."""
-    out = classify_motion(t, D_xy, theta, **classifier_options)
+    - ``body_rotation_ratio``: the turn of the shape's axes: of its symmetry axis's azimuth
+      where that axis is off z (the window's median angle from z above ROLLING_TOL), else of
+      its in-plane long axis θ (NaN where θ is undefined: a round cross-section);
+    - ``tank_treading_ratio``: the tracked material nodes' mean turn (tt_angle) less the
+      body's: the membrane relative to the shape. A spin about the body's own symmetry axis
+      counts here (on a shape of revolution it cannot be told from tank-treading);
+    - ``rigid_turn``: 1 when the body turns (|body_rotation_ratio| ≥ 0.05) and the membrane's
+      relative rate is below RIGID_TURN_TOL of the body's: ttf_ratio is then the body's turn;
+    - ``ttf_ratio_kind``: what ttf_ratio (the nodes' rate in the lab frame) is here, a flag
+      (0 tank-treading, 1 turn plus tank-treading, 2 a nearly rigid turn: TTF_RATIO_KINDS)."""
+    nan = float("nan")
+    out = {"body_rotation_ratio": nan, "tank_treading_ratio": nan, "rigid_turn": nan, "ttf_ratio_kind": nan}
     t = np.asarray(t, float)
-    d = np.asarray(director, float)
-    if out["motion"] == "unstable" or t.size < 3 or not np.all(np.isfinite(d)):
+    if not (np.isfinite(t_from) and np.isfinite(t_to) and t_to > t_from) or t.size < 2:
         return out
-    polar = np.arccos(np.clip(d[:, 2], -1.0, 1.0))
-    folded = np.minimum(polar, np.pi - polar)
-    # rolling first: the shape may have tumbled on its way (classify_motion then says
-    # tumbling for the whole run) before it settled spinning about z
-    t_last = max(float(t[0]), (1.0 - classifier_options.get("window_fraction", 0.25)) * float(t[-1]))
-    last = t >= t_last
-    if (abs(aspect_ratio - 1.0) > 1e-3 and folded[last].max() < ROLLING_TOL
-            and is_steady(t, D_xy, theta, **classifier_options)):
-        nan = float("nan")
-        out.update(motion="rolling", t_from=t_last, t_to=float(t[-1]), period=nan,
-                   D_xy_mean=window_stats(t, D_xy, t_last)[0], theta_mean=window_stats(t, theta, t_last)[0],
-                   D_xy_amplitude=nan, theta_amplitude=nan)
-        return out
-    if out["motion"] == "steady":
-        return out
-    late = t >= 0.5 * t[-1]
-    phi = np.unwrap(np.arctan2(d[late, 0], d[late, 1]))
-    off_plane = window_stats(t, folded, out["t_from"], out["t_to"])[0] < np.pi / 2 - OFF_PLANE_TOL
-    # in the plane a tank-treading or swinging membrane carries the director round too:
-    # there the shape alone tells tumbling from swinging
-    director_turning = phi.size >= 2 and np.ptp(phi) >= np.pi
-    if out["motion"] == "tumbling" or (off_plane and director_turning):
-        out["motion"] = "kayaking" if off_plane else "tumbling"
+    span = t_to - t_from
+    body = nan
+    if axis is not None:
+        sel = (t >= t_from) & (t <= t_to)
+        if np.any(sel) and float(np.median(_folded_polar(axis[sel]))) > ROLLING_TOL:
+            ok, phi = _azimuth(axis)
+            if phi.size >= 2:
+                body = float(np.interp(t_to, t[ok], phi) - np.interp(t_from, t[ok], phi)) / span
+    if not np.isfinite(body):
+        th = unwrap_defined(np.asarray(theta, float))
+        fin = np.isfinite(th)
+        if np.count_nonzero(fin) >= 2 and t[fin][0] <= t_from:
+            body = -float(np.interp(t_to, t[fin], th[fin]) - np.interp(t_from, t[fin], th[fin])) / span
+    out["body_rotation_ratio"] = body / RIGID_SPHERE_ROTATION_RATE
+    if tt_angle is not None:
+        tt = np.asarray(tt_angle, float)
+        nodes = -float(np.interp(t_to, t, tt) - np.interp(t_from, t, tt)) / span
+        membrane = nodes - body
+        out["tank_treading_ratio"] = membrane / RIGID_SPHERE_ROTATION_RATE
+        if np.isfinite(body):
+            turning = abs(out["body_rotation_ratio"]) >= 0.05
+            rigid = turning and abs(membrane) < RIGID_TURN_TOL * abs(body)
+            out["rigid_turn"] = float(rigid)
+            out["ttf_ratio_kind"] = 2.0 if rigid else 1.0 if turning else 0.0  # quantities.TTF_RATIO_KINDS
     return out
 
 
-def orbit_settled(t, D_xy, theta, director, aspect_ratio: float = 1.0) -> bool:
-    """time.stop_when_settled: the motion is steady or rolling (is_steady), or it is a
-    periodic orbit (tumbling, kayaking) with at least two whole periods whose period and
-    orbit constant changed by less than SETTLED_RTOL over the last period (a rigid
-    particle's Jeffery orbit is neutrally stable: it settles at once), or it oscillates
-    (classify_motion's regular cycles)."""
-    motion = classify_orbit(t, D_xy, theta, director, aspect_ratio)["motion"]
-    if motion in ("steady", "rolling", "oscillating"):
-        return True
-    if motion not in ("tumbling", "kayaking"):
-        return False
-    orbit = orbit_summary(t, director, aspect_ratio)
-    change = orbit.get("orbit_period_change", float("nan"))
-    if not change < SETTLED_RTOL:
-        return False
-    drift = orbit["orbit_constant_drift"]
-    # in the shear plane C is infinite: the period alone decides
-    return motion == "tumbling" or abs(drift) < SETTLED_RTOL
+def _shape_period(t: np.ndarray, shape: np.ndarray | None, D_xy: np.ndarray, rtol: float) -> float:
+    """Period of the shape's oscillation over the last two thirds of the run: of
+    (a − c)/(a + c) of the equivalent ellipsoid (any orientation), or of D_xy without it;
+    NaN when the shape does not oscillate (a rigid turn, a steady state)."""
+    late = t >= float(t[-1]) / 3.0
+    if shape is not None and np.all(np.isfinite(shape[late])):
+        s = (shape[late, 0] - shape[late, 2]) / (shape[late, 0] + shape[late, 2])
+    else:
+        s = np.asarray(D_xy, float)[late]
+    if not np.all(np.isfinite(s)):
+        return float("nan")
+    osc = _oscillation(t[late], s, rtol * max(float(np.abs(s).mean()), 1e-3))
+    return float(osc["period"]) if osc is not None else float("nan")
+
+
+def classify_orbit(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, director: np.ndarray | None,
+                   aspect_ratio: float = 1.0, *, shape: np.ndarray | None = None, **classifier_options) -> dict:
+    """The motion in three dimensions, from the shape in the shear plane (classify_motion) and
+    the body's symmetry axis (``director``: body_axis's, or for an old run file the material
+    director); ``shape`` the equivalent ellipsoid's semi-axes (n, 3), optional.
+
+    In this order (docs/method.md, "Motion classes"; the window is the last
+    ``window_fraction`` of the run):
+
+    1. unstable: a non-finite value (classify_motion);
+    2. no axis (a sphere, r = 1): classify_motion's class (steady, swinging, tumbling,
+       transient), nothing more;
+    3. rolling: the axis within ROLLING_TOL of ±z over the window; settled when the shape is
+       steady (is_steady);
+    4. turning: the axis's azimuth (defined off z, AZIMUTH_FLOOR) advances by TURNING_ADVANCE
+       or more over the last half of the run, or in the plane classify_motion says tumbling.
+       In the plane (the axis within OFF_PLANE_TOL of it over the window): tumbling; off it:
+       kayaking, or drifting_to_rolling / drifting_to_plane while the orbit constant changes by
+       DRIFT_RTOL or more per orbit (orbit_summary's orbit_constant_change). Settled when the
+       last SETTLED_ORBITS whole orbits agree: period and orbit constant within SETTLED_RTOL;
+    5. not turning, in the plane: classify_motion's steady, swinging or transient;
+    6. not turning, off the plane: off_plane_tank_treading when the shape (a, b, c) is steady
+       and the axis still (its polar angle within theta_tol over the window; settled), or when
+       it swings in regular cycles (settled when the last two agree); drifting_to_rolling or
+       drifting_to_plane while the axis tilts by more than theta_tol over the window towards z
+       or the plane; else transient.
+
+    Returns classify_motion's fields (motion, window, period, means and amplitudes) with the
+    motion replaced, ``settled`` (bool), ``motion_in_plane`` (classify_motion's own class) and
+    ``turning`` (bool); for a turning body the window is its last whole orbit (the last two
+    when settled) and ``period`` the orbit period."""
+    opts = {k: v for k, v in classifier_options.items() if k in ("rtol", "theta_tol", "window_fraction", "min_window")}
+    out = classify_motion(t, D_xy, theta, **opts)
+    out["motion_in_plane"] = out["motion"]
+    out["turning"] = out["motion"] == "tumbling"
+    out["orbits_averaged"] = 0.0
+    t = np.asarray(t, float)
+    if out["motion"] == "unstable" or t.size < 3 or director is None:
+        return out
+    d = np.asarray(director, float)
+    if not np.all(np.isfinite(d)) or not abs(aspect_ratio - 1.0) >= SPHERE_TOL:
+        return out
+    nan = float("nan")
+    rtol = opts.get("rtol", 1e-2)
+    theta_tol = opts.get("theta_tol", 1e-2)
+    t_last = max(float(t[0]), (1.0 - opts.get("window_fraction", 0.25)) * float(t[-1]))
+    last = t >= t_last
+    folded = _folded_polar(d)
+    in_plane = bool(folded[last].min() > np.pi / 2 - OFF_PLANE_TOL)
+    # 3. rolling first: the body may have turned on its way there
+    if folded[last].max() < ROLLING_TOL:
+        out.update(motion="rolling", t_from=t_last, t_to=float(t[-1]), period=nan, turning=False,
+                   settled=bool(is_steady(t, D_xy, theta, **opts)),
+                   D_xy_mean=window_stats(t, D_xy, t_last)[0], D_xy_amplitude=nan, theta_amplitude=nan,
+                   theta_mean=(window_stats(t[np.isfinite(theta)], np.asarray(theta)[np.isfinite(theta)], t_last)[0]
+                               if np.isfinite(theta[last]).all() else nan))
+        return out
+    # 4. turning
+    ok, phi = _azimuth(d)
+    late = (t >= 0.5 * t[-1])[ok]
+    advance = abs(float(phi[late][-1] - phi[late][0])) if np.count_nonzero(late) >= 2 else 0.0
+    turning = advance >= TURNING_ADVANCE or (in_plane and out["motion_in_plane"] == "tumbling")
+    out["turning"] = turning
+    if turning:
+        orbit = orbit_summary(t, d, aspect_ratio)
+        passes = orbit["_passages"]
+        change = orbit["orbit_constant_change"]
+        if in_plane:
+            motion = "tumbling"
+        elif np.isfinite(change) and abs(change) >= DRIFT_RTOL:
+            motion = "drifting_to_rolling" if change < 0 else "drifting_to_plane"
+        else:
+            motion = "kayaking"
+        settled = (motion in ("tumbling", "kayaking") and orbit["orbit_periods"] >= SETTLED_ORBITS
+                   and orbit["orbit_period_change"] < SETTLED_RTOL
+                   and (in_plane or abs(change) < SETTLED_RTOL))
+        out.update(motion=motion, settled=bool(settled))
+        if len(passes) >= 3:
+            n = 2 if settled and len(passes) >= 5 else 1
+            out["t_from"], out["t_to"] = passes[-1 - 2 * n], passes[-1]
+            out["orbits_averaged"] = float(n)
+            out["period"] = orbit["orbit_period"]
+            out["D_xy_mean"], out["D_xy_amplitude"] = _cycle_stats(t, np.asarray(D_xy, float), out["t_from"],
+                                                                   (passes[-3], passes[-1]))
+        elif out["motion_in_plane"] != "tumbling":
+            out["period"] = nan  # the in-plane projection's period is not the orbit's
+        out["theta_mean"] = out["theta_amplitude"] = nan
+        return out
+    # 5. not turning, in the plane: the shape in the plane says it all
+    if in_plane:
+        return out
+    # 6. not turning, off the plane
+    out.update(t_from=t_last, t_to=float(t[-1]), period=nan, D_xy_mean=nan, D_xy_amplitude=nan,
+               theta_mean=nan, theta_amplitude=nan, settled=False)
+    tilt = float(folded[last][-1] - folded[last][0])
+    w = _window(float(t[-1]), opts.get("window_fraction", 0.25), opts.get("min_window", 3.0))
+    long_enough = float(t[-1] - t[0]) >= 2 * w
+    if shape is not None and np.all(np.isfinite(shape[last])):
+        s = shape[last]
+        shape_steady = bool(np.all(np.ptp(s, axis=0) <= rtol * s.mean(axis=0)))
+        tail = t >= t[-1] / 3.0
+        d3 = (shape[tail, 0] - shape[tail, 2]) / (shape[tail, 0] + shape[tail, 2])
+        swing = _oscillation(t[tail], d3, rtol * max(float(np.abs(d3).mean()), 1e-3)) if np.all(np.isfinite(d3)) else None
+    else:
+        shape_steady = bool(np.ptp(np.asarray(D_xy, float)[last]) <= rtol * max(float(np.abs(D_xy[last]).mean()), 1e-3))
+        swing = None
+    swing = swing or _oscillation(t[t >= t[-1] / 3.0], folded[t >= t[-1] / 3.0], theta_tol)
+    if swing is not None:
+        out.update(motion="off_plane_tank_treading", settled=_cycles_agree(swing), period=swing["period"],
+                   t_from=swing["t_from"], t_to=swing["t_to"])
+    elif abs(tilt) > theta_tol:
+        out["motion"] = "drifting_to_rolling" if tilt < 0 else "drifting_to_plane"
+    elif shape_steady and long_enough:
+        out.update(motion="off_plane_tank_treading", settled=True)
+    else:
+        out["motion"] = "transient"
+    return out
+
+
+def orbit_settled(t, D_xy, theta, director, aspect_ratio: float = 1.0, **options) -> bool:
+    """time.stop_when_settled: the classifier's own ``settled`` (classify_orbit): a steady
+    state, swinging whose last two cycles agree, or an orbit whose last two whole orbits agree
+    (period and orbit constant within SETTLED_RTOL); never a transition in progress."""
+    return bool(classify_orbit(t, D_xy, theta, director, aspect_ratio, **options)["settled"])
+
+
+def series_settled(history: dict, aspect_ratio: float = 1.0) -> bool:
+    """orbit_settled of a run's history (StepObserver.history): the body's axis and shape as
+    run_summary takes them, so that the stop rule and the summary agree."""
+    t = np.asarray(history["t"], float)
+    shape = _stack_shape(history)
+    return orbit_settled(t, np.asarray(history["D_xy"], float), np.asarray(history["theta"], float),
+                         body_axis(history, aspect_ratio), aspect_ratio, shape=shape)
+
+
+def _stack_shape(series: dict) -> np.ndarray | None:
+    if not all(f"ellipsoid_{c}" in series for c in "abc"):
+        return None
+    return np.stack([np.asarray(series[f"ellipsoid_{c}"], float) for c in "abc"], axis=1)
 
 
 def relaxation_time(t: np.ndarray, D_xy: np.ndarray, t_from: float, floor: float = 1e-6) -> float:
@@ -685,21 +984,22 @@ def relaxation_summary(series: dict[str, np.ndarray], stop_time: float) -> dict:
 
 def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
     """Summary of a run from its time series (t, D_xy, θ, ttf_ratio, tt_angle,
-    Sxy_star, N1_star, N2_star): the motion, and the time-mean and standard
-    deviation over the averaging window of every quantity in
-    :data:`SUMMARY_QUANTITIES`. ttf_ratio comes from the whole revolutions of
-    the tracked nodes' angle since the window start (or the second half of the
-    run, if earlier) when there is at least one, else from the mean rate."""
+    Sxy_star, N1_star, N2_star; the director, the shape's axes and semi-axes when
+    recorded): the motion (classify_orbit, on the body's symmetry axis: body_axis) and
+    whether it has settled, and the time-mean and standard deviation over the
+    averaging window of every quantity in :data:`SUMMARY_QUANTITIES`. ttf_ratio comes
+    from the whole revolutions of the tracked nodes' angle since the window start (or
+    the second half of the run, if earlier) when there is at least one, else from the
+    mean rate; the body's and the membrane's rotations beside it (rotation_rates), the
+    orbit's numbers (orbit_summary) and the shape's oscillation period."""
     t = np.asarray(series["t"], float)
     aspect_ratio = classifier_options.pop("aspect_ratio", 1.0)
-    director = None
-    if all(f"director_{c}" in series for c in "xyz"):
-        director = np.stack([np.asarray(series[f"director_{c}"], float) for c in "xyz"], axis=1)
-        motion = classify_orbit(t, series["D_xy"], series["theta"], director, aspect_ratio, **classifier_options)
-    else:
-        motion = classify_motion(t, series["D_xy"], series["theta"], **classifier_options)
+    D_xy, theta = np.asarray(series["D_xy"], float), np.asarray(series["theta"], float)
+    axis = body_axis(series, aspect_ratio)
+    shape = _stack_shape(series)
+    motion = classify_orbit(t, D_xy, theta, axis, aspect_ratio, shape=shape, **classifier_options)
     t0, t1 = motion["t_from"], motion["t_to"]
-    out: dict = {"motion": motion["motion"]}
+    out: dict = {"motion": motion["motion"], "settled": float(motion["settled"])}
     for name in SUMMARY_QUANTITIES:
         s = np.asarray(series[name], float)
         ts = t
@@ -714,17 +1014,23 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
         rate = revolution_rate(t, series["tt_angle"], min(t0, 0.5 * t[-1]))
         if rate is not None:
             out["ttf_ratio"] = float(rate / RIGID_SPHERE_ROTATION_RATE)
-    if out["motion"] in TURNING_MOTIONS:
+    if out["motion"] in TURNING_MOTIONS or motion.get("turning"):
         # the long axis turns through every angle: a mean θ over whole turns is no property of
         # the motion (the folded mean of a uniform turn is arbitrary, its spread the whole range)
         out["theta"] = out["theta_std"] = float("nan")
     out["averaging_t_from"], out["averaging_t_to"] = t0, t1
     for key in ("period", "D_xy_mean", "D_xy_amplitude", "theta_mean", "theta_amplitude"):
         out[key] = motion[key]
-    if director is not None:
-        orbit = orbit_summary(t, director, aspect_ratio)
-        orbit.pop("orbit_period_change", None)
+    out["orbits_averaged"] = motion.get("orbits_averaged", 0.0)
+    out["shape_period"] = _shape_period(t, shape, D_xy, classifier_options.get("rtol", 1e-2)) if t.size else float("nan")
+    tt = np.asarray(series["tt_angle"], float) if "tt_angle" in series else None
+    out.update(rotation_rates(t, t0, t1, axis, theta, tt))
+    if axis is not None or "director_x" in series:
+        orbit = orbit_summary(t, axis if axis is not None else _stack(series, "director"), aspect_ratio)
+        orbit.pop("_passages")
         out.update(orbit)
+        if not motion.get("turning"):
+            out["orbit_period"] = float("nan")  # passages of a swinging or still axis are no orbit
     return out
 
 
@@ -733,7 +1039,10 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
 COMPRESSION_TOL = 1e-10  # in E_s: below round-off of the tension at the rest shape
 
 #: time-series columns that the summary and the stopping rules read back
-HISTORY_COLUMNS = ("t", "dt", "tt_angle", *SUMMARY_QUANTITIES, "director_x", "director_y", "director_z")
+HISTORY_COLUMNS = ("t", "dt", "tt_angle", *SUMMARY_QUANTITIES, "director_x", "director_y", "director_z",
+                   # the shape's orientation and semi-axes (issue 39): the body's axis, its shape period
+                   "long_axis_x", "long_axis_y", "long_axis_z", "short_axis_x", "short_axis_y", "short_axis_z",
+                   "ellipsoid_a", "ellipsoid_b", "ellipsoid_c")
 
 
 class StepObserver:
@@ -755,6 +1064,9 @@ class StepObserver:
         self.history: dict[str, list[float]] = {key: [] for key in HISTORY_COLUMNS}
         self.first: dict | None = None
         self.last: dict | None = None
+        #: the columns of the run file being continued, when it was written before some of
+        #: today's (an extension of an old run keeps the file's columns; None: all of them)
+        self.columns: frozenset[str] | None = None
 
     def observe(self, t: float, y: np.ndarray, u: np.ndarray, state, dt: float, error: float,
                 work: dict[str, float]) -> dict:
@@ -784,6 +1096,8 @@ class StepObserver:
         row["solver_iterations"] = float(model.last_solve_info.get("iterations", 0))
         row["solver_residual"] = float(model.last_solve_info.get("residual", 0.0))
         row.update({key: float(value) for key, value in work.items()})
+        if self.columns is not None:
+            row = {key: value for key, value in row.items() if key in self.columns}
         self._remember(row)
         return row
 
@@ -807,11 +1121,16 @@ class StepObserver:
             self.first = row
         self.last = row
         for key in HISTORY_COLUMNS:
-            self.history[key].append(row[key])
+            self.history[key].append(row.get(key, float("nan")))
 
     def resume(self, rows: dict[str, np.ndarray]) -> None:
-        """Continue after the rows already written (a resumed run)."""
-        self.history = {key: [float(v) for v in rows[key]] for key in HISTORY_COLUMNS}
+        """Continue after the rows already written (a resumed run). A file written before a
+        column existed keeps its columns (the new ones are left out of its rows) and the
+        history holds NaN for them (the summary then falls back: body_axis)."""
+        n = len(rows["t"])
+        self.columns = frozenset(rows) if rows else None
+        self.history = {key: [float(v) for v in rows[key]] if key in rows else [float("nan")] * n
+                        for key in HISTORY_COLUMNS}
         self.first = {key: float(v[0]) for key, v in rows.items()}
         self.last = {key: float(v[-1]) for key, v in rows.items()}
 

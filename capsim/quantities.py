@@ -35,7 +35,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["CONVENTIONS", "FLAGS", "GROUPS", "PERIODIC_MOTIONS", "PLANNED", "TURNING_MOTIONS", "Quantity", "SCALES", "SCALE_UNITS", "TABLE", "UNIT_SYSTEMS",
+__all__ = ["CONVENTIONS", "FLAGS", "GROUPS", "MOTIONS", "MOTION_ALIASES", "MOTION_MEANINGS", "PERIODIC_MOTIONS",
+           "PLANNED", "SETTLED_MOTIONS", "TTF_RATIO_KINDS", "TURNING_MOTIONS", "canonical_motion", "Quantity", "SCALES", "SCALE_UNITS", "TABLE", "UNIT_SYSTEMS",
            "attrs_for", "case_field_attrs", "global_attrs", "key_for", "physical_attrs", "physical_units"]
 
 
@@ -129,7 +130,12 @@ _add("ellipsoid_c", "shortest semi-axis of the equivalent ellipsoid", "1",
 for _c in "xyz":
     _add(f"long_axis_{_c}", f"{_c} component of the longest axis of the equivalent ellipsoid", "1",
          f"{_c} component of the unit vector along the semi-axis ellipsoid_a; a line has no sign: the first "
-         "component that is not ~0 (x, then y, then z) is positive")
+         "component that is not ~0 (x, then y, then z) is positive; of two equal semi-axes (a shape of "
+         "revolution at rest) the one the shear stretches most (capsim.observables.principal_frame)")
+    _add(f"short_axis_{_c}", f"{_c} component of the shortest axis of the equivalent ellipsoid", "1",
+         f"{_c} component of the unit vector along the semi-axis ellipsoid_c: the symmetry axis of a disk "
+         "(oblate spheroid, biconcave red cell), which the motion classifier follows for such a rest shape; a "
+         "line has no sign: the first component that is not ~0 (x, then y, then z) is positive")
     _add(f"director_{_c}", f"{_c} component of the material director", "1",
          f"{_c} component of the rest shape's symmetry axis carried by the membrane: F a/|F a|, a the axis at "
          "rest (initial_axis), F the rest-area-weighted least-squares affine map of the rest surface onto the "
@@ -160,9 +166,14 @@ _add("ttf_ratio", "normalised tank-treading frequency", "1",
      "xy-plane and f_s = k/(4π) that of a rigid sphere: per step from their mean angular velocity; in a "
      "summary from their whole revolutions (tt_angle) when there is at least one. A rest shape turned off the "
      "plane (initial_axis) has no mesh line on z = 0: the nodes of the band |z| < max|z|/4 (away from the "
-     "z-axis) are followed instead", "k/(4 pi)", "tank-treading frequency")
+     "z-axis) are followed instead. It is the nodes' rate in the lab frame: the membrane's tank-treading when "
+     "the body does not turn, the body's turn (plus any tank-treading) when it does; the summary says which "
+     "(ttf_ratio_kind) and gives both apart (body_rotation_ratio, tank_treading_ratio)", "k/(4 pi)",
+     "tank-treading frequency")
 _add("tt_angle", "tank-treading angle", "rad",
-     "unwrapped mean angle about the centroid, in the xy-plane, of the nodes starting in z = 0")
+     "unwrapped mean angle about the centroid, in the xy-plane, of the tracked nodes (those starting in z = 0, "
+     "or for a rest shape turned off the plane those of the band |z| < max|z|/4 away from the z-axis; "
+     "ttf_ratio)")
 _add("solver_iterations", "iterations of the velocity solve", "1",
      "iterations of the velocity solve at this state: the λ ≠ 1 double-layer solve (GMRES or substitution), or "
      "with a viscous membrane the GMRES solve of docs/viscous_membrane.md (V4) at any λ; 0 when the velocity is "
@@ -206,26 +217,72 @@ _add("n_nodes", "mesh nodes", "1", "number of nodes (vertices and mid-side nodes
 
 # ---------------------------------------------------------------- summary/ (statistics over the averaging window)
 
-_add("motion", "class of steady motion", "",
-     "as classified by the run (capsim.observables.classify_orbit): steady (tank-treading in the plane), rolling "
-     "(director steady along ±z while the membrane tank-treads), kayaking (director precessing about z off the "
-     "plane), oscillating (swinging), tumbling, transient or unstable; relaxing when the flow stopped during the run (flow.history kind stop); empty when "
-     "the run did not classify it")
-_add("orbit_period", "period of the director's orbit", "1",
-     "time between the director's passages through the yz-plane, one and the next but one (its azimuth "
-     "through mπ): a whole orbit, 2π(r + 1/r) for Jeffery's rigid spheroid; NaN under three passages", "1/k")
-_add("orbit_periods", "whole orbits of the director", "1", "number of whole director orbits in the run")
+_add("motion", "class of motion", "",
+     "as classified by the run (capsim.observables.classify_orbit; the decision procedure and its thresholds: "
+     "docs/method.md, \"Motion classes\"): steady (tank-treading in the shear plane, shape steady), swinging "
+     "(tank-treading in the plane, shape and inclination oscillating; `oscillating` in files written before "
+     "issue 39), tumbling (the body turning over in the plane), rolling (the body's symmetry axis along z, the "
+     "membrane spinning), kayaking (the axis turning about z off the plane on an orbit whose constant holds), "
+     "off_plane_tank_treading (the axis still off the plane and off z, the membrane tank-treading), "
+     "drifting_to_rolling or drifting_to_plane (a transition in progress: the orbit constant changing by 5 % or "
+     "more per orbit, or a still axis tilting), transient (none of these yet) or unstable; relaxing when the "
+     "flow stopped during the run (flow.history kind stop); empty when the run did not classify it. The body's "
+     "symmetry axis is the shape's own (short_axis of a disk, long_axis of a prolate), not the material director. "
+     "Whether the motion has settled is `settled`")
+_add("settled", "whether the motion has settled", "1",
+     "1 when the classified motion has settled: a steady state (D_xy and θ within 1 % and 0.01 rad over the "
+     "window), swinging whose last two cycles agree (period and peak-to-peak within 5 %), or an orbit whose last "
+     "two whole orbits agree (period and mean orbit constant within 1 %); 0 otherwise, always for a transition "
+     "in progress or a run too short to tell. time.stop_when_settled stops on the same rule")
+_add("orbit_period", "period of the body's orbit", "1",
+     "time for the body's symmetry axis to go once round (its azimuth through 2π: from one passage through the "
+     "yz-plane to the next but one; p and −p are the same axis), the last whole orbit: 2π(r + 1/r) for Jeffery's "
+     "rigid spheroid; NaN when the body does not turn or under one whole orbit", "1/k")
+_add("orbit_period_change", "change of the orbit period", "1",
+     "|T_last − T_before| / T_last over the last two whole orbits; NaN under two")
+_add("orbit_periods", "whole orbits of the body", "1", "number of whole orbits of the body's symmetry axis in the run")
+_add("orbits_averaged", "whole orbits averaged", "1",
+     "whole orbits in the averaging window of a turning body (2 once settled, else the last 1); 0 when the "
+     "window is not whole orbits")
 _add("orbit_constant", "Jeffery orbit constant over the last orbit", "1",
-     "time mean over the last whole orbit of C = |tan θ| (r² cos²φ + sin²φ)^½ / r (θ director_polar_angle, "
-     "φ director_azimuth, r jeffery_aspect_ratio): constant for a rigid spheroid, 0 rolling, ∞ in the shear "
-     "plane; NaN under one whole orbit")
+     "time mean over the last whole orbit of C = |tan θ| (r² cos²φ + sin²φ)^½ / r (θ, φ the polar angle from z "
+     "and the azimuth from y of the body's symmetry axis, r jeffery_aspect_ratio): constant for a rigid "
+     "spheroid, 0 rolling, ∞ in the shear plane; NaN under one whole orbit")
+_add("orbit_constant_change", "change of the orbit constant per orbit now", "1",
+     "C over the last whole orbit over C over the one before, less 1; with under two whole orbits, from the last "
+     "two half orbits (C repeats every half orbit), squared to one orbit: < 0 towards rolling, > 0 towards the "
+     "plane; |change| ≥ 5 % is a transition in progress (drifting_to_rolling, drifting_to_plane), under 1 % "
+     "(with the period's) settled; NaN in the plane (C = ∞) or under two half orbits")
 _add("orbit_constant_first", "Jeffery orbit constant over the first orbit", "1",
-     "time mean of C over the first whole orbit of the director")
+     "time mean of C over the first whole orbit of the body's symmetry axis")
 _add("orbit_constant_drift", "drift of the orbit constant per orbit", "1",
-     "(C_last − C_first) / ((n − 1) C_first) over the n whole orbits' means: the relative change per orbit "
-     "(> 0 towards the shear plane, < 0 towards rolling); NaN under two orbits")
-_add("final_polar_angle", "final angle of the director from the vorticity axis", "rad",
-     "min(θ, π − θ) at the last row, θ = director_polar_angle: 0 rolling along z, π/2 in the shear plane")
+     "(C_last − C_first) / (n C_first), n the orbits between the first whole orbit and the last: the mean "
+     "relative change per orbit over the run (> 0 towards the shear plane, < 0 towards rolling; the change now "
+     "is orbit_constant_change); NaN under two whole orbits")
+_add("final_polar_angle", "final angle of the body's axis from the vorticity axis", "rad",
+     "angle from z of the body's symmetry axis (a line) at the last row, in [0, π/2]: 0 rolling along z, π/2 in "
+     "the shear plane")
+_add("shape_period", "period of the shape's oscillation", "1",
+     "period of the oscillation of (a − c)/(a + c) of the equivalent ellipsoid (ellipsoid_a, ellipsoid_c) over "
+     "the last two thirds of the run: half the orbit period for a deformable body turning over, the swing's "
+     "period when swinging; NaN when the shape does not oscillate (a steady state, a rigid turn)", "1/k")
+_add("body_rotation_ratio", "rotation rate of the body over k/2", "1",
+     "the turn of the shape's axes about z over the averaging window, clockwise positive, over the rigid "
+     "sphere's k/2: of the body's symmetry axis's azimuth (off z), else of its in-plane long axis θ; 2/(r + 1/r) "
+     "for Jeffery's spheroid, 0 for a body that tank-treads in place; NaN where θ is undefined", "k/(4 pi)",
+     "rotation frequency of the body")
+_add("tank_treading_ratio", "tank-treading rate of the membrane relative to the body over k/2", "1",
+     "the tracked material nodes' mean turn about z (tt_angle) less the body's (body_rotation_ratio), over "
+     "the averaging window, clockwise positive, over k/2: the membrane's motion on the shape (a spin about the "
+     "body's own symmetry axis counts: on a shape of revolution it is tank-treading); ~0 for a rigid turn",
+     "k/(4 pi)", "tank-treading frequency relative to the body")
+_add("rigid_turn", "whether the body turns nearly rigidly", "1",
+     "1 when the body turns (|body_rotation_ratio| ≥ 0.05) and the membrane moves on it at under 10 % of the "
+     "body's rate: ttf_ratio is then the body's rotation, not tank-treading; 0 otherwise; NaN when not measured")
+_add("ttf_ratio_kind", "what ttf_ratio measures in this run", "1",
+     "flag: 0 the membrane's tank-treading (the body does not turn), 1 the body's turn plus the membrane's "
+     "tank-treading, 2 the body's turn alone (a nearly rigid rotation, rigid_turn); NaN when not measured "
+     "(TTF_RATIO_KINDS)")
 _add("jeffery_aspect_ratio", "aspect ratio r of the rest shape", "1",
      "axis / equatorial diameter of the rest shape's equivalent ellipsoid, sqrt of the ratio of its second "
      "moments along and across the axis: the r of Jeffery's orbit (b/a of a spheroid)")
@@ -244,19 +301,22 @@ _add("relaxation_time", "shape relaxation time at rest", "1",
      "of the rest (the slow mode of docs/viscous_membrane.md), in units of 1/k of the flow before the stop", "1/k")
 _add("flow_stop_time", "time the flow stopped", "1", "kt at which the shear flow stopped (flow.history)", "1/k")
 _add("period", "period of the motion", "1",
-     "oscillation period, or the time for theta to turn by 2π when tumbling, in units of 1/k; NaN otherwise",
-     "1/k")
+     "the period of the motion's cycle, in units of 1/k: orbit_period when the body turns (tumbling, kayaking, "
+     "drifting: the time for its axis to go once round, θ through 2π in the plane), the swing's period when "
+     "swinging (of θ, or of D_xy when θ does not swing; shape_period is the same cycle seen in the shape); NaN "
+     "for steady, rolling and a still off-plane body, and when the run is too short to show one cycle", "1/k")
 _add("averaging_t_from", "start of the averaging window", "1",
-     "kt at which the averaging window of the summary starts (whole cycles when oscillating or tumbling, "
-     "else the last quarter of the run)", "1/k")
+     "kt at which the averaging window of the summary starts (whole cycles when swinging, whole orbits when the "
+     "body turns, else the last quarter of the run)", "1/k")
 _add("averaging_t_to", "end of the averaging window", "1", "kt at which the averaging window ends", "1/k")
 for _name, _what in (("D_xy", "Taylor deformation parameter"), ("theta", "inclination")):
     _add(f"{_name}_mean", f"cycle mean of the {_what}", TABLE[_name].units,
-         f"mean of {_name} over the motion classifier's window (whole cycles when oscillating, the steady "
-         f"window when steady); NaN for other motions")
+         f"mean of {_name} over the motion classifier's window (whole cycles when swinging, the steady "
+         f"window when steady{', whole orbits when the body turns' if _name == 'D_xy' else ''}); NaN where the "
+         f"classifier sets none{' (a turning body: θ turns through every angle)' if _name == 'theta' else ''}")
     _add(f"{_name}_amplitude", f"oscillation amplitude of the {_what}", TABLE[_name].units,
-         f"half the peak-to-peak of {_name} over the last cycle (for a tumbling run, D_xy's over its last half "
-         f"turn; θ turns through every angle and has none); NaN unless oscillating or tumbling")
+         f"half the peak-to-peak of {_name} over the last cycle (for a turning body, D_xy's over its last whole "
+         f"orbit; θ turns through every angle and has none); NaN unless swinging or turning")
 for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star"):
     _base = TABLE[_name]
     _add(f"{_name}_std", f"standard deviation of the {_base.long_name}", _base.units,
@@ -311,16 +371,19 @@ _add("time_scheme", "time-stepping scheme", "1",
      "flag: 0 rkf23 (Runge-Kutta-Fehlberg 2(3)), 1 rkc (Runge-Kutta-Chebyshev), 2 linearly_implicit "
      "(Rosenbrock-W) (flag_values, flag_meanings)")
 _add("steady_average", "whether the values are averages over a settled motion", "1",
-     "flag: 1 when the motion is steady, rolling, kayaking, oscillating or tumbling, so that the observables are means over "
-     "whole cycles (or the steady window; a periodic run's spread is then its *_amplitude, and a tumbling or kayaking "
-     "run has no mean theta: NaN); 0 when the run ended transient or unstable, or did not classify "
-     "its motion: the observables are then means over the last quarter of the run (or its last row), not a "
-     "settled value — do not average them with the others")
+     "flag: 1 when the run completed and its motion has settled (the run's `settled`; a run file written "
+     "before issue 39 has none, and its class alone decides: steady, rolling, kayaking, oscillating or tumbling), "
+     "so that the observables are means over whole cycles or orbits (or the steady window; a periodic run's "
+     "spread is then its *_amplitude, and a turning body has no mean theta: NaN); 0 when the run ended "
+     "transient, drifting or unstable, had not settled, or did not classify its motion: the observables are "
+     "then means over the last quarter of the run, its last orbit (or its last row), not a settled value — do "
+     "not average them with the others")
 
 _STEADY = "at the end of the run (mean over the averaging window when the run reports one)"
 for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star"):
     _base = TABLE[_name]
-    _turning = "; NaN for a tumbling or kayaking run (its long axis turns through every angle)" if _name == "theta" else ""
+    _turning = ("; NaN for a turning body (tumbling, kayaking, drifting: its long axis turns through every angle)"
+                if _name == "theta" else "")
     _add(f"campaign/{_name}", _base.long_name, _base.units, f"{_base.definition}; {_STEADY}{_turning}", _base.scale,
          _base.physical_name)
 for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star"):
@@ -441,11 +504,51 @@ EXPORT_FIELDS: dict[str, tuple[str, str]] = {
     "principal_stretch_2": ("smaller principal stretch", ""),
     "traction": ("element average of Δf", "E_s/a"),
 }
+#: The motion classes of a run summary (capsim.observables.classify_orbit; the decision
+#: procedure and its thresholds: docs/method.md, "Motion classes"), in the order they are told apart
+MOTIONS = ("unstable", "rolling", "tumbling", "kayaking", "drifting_to_rolling", "drifting_to_plane",
+           "steady", "swinging", "off_plane_tank_treading", "transient", "relaxing")
+#: what each class means, one line each (the quantity table and the docs say the same)
+MOTION_MEANINGS: dict[str, str] = {
+    "steady": "tank-treading in the shear plane with a steady shape",
+    "swinging": "tank-treading in the shear plane while the shape and its inclination oscillate",
+    "tumbling": "the body turns over in the shear plane (its symmetry axis there)",
+    "rolling": "the body's symmetry axis along the vorticity axis z, the membrane spinning about it",
+    "kayaking": "the body's symmetry axis turns about z off the plane on an orbit whose constant holds",
+    "off_plane_tank_treading": "the body's symmetry axis still, off the plane and off z, the membrane "
+                               "tank-treading (its shape steady or oscillating)",
+    "drifting_to_rolling": "a transition in progress: the body turns about z while its orbit constant "
+                           "falls by 5 % or more per orbit (or, not turning, its axis "
+                           "tilts towards z)",
+    "drifting_to_plane": "a transition in progress: the orbit constant rises by 5 % or more per orbit (or, "
+                         "not turning, the axis tilts towards the shear plane)",
+    "transient": "none of these yet (still evolving, or too short to tell)",
+    "unstable": "the run went unstable (a non-finite value or a stability guard)",
+    "relaxing": "the flow stopped during the run (flow.history kind stop): the shape relaxes at rest",
+}
+#: old names, as run files written before issue 39 hold them: read as the new ones
+MOTION_ALIASES: dict[str, str] = {"oscillating": "swinging"}
+#: classes that are a settled motion when the summary's `settled` flag says so (a run file
+#: written before issue 39 has no flag: its class alone, old names included, says it)
+SETTLED_MOTIONS = ("steady", "swinging", "tumbling", "rolling", "kayaking", "off_plane_tank_treading", "oscillating")
 #: Settled motions that are cycles, not states: their values are means over whole periods and
 #: their spread the half peak-to-peak of the last cycle (``<q>_amplitude``)
-PERIODIC_MOTIONS = ("oscillating", "tumbling", "kayaking")
-#: periodic motions whose in-plane long axis turns round and round: no mean θ (NaN)
-TURNING_MOTIONS = ("tumbling", "kayaking")
+PERIODIC_MOTIONS = ("swinging", "tumbling", "kayaking", "oscillating")
+#: motions whose in-plane long axis turns round and round: no mean θ (NaN)
+TURNING_MOTIONS = ("tumbling", "kayaking", "drifting_to_rolling", "drifting_to_plane")
+
+
+#: what the summary's ttf_ratio measures, by its flag ttf_ratio_kind
+TTF_RATIO_KINDS = ("the membrane's tank-treading (the body does not turn)",
+                   "the body's turn plus the membrane's tank-treading",
+                   "the body's turn (a nearly rigid rotation: the membrane hardly moves on it)")
+
+
+def canonical_motion(name: str) -> str:
+    """The class `name` means today (an old run file's ``oscillating`` is ``swinging``)."""
+    return MOTION_ALIASES.get(name, name)
+
+
 #: how values are shown and written: capsim's scales (dimensionless, the default) or physical
 #: units from the run's ``physical:`` block
 UNIT_SYSTEMS = ("capsim", "physical")

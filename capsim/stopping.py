@@ -23,7 +23,7 @@ from typing import Sequence
 import numpy as np
 
 from capsim.config import Guards, Time
-from capsim.observables import is_steady, orbit_settled
+from capsim.observables import is_steady, series_settled
 from capsim.schedules import end_tolerance  # noqa: F401 - a stop rule, kept beside the cadences
 
 
@@ -84,12 +84,12 @@ class LoopState:
 
 
 def _settled(history: dict[str, list[float]], aspect_ratio: float) -> bool:
-    """orbit_settled, asked once per unit of kt (it reads the whole history)."""
+    """The run summary's own ``settled`` (observables.series_settled: the same classifier, on
+    the same body axis), asked once per unit of kt (it reads the whole history)."""
     t = history["t"]
     if len(t) < 3 or np.floor(t[-1]) == np.floor(t[-2]):
         return False
-    director = np.stack([history[f"director_{c}"] for c in "xyz"], axis=1)
-    return orbit_settled(history["t"], history["D_xy"], history["theta"], director, aspect_ratio)
+    return series_settled(history, aspect_ratio)
 
 
 def stop_reason(state: LoopState, time: Time, guards: Guards, row: dict | None, row0: dict | None,

@@ -138,13 +138,17 @@ def test_classifier_steady_exponential_approach():
     assert not is_steady(t[cut], D[cut], theta[cut])
 
 
-def test_classifier_oscillating_sinusoid():
+def test_classifier_swinging_sinusoid():
+    """A sustained regular swing is `swinging` (called `oscillating` before issue 39) and
+    settled (its last two cycles agree); the same swing still growing is not settled."""
     t = _uneven_times(60.0, 3000)
     w = 2 * np.pi / 9.6
     D = 0.2 + 0.01 * np.sin(w * t) + 0.1 * np.exp(-t / 2)
     theta = 0.5 + 0.05 * np.sin(w * t + 1.0)
     out = classify_motion(t, D, theta)
-    assert out["motion"] == "oscillating"
+    assert out["motion"] == "swinging" and out["settled"]
+    growing = classify_motion(t, D, 0.5 + 0.05 * (1 + t / 20) * np.sin(w * t + 1.0))
+    assert growing["motion"] == "swinging" and not growing["settled"]
     assert out["period"] == pytest.approx(9.6, rel=0.01)
     assert out["theta_mean"] == pytest.approx(0.5, abs=2e-3)
     assert out["theta_amplitude"] == pytest.approx(0.05, rel=0.02)
@@ -155,7 +159,7 @@ def test_classifier_oscillating_sinusoid():
     assert cycles == pytest.approx(round(cycles), abs=0.05) and round(cycles) >= 2
 
 
-def test_classifier_damped_oscillation_is_not_oscillating():
+def test_classifier_damped_oscillation_is_not_swinging():
     t = _uneven_times(60.0, 3000)
     D = 0.2 + 0.05 * np.sin(2 * np.pi * t / 9.6) * np.exp(-t / 5)
     theta = 0.5 + 0.1 * np.sin(2 * np.pi * t / 9.6) * np.exp(-t / 5)
@@ -327,7 +331,7 @@ def test_oblate_0_9_oscillates_seed_table_1(tmp_path, G, ttf_4pi, T_osc):
         "output": {"path": str(tmp_path / "oblate.h5"), "snapshot_every": 100.0},
     })
     summary = run_case(case)
-    assert summary["motion"] == "oscillating"
+    assert summary["motion"] == "swinging"
     assert summary["ttf_ratio"] == pytest.approx(ttf_4pi, rel=0.10)
     assert summary["period"] == pytest.approx(T_osc, rel=0.15)
 
