@@ -180,7 +180,7 @@ def run(case: "PathLike | Mapping[str, Any] | Case", *, output: PathLike | None 
 
     display = _progress(progress, RunProgress)
     try:
-        return run_case(case, progress=display, resume=resume)
+        return run_case(case, progress=display, resume=resume, overwrite=overwrite)
     finally:
         _finish(display)
 

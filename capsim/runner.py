@@ -32,7 +32,7 @@ from capsim.threads import set_run_threads
 from capsim.stopping import LoopState, Stop, end_tolerance, stop_reason
 from capsim import checkpoint
 from capsim.checkpoint import ResumeError, checkpoint_path, remove_checkpoint
-from capsim.store import FileLock, StorageError, TrajectoryError, TrajectoryWriter, read_end_state
+from capsim.store import FileLock, StorageError, TrajectoryError, TrajectoryWriter, read_end_state, read_run_status
 from capsim.timestepping import Integrator, build_integrator
 
 __all__ = ["ResumeError", "RunResult", "build_model", "run_case"]
@@ -60,6 +60,9 @@ class _StopSignals:
     def __init__(self) -> None:
         self.signum: int | None = None
         self._old: dict[int, object] = {}
+        #: set once the run acts on a stop: from then on it only closes its files, and a second
+        #: Ctrl-C must not cut that short (it left files 'running' with no summary)
+        self.closing = False
 
     def __enter__(self) -> _StopSignals:
         if threading.current_thread() is threading.main_thread():
@@ -70,9 +73,10 @@ class _StopSignals:
         return self
 
     def _handle(self, signum, frame) -> None:
-        if self.signum is not None and signum == signal.SIGINT:
+        if self.signum is not None and signum == signal.SIGINT and not self.closing:
+            self.closing = True
             raise KeyboardInterrupt
-        self.signum = signum
+        self.signum = self.signum or signum
 
     @property
     def name(self) -> str | None:
@@ -85,6 +89,7 @@ class _StopSignals:
 
     def check(self) -> None:
         if self.signum is not None:
+            self.closing = True
             raise _StopRequested(self.name)
 
     def __exit__(self, *exc) -> bool:
@@ -223,9 +228,23 @@ class _Run:
         is none, the end state of a run that reached its t_end (then extended to case.time.t_end)."""
         blob = None if self.ckpt_path.exists() else read_end_state(self.path)
         if blob is None:
+            if not self.ckpt_path.exists():
+                raise ResumeError(self._nothing_to_resume())
             return checkpoint.load(self.ckpt_path, case)
         self.extending = True
         return checkpoint.load_end_state(blob, self.path, case)
+
+    def _nothing_to_resume(self) -> str:
+        """Why a run file with neither a checkpoint nor an end state cannot be continued."""
+        status = read_run_status(self.path)
+        if status is None:
+            return f"{self.path}: no run file here: nothing to resume (run the case without --resume)"
+        if status == "completed":
+            return (f"{self.path}: the run completed by a stopping rule before its t_end (time.stop_when_settled "
+                    "or stop_when_steady), or was written by an older capsim: it keeps no end state to extend; "
+                    "its summary stands, or run it again with --overwrite (and without the stopping rule)")
+        return (f"{self.path}: the run ended '{status}' and left no checkpoint to continue from; "
+                "run it again with --overwrite")
 
     def _wall(self) -> float:
         """Wall time the run has spent, its earlier parts (before a resume) included."""
@@ -304,8 +323,8 @@ class _Run:
         if stored is None:
             raise ResumeError(f"{path}: not the checkpoint's run file: no readable config_yaml")
         now, then = checkpoint.step_defining_of(self.case.model_dump(mode="json")), checkpoint.step_defining_of(stored)
-        if self.extending:
-            now, then = checkpoint.without_t_end(now), checkpoint.without_t_end(then)
+        # t_end may differ: an extended run, or an interrupted one resumed with --t-end
+        now, then = checkpoint.without_t_end(now), checkpoint.without_t_end(then)
         diff = checkpoint.first_difference(now, then, where="the run file")
         if diff is not None:
             raise ResumeError(f"{path}: not the checkpoint's run file (another case): {diff}")
@@ -418,6 +437,7 @@ class _Run:
                             "--resume continues from the last checkpoint once there is room)")
 
     def _finish(self, outcome: Stop) -> RunResult:
+        self.stop.closing = True  # whatever ended the run, a Ctrl-C now must not leave the file half-closed
         status, reason = outcome.status, outcome.reason
         ig = self.integrator
         if status == "interrupted":

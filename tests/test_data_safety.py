@@ -414,7 +414,8 @@ def _damage(arrays: dict, how: str) -> dict:
     ("negative_steps", "bad checkpoint: steps = -3.0: must be a whole number >= 0"),
     ("garbage_config", "bad checkpoint: config_yaml is not a case"),
     ("config_not_mapping", "bad checkpoint: config_yaml is not a case"),
-    ("t_beyond_end", "bad checkpoint: integrator.t = 5.0: must be in [0, time.t_end = 0.3]"),
+    # t_end may differ on resume (issue 38): a state past it is refused as past, not as another case
+    ("t_beyond_end", "the run stopped at kt = 5; time.t_end = 0.3 must be later to continue it (--t-end)"),
     ("nan_positions", "bad checkpoint: integrator.y holds 1 non-finite values"),
     ("string_wall", "bad checkpoint: wall_s = 'x': must be a number"),
     ("fractional_count", "bad checkpoint: snapshots.count = 1.5: must be a whole number >= 0"),

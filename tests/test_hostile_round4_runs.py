@@ -240,3 +240,82 @@ def test_sweep_quiet_names_each_unfinished_run_once(tmp_path):
     assert result.exit_code == 1
     lines = [line for line in result.output.splitlines() if "interrupted: wall-time limit" in line]
     assert len(lines) == 1, result.output
+
+
+# ---------------------------------------------------------------- Ctrl-C twice (finding 15)
+
+
+@pytest.mark.parametrize("extend", [False, True])
+def test_a_second_ctrl_c_while_the_run_closes_its_file_does_not_leave_it_running(tmp_path, monkeypatch, extend):
+    """Finding 15: two SIGINTs a few ms apart (during an extension) left files 'running' with no
+    summary: the second raised KeyboardInterrupt while the run wrote its summary after the first.
+    The window is held open: the second SIGINT is sent from inside the summary's write."""
+    import h5py
+
+    from capsim.config import apply_overrides
+    from capsim.store import TrajectoryWriter
+
+    case = case_from_dict(_case(tmp_path, time={"t_end": 0.2}))
+    if extend:
+        assert run_case(case).status == "completed"
+        case = apply_overrides(case, **{"time.t_end": 5.0})
+    steps = []
+
+    def first_ctrl_c(state):
+        steps.append(state["step"])
+        if len(steps) == 3:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    write_summary = TrajectoryWriter.write_summary
+
+    def second_ctrl_c(self, summary):
+        os.kill(os.getpid(), signal.SIGINT)
+        return write_summary(self, summary)
+
+    monkeypatch.setattr(TrajectoryWriter, "write_summary", second_ctrl_c)
+    result = run_case(case, progress=first_ctrl_c, resume=extend)
+    assert result.status == "interrupted" and "SIGINT" in result.status_reason
+    with h5py.File(case.output.path, "r") as f:
+        assert f.attrs["status"] == "interrupted"
+        assert "summary" in f
+    monkeypatch.setattr(TrajectoryWriter, "write_summary", write_summary)
+    assert run_case(apply_overrides(case, **{"time.t_end": 0.4}), resume=True).status == "completed"
+
+
+# ---------------------------------------------------------------- resume messages that say what is so (finding 20)
+
+
+def test_an_interrupted_run_resumes_to_another_t_end(tmp_path):
+    """Finding 20: --resume --t-end on an interrupted run said 'belongs to another case: time.t_end'."""
+    from capsim.checkpoint import ResumeError
+    from capsim.config import apply_overrides
+
+    case = case_from_dict(_case(tmp_path, time={"t_end": 1.0, "max_wall_s": 1e-3}))
+    stopped = run_case(case)
+    assert stopped.status == "interrupted"
+    later = apply_overrides(case, **{"time.t_end": 0.5, "time.max_wall_s": None})
+    assert run_case(later, resume=True).status == "completed"
+    # a t_end before where the run stopped is refused, saying so
+    case2 = case_from_dict(_case(tmp_path, name="s", time={"t_end": 1.0, "max_wall_s": 1e-3}))
+    stopped = run_case(case2)
+    while stopped.t < 0.05:
+        stopped = run_case(case2, resume=True)
+    with pytest.raises(ResumeError, match="stopped at kt"):
+        run_case(apply_overrides(case2, **{"time.t_end": stopped.t / 2}), resume=True)
+
+
+def test_extending_a_run_that_stopped_on_its_own_rule_says_why_it_cannot(tmp_path):
+    """Finding 20: extending a settled run said 'no checkpoint'."""
+    from capsim.checkpoint import ResumeError
+    from capsim.config import apply_overrides
+
+    case = case_from_dict(_case(tmp_path, time={"t_end": 0.2}))
+    assert run_case(case).status == "completed"
+    import h5py
+
+    with h5py.File(case.output.path, "a") as f:  # as a run stopped by stop_when_settled leaves it
+        del f["end_state"]
+    with pytest.raises(ResumeError, match="stopping rule"):
+        run_case(apply_overrides(case, **{"time.t_end": 0.4}), resume=True)
+    with pytest.raises(ResumeError, match="no run file here"):
+        run_case(apply_overrides(case, **{"output.path": str(tmp_path / "none.h5")}), resume=True)

@@ -291,7 +291,7 @@ def _snapshot(directory: Path) -> dict:
         ("not_hdf5_trajectory", "moved.h5: not an HDF5 file"),
         ("missing_trajectory", "moved.h5: no such file"),
         ("garbage_checkpoint", "moved.h5.ckpt.npz: unreadable checkpoint"),
-        ("missing_checkpoint", "moved.h5.ckpt.npz: no checkpoint (nothing to resume)"),
+        ("missing_checkpoint", "moved.h5: the run ended 'interrupted' and left no checkpoint to continue from"),
         ("another_case", "belongs to another case: flow.shear_rate_G = 0.2 in the checkpoint, 0.3 now"),
     ],
 )
