@@ -90,7 +90,14 @@ def _line(v: np.ndarray) -> np.ndarray:
 def ellipsoid_axes(geo: ElementGeometry) -> dict:
     volume, area = volume_area(geo)
     center = centroid(geo, volume)
-    M = second_moment(geo, center)
+    out = ellipsoid_of_moment(second_moment(geo, center), volume)
+    out.update(volume=volume, area=area, centroid=center)
+    return out
+
+
+def ellipsoid_of_moment(M: np.ndarray, volume: float) -> dict:
+    """The equivalent ellipsoid's axes, D_xy and θ from the second moment M = ∫_V y y dV about
+    the centroid and the volume (ellipsoid_axes without the surface integrals)."""
     mu, vec = principal_frame(M)
     axes = np.sqrt(np.maximum(5.0 * mu / volume, 0.0))
     out_of_plane = int(np.argmax(np.abs(vec[2, :])))
@@ -118,9 +125,6 @@ def ellipsoid_axes(geo: ElementGeometry) -> dict:
     if not gap >= THETA_UNDEFINED_GAP:
         theta = float("nan")
     return {
-        "volume": volume,
-        "area": area,
-        "centroid": center,
         "L": float(L),
         "l": float(l),
         "W": float(axes[out_of_plane]),
@@ -756,14 +760,15 @@ def orbit_summary(t: np.ndarray, director: np.ndarray, aspect_ratio: float = 1.0
 
 
 def rotation_rates(t: np.ndarray, t_from: float, t_to: float, axis: np.ndarray | None, theta: np.ndarray,
-                   tt_angle: np.ndarray | None) -> dict:
+                   tt_angle: np.ndarray | None, D_xy: np.ndarray | None = None) -> dict:
     """The body's rotation and the membrane's tank-treading over [t_from, t_to], each as a
     rate about the vorticity axis, clockwise (the sense of the shear) positive, over the rigid
     sphere's k/2 (as ttf_ratio):
 
     - ``body_rotation_ratio``: the turn of the shape's axes: of its symmetry axis's azimuth
       where that axis is off z (the window's median angle from z above ROLLING_TOL), else of
-      its in-plane long axis θ (NaN where θ is undefined: a round cross-section);
+      its in-plane long axis θ; 0 for a round cross-section (D_xy below 1e-3 over the window,
+      θ undefined: a body of revolution spinning about z shows no turn of its shape);
     - ``tank_treading_ratio``: the tracked material nodes' mean turn (tt_angle) less the
       body's: the membrane relative to the shape. A spin about the body's own symmetry axis
       counts here (on a shape of revolution it cannot be told from tank-treading);
@@ -787,8 +792,11 @@ def rotation_rates(t: np.ndarray, t_from: float, t_to: float, axis: np.ndarray |
     if not np.isfinite(body):
         th = unwrap_defined(np.asarray(theta, float))
         fin = np.isfinite(th)
-        if np.count_nonzero(fin) >= 2 and t[fin][0] <= t_from:
+        window = (t >= t_from) & (t <= t_to)
+        if np.all(fin[window]) and np.count_nonzero(fin) >= 2 and t[fin][0] <= t_from:
             body = -float(np.interp(t_to, t[fin], th[fin]) - np.interp(t_from, t[fin], th[fin])) / span
+        elif D_xy is not None and np.any(window) and float(np.max(np.abs(np.asarray(D_xy)[window]))) < 1e-3:
+            body = 0.0
     out["body_rotation_ratio"] = body / RIGID_SPHERE_ROTATION_RATE
     if tt_angle is not None:
         tt = np.asarray(tt_angle, float)
@@ -805,17 +813,19 @@ def rotation_rates(t: np.ndarray, t_from: float, t_to: float, axis: np.ndarray |
 
 def _shape_period(t: np.ndarray, shape: np.ndarray | None, D_xy: np.ndarray, rtol: float) -> float:
     """Period of the shape's oscillation over the last two thirds of the run: of
-    (a − c)/(a + c) of the equivalent ellipsoid (any orientation), or of D_xy without it;
-    NaN when the shape does not oscillate (a rigid turn, a steady state)."""
+    (a − c)/(a + c) of the equivalent ellipsoid (any orientation), or of D_xy without it, from
+    its last whole cycle (between its last two rises through its mean, with hysteresis:
+    _up_crossings); NaN when the shape does not oscillate by more than rtol of its mean (a
+    steady state, a rigid turn) or shows no whole cycle."""
     late = t >= float(t[-1]) / 3.0
     if shape is not None and np.all(np.isfinite(shape[late])):
         s = (shape[late, 0] - shape[late, 2]) / (shape[late, 0] + shape[late, 2])
     else:
         s = np.asarray(D_xy, float)[late]
-    if not np.all(np.isfinite(s)):
+    if s.size < 10 or not np.all(np.isfinite(s)):
         return float("nan")
-    osc = _oscillation(t[late], s, rtol * max(float(np.abs(s).mean()), 1e-3))
-    return float(osc["period"]) if osc is not None else float("nan")
+    ups = _up_crossings(t[late], s - s.mean(), rtol * max(float(np.abs(s).mean()), 1e-3))
+    return float(ups[-1] - ups[-2]) if len(ups) >= 2 else float("nan")
 
 
 def classify_orbit(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, director: np.ndarray | None,
@@ -1024,7 +1034,7 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
     out["orbits_averaged"] = motion.get("orbits_averaged", 0.0)
     out["shape_period"] = _shape_period(t, shape, D_xy, classifier_options.get("rtol", 1e-2)) if t.size else float("nan")
     tt = np.asarray(series["tt_angle"], float) if "tt_angle" in series else None
-    out.update(rotation_rates(t, t0, t1, axis, theta, tt))
+    out.update(rotation_rates(t, t0, t1, axis, theta, tt, D_xy))
     if axis is not None or "director_x" in series:
         orbit = orbit_summary(t, axis if axis is not None else _stack(series, "director"), aspect_ratio)
         orbit.pop("_passages")
