@@ -243,7 +243,7 @@ def test_a_file_being_written_is_read_or_said_to_be_being_written_never_corrupt(
     half-flushed is read again, and if it stays unreadable, refused as being written."""
     import capsim.store
 
-    monkeypatch.setattr(capsim.store, "_BUSY_WAIT_S", 0.01)
+    monkeypatch.setattr(capsim.store, "_BUSY_WAIT_S", 0.01, raising=False)  # a quick retry
     path = tmp_path / "run.h5"
     _header_only_run_file(path)
     with FileLock(path):
@@ -283,17 +283,23 @@ def test_a_bad_argument_is_a_config_error_naming_it(tmp_path, call, name):
     assert _one_line(info.value).startswith(f"{name} = ")
 
 
-def test_a_single_text_where_a_list_is_expected_is_a_list_of_one(tmp_path):
-    from capsim.files import OutputError
-
+def test_a_single_set_text_is_a_list_of_one():
     assert capsim.load_case({"name": "x"}, sets="mesh.level=1").mesh.level == 1
+
+
+def test_a_single_case_path_to_warm_up_is_a_list_of_one(tmp_path):
     with pytest.raises(ConfigError) as info:
         capsim.warm_up(str(tmp_path / "missing.yaml"))
     assert "missing.yaml: no such file" in _one_line(info.value)
+
+
+def test_a_single_input_path_is_that_file_not_its_characters(tmp_path):
+    from capsim.files import OutputError
+
     precious = tmp_path / "notes.txt"
     precious.write_text("mine")
     case = {**_tiny(tmp_path), "output": {"path": str(precious)}}
-    with pytest.raises(OutputError) as info:  # inputs="notes.txt" is that file, not its characters
+    with pytest.raises(OutputError) as info:
         capsim.run(case, overwrite=True, inputs=str(precious))
     assert "input" in _one_line(info.value)
     assert precious.read_text() == "mine"
