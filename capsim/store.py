@@ -671,6 +671,8 @@ def writer_of(path: str | os.PathLike) -> str | None:
             if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
                 return None
             holder = os.pread(fd, 20, 0).decode("ascii", "replace").strip()
+            if holder == str(os.getpid()):  # this process (a resume reads the file it has locked)
+                return None
             return holder if holder.isdigit() else ""
         fcntl.flock(fd, fcntl.LOCK_UN)
         return None
