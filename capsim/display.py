@@ -370,10 +370,78 @@ def _in(name: str, factors: Mapping[str, float] | None) -> tuple[float, str]:
     return (factors[scale], unit) if scale else (1.0, "")
 
 
+def _finite(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _motion(summary: dict[str, Any]) -> str | None:
+    """The class, and when the run has judged it and it has not settled, that it has not (a
+    run file written before issue 39 has no `settled`: its class alone is shown)."""
+    motion = summary.get("motion")
+    if not motion:
+        return None
+    from capsim.quantities import canonical_motion
+
+    shown = canonical_motion(str(motion))
+    if summary.get("settled") == 0.0 and shown not in ("unstable", "relaxing", "transient") \
+            and not shown.startswith("drifting"):
+        shown += " (not settled)"
+    return shown
+
+
+def _orbits(n: Any) -> str:
+    n = int(n) if _finite(n) else 0
+    return f"{n} whole orbit{'' if n == 1 else 's'}"
+
+
+def _orbit_rows(summary: dict[str, Any], factors: Mapping[str, float] | None) -> list[tuple[str, str | None]]:
+    """The orbit's numbers (issue 39), for a run whose body has an axis: the orbit period and
+    the whole orbits behind it, Jeffery's orbit constant with its change per orbit, the axis's
+    angle from the vorticity axis, the shape's own period where the shape oscillates, and the
+    body's and the membrane's rotation rates (which of them ttf_ratio is)."""
+    polar, r = summary.get("final_polar_angle"), summary.get("jeffery_aspect_ratio")
+    if not _finite(polar) or (_finite(r) and abs(r - 1.0) < 1e-3):  # a sphere has no axis to orbit
+        return []
+    physical = factors is not None
+    f_t, u_t = _in("t", factors)
+    f_r, u_r = _in("body_rotation_ratio", factors)
+    rows: list[tuple[str, str | None]] = []
+    T, n = summary.get("orbit_period"), summary.get("orbit_periods")
+    if _finite(T):
+        jeffery = summary.get("jeffery_period")
+        ref = f", Jeffery's rigid {jeffery * f_t:.4g}" if _finite(jeffery) else ""
+        rows.append((f"orbit period T ({u_t})" if physical else "orbit period kT",
+                     f"{T * f_t:.4g} (the axis once round; {_orbits(n)}{ref})"))
+    C, change = summary.get("orbit_constant"), summary.get("orbit_constant_change")
+    if _finite(C) or (isinstance(C, float) and math.isinf(C)):
+        text = "inf (in the shear plane)" if math.isinf(C) else f"{C:.4g}"
+        if _finite(change):
+            text += f", {100 * change:+.1f} % per orbit now"
+        drift = summary.get("orbit_constant_drift")
+        if _finite(drift):
+            text += f" ({100 * drift:+.1f} % per orbit over the run, from {summary.get('orbit_constant_first', float('nan')):.4g})"
+        rows.append(("orbit constant C", text))
+    rows.append(("axis from vorticity z (deg)", f"{math.degrees(polar):.2f} (at the end; 0 rolling, 90 in the plane)"))
+    shape_T = summary.get("shape_period")
+    if _finite(shape_T):
+        rows.append((f"shape period ({u_t})" if physical else "shape period kT", f"{shape_T * f_t:.4g}"))
+    body, membrane = summary.get("body_rotation_ratio"), summary.get("tank_treading_ratio")
+    if _finite(body) or _finite(membrane):
+        def rate(v: Any) -> str:
+            return f"{v * f_r:.4g}" if _finite(v) else "n/a"
+
+        unit = u_r if physical else "f_s"
+        rows.append((f"body turn, membrane on it ({unit})" if physical else "body turn, membrane on it (/f_s)",
+                     f"{rate(body)}, {rate(membrane)} (clockwise about z)"))
+    return rows
+
+
 def summary_rows(summary: dict[str, Any], factors: Mapping[str, float] | None = None) -> list[tuple[str, str]]:
     """The closing table of a run: (quantity, value) rows, those without a value left out.
     With `factors` (``--units physical``) times, frequencies, stresslets and tensions are in
-    physical units (each row names its unit); D_xy and θ/π are ratios either way."""
+    physical units (each row names its unit); D_xy and θ/π are ratios either way. A run whose
+    body has an axis adds its orbit (:func:`_orbit_rows`); the TTF row says what it measures
+    when the body turns."""
     period = summary.get("period")
     window = (summary.get("averaging_t_from"), summary.get("averaging_t_to"))
     f_t, u_t = _in("t", factors)
@@ -388,15 +456,18 @@ def summary_rows(summary: dict[str, Any], factors: Mapping[str, float] | None = 
         ("status", summary.get("status")),
         ("reason", summary.get("status_reason") or None),
         (time, fmt(summary.get("t") * f_t if isinstance(summary.get("t"), (int, float)) else summary.get("t"), "g")),
-        ("motion", summary.get("motion")),
+        ("motion", _motion(summary)),
         (f"averaged over {time if physical else 'kt'}",
          f"[{window[0] * f_t:.4g}, {window[1] * f_t:.4g}] (mean ± standard deviation over this window)"
          if None not in window else None),
+        # the motion's period; a turning body's is its orbit period, shown with the orbit's rows
         (f"period T ({u_t})" if physical else "period kT",
-         fmt(period * f_t, ".4g") if isinstance(period, float) and math.isfinite(period) else None),
+         fmt(period * f_t, ".4g") if isinstance(period, float) and math.isfinite(period)
+         and period != summary.get("orbit_period") else None),
+        *_orbit_rows(summary, factors),
         ("D_xy", _mean_std(summary, "D_xy")),
         ("theta/pi", _mean_std(summary, "theta", math.pi)),
-        scaled("ttf_ratio", "TTF/f_s", "TTF f"),
+        _ttf(scaled("ttf_ratio", "TTF/f_s", "TTF f"), summary),
         scaled("Sxy_star", "S*_xy", "S_xy"),
         scaled("N1_star", "N1*", "S_xx - S_yy"),
         scaled("N2_star", "N2*", "S_yy - S_zz"),
@@ -414,6 +485,16 @@ def summary_rows(summary: dict[str, Any], factors: Mapping[str, float] | None = 
         ("output", summary.get("path")),
     ]
     return [(key, str(value)) for key, value in rows if value is not None]
+
+
+def _ttf(row: tuple[str, str | None], summary: dict[str, Any]) -> tuple[str, str | None]:
+    """The TTF row, saying what it is when the body turns (ttf_ratio_kind: it is then the
+    body's turn, nearly rigid or with tank-treading on top, not tank-treading alone)."""
+    label, value = row
+    kind = summary.get("ttf_ratio_kind")
+    if value is not None and kind in (1.0, 2.0):
+        value += " (the body's turn, nearly rigid)" if kind == 2.0 else " (the body's turn plus tank-treading)"
+    return label, value
 
 
 def summary_table(summary: dict[str, Any], factors: Mapping[str, float] | None = None) -> str:

@@ -760,7 +760,7 @@ def orbit_summary(t: np.ndarray, director: np.ndarray, aspect_ratio: float = 1.0
 
 
 def rotation_rates(t: np.ndarray, t_from: float, t_to: float, axis: np.ndarray | None, theta: np.ndarray,
-                   tt_angle: np.ndarray | None, D_xy: np.ndarray | None = None) -> dict:
+                   tt_angle: np.ndarray | None, D_xy: np.ndarray | None = None, turning: bool | None = None) -> dict:
     """The body's rotation and the membrane's tank-treading over [t_from, t_to], each as a
     rate about the vorticity axis, clockwise (the sense of the shear) positive, over the rigid
     sphere's k/2 (as ttf_ratio):
@@ -772,8 +772,9 @@ def rotation_rates(t: np.ndarray, t_from: float, t_to: float, axis: np.ndarray |
     - ``tank_treading_ratio``: the tracked material nodes' mean turn (tt_angle) less the
       body's: the membrane relative to the shape. A spin about the body's own symmetry axis
       counts here (on a shape of revolution it cannot be told from tank-treading);
-    - ``rigid_turn``: 1 when the body turns (|body_rotation_ratio| ≥ 0.05) and the membrane's
-      relative rate is below RIGID_TURN_TOL of the body's: ttf_ratio is then the body's turn;
+    - ``rigid_turn``: 1 when the body turns (``turning``, the classifier's verdict; without it
+      |body_rotation_ratio| ≥ 0.05) and the membrane's relative rate is below RIGID_TURN_TOL of
+      the body's: ttf_ratio is then the body's turn;
     - ``ttf_ratio_kind``: what ttf_ratio (the nodes' rate in the lab frame) is here, a flag
       (0 tank-treading, 1 turn plus tank-treading, 2 a nearly rigid turn: TTF_RATIO_KINDS)."""
     nan = float("nan")
@@ -804,7 +805,8 @@ def rotation_rates(t: np.ndarray, t_from: float, t_to: float, axis: np.ndarray |
         membrane = nodes - body
         out["tank_treading_ratio"] = membrane / RIGID_SPHERE_ROTATION_RATE
         if np.isfinite(body):
-            turning = abs(out["body_rotation_ratio"]) >= 0.05
+            if turning is None:
+                turning = abs(out["body_rotation_ratio"]) >= 0.05
             rigid = turning and abs(membrane) < RIGID_TURN_TOL * abs(body)
             out["rigid_turn"] = float(rigid)
             out["ttf_ratio_kind"] = 2.0 if rigid else 1.0 if turning else 0.0  # quantities.TTF_RATIO_KINDS
@@ -1034,7 +1036,7 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
     out["orbits_averaged"] = motion.get("orbits_averaged", 0.0)
     out["shape_period"] = _shape_period(t, shape, D_xy, classifier_options.get("rtol", 1e-2)) if t.size else float("nan")
     tt = np.asarray(series["tt_angle"], float) if "tt_angle" in series else None
-    out.update(rotation_rates(t, t0, t1, axis, theta, tt, D_xy))
+    out.update(rotation_rates(t, t0, t1, axis, theta, tt, D_xy, bool(motion.get("turning"))))
     if axis is not None or "director_x" in series:
         orbit = orbit_summary(t, axis if axis is not None else _stack(series, "director"), aspect_ratio)
         orbit.pop("_passages")

@@ -245,3 +245,29 @@ def test_the_first_row_of_an_off_plane_red_cell_is_no_tie_break(tmp_path):
     assert D[0] < 1e-6 and abs(D[1] - D[0]) < 5e-3 and np.all(np.abs(np.diff(D[:5])) < 5e-3)
     for name in ("axis_L", "axis_l", "axis_W", "long_axis_x", "long_axis_y", "long_axis_z"):
         assert abs(ts[name][1] - ts[name][0]) < 5e-3, name
+
+
+# ---------------------------------------------------------------- the closing table
+
+
+def test_the_closing_table_shows_the_orbit_of_a_run_that_has_one():
+    from capsim.display import summary_rows
+
+    r = 0.4
+    T = 2 * math.pi * (r + 1 / r)
+    t = np.linspace(0.0, 1.6 * T, 3000)
+    p = _axis(*_jeffery_angles(t, r, 1.5))
+    s = run_summary(_series(t, p, r), aspect_ratio=r)
+    rows = dict(summary_rows({**s, "status": "completed", "t": float(t[-1])}))
+    assert rows["motion"] == "kayaking (not settled)"  # under two whole orbits
+    assert rows["orbit period kT"].startswith(f"{T:.4g} (the axis once round; 1 whole orbit")
+    assert rows["orbit constant C"].startswith("1.5, +0.0 % per orbit now")
+    assert float(rows["axis from vorticity z (deg)"].split()[0]) == pytest.approx(
+        math.degrees(s["final_polar_angle"]), abs=0.01)
+    assert "body turn, membrane on it (/f_s)" in rows and "period kT" not in rows  # one period, the orbit's
+    # a sphere has no axis: no orbit rows; a settled class is shown as it is
+    sphere = dict(summary_rows({"status": "completed", "motion": "steady", "settled": 1.0,
+                                "final_polar_angle": math.pi / 2, "jeffery_aspect_ratio": 1.0}))
+    assert sphere["motion"] == "steady" and "axis from vorticity z (deg)" not in sphere
+    # an old run file's class (no settled flag) reads as today's
+    assert dict(summary_rows({"status": "completed", "motion": "oscillating"}))["motion"] == "swinging"
