@@ -63,6 +63,15 @@ from capsim.runner import run_case
 cli = CliRunner()
 
 
+@pytest.fixture
+def ctrl_c():
+    """SIGINT as Ctrl-C in a terminal, however the tests were started (a background job inherits
+    it ignored, and capsim keeps an ignored SIGINT ignored); restored afterwards."""
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, old)
+
+
 def _case(tmp: Path, name: str = "r", **sections) -> dict:
     out = {"name": name, "flow": {"shear_rate_G": 0.2}, "mesh": {"level": 0}, "time": {"t_end": 0.3},
            "output": {"path": str(tmp / f"{name}.h5"), "snapshot_every": 0.1, "checkpoint_every_steps": 3}}
@@ -246,7 +255,7 @@ def test_sweep_quiet_names_each_unfinished_run_once(tmp_path):
 
 
 @pytest.mark.parametrize("extend", [False, True])
-def test_a_second_ctrl_c_while_the_run_closes_its_file_does_not_leave_it_running(tmp_path, monkeypatch, extend):
+def test_a_second_ctrl_c_while_the_run_closes_its_file_does_not_leave_it_running(tmp_path, monkeypatch, extend, ctrl_c):
     """Finding 15: two SIGINTs a few ms apart (during an extension) left files 'running' with no
     summary: the second raised KeyboardInterrupt while the run wrote its summary after the first.
     The window is held open: the second SIGINT is sent from inside the summary's write."""
