@@ -1225,6 +1225,8 @@ def _describe(err: dict, root: type[BaseModel] | None = None) -> str:
     else:
         what = err["msg"].removeprefix("Value error, ")
         what = what[:1].lower() + what[1:]
+    if not loc:  # a check of the whole model: its message names the fields; its input is the whole file
+        return what
     return f"{dotted} = {_show(err.get('input'))}: {what}"
 
 

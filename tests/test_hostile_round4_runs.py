@@ -328,3 +328,20 @@ def test_extending_a_run_that_stopped_on_its_own_rule_says_why_it_cannot(tmp_pat
         run_case(apply_overrides(case, **{"time.t_end": 0.4}), resume=True)
     with pytest.raises(ResumeError, match="no run file here"):
         run_case(apply_overrides(case, **{"output.path": str(tmp_path / "none.h5")}), resume=True)
+
+
+# ---------------------------------------------------------------- error output (finding 10)
+
+
+def test_a_zip_of_unequal_lists_is_refused_without_printing_the_campaign(tmp_path):
+    """Finding 10: the one line began with the whole campaign dict ('= {'base': ...')."""
+    path = tmp_path / "z.yaml"
+    path.write_text(yaml.safe_dump({"name": "z", "base": {"mesh": {"level": 0}},
+                                    "zip": {"flow.shear_rate_G": [0.1, 0.2], "flow.viscosity_ratio": [1.0]},
+                                    "output": {"dir": str(tmp_path / "runs")}}))
+    for command in (["sweep", str(path)], ["validate", str(path)]):
+        result = cli.invoke(app, command)
+        assert result.exit_code == 2
+        lines = result.output.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("error: "), result.output
+        assert "zip lists must have equal lengths" in lines[0] and "{" not in lines[0], lines[0]
