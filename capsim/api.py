@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -95,10 +95,10 @@ def load_campaign(source: PathLike, sets: "str | Sequence[str] | None" = None, *
     with `--set` texts (one text or a list) written into its base; a mistake raises a
     one-line `capsim.config.ConfigError`."""
     from capsim.campaign import MAX_RUNS, load_campaign_with
-    from capsim.executor import check_workers, text_list
+    from capsim.executor import check_workers, path_arg, text_list
 
     limit = MAX_RUNS if max_runs is None else check_workers(max_runs, "max_runs", default=None)
-    return load_campaign_with(source, text_list(sets, "sets"), max_runs=limit)
+    return load_campaign_with(path_arg(source, "campaign"), text_list(sets, "sets"), max_runs=limit)
 
 
 def _apply_thread_policy(workers: int = 1) -> None:
@@ -153,7 +153,7 @@ def run(case: "PathLike | Mapping[str, Any] | Case", *, output: PathLike | None 
     result.status, round(result["D_xy"], 4)  # ('completed', 0.3899)
     ```
     """
-    from capsim.executor import path_list
+    from capsim.executor import path_arg, path_list
 
     if overwrite and resume:
         from capsim.config import ConfigError
@@ -162,7 +162,7 @@ def run(case: "PathLike | Mapping[str, Any] | Case", *, output: PathLike | None 
                           "resume continues the one in the file; give one")
     inputs = path_list(inputs, "inputs") + ([Path(case)] if isinstance(case, (str, os.PathLike)) else [])
     if output is not None:
-        overrides["output.path"] = os.fspath(output)
+        overrides["output.path"] = os.fspath(path_arg(output, "output"))
     case = load_case(case, sets, **overrides)
     from capsim.store import guard_run_output
 
@@ -204,6 +204,11 @@ def sweep(campaign: "PathLike | Campaign", *, workers: int | None = None, schedu
     refuse_in_spawned_import_of_main("capsim.sweep")
     workers = check_workers(workers)
     if not isinstance(campaign, Campaign):
+        if not isinstance(campaign, (str, os.PathLike)):
+            from capsim.config import ConfigError
+            from capsim.errors import bounded_repr
+
+            raise ConfigError(f"campaign = {bounded_repr(campaign)}: a campaign file or a Campaign is expected")
         campaign = load_campaign(campaign, sets, max_runs=max_runs)
     _apply_thread_policy()
     display = None
@@ -243,8 +248,10 @@ def summarize(directory: PathLike, output: PathLike | None = None, *, overwrite:
     variables with a capsim scale in physical units from each run's `physical:` block
     (`capsim.units.UnitsError` for a campaign without one).
     """
+    from capsim.executor import path_arg
     from capsim.summary import summarize_to_file
 
+    directory, output = path_arg(directory, "directory"), path_arg(output, "output")
     _, ds = summarize_to_file(directory, summary_path(directory, output), overwrite=overwrite, units=units)
     return ds
 
@@ -271,9 +278,10 @@ def open_run(path: PathLike):
     writes and that cannot be read consistently just then, raises
     `capsim.store.TrajectoryError` with one line saying which.
     """
+    from capsim.executor import path_arg
     from capsim.store import open_run as _open_run  # h5py and xarray only when asked for
 
-    return _open_run(path)
+    return _open_run(path_arg(path, "path"))
 
 
 def warm_up(cases: "PathLike | Mapping[str, Any] | Case | Sequence[PathLike | Mapping[str, Any] | Case]" = ()
@@ -294,6 +302,14 @@ def warm_up(cases: "PathLike | Mapping[str, Any] | Case | Sequence[PathLike | Ma
 
     if isinstance(cases, (str, os.PathLike, Mapping, Case)):
         cases = [cases]
+    elif isinstance(cases, Iterable) and not isinstance(cases, bytes):
+        cases = list(cases)
+    else:
+        from capsim.config import ConfigError
+        from capsim.errors import bounded_repr
+
+        raise ConfigError(f"cases = {bounded_repr(cases)}: a case (a path, a dict or a Case) or a list of them "
+                          "is expected")
     loaded = [load_case(c) for c in cases] or [load_case({"name": "warm-up"})]
     _apply_thread_policy()
     from capsim.executor import warm_up as _warm_up

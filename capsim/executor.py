@@ -56,7 +56,7 @@ from capsim.errors import first_line
 from capsim import threads
 
 __all__ = ["BatchOutcome", "SigtermAsInterrupt", "check_workers", "in_spawned_import_of_main", "kernel_kind",
-           "number_list", "one_line", "path_list", "refuse_in_spawned_import_of_main", "run_batch", "text_list",
+           "number_list", "one_line", "path_arg", "path_list", "refuse_in_spawned_import_of_main", "run_batch", "text_list",
            "warm_up"]
 
 #: task(item, progress) -> record (a dict with at least "status" and "status_reason")
@@ -102,6 +102,15 @@ def text_list(value: Any, name: str) -> list[str] | None:
     if items is None or not all(isinstance(v, str) for v in items):
         raise _config_error(name, value, "a text or a list of texts is expected (e.g. [\"mesh.level=1\"])")
     return items
+
+
+def path_arg(value: Any, name: str) -> Path | None:
+    """One path argument (None stays None); anything else a one-line ConfigError."""
+    if value is None:
+        return None
+    if not isinstance(value, (str, os.PathLike)):
+        raise _config_error(name, value, "a path is expected")
+    return Path(value)
 
 
 def path_list(value: Any, name: str) -> list[Path]:

@@ -633,7 +633,9 @@ def study(case: "PathLike | Mapping[str, Any] | Case", levels: "int | Sequence[i
     """
     from capsim.config import ConfigError, resolve_case
     from capsim.errors import bounded_repr
-    from capsim.executor import check_workers, number_list, path_list, refuse_in_spawned_import_of_main, text_list
+    from capsim.executor import (
+        check_workers, number_list, path_arg, path_list, refuse_in_spawned_import_of_main, text_list,
+    )
     from capsim.files import FIGURE_MAGIC, check_writable, guard_output, is_study_file, replace_atomically, starts_with
     from capsim.threads import apply_policy
 
@@ -649,6 +651,7 @@ def study(case: "PathLike | Mapping[str, Any] | Case", levels: "int | Sequence[i
     if not (progress is True or progress is False or progress is None or callable(progress)):
         raise ConfigError(f"progress = {bounded_repr(progress)}: must be True, False or a callable")
     inputs = path_list(inputs, "inputs") + ([Path(case)] if isinstance(case, (str, os.PathLike)) else [])
+    output, runs_dir = path_arg(output, "output"), path_arg(runs_dir, "runs_dir")
     case = resolve_case(dict(case) if isinstance(case, Mapping) else case, text_list(sets, "sets"), **overrides)
     targets = []
     if output is not None:

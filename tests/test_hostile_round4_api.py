@@ -276,6 +276,12 @@ _SMALL = {"name": "x", "time": {"t_end": 0.01}}  # were a refusal missing, the s
     (lambda tmp: capsim.study(_SMALL, levels=[0], rtols="1e-3"), "rtols"),
     (lambda tmp: capsim.study(_SMALL, levels=[0.5], rtols=[1e-3]), "levels"),
     (lambda tmp: capsim.study(_SMALL, levels=[0], rtols=[1e-3], workers=0), "workers"),
+    (lambda tmp: capsim.study(_SMALL, levels=[0], rtols=[1e-3], runs_dir=5), "runs_dir"),
+    (lambda tmp: capsim.summarize(tmp, output=5), "output"),
+    (lambda tmp: capsim.sweep(5), "campaign"),
+    (lambda tmp: capsim.open_run(5), "path"),
+    (lambda tmp: capsim.warm_up(5), "cases"),
+    (lambda tmp: capsim.load_campaign(tmp / "c.yaml", max_runs="5"), "max_runs"),
 ])
 def test_a_bad_argument_is_a_config_error_naming_it(tmp_path, call, name):
     with pytest.raises(ConfigError) as info:
