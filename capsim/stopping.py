@@ -64,7 +64,11 @@ def guard_violation(row: dict, row0: dict, guards: Guards) -> str | None:
     )
     for name, label, value, op, limit in checks:
         if (value < limit) if op == "<" else (value > limit):
-            return f"guard {name}: {label} = {value:.4g} {op} {limit:g}"
+            # as many digits as show the crossing ('1.00011 > 1.0001', not '1 > 1.0001')
+            shown = next((text for text in (f"{value:.{d}g}" for d in (4, 6, 8, 10, 13, 17))
+                          if (float(text) < limit if op == "<" else float(text) > limit)), repr(value))
+            return f"guard {name}: {label} = {shown} {op} {limit:g}" if float(f"{limit:g}") == limit else \
+                f"guard {name}: {label} = {shown} {op} {limit!r}"
     return None
 
 

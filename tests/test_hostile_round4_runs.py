@@ -345,3 +345,14 @@ def test_a_zip_of_unequal_lists_is_refused_without_printing_the_campaign(tmp_pat
         lines = result.output.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("error: "), result.output
         assert "zip lists must have equal lengths" in lines[0] and "{" not in lines[0], lines[0]
+
+
+def test_a_guard_reason_shows_the_digits_that_cross_the_limit():
+    """Finding 20: 'largest principal stretch = 1 > 1.0001'."""
+    from capsim.stopping import guard_violation
+
+    guards = case_from_dict({"name": "x", "guards": {"max_principal_stretch": 1.0001}}).guards
+    row0 = {"volume": 1.0, "area": 1.0, "min_element_quality": 1.0, "max_principal_stretch": 1.0}
+    reason = guard_violation({**row0, "max_principal_stretch": 1.00011}, row0, guards)
+    value, limit = reason.split("= ")[1].split(" > ")
+    assert float(value) > float(limit) == 1.0001, reason
