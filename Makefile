@@ -41,7 +41,12 @@ $(DOCS_STAMP): pyproject.toml | $(STAMP)
 	$(BIN)/pip install -q -e '.[docs]'
 	touch $@
 
+# --clean empties site/ first: refused when site is a link or not a directory (it would empty
+# whatever the link points at)
 docs: $(DOCS_STAMP)
+	@if [ -L site ] || { [ -e site ] && [ ! -d site ]; }; then \
+		echo "error: site is a symbolic link or not a directory; make docs builds into site/ and empties it first: remove or rename it" >&2; \
+		exit 2; fi
 	$(BIN)/mkdocs build --strict --clean
 
 demo: venv

@@ -356,3 +356,26 @@ def test_a_guard_reason_shows_the_digits_that_cross_the_limit():
     reason = guard_violation({**row0, "max_principal_stretch": 1.00011}, row0, guards)
     value, limit = reason.split("= ")[1].split(" > ")
     assert float(value) > float(limit) == 1.0001, reason
+
+
+def test_make_docs_refuses_a_site_that_is_a_link(tmp_path):
+    """Finding 18: mkdocs build --clean (make docs) emptied the directory site/ linked to."""
+    import shutil
+    import subprocess
+    import time
+
+    if shutil.which("make") is None:
+        pytest.skip("make is not installed")
+    repo = Path(__file__).resolve().parents[1]
+    (tmp_path / "pyproject.toml").write_text("")
+    time.sleep(0.01)
+    (tmp_path / ".venv").mkdir()
+    for stamp in (".installed", ".docs-tools"):
+        (tmp_path / ".venv" / stamp).write_text("")  # newer than pyproject.toml: nothing to install
+    precious = tmp_path / "mine"
+    precious.mkdir()
+    (precious / "thesis.tex").write_text("keep me")
+    (tmp_path / "site").symlink_to(precious)
+    done = subprocess.run(["make", "-f", str(repo / "Makefile"), "docs"], cwd=tmp_path, capture_output=True, text=True)
+    assert done.returncode != 0 and "symbolic link" in done.stderr
+    assert (precious / "thesis.tex").read_text() == "keep me"
