@@ -23,7 +23,6 @@ import capsim
 from capsim import api
 from capsim.checkpoint import CheckpointError, ResumeError, load_end_state, read_checkpoint
 from capsim.config import ConfigError
-from capsim.files import FileLock
 from capsim.store import TrajectoryError, TrajectoryWriter, read_trajectory
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -239,14 +238,20 @@ def test_open_run_refuses_what_is_not_a_capsim_run_file(tmp_path):
 
 
 def test_a_file_being_written_is_read_or_said_to_be_being_written_never_corrupt(tmp_path, monkeypatch):
-    """Held by its writer (the run file's lock), a file read at a moment its metadata is
-    half-flushed is read again, and if it stays unreadable, refused as being written."""
+    """Held by its writer (another process holds the run file's lock), a file read at a moment
+    its metadata is half-flushed is read again, and if it stays unreadable, refused as being
+    written. The writer's window is held open by construction: it holds the lock until told."""
     import capsim.store
 
     monkeypatch.setattr(capsim.store, "_BUSY_WAIT_S", 0.01, raising=False)  # a quick retry
     path = tmp_path / "run.h5"
     _header_only_run_file(path)
-    with FileLock(path):
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from capsim.files import FileLock\n"
+         f"with FileLock({str(path)!r}):\n    print('held', flush=True); sys.stdin.read()"],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        assert holder.stdout.readline().strip() == "held"
         assert capsim.open_run(path)["timeseries"]["t"].size == 3  # readable: read
         whole = path.read_bytes()
         path.write_bytes(whole[: len(whole) // 2])  # as a reader may meet it mid-flush
@@ -254,7 +259,9 @@ def test_a_file_being_written_is_read_or_said_to_be_being_written_never_corrupt(
             with pytest.raises(TrajectoryError) as info:
                 read(path)
             line = _one_line(info.value)
-            assert "being written" in line and "corrupt" not in line, line
+            assert "being written" in line and f"process {holder.pid}" in line and "corrupt" not in line, line
+    finally:
+        holder.communicate("", timeout=60)
     with pytest.raises(TrajectoryError, match="truncated or corrupt"):  # no writer: damaged it is
         capsim.open_run(path)
 
