@@ -1,7 +1,7 @@
 """Every file capsim writes goes through here: output guards, locks, temporary names,
 atomic replacement, room checks and the identity of an open file.
 
-The rules (docs/user_guide.md, "Robustness"):
+The rules (docs/data_safety.md):
 
 - Nothing a command did not create is removed, truncated or replaced unless the user
   says ``--overwrite``; never a command's own input; never a directory, a device, a

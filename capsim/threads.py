@@ -7,7 +7,7 @@ process, before the first ``import numba``: the CLI's callback, the pool
 workers' initializer (:mod:`capsim.executor`), and :func:`capsim.campaign.execute_run`
 (a Dask worker). This module imports nothing from numba or numpy.
 
-The policy (benchmark: ``make bench-threads``, docs/user_guide.md section "Threads"):
+The policy (benchmark: ``make bench-threads``, docs/performance.md, "Threads"):
 
 - **threading layer**: the first of :data:`LAYERS` that loads, ``omp`` (libgomp)
   with ``OMP_WAIT_POLICY=PASSIVE``, then ``tbb`` (only when the TBB library is
@@ -271,9 +271,9 @@ def policy_attrs() -> dict[str, str | int]:
 #: one thread (measured on the demo, level 3 = 1026 nodes with quarter symmetry: one thread
 #: 3.6 s, two 4.0 s, a second thread's fork-join cost outweighs its share of ~1 ms of
 #: sums; again after the evaluation was made 2.3x cheaper: the run 1.3-1.5 s on one thread
-#: against 1.6-1.7 s on two, alternated five times, docs/user_guide.md "Performance"); level
+#: against 1.6-1.7 s on two, alternated five times, docs/performance.md, "One evaluation and the demo"); level
 #: 4 = 4098 nodes: two threads 1.53x faster over a run (kt 2), 1.5-1.8x per evaluation, quiet
-#: machine, benchmarks/threads_level4.md; issue 29, docs/user_guide.md "Threads")
+#: machine, benchmarks/threads_level4.md; issue 29, docs/performance.md, "Threads")
 PARALLEL_MIN_NODES = 2000
 
 

@@ -1,6 +1,6 @@
 # The thread policy of the CLI, applied before anything imports numba: on a
 # shared machine numba's spinning default makes a parallel kernel wait out the
-# time slice of a descheduled thread (docs/user_guide.md, "Threads").
+# time slice of a descheduled thread (docs/performance.md, "Threads").
 from capsim.threads import apply_policy
 
 apply_policy()
