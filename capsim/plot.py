@@ -32,7 +32,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from capsim.mesh import linear_subtriangles  # numba-free: figures need no kernels
-from capsim.quantities import PERIODIC_MOTIONS
+from capsim.quantities import PERIODIC_MOTIONS, canonical_motion
 
 __all__ = [
     "DPI", "FIGSIZE", "FIGURE_FORMATS", "FIRST_ORDER_G_MAX", "KINDS", "contour_figure", "orbit_figure", "deformation_figure", "inclination_figure",
@@ -903,8 +903,8 @@ def _left_out_note(cells: list[dict], unsettled: list[dict]) -> str:
     text = "points: settled runs, window mean ± its standard deviation"
     if any(c["periodic"] and c["settled"] for c in cells):
         text = ("filled points: steady runs, window mean ± its standard deviation; open points: periodic runs "
-                "(oscillating, tumbling), mean over whole periods ± half the peak-to-peak of the last cycle "
-                "(a tumbling run has no mean θ)")
+                "(swinging, tumbling, kayaking), mean over whole periods ± half the peak-to-peak of the last "
+                "cycle (a turning body has no mean θ)")
     if not unsettled:
         return text
     why: dict[str, int] = {}
@@ -944,6 +944,7 @@ def _summary_cells(ds, names: tuple[str, ...], swept: list[str]) -> list[dict]:
         else:
             settled = status == "completed"
         motion = str(at("motion", index)) if "motion" in ds.variables else ""
+        motion = canonical_motion(motion)  # a summary of old run files says oscillating for swinging
         why = "" if settled else (status if status != "completed" else (motion or "transient") + " motion")
         cells.append({
             "swept": {f: at(f, index) for f in swept},
@@ -991,25 +992,73 @@ def _short(name: str) -> str:
     return {"viscosity_ratio": "λ", "shear_rate_G": "G", "initial_tilt_deg": "tilt"}.get(name, name)
 
 
+def _orbit_axis(data: dict[str, Any]) -> tuple[np.ndarray, str, str]:
+    """(the axis the classifier follows at every row, its name, a short symbol): the body's
+    symmetry axis from the shape (capsim.observables.body_axis: the short axis of a disk, the
+    long axis of a prolate), or the material director for a sphere and for a run file written
+    before issue 39 (no short axis recorded)."""
+    from capsim.observables import _stack, body_axis
+
+    ts = data["timeseries"]
+    summary = data.get("summary") or {}
+    r = summary.get("jeffery_aspect_ratio")
+    if not isinstance(r, (int, float)) or not math.isfinite(r):
+        info = _case_info(data)
+        r = info.get("aspect_ratio", 1.0) if info.get("shape") in ("oblate", "prolate") else \
+            (0.4 if info.get("shape") == "biconcave" else 1.0)
+    series = {k: np.asarray(v) for k, v in ts.items()}
+    which = "long_axis" if r > 1.0 else "short_axis"
+    axis = body_axis(series, float(r)) if which + "_x" in series else None
+    if axis is not None:
+        return axis, f"body axis ({'long' if r > 1.0 else 'short'} axis of the shape)", "axis"
+    return _stack(series, "director"), "material director", "director"
+
+
 def orbit_figure(source):
-    """The material director's orbit (issue 26): its path on the unit sphere seen from
-    the vorticity axis z (the shear plane) and from the flow axis x, and its polar
-    angle from z and azimuth from y (Jeffery's θ and φ, unwrapped) against kt."""
+    """The orbit (issue 26; issue 39): the axis the motion classifier follows (the body's
+    symmetry axis from the shape, or the material director where there is none) on the unit
+    sphere seen from the vorticity axis z (the shear plane) and from the flow axis x, and its
+    polar angle from z and azimuth from y (Jeffery's θ and φ, unwrapped) against kt, with the
+    material director's polar angle beside it (a tank-treading membrane carries the director
+    round while the shape stays put). The summary's class, whether it settled, and its
+    averaging window (whole orbits or cycles; dashed lines) are marked."""
     data = _load_run(source)
     info = _case_info(data)
     ts = data["timeseries"]
     if "director_x" not in ts:
         raise ValueError("the run file has no director (written by capsim since issue 26)")
     t = np.asarray(ts["t"], float)
-    d = np.stack([np.asarray(ts[f"director_{c}"], float) for c in "xyz"], axis=1)
+    d, name, symbol = _orbit_axis(data)
+    director = np.stack([np.asarray(ts[f"director_{c}"], float) for c in "xyz"], axis=1)
+    summary = data.get("summary") or {}
     fig = _figure()
     grid = fig.add_gridspec(2, 2, height_ratios=(1.1, 1.0))
     # the angles first: the first axes carry the legend outside on the right, as every kind's
     ax = fig.add_subplot(grid[1, :])
     polar = np.arccos(np.clip(d[:, 2], -1.0, 1.0))
-    azimuth = np.unwrap(np.arctan2(d[:, 0], d[:, 1]))
-    ax.plot(t, polar / np.pi, "C0-", label=r"polar angle $\theta_p/\pi$ from $z$")
-    ax.plot(t, azimuth / np.pi, "C1-", label=r"azimuth $\varphi/\pi$ from $y$ (unwrapped)")
+    off_z = np.hypot(d[:, 0], d[:, 1]) > 1e-6  # on z to round-off the azimuth is no angle
+    azimuth = np.full(t.size, np.nan)
+    if off_z.any():
+        azimuth[off_z] = np.unwrap(np.arctan2(d[off_z, 0], d[off_z, 1]))
+    ax.plot(t, polar / np.pi, "C0-", label=rf"{symbol}: polar angle $\theta_p/\pi$ from $z$")
+    ax.plot(t, azimuth / np.pi, "C1-", label=rf"{symbol}: azimuth $\varphi/\pi$ from $y$ (unwrapped)")
+    if symbol != "director":
+        ax.plot(t, np.arccos(np.clip(director[:, 2], -1.0, 1.0)) / np.pi, "-", color="0.6", lw=0.8,
+                label=r"material director: polar angle$/\pi$")
+    motion, settled = summary.get("motion"), summary.get("settled")
+    window = (summary.get("averaging_t_from"), summary.get("averaging_t_to"))
+    if motion:
+        from capsim.quantities import canonical_motion
+
+        verdict = "" if not isinstance(settled, (int, float)) or math.isnan(settled) else \
+            (", settled" if settled else ", not settled")
+        n = summary.get("orbits_averaged")
+        over = f" over {int(n)} whole orbit{'s' if n != 1 else ''}" if isinstance(n, (int, float)) and n >= 1 else ""
+        if all(isinstance(w, (int, float)) and math.isfinite(w) for w in window):
+            for k, edge in enumerate(window):
+                ax.axvline(edge, color="C2" if settled else "C3", ls="--", lw=0.9,
+                           label=f"averaging window{over}" if k == 0 else None)
+        ax.set_title(f"motion: {canonical_motion(str(motion))}{verdict}", fontsize="small")
     ax.set_xlabel(r"$kt$")
     ax.set_ylabel(r"angle / $\pi$")
     _tag(ax, x=("t", "$t$"))
@@ -1030,13 +1079,14 @@ def orbit_figure(source):
         ax.set_aspect("equal")
         ax.set_xlim(-1.1, 1.1)
         ax.set_ylim(-1.1, 1.1)
-        ax.set_xlabel(f"director ${hl}$")
-        ax.set_ylabel(f"director ${vl}$")
+        ax.set_xlabel(f"{symbol} ${hl}$")
+        ax.set_ylabel(f"{symbol} ${vl}$")
         ax.set_title(title, fontsize="small")
         if k == 1:
             ax.legend(fontsize="x-small", loc="upper left", bbox_to_anchor=(1.02, 1.0))
-    _caption(fig, [info])
+    _caption(fig, [info], extra=f"the path: the {name}")
     return fig
+
 
 
 # ------------------------------------------------------------ physical units
@@ -1171,11 +1221,22 @@ def plot(source, kind: str, output: str | os.PathLike | None = None, *, dpi: flo
     fig = KINDS[kind](source, **options)
     if factors is not None:
         to_physical(fig, factors)
+    default_size = tuple(float(v) for v in fig.get_size_inches())
     if size is not None:
         fig.set_size_inches(size)
         if getattr(fig, "caption", ""):
             _supxlabel(fig, fig.caption)  # wrapped anew to the new width
-    place_legends(fig)
+    if fmt == "png" and output is not None:
+        _check_pixels(fig.get_size_inches(), dpi or DPI)
+    collapsed = _layout_collapses(fig, warn=True)
+    if collapsed:
+        shown = ",".join(f"{v:g}" for v in fig.get_size_inches())
+        hint = _smallest_size(fig, default_size)
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
+        raise ValueError(f"--size {shown}: too small for --kind {kind}, its axes collapse under their labels and "
+                         f"caption; give at least about {hint[0]:.2g},{hint[1]:.2g} inches")
     if output is not None:
         import matplotlib
 
@@ -1191,6 +1252,53 @@ def plot(source, kind: str, output: str | os.PathLike | None = None, *, dpi: flo
 JOURNAL_RC = {"pdf.fonttype": 42, "ps.fonttype": 42, "svg.fonttype": "none"}
 #: the range ``--size`` accepts, in inches (a column is about 3.3 in, a page 7 in)
 SIZE_RANGE = (1.0, 30.0)
+#: the most pixels a PNG may have, --size × --dpi in both directions (each within its own range
+#: could ask for 72000² pixels, ~20 GB of memory: issue 38, finding 18); 1e8 is a 30 in × 30 in
+#: figure at 333 dpi, a 7 in page at 1400 dpi
+MAX_PIXELS = 1e8
+
+
+def _layout_collapses(fig, warn: bool = False) -> bool:
+    """Lay `fig` out at its size (place_legends) and say whether constrained layout gave up
+    (its axes collapsed under their labels and caption: matplotlib warns and draws them
+    anyway); other warnings of the layout are passed on when `warn`."""
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        place_legends(fig)
+    collapsed = False
+    for w in caught:
+        if "collapsed" in str(w.message):
+            collapsed = True
+        elif warn:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return collapsed
+
+
+def _smallest_size(fig, default_size: tuple[float, float]) -> tuple[float, float]:
+    """About the smallest size of the requested shape at which `fig` lays out (growing it in
+    steps of a quarter), else its kind's default size."""
+    w0, h0 = (float(v) for v in fig.get_size_inches())
+    lo, hi = SIZE_RANGE
+    for f in (1.25, 1.5, 1.75, 2.0, 2.5, 3.0, 4.0, 5.0):
+        w, h = min(max(w0 * f, lo), hi), min(max(h0 * f, lo), hi)
+        fig.set_size_inches((w, h))
+        if getattr(fig, "caption", ""):
+            _supxlabel(fig, fig.caption)
+        if not _layout_collapses(fig):
+            return w, h
+    return default_size
+
+
+def _check_pixels(size_inches, dpi: float) -> None:
+    """ValueError (one line) when a PNG of this size at this dpi would exceed MAX_PIXELS."""
+    w, h = (float(v) * dpi for v in size_inches)
+    if w * h > MAX_PIXELS:
+        most = math.sqrt(MAX_PIXELS / (float(size_inches[0]) * float(size_inches[1])))
+        raise ValueError(f"--size {size_inches[0]:g},{size_inches[1]:g} at --dpi {dpi:g} is {w:.0f} x {h:.0f} = "
+                         f"{w * h:.3g} pixels, more than the {MAX_PIXELS:.0e} a PNG may have: lower --dpi (at most "
+                         f"{math.floor(most)} at this size) or --size, or write a PDF or SVG")
 
 
 def parse_size(size) -> tuple[float, float]:

@@ -271,3 +271,32 @@ def test_the_closing_table_shows_the_orbit_of_a_run_that_has_one():
     assert sphere["motion"] == "steady" and "axis from vorticity z (deg)" not in sphere
     # an old run file's class (no settled flag) reads as today's
     assert dict(summary_rows({"status": "completed", "motion": "oscillating"}))["motion"] == "swinging"
+
+
+# ---------------------------------------------------------------- the figure
+
+
+def test_the_orbit_figure_marks_the_class_and_the_settled_window(tmp_path):
+    from capsim.plot import plot
+
+    r = 0.4
+    T = 2 * math.pi * (r + 1 / r)
+    t = np.linspace(0.0, 3.3 * T, 3000)
+    p = _axis(*_jeffery_angles(t, r, 1.2))
+    series = _series(t, p, r)
+    summary = run_summary(series, aspect_ratio=r)
+    fig = plot({"timeseries": series, "summary": summary}, "orbit", tmp_path / "orbit.png")
+    ax = fig.axes[0]
+    assert ax.get_title() == "motion: kayaking, settled"
+    edges = [line.get_xdata()[0] for line in ax.get_lines() if line.get_linestyle() == "--"]
+    assert edges == pytest.approx([summary["averaging_t_from"], summary["averaging_t_to"]])
+    assert summary["averaging_t_to"] - summary["averaging_t_from"] == pytest.approx(2 * T, rel=1e-3)
+    labels = ax.get_legend_handles_labels()[1]
+    assert "averaging window over 2 whole orbits" in labels
+    assert any(label.startswith("axis: polar angle") for label in labels)  # the body's axis, not the director
+    assert fig.axes[1].get_xlabel() == "axis $x$" and "short axis of the shape" in fig.caption
+    # drifting: not settled, said so
+    p = _axis(*_jeffery_angles(t, r, 0.8 * 0.9 ** (t / T)))
+    series = _series(t, p, r)
+    fig = plot({"timeseries": series, "summary": run_summary(series, aspect_ratio=r)}, "orbit")
+    assert fig.axes[0].get_title() == "motion: drifting_to_rolling, not settled"

@@ -340,11 +340,38 @@ def test_size_label_and_a_legend_inside_when_there_is_room(tiny_run, tmp_path):
     (["--size", "0.5,2"], "--size '0.5,2': W and H must be in [1, 30] inches"),
     (["--label", "a", "--label", "b"], "--label given 2 times for 1 runs: give one per PATH, in order"),
     (["--x", "shear_rate_G"], "--x 'shear_rate_G': only for --kind steady"),
+    # issue 38, finding 18: each factor within its range, the product 72000² pixels (~20 GB): refused at once
+    (["--size", "30,30", "--dpi", "2400"], "--size 30,30 at --dpi 2400 is 72000 x 72000 = 5.18e+09 pixels, more "
+                                           "than the 1e+08 a PNG may have: lower --dpi (at most 333 at this size)"),
+    # finding 20: a size too small for the axes was four UserWarnings and a collapsed figure
+    (["--size", "1,1"], "--size 1,1: too small for --kind deformation, its axes collapse under their labels and "
+                        "caption; give at least about"),
 ])
 def test_bad_figure_options_are_one_line_exit_2(tiny_run, tmp_path, args, expected):
-    result = CliRunner().invoke(app, ["plot", str(tiny_run), "--kind", "deformation", "-o", str(tmp_path / "f.png"), *args])
+    import time
+    import warnings
+
+    start = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no UserWarning on the way to the refusal
+        result = CliRunner().invoke(app, ["plot", str(tiny_run), "--kind", "deformation", "-o", str(tmp_path / "f.png"),
+                                          *args])
     assert result.exit_code == 2 and len(result.stderr.strip().splitlines()) == 1, result.output
     assert expected in result.stderr
+    assert not (tmp_path / "f.png").exists() and time.perf_counter() - start < 30
+
+
+def test_a_small_size_that_fits_draws_cleanly_and_the_hint_fits(tiny_run, tmp_path):
+    import re
+    import warnings
+
+    result = CliRunner().invoke(app, ["plot", str(tiny_run), "--kind", "deformation", "--size", "1,1",
+                                      "-o", str(tmp_path / "f.png")])
+    w, h = (float(v) for v in re.search(r"at least about ([\d.]+),([\d.]+) inches", result.stderr).groups())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        plot(tiny_run, "deformation", tmp_path / "g.png", size=(w + 0.1, h + 0.1))
+        plot(tiny_run, "deformation", tmp_path / "v.pdf", size=(30, 30), dpi=2400)  # vector: no pixel bound
 
 
 def test_the_caption_is_the_resolved_case_not_its_name(tmp_path):
