@@ -28,6 +28,7 @@ from pydantic import (
 )
 
 from capsim.errors import bounded_repr, first_line
+from capsim.flows import FLOW_FIELDS, FLOWS, SYMMETRY_CANDIDATES, SYMMETRY_GROUPS, far_field_of
 from capsim.timestepping import DEFAULT_SCHEME, SCHEMES
 from capsim.viscosity import VISCOSITY_MODELS
 from capsim.viscosity import is_active as is_viscous
@@ -661,6 +662,11 @@ class Case(_Model):
         "in the shear plane, so [-sin t, cos t, 0] is initial_tilt_deg t). Unset: [0, 1, 0] turned by "
         "initial_tilt_deg",
     )
+    initial_center: Optional[tuple[float, float, float]] = Field(
+        None, description="the rest shape's centroid [x, y, z] at t = 0 in units of a (default: the origin); "
+        "e.g. off the axis of flow.kind poiseuille. Away from the origin the mesh keeps fewer symmetries "
+        "(mesh.symmetry auto finds which)",
+    )
     mesh: Mesh = Mesh()
     quadrature: Quadrature = Quadrature()
     time: Time = Time()
@@ -777,6 +783,15 @@ class Case(_Model):
                 f"needs the rest shape's axis in the shear plane (z = 0) or along z, got initial_axis "
                 f"[{', '.join(f'{c:.6g}' for c in self.axis)}]; use half, auto or none",
             )
+        field = far_field_of(self.flow)
+        for group in SYMMETRY_CANDIDATES.get(self.mesh.symmetry, ()) if self.mesh.symmetry != "auto" else ():
+            if not all(field.is_invariant(g) for g in SYMMETRY_GROUPS[group]):
+                raise _FieldProblem("mesh.symmetry", self.mesh.symmetry,
+                                    f"flow.kind {self.flow.kind} does not keep it ({group}); use auto or none")
+            if self.initial_center is not None and any(self.initial_center):
+                raise _FieldProblem("mesh.symmetry", self.mesh.symmetry,
+                                    "a capsule placed away from the origin (initial_center) does not keep it; "
+                                    "use auto (it finds the symmetries left) or none")
         return self
 
     @property
