@@ -391,6 +391,33 @@ class Flow(_Model):
     history: Optional[FlowHistory] = Field(
         None, description="none or {kind: steady}: steady shear; {kind: stop, stop_time: kt}: the flow stops at kt")
 
+    kind: Literal[tuple(FLOWS)] = Field(  # type: ignore[valid-type]
+        "simple_shear",
+        description="the undisturbed flow (capsim.flows): " + "; ".join(
+            f"{name}: {cls.description} (rate: {cls.rate})" for name, cls in FLOWS.items())
+        + ". shear_rate_G is G = μ·rate·a/E_s for every kind, and the time unit is 1/rate",
+    )
+    velocity_gradient: Optional[list[list[float]]] = Field(
+        None, description="kind: linear only: the velocity gradient L (L_ij = ∂u_i/∂x_j) as 3 rows of 3 numbers, "
+        "traceless, in units of the rate G is defined with (largest entry about 1)")
+    poiseuille_radius: Optional[float] = Field(
+        None, gt=1.0, le=1e4,
+        description="kind: poiseuille only: the radius R of the unbounded Poiseuille flow (where it would vanish), "
+        "in units of a; the rate is U/R, U the centreline speed")
+
+    @model_validator(mode="after")
+    def _fields_of_the_kind(self) -> "Flow":
+        flow = FLOWS[self.kind]
+        for name in FLOW_FIELDS:
+            if name not in flow.uses and getattr(self, name) is not None:
+                raise _FieldProblem(name, getattr(self, name), f"applies only to kind: "
+                                    f"{', '.join(k for k, c in FLOWS.items() if name in c.uses)}, not to kind: "
+                                    f"{self.kind}; remove it")
+        problem = flow.problem(self)
+        if problem is not None:
+            raise _FieldProblem(*problem)
+        return self
+
     @property
     def stop_time(self) -> float | None:
         """The kt at which the flow stops, None for steady shear."""
@@ -998,6 +1025,8 @@ def step_defining(case: dict) -> dict:
     out = {k: v for k, v in case.items() if k not in ("guards", "name")}
     out["output"] = {k: v for k, v in case.get("output", {}).items() if k == "snapshot_every"}
     out["time"] = {k: v for k, v in case.get("time", {}).items() if k != "max_wall_s"}
+    # flow.kind came after runs were written without it: its default is the flow they ran
+    out["flow"] = {k: v for k, v in case.get("flow", {}).items() if not (k == "kind" and v == "simple_shear")}
     return out
 
 

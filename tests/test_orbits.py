@@ -300,3 +300,47 @@ def test_the_orbit_figure_marks_the_class_and_the_settled_window(tmp_path):
     series = _series(t, p, r)
     fig = plot({"timeseries": series, "summary": run_summary(series, aspect_ratio=r)}, "orbit")
     assert fig.axes[0].get_title() == "motion: drifting_to_rolling, not settled"
+
+
+# ---------------------------------------------------------------- run files written before issue 39
+
+
+def test_an_old_run_file_still_summarises_plots_and_extends(tmp_path):
+    """A run file without the short axis and the new summary fields (as capsim wrote them
+    before issue 39), its class `oscillating`: the campaign record reads it, the orbit figure
+    falls back to the material director, and --resume --t-end extends it with its own columns
+    (the summary then classifies on the director, the new fields of its rows left out)."""
+    import h5py
+
+    from capsim.config import case_from_dict
+    from capsim.plot import plot
+    from capsim.runner import run_case
+    from capsim.store import read_trajectory
+    from capsim.summary import read_run
+
+    path = tmp_path / "old.h5"
+    case = case_from_dict({
+        "name": "old", "shape": {"kind": "oblate", "aspect_ratio": 0.6}, "initial_axis": [0, 0.6, 0.8],
+        "flow": {"shear_rate_G": 0.1}, "mesh": {"level": 0}, "time": {"t_end": 0.1},
+        "output": {"path": str(path), "snapshot_every": 0.1}})
+    run_case(case)
+    new_summary = ("settled", "orbit_constant_change", "orbit_period_change", "orbits_averaged", "shape_period",
+                   "body_rotation_ratio", "tank_treading_ratio", "rigid_turn", "ttf_ratio_kind")
+    with h5py.File(path, "a") as f:
+        for name in [k for k in f["timeseries"] if k.startswith("short_axis")]:
+            del f["timeseries"][name]
+        for name in new_summary:
+            del f["summary"][name]
+        del f["summary"]["motion"]
+        f["summary"]["motion"] = "oscillating"
+    record = read_run(path)
+    assert record["motion"] == "oscillating" and record["steady_average"] == 1  # a settled class of its day
+    assert all(math.isnan(record.get(name, float("nan"))) for name in new_summary)
+    assert "the material director" in plot(path, "orbit").caption
+    from capsim.api import run
+
+    extended = run(case, resume=True, sets=["time.t_end=0.2"])
+    assert extended.status == "completed" and extended.t == pytest.approx(0.2)
+    ts = read_trajectory(path)["timeseries"]
+    assert "short_axis_x" not in ts and ts["t"][-1] == pytest.approx(0.2)
+    assert extended.summary["motion"] in MOTIONS
