@@ -12,6 +12,8 @@ from __future__ import annotations
 import math
 import os
 import stat
+import warnings
+from contextvars import ContextVar
 from collections.abc import Mapping
 from typing import Any, Literal, Optional, get_args, get_origin
 
@@ -60,6 +62,11 @@ class ConfigError(Exception):
     """A user mistake in a case: the message is one line, fit to print as is."""
 
 
+class CaseWarning(UserWarning):
+    """A case that capsim runs but has not been validated for (a value far outside the
+    ranges of :data:`VALIDATED_RANGES`): one line naming the field, its value and the range."""
+
+
 # ---------------------------------------------------------------- limits
 
 #: longest case name: it becomes a file name (``<name>.h5``, ``<name>.h5.ckpt.npz`` and
@@ -73,6 +80,31 @@ MAX_YAML_NODES = 100_000
 MAX_YAML_DEPTH = 32
 #: most snapshots a run may write: each is the (N_p, 3) positions, 1.5 MB at level 6
 MAX_SNAPSHOTS = 10_000
+#: where capsim's results have been checked (docs/validation.md, docs/known_answers.md,
+#: docs/user_guide.md): a case outside one of these ranges is run, with a CaseWarning that
+#: names the field, its value and the range. G: the robustness runs from the stiff G = 0.001
+#: (D/G against first-order theory) to G = 1 (no runaway); λ: 0.01 and 100 (validation.md);
+#: κ/(E_s a²): the bending runs up to 1e-2 (the red cell's is 3.06e-3); Bq: the relaxation
+#: times of the small-deformation theory at Bq_s = 0, 10, 30 (known_answers.md; the red cell's
+#: is 29.8)
+VALIDATED_RANGES = {
+    "flow.shear_rate_G": (1e-3, 1.0),
+    "flow.viscosity_ratio": (1e-2, 1e2),
+    "membrane.bending_modulus": (0.0, 1e-2),
+    "membrane.viscosity.shear": (0.0, 30.0),
+    "membrane.viscosity.dilatational": (0.0, 30.0),
+}
+#: the G a `physical:` block may give: outside it the values are refused as a slip of units
+#: (a radius of 2.8 m for 2.8 um gives G = 4e4; a capsule at G > 100 is torn apart at once and
+#: one below 1e-6 is a rigid particle whose explicit time step is ~G times the flow's)
+PHYSICAL_G_RANGE = (1e-6, 1e2)
+#: the largest κ/(E_s a²) a `physical:` block may give (a vesicle-like membrane of small shear
+#: modulus reaches ~10; 1e3 is bending a hundred thousand times the validated range)
+PHYSICAL_BENDING_MAX = 1e3
+#: the largest Boussinesq number membrane.viscosity takes (its fields' bound)
+BQ_MAX = 1e4
+#: the viscosity ratios flow.viscosity_ratio takes (its bound)
+LAMBDA_RANGE = (1e-3, 1e3)
 #: the membrane-law parameters and their defaults (the law functions of capsim.membrane
 #: take the same defaults; tests/test_registries.py checks that they agree)
 LAW_PARAMETER_DEFAULTS = {"mooney_rivlin": {"psi": 0.0}, "skalak": {"skalak_c": 10.0}}
@@ -211,13 +243,14 @@ class MembraneViscosity(_Model):
         "one (Barthes-Biesel & Sgaier 1985)",
     )
     shear: float = Field(
-        0.0, ge=0, le=1e4,
+        0.0, ge=0, le=BQ_MAX,
         description="surface shear viscosity Bq_s = mu_s / (mu a) (red cell: ~0.3-3); the velocity becomes a "
-        "GMRES solve at every evaluation",
+        "GMRES solve at every evaluation; validated up to 30 (a warning beyond)",
     )
     dilatational: float = Field(
-        0.0, ge=0, le=1e4,
-        description="surface dilatational viscosity Bq_d = mu_d / (mu a): isotropic viscous tension mu_d tr(D)",
+        0.0, ge=0, le=BQ_MAX,
+        description="surface dilatational viscosity Bq_d = mu_d / (mu a): isotropic viscous tension mu_d tr(D); "
+        "validated up to 30 (a warning beyond)",
     )
 
     @model_validator(mode="after")
@@ -256,7 +289,8 @@ class Membrane(_Model):
     bending_modulus: float = Field(
         0.0, ge=0,
         description="bending modulus κ/(E_s a²) of a dihedral-hinge energy relative to the rest shape "
-        "(0: none, the seed's membrane); needs traction: galerkin",
+        "(0: none, the seed's membrane); needs traction: galerkin; validated up to 1e-2 (a warning beyond; "
+        "from physical.bending_modulus at most 1e3)",
     )
     viscosity: Optional[MembraneViscosity] = Field(
         None,
@@ -298,6 +332,10 @@ class Physical(_Model):
 
     shear_rate: str = Field(description="shear rate k, e.g. '100 1/s'")
     viscosity: str = Field(description="viscosity μ of the outer fluid, e.g. '1.2 mPa*s'")
+    inner_viscosity: Optional[str] = Field(
+        None, description="viscosity of the inner fluid (a cell's cytoplasm), e.g. '6 mPa*s'; gives "
+        "flow.viscosity_ratio = λ = inner / outer viscosity, which must be in [1e-3, 1e3] (validated in "
+        "[0.01, 100]: a warning outside)")
     radius: str = Field(description="equal-volume radius a, e.g. '2.8 um'")
     surface_modulus: Optional[str] = Field(
         None, description="membrane elastic modulus E_s (a drop: its surface tension), e.g. '18 uN/m'; "
@@ -307,10 +345,11 @@ class Physical(_Model):
         "or give surface_modulus")
     membrane_viscosity: Optional[str] = Field(
         None, description="surface shear viscosity μ_s of the membrane, e.g. '2.5e-7 N*s/m' (red cell); gives "
-        "membrane.viscosity.shear = Bq = μ_s / (μ a), Kelvin–Voigt")
+        "membrane.viscosity.shear = Bq = μ_s / (μ a), Kelvin–Voigt, which must be at most 1e4 (validated up "
+        "to 30: a warning beyond)")
 
-    @field_validator("shear_rate", "viscosity", "radius", "surface_modulus", "shear_modulus", "membrane_viscosity",
-                     "bending_modulus",
+    @field_validator("shear_rate", "viscosity", "inner_viscosity", "radius", "surface_modulus", "shear_modulus",
+                     "membrane_viscosity", "bending_modulus",
                      mode="before")
     @classmethod
     def _a_quantity(cls, v: Any, info: ValidationInfo) -> Any:
@@ -329,21 +368,23 @@ class Physical(_Model):
 
     bending_modulus: Optional[str] = Field(
         None, description="membrane bending modulus κ, e.g. '1.8e-19 J'; membrane.bending_modulus is then "
-        "computed as κ/(E_s a²)")
+        "computed as κ/(E_s a²), which must be finite and at most 1e3 (validated up to 1e-2: a warning beyond)")
 
     def bending_modulus_scaled(self) -> float:
-        """κ/(E_s a²) from the physical κ, E_s (or 3 G_s) and a."""
+        """κ/(E_s a²) from the physical κ, E_s (or 3 G_s) and a (inf where it overflows: divided
+        step by step, never a ZeroDivisionError or an OverflowError)."""
         from capsim.units import parse
 
         E_s = self.conversion()["E_s_N_per_m"]
-        return parse(self.bending_modulus, "bending_modulus") / (E_s * parse(self.radius, "radius") ** 2)
+        a = parse(self.radius, "radius")
+        return parse(self.bending_modulus, "bending_modulus") / E_s / a / a
 
     def conversion(self) -> dict[str, float]:
         """G, Ca and the time unit (capsim.units.conversion)."""
         from capsim.units import conversion
 
         return conversion(self.shear_rate, self.viscosity, self.radius, self.surface_modulus, self.shear_modulus,
-                          self.membrane_viscosity)
+                          self.membrane_viscosity, self.inner_viscosity)
 
 
 class FlowHistory(_Model):
@@ -373,7 +414,8 @@ class Flow(_Model):
     shear_rate_G: float = Field(
         0.1, gt=0,
         description="G = μ k a / E_s; or give the case's `physical` block (then G is computed from it "
-        "and stored here)",
+        "and stored here, and must be in [1e-6, 100]: outside, the units have slipped); validated in "
+        "[1e-3, 1] (a warning outside)",
     )
     capillary_number: Optional[float] = Field(
         None, gt=0,
@@ -385,7 +427,8 @@ class Flow(_Model):
         1.0, gt=0,
         description="internal / external viscosity λ, in [1e-3, 1e3]: the λ ≠ 1 double-layer operator "
         "has its spectrum in [min(1, λ), max(1, λ)], so its condition number is max(λ, 1/λ) and the "
-        "solve's iterations grow like its square root; beyond 1e3 the capsule is a rigid particle",
+        "solve's iterations grow like its square root; beyond 1e3 the capsule is a rigid particle; "
+        "validated in [0.01, 100] (a warning outside); or give physical.inner_viscosity",
     )
 
     history: Optional[FlowHistory] = Field(
@@ -426,7 +469,7 @@ class Flow(_Model):
     @field_validator("viscosity_ratio")
     @classmethod
     def _lambda_conditioning(cls, v: float) -> float:
-        return _in_range(v, 1e-3, 1e3, "the double-layer solve's condition number is max(λ, 1/λ)")
+        return _in_range(v, *LAMBDA_RANGE, "the double-layer solve's condition number is max(λ, 1/λ)")
 
 
 
@@ -667,6 +710,41 @@ class Guards(_Model):
     )
 
 
+#: the CaseWarnings of the case being validated by case_from_dict (issued there, with its source)
+_PENDING_WARNINGS: ContextVar[list[str] | None] = ContextVar("_PENDING_WARNINGS", default=None)
+#: the warnings registry of CaseWarning: a text is shown once per process (a case is validated
+#: several times on its way to a run), unless the warning filters say "always"
+_SHOWN_WARNINGS: dict = {}
+
+
+def _case_warning(text: str) -> None:
+    pending = _PENDING_WARNINGS.get()
+    if pending is not None:
+        pending.append(text)
+    else:
+        _issue_warning(text, "<case>")
+
+
+def _issue_warning(text: str, source: str) -> None:
+    # one line: at line 0 of the case file, which has no source line to show beneath it
+    warnings.warn_explicit(text, CaseWarning, filename=source, lineno=0, module="capsim.config",
+                           registry=_SHOWN_WARNINGS)
+
+
+def _substitution_problem(solver: Solver, lam: float) -> _FieldProblem | None:
+    """Whether successive substitution can reach the solver's tolerance at this λ in max_iter."""
+    if solver.method == "substitution" and lam != 1.0:
+        # Richardson iteration with the optimal step: the error falls by |1-λ|/(1+λ) per iteration
+        needed = math.ceil(math.log(solver.tol) / math.log(abs(1.0 - lam) / (1.0 + lam)))
+        if solver.max_iter < needed:
+            return _FieldProblem(
+                "max_iter", solver.max_iter,
+                f"substitution at viscosity_ratio = {lam:g} needs >= {needed} iterations to reach "
+                f"tol = {solver.tol:g} (rate |1-λ|/(1+λ)); raise max_iter (<= 1000) or use method: gmres",
+            )
+    return None
+
+
 class Case(_Model):
     """One simulation: every knob that changes the result, nothing else."""
 
@@ -737,11 +815,46 @@ class Case(_Model):
         # frozen models: the section with the computed value, set once while validating
         object.__setattr__(self, section, getattr(self, section).model_copy(update={name: value}))
 
+    # ---- values computed from the physical block: finite, inside their fields' bounds, and
+    # refused naming the physical value the user gave (not the computed field)
+
+    def _physical_given(self, *kinds: str) -> str:
+        """'shear_rate '100 1/s', viscosity …' of the physical block's values of `kinds` that are given."""
+        return ", ".join(f"{kind} {bounded_repr(getattr(self.physical, kind))}" for kind in kinds
+                         if getattr(self.physical, kind) is not None)
+
+    def _physical_problem(self, kind: str, what: str) -> _FieldProblem:
+        return _FieldProblem(f"physical.{kind}", getattr(self.physical, kind), what)
+
+    def _conversion(self) -> dict[str, float]:
+        """The physical block's conversion (capsim.units.conversion); a product that overflows or
+        underflows is refused naming the physical value most likely in the wrong units."""
+        from capsim.units import INVOLVED, UnitsError, check_scales, likeliest_slip, parse
+
+        try:
+            out = self.physical.conversion()
+            check_scales(out)
+            return out
+        except UnitsError as exc:
+            four = ("shear_rate", "viscosity", "radius", "surface_modulus", "shear_modulus")
+            involved = [k for k in INVOLVED.get(getattr(exc, "key", None), four) if getattr(self.physical, k) is not None]
+            culprit = involved[0] if len(involved) == 1 else likeliest_slip(
+                {k: parse(getattr(self.physical, k), k) for k in involved})
+            others = self._physical_given(*(k for k in involved if k != culprit))
+            raise self._physical_problem(culprit, f"{exc}" + (f" (with {others})" if others else "")) from None
+
     @model_validator(mode="after")
     def _bending_from_physical(self) -> Case:
         if self.physical is None or self.physical.bending_modulus is None:
             return self
+        self._conversion()
         kappa = self.physical.bending_modulus_scaled()
+        if not (math.isfinite(kappa) and kappa <= PHYSICAL_BENDING_MAX):
+            raise self._physical_problem(
+                "bending_modulus",
+                f"gives membrane.bending_modulus = κ/(E_s a²) = {kappa:.3g} (with {self._physical_given('radius', 'surface_modulus', 'shear_modulus')}), "
+                f"which must be finite and at most {PHYSICAL_BENDING_MAX:g} (validated up to "
+                f"{VALIDATED_RANGES['membrane.bending_modulus'][1]:g}): check the units")
         if not self._given_agrees("membrane", "bending_modulus", kappa, "physical.bending_modulus",
                                   f"physical gives κ/(E_s a²) = {kappa:.6g}"):
             self._set_derived("membrane", "bending_modulus", kappa)
@@ -751,11 +864,21 @@ class Case(_Model):
     def _G_from_physical(self) -> Case:
         if self.physical is None:
             return self
-        G = self.physical.conversion()["G"]
+        from capsim.units import likeliest_slip, parse
+
+        G = self._conversion()["G"]
+        lo, hi = PHYSICAL_G_RANGE
+        if not lo <= G <= hi:
+            four = [k for k in ("shear_rate", "viscosity", "radius", "surface_modulus", "shear_modulus")
+                    if getattr(self.physical, k) is not None]
+            culprit = likeliest_slip({k: parse(getattr(self.physical, k), k) for k in four})
+            vlo, vhi = VALIDATED_RANGES["flow.shear_rate_G"]
+            raise self._physical_problem(
+                culprit,
+                f"with {self._physical_given(*(k for k in four if k != culprit))} gives G = mu k a / E_s = {G:.3g}, "
+                f"outside [{lo:g}, {hi:g}] (capsim is validated for G in [{vlo:g}, {vhi:g}]): check the units")
         if self._given_agrees("flow", "shear_rate_G", G, "physical", f"physical gives G = {G:.6g}"):
             return self
-        if not 0 < G < 1e6:
-            raise _FieldProblem("physical", "…", f"gives G = {G:.3g}, outside (0, 1e6): check the units")
         self._set_derived("flow", "shear_rate_G", G)
         return self
 
@@ -764,24 +887,42 @@ class Case(_Model):
     def _unit_axis(cls, v: Any) -> Any:
         if v is None:
             return v
-        ok = isinstance(v, (list, tuple)) and len(v) == 3 and all(
-            isinstance(c, (int, float)) and not isinstance(c, bool) for c in v)
-        if not ok:
+        if not (isinstance(v, (list, tuple)) and len(v) == 3):
             raise ValueError("must be a list of three numbers [x, y, z]")
-        if not all(math.isfinite(c) for c in v):
+        try:  # each component as a float field takes it: a decimal string ('1e-3', as YAML reads it) too
+            parts = [_strict_scalar(c, float) for c in v]
+        except ValueError:
+            raise ValueError("must be a list of three numbers [x, y, z]") from None
+        if not all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in parts):
+            raise ValueError("must be a list of three numbers [x, y, z]")
+        try:
+            parts = [float(c) for c in parts]  # an integer of 400 digits: OverflowError
+        except OverflowError:
+            raise ValueError("must be three finite numbers") from None
+        if not all(math.isfinite(c) for c in parts):
             raise ValueError("must be three finite numbers")
-        norm = math.sqrt(sum(float(c) ** 2 for c in v))
-        if not norm > 1e-12:
+        # scaled by the largest component first: no square overflows (1e200) or underflows (1e-160)
+        largest = max(abs(c) for c in parts)
+        if largest == 0.0:
             raise ValueError("must be a nonzero vector (the direction of the rest shape's axis)")
-        if abs(norm - 1.0) <= 1e-15:  # already unit (a resolved case): kept as is, so reloading is exact
-            return tuple(float(c) for c in v)
-        return tuple(float(c) / norm for c in v)
+        norm = math.sqrt(sum(c * c for c in parts))
+        if math.isfinite(norm) and abs(norm - 1.0) <= 1e-15:  # already unit (a resolved case): kept as is
+            return tuple(parts)
+        scaled = [c / largest for c in parts]
+        norm = math.sqrt(sum(c * c for c in scaled))
+        return tuple(c / norm for c in scaled)
 
     @model_validator(mode="after")
     def _Bq_from_physical(self) -> Case:
         if self.physical is None or self.physical.membrane_viscosity is None:
             return self
-        Bq = self.physical.conversion()["Bq"]
+        Bq = self._conversion()["Bq"]
+        if not Bq <= BQ_MAX:
+            raise self._physical_problem(
+                "membrane_viscosity",
+                f"gives membrane.viscosity.shear = Bq = mu_s / (mu a) = {Bq:.3g} (with "
+                f"{self._physical_given('viscosity', 'radius')}), which must be at most {BQ_MAX:g} (validated up "
+                f"to {VALIDATED_RANGES['membrane.viscosity.shear'][1]:g}): check the units")
         given = self.membrane.viscosity
         if given is not None and "shear" in given.model_fields_set:
             if not math.isclose(given.shear, Bq, rel_tol=1e-9):  # a resolved case holds both
@@ -794,6 +935,27 @@ class Case(_Model):
         viscosity = MembraneViscosity.model_validate(viscosity.model_dump())  # its checks, shear now set
         membrane = Membrane.model_validate({**self.membrane.model_dump(), "viscosity": viscosity.model_dump()})
         object.__setattr__(self, "membrane", membrane)
+        return self
+
+    @model_validator(mode="after")
+    def _lambda_from_physical(self) -> Case:
+        if self.physical is None or self.physical.inner_viscosity is None:
+            return self
+        lam = self._conversion()["lambda"]
+        lo, hi = LAMBDA_RANGE
+        if not lo <= lam <= hi:
+            vlo, vhi = VALIDATED_RANGES["flow.viscosity_ratio"]
+            raise self._physical_problem(
+                "inner_viscosity",
+                f"with viscosity {bounded_repr(self.physical.viscosity)} gives flow.viscosity_ratio = λ = {lam:.3g}, "
+                f"which must be in [{lo:g}, {hi:g}] (validated in [{vlo:g}, {vhi:g}]): check the units")
+        if self._given_agrees("flow", "viscosity_ratio", lam, "physical.inner_viscosity",
+                              f"physical gives λ = {lam:.6g}"):
+            return self
+        self._set_derived("flow", "viscosity_ratio", lam)
+        problem = _substitution_problem(self.solver, lam)  # the solver's check saw λ before it was derived
+        if problem is not None:
+            raise _FieldProblem(f"solver.{problem.field}", problem.value, problem.what)
         return self
 
     @model_validator(mode="after")
@@ -836,20 +998,42 @@ class Case(_Model):
             raise _FieldProblem(*problem)
         return self
 
+    @model_validator(mode="after")
+    def _within_validated_ranges(self) -> Case:
+        """A CaseWarning for each value outside the range capsim is validated in (VALIDATED_RANGES),
+        naming the physical value it comes from when the physical block gave it."""
+        viscosity = self.membrane.viscosity
+        values = {
+            "flow.shear_rate_G": self.flow.shear_rate_G, "flow.viscosity_ratio": self.flow.viscosity_ratio,
+            "membrane.bending_modulus": self.membrane.bending_modulus,
+            "membrane.viscosity.shear": viscosity.shear if viscosity is not None else 0.0,
+            "membrane.viscosity.dilatational": viscosity.dilatational if viscosity is not None else 0.0,
+        }
+        physical = self.physical
+        sources = {} if physical is None else {
+            "flow.shear_rate_G": "physical",
+            "flow.viscosity_ratio": physical.inner_viscosity and f"physical.inner_viscosity = {physical.inner_viscosity!r}",
+            "membrane.bending_modulus": physical.bending_modulus and
+            f"physical.bending_modulus = {physical.bending_modulus!r}",
+            "membrane.viscosity.shear": physical.membrane_viscosity and
+            f"physical.membrane_viscosity = {physical.membrane_viscosity!r}",
+        }
+        for field, value in values.items():
+            lo, hi = VALIDATED_RANGES[field]
+            if not lo <= value <= hi:
+                source = sources.get(field)
+                given = f" (from {source})" if source else ""
+                _case_warning(f"{field} = {value:.3g}{given} is outside [{lo:g}, {hi:g}], the range capsim is "
+                              "validated in (docs/validation.md): the run goes ahead, its accuracy is untested")
+        return self
+
     @field_validator("solver")
     @classmethod
     def _solver_can_converge(cls, v: Solver, info: ValidationInfo) -> Solver:
         flow = info.data.get("flow")
-        lam = flow.viscosity_ratio if flow is not None else 1.0
-        if v.method == "substitution" and lam != 1.0:
-            # Richardson iteration with the optimal step: the error falls by |1-λ|/(1+λ) per iteration
-            needed = math.ceil(math.log(v.tol) / math.log(abs(1.0 - lam) / (1.0 + lam)))
-            if v.max_iter < needed:
-                raise _FieldProblem(
-                    "max_iter", v.max_iter,
-                    f"substitution at viscosity_ratio = {lam:g} needs >= {needed} iterations to reach "
-                    f"tol = {v.tol:g} (rate |1-λ|/(1+λ)); raise max_iter (<= 1000) or use method: gmres",
-                )
+        problem = _substitution_problem(v, flow.viscosity_ratio if flow is not None else 1.0)
+        if problem is not None:
+            raise problem
         return v
 
     @field_validator("output")
@@ -1023,6 +1207,10 @@ def step_defining(case: dict) -> dict:
     checkpoint cadence or wall-time limit (a run may be resumed, moved or renamed
     across those)."""
     out = {k: v for k, v in case.items() if k not in ("guards", "name")}
+    physical = out.get("physical")
+    if isinstance(physical, dict) and physical.get("inner_viscosity", 0) is None:
+        # added later: a case without it hashes as it did before the field existed
+        out["physical"] = {k: v for k, v in physical.items() if k != "inner_viscosity"}
     out["output"] = {k: v for k, v in case.get("output", {}).items() if k == "snapshot_every"}
     out["time"] = {k: v for k, v in case.get("time", {}).items() if k != "max_wall_s"}
     # flow.kind came after runs were written without it: its default is the flow they ran
@@ -1054,10 +1242,21 @@ def case_from_dict(d: Any, source: str = "<dict>") -> Case:
         raise ConfigError(
             f"{source}: top level must be a mapping of fields, got {type(d).__name__}"
         )
+    outer = _PENDING_WARNINGS.get()
+    token = _PENDING_WARNINGS.set([])
     try:
-        return Case.model_validate(dict(d))
+        case = Case.model_validate(dict(d))
     except ValidationError as exc:
         raise ConfigError(_format_validation_error(exc, source)) from None
+    finally:
+        pending = _PENDING_WARNINGS.get()
+        _PENDING_WARNINGS.reset(token)
+    if outer is not None:  # resolve_case: only the final case's warnings are issued, by it
+        outer[:] = pending
+        return case
+    for text in pending:  # only for a case that validated
+        _issue_warning(text, source)
+    return case
 
 
 #: longest --set text: a field path and a value, not a document
@@ -1101,10 +1300,12 @@ def load_case_with(path: str | os.PathLike, sets: list[str] | None = None, **ove
 #: the radius Bq = μ_s/(μ a) too, when the case computes them from physical.
 DERIVED_FIELDS = {
     "physical": (("flow.shear_rate_G", None), ("membrane.bending_modulus", "physical.bending_modulus"),
-                 ("membrane.viscosity.shear", "physical.membrane_viscosity")),
+                 ("membrane.viscosity.shear", "physical.membrane_viscosity"),
+                 ("flow.viscosity_ratio", "physical.inner_viscosity")),
     "flow.capillary_number": (("flow.shear_rate_G", None),),
     "physical.bending_modulus": (("membrane.bending_modulus", None),),
     "physical.membrane_viscosity": (("membrane.viscosity.shear", None),),
+    "physical.inner_viscosity": (("flow.viscosity_ratio", None),),
 }
 
 
@@ -1127,20 +1328,28 @@ def resolve_case(source: Any, sets: list[str] | None = None, **overrides: Any) -
             if key in dotted:
                 raise ConfigError(f"--set {key} and its own option both given; give one")
             dotted[key] = value
-    if isinstance(source, (str, os.PathLike)):
-        case, where = load_case(source), os.fspath(source)
-    elif isinstance(source, Case):
-        case, where = source, "<case>"
-    elif isinstance(source, dict):
-        case, where = case_from_dict(dict(source)), "<dict>"
-    else:
-        raise ConfigError(f"a case is a path, a dict or a Case, got {type(source).__name__}")
+    pending: list[str] = []
+    token = _PENDING_WARNINGS.set(pending)  # the warnings of the case with the overrides applied only
     try:
-        return apply_overrides(case, **dotted) if dotted else case
-    except ConfigError as exc:
-        text = str(exc)
-        prefix = "<overrides>: "
-        raise ConfigError(f"{where}: --set/options: {text[len(prefix):] if text.startswith(prefix) else text}") from None
+        if isinstance(source, (str, os.PathLike)):
+            case, where = load_case(source), os.fspath(source)
+        elif isinstance(source, Case):
+            case, where = source, "<case>"
+        elif isinstance(source, dict):
+            case, where = case_from_dict(dict(source)), "<dict>"
+        else:
+            raise ConfigError(f"a case is a path, a dict or a Case, got {type(source).__name__}")
+        try:
+            case = apply_overrides(case, **dotted) if dotted else case
+        except ConfigError as exc:
+            text = str(exc)
+            prefix = "<overrides>: "
+            raise ConfigError(f"{where}: --set/options: {text[len(prefix):] if text.startswith(prefix) else text}") from None
+    finally:
+        _PENDING_WARNINGS.reset(token)
+    for text in pending:
+        _issue_warning(text, where)
+    return case
 
 
 def apply_overrides(case: Case, **dotted: Any) -> Case:
@@ -1166,13 +1375,17 @@ def apply_overrides(case: Case, **dotted: Any) -> Case:
             parent = _lookup(data, ".".join(path))
             if isinstance(parent, dict):
                 parent.pop(field, None)
-    if any(key.startswith("physical.") for key in dotted) and data.get("physical") is None:
-        data["physical"] = {}  # a case without the block gets one from the --set values
     for key, value in dotted.items():
         parts = key.split(".")
-        node = data
+        node, model = data, Case
         for i, part in enumerate(parts[:-1]):
             child = node.get(part) if isinstance(node, dict) else None
+            field = model.model_fields.get(part) if model is not None else None
+            model = section_model(field.annotation) if field is not None else None
+            if child is None and model is not None and isinstance(node, dict):
+                # an optional section the case leaves out (physical, membrane.viscosity, flow.history)
+                # is made from the --set values, as a campaign's sweep of its fields makes it
+                child = node[part] = {}
             if not isinstance(child, dict):
                 where = ".".join(parts[: i + 1])
                 raise ConfigError(f"<overrides>: {key}: '{where}' is not a section of the case")

@@ -30,7 +30,7 @@ from typing import Any
 
 from capsim.errors import bounded_repr, first_line
 
-__all__ = ["KINDS", "UnitsError", "conversion", "parse", "physical_factors", "scale_values"]
+__all__ = ["KINDS", "UnitsError", "conversion", "likeliest_slip", "parse", "physical_factors", "scale_values"]
 
 #: G_s / E_s of every elastic law of capsim (capsim.membrane: the small-strain shear modulus)
 SHEAR_OVER_ELASTIC_MODULUS = 1.0 / 3.0
@@ -39,6 +39,7 @@ SHEAR_OVER_ELASTIC_MODULUS = 1.0 / 3.0
 KINDS: dict[str, tuple[str, str, str]] = {
     "shear_rate": ("1/s", "a shear rate (1/time)", "100 1/s"),
     "viscosity": ("Pa*s", "a dynamic viscosity (pressure × time)", "1.2 mPa*s"),
+    "inner_viscosity": ("Pa*s", "a dynamic viscosity (pressure × time)", "6 mPa*s"),
     "radius": ("m", "a length", "2.8 um"),
     "surface_modulus": ("N/m", "a surface modulus (force / length)", "18 uN/m"),
     "shear_modulus": ("N/m", "a surface modulus (force / length)", "6 uN/m"),
@@ -109,7 +110,7 @@ def parse(text: Any, kind: str) -> float:
 
 
 def conversion(shear_rate: Any, viscosity: Any, radius: Any, surface_modulus: Any = None,
-               shear_modulus: Any = None, membrane_viscosity: Any = None) -> dict[str, float]:
+               shear_modulus: Any = None, membrane_viscosity: Any = None, inner_viscosity: Any = None) -> dict[str, float]:
     """G = μ k a / E_s, Ca = μ k a / G_s = 3 G and the time unit 1/k (s) from physical values.
 
     Give the membrane's elastic modulus E_s (``surface_modulus``; for a drop, the
@@ -118,7 +119,12 @@ def conversion(shear_rate: Any, viscosity: Any, radius: Any, surface_modulus: An
     "tension_N_per_m"}``, and with the membrane's surface shear viscosity μ_s
     (``membrane_viscosity``) its Boussinesq number ``Bq`` = μ_s/(μ a)
     (``membrane.viscosity.shear``) and the membrane's viscoelastic time μ_s/G_s
-    (``membrane_time_s``; kτ = Bq·Ca in units of 1/k).
+    (``membrane_time_s``; kτ = Bq·Ca in units of 1/k); with the inner fluid's viscosity
+    (``inner_viscosity``, the cytoplasm's) the viscosity ratio ``lambda`` = μ_in/μ
+    (``flow.viscosity_ratio``).
+
+    Every value returned is a positive, finite number: values whose product overflows or
+    underflows (``1e300 1/s`` with ``1e300 Pa*s``) are a :class:`UnitsError` naming it.
     """
     if (surface_modulus is None) == (shear_modulus is None):
         raise UnitsError("give the surface modulus E_s or the shear modulus G_s (one of the two)")
@@ -140,7 +146,67 @@ def conversion(shear_rate: Any, viscosity: Any, radius: Any, surface_modulus: An
     if membrane_viscosity is not None:
         mu_s = parse(membrane_viscosity, "membrane_viscosity")
         out.update(Bq=mu_s / (mu * a), membrane_viscosity_N_s_per_m=mu_s, membrane_time_s=mu_s / g_s)
+    if inner_viscosity is not None:
+        mu_in = parse(inner_viscosity, "inner_viscosity")
+        out.update({"lambda": mu_in / mu, "inner_viscosity_Pa_s": mu_in})
+    check_finite(out)
     return out
+
+
+#: what each value of :func:`conversion` is, in words (its error messages)
+_CONVERTED = {
+    "G": "G = mu k a / E_s", "Ca": "Ca = mu k a / G_s", "time_unit_s": "the time unit 1/k (s)",
+    "E_s_N_per_m": "E_s (N/m)", "G_s_N_per_m": "G_s (N/m)", "velocity_m_per_s": "the velocity unit k a (m/s)",
+    "tension_N_per_m": "the tension unit mu k a (N/m)", "Bq": "Bq = mu_s / (mu a)",
+    "membrane_time_s": "the membrane time mu_s / G_s (s)", "lambda": "the viscosity ratio mu_in / mu",
+}
+
+
+def check_finite(out: dict[str, float]) -> None:
+    """UnitsError naming the first value of `out` that is not a positive, finite number (a
+    product of physical values that overflowed to inf or underflowed to 0)."""
+    for key, value in out.items():
+        if not (math.isfinite(value) and value > 0):
+            exc = UnitsError(f"the values give {_CONVERTED.get(key, key)} = {value:.3g}, not a positive finite "
+                             "number (it overflows or underflows): check their units")
+            exc.key = key  # which value (capsim.config names the physical field it comes from)
+            raise exc
+
+
+#: the span of each physical value over the capsules and cells capsim is meant for (SI):
+#: only used to say which value of a physical block that gives an absurd G most likely has
+#: the wrong units (:func:`likeliest_slip`); nothing is refused on these alone
+TYPICAL_SI = {
+    "shear_rate": (1e-2, 1e5), "viscosity": (1e-4, 1e2), "radius": (1e-7, 1e-1),
+    "surface_modulus": (1e-8, 1e1), "shear_modulus": (1e-8, 1e1),
+}
+
+
+_FLOW = ("shear_rate", "viscosity", "radius", "surface_modulus", "shear_modulus")
+_MODULUS = ("surface_modulus", "shear_modulus")
+#: the physical values each computed value (a key of :func:`conversion`'s result or a capsim
+#: scale of :func:`check_scales`) is made of: the ones a message about it may name
+INVOLVED: dict[str, tuple[str, ...]] = {
+    "G": _FLOW, "Ca": _FLOW, "tension_N_per_m": _FLOW, "time_unit_s": ("shear_rate",),
+    "E_s_N_per_m": _MODULUS, "G_s_N_per_m": _MODULUS, "velocity_m_per_s": ("shear_rate", "radius"),
+    "Bq": ("membrane_viscosity",), "membrane_time_s": ("membrane_viscosity",), "lambda": ("inner_viscosity",),
+    "a": ("radius",), "1/k": ("shear_rate",), "E_s": _MODULUS, "mu": ("viscosity",), "mu k a": _FLOW,
+    "5/2 mu k V": _FLOW, "E_s a^2": ("radius", *_MODULUS), "a^2": ("radius",), "a^3": ("radius",),
+    "mu k^2 a^3": _FLOW, "k/(4 pi)": ("shear_rate",), "a k": ("shear_rate", "radius"),
+    "E_s/a": ("radius", *_MODULUS),
+}
+
+
+def likeliest_slip(values_si: dict[str, float]) -> str:
+    """Of physical values (kind → SI magnitude) that give an implausible result together, the
+    kind furthest (in decades) outside its span in :data:`TYPICAL_SI`, else the one furthest
+    from its span's middle: the value to name in the message."""
+    def decades(kind: str) -> tuple[float, float]:
+        lo, hi = TYPICAL_SI[kind]
+        x = math.log10(values_si[kind])
+        outside = max(math.log10(lo) - x, x - math.log10(hi), 0.0)
+        return outside, abs(x - 0.5 * (math.log10(lo) + math.log10(hi)))
+    return max((k for k in values_si if k in TYPICAL_SI), key=decades)
 
 
 def describe_conversion(out: dict[str, float]) -> str:
@@ -154,7 +220,8 @@ def describe_conversion(out: dict[str, float]) -> str:
         f"{out['tension_N_per_m']:.6g} N/m",
     ] + ([f"Bq = mu_s / (mu a) = {out['Bq']:.6g}   (membrane.viscosity.shear); membrane time "
           f"mu_s / G_s = {out['membrane_time_s']:.6g} s (k tau = Bq Ca = {out['Bq'] * out['Ca']:.6g})"]
-         if "Bq" in out else []))
+         if "Bq" in out else [])
+      + ([f"lambda = mu_in / mu = {out['lambda']:.6g}   (flow.viscosity_ratio)"] if "lambda" in out else []))
 
 
 # ---------------------------------------------------------------- capsim's scales in physical units (outputs)
@@ -164,29 +231,51 @@ def scale_values(out: dict[str, float]) -> dict[str, float]:
     """The SI magnitude (in the SI unit of :data:`capsim.quantities.SCALE_UNITS`) of each
     capsim scale, from :func:`conversion`'s result. V = (4π/3) a³: a is the equal-volume radius."""
     k, mu, a, e_s = out["shear_rate_per_s"], out["viscosity_Pa_s"], out["radius_m"], out["E_s_N_per_m"]
-    volume = 4.0 / 3.0 * math.pi * a**3
+    # products, not powers: a float power raises OverflowError where a product is inf
+    a2, a3 = a * a, a * a * a
+    volume = 4.0 / 3.0 * math.pi * a3
     return {
         "a": a, "1/k": 1.0 / k, "E_s": e_s, "mu": mu, "mu k a": mu * k * a,
-        "5/2 mu k V": 2.5 * mu * k * volume, "E_s a^2": e_s * a**2, "a^2": a**2, "a^3": a**3,
-        "mu k^2 a^3": mu * k**2 * a**3, "k/(4 pi)": k / (4.0 * math.pi), "a k": a * k, "E_s/a": e_s / a,
+        "5/2 mu k V": 2.5 * mu * k * volume, "E_s a^2": e_s * a2, "a^2": a2, "a^3": a3,
+        "mu k^2 a^3": mu * k * k * a3, "k/(4 pi)": k / (4.0 * math.pi), "a k": a * k, "E_s/a": e_s / a,
     }
+
+
+def check_scales(out: dict[str, float]) -> dict[str, float]:
+    """The factor of each capsim scale in the unit shown (:data:`capsim.quantities.SCALE_UNITS`)
+    from :func:`conversion`'s result, each a positive finite number, else a UnitsError naming
+    the scale (its ``key``): physical values that are consistent (a sane G) but so extreme that
+    an output in physical units overflows or underflows (a radius of 1e100 m: a³ in µm³)."""
+    from capsim.quantities import SCALE_UNITS
+
+    ureg = _registry()
+    values = scale_values(out)
+    factors = {}
+    for scale, (si, shown) in SCALE_UNITS.items():
+        factor = values[scale] * float(ureg.Quantity(1.0, si).to(shown).magnitude)
+        if not (math.isfinite(factor) and factor > 0):
+            exc = UnitsError(f"the values give the scale {scale} = {factor:.3g} {shown}, not a positive finite number "
+                             "(it overflows or underflows, so no output can be shown in physical units): check "
+                             "their units")
+            exc.key = scale
+            raise exc
+        factors[scale] = factor
+    return factors
 
 
 def physical_factors(physical: Any) -> dict[str, float]:
     """What a dimensionless value measured in each capsim scale is multiplied by to be in the
     unit shown (:data:`capsim.quantities.SCALE_UNITS`: 1/k → s, a → µm, μka → µN/m …), for a
     case's ``physical`` block (a :class:`capsim.config.Physical` or its dict). The unit
-    changes go through pint."""
-    from capsim.quantities import SCALE_UNITS
-
+    changes go through pint; a factor that is not a positive finite number is a UnitsError."""
     if not isinstance(physical, dict):
         physical = physical.model_dump()
-    out = conversion(physical["shear_rate"], physical["viscosity"], physical["radius"],
-                     physical.get("surface_modulus"), physical.get("shear_modulus"))
-    ureg = _registry()
-    values = scale_values(out)
-    return {scale: float(ureg.Quantity(values[scale], si).to(shown).magnitude)
-            for scale, (si, shown) in SCALE_UNITS.items()}
+    try:
+        out = conversion(physical["shear_rate"], physical["viscosity"], physical["radius"],
+                         physical.get("surface_modulus"), physical.get("shear_modulus"))
+        return check_scales(out)
+    except UnitsError as exc:
+        raise UnitsError(f"--units physical: the physical block: {exc}") from None
 
 
 class NoPhysicalBlock(UnitsError):

@@ -148,9 +148,27 @@ def quantities_markdown() -> str:
 
 
 def generate(page: str) -> str:
+    """The text of a generated page (a key of PAGES); KeyError for another page."""
     return globals()[PAGES[page]]()
 
 
+def main(argv: list[str]) -> int:
+    """Print the page named by ``argv`` (``case_file`` by default); an unknown page or a
+    second argument is one line on stderr and exit status 2."""
+    names = [page.removeprefix("reference/").removesuffix(".md") for page in PAGES]
+    usage = f"give one of {', '.join(names)} (python docs/gen_reference.py [{'|'.join(names)}])"
+    if len(argv) > 1:
+        sys.stderr.write(f"error: one page at a time, got {len(argv)}; {usage}\n")
+        return 2
+    name = argv[0] if argv else "case_file"
+    page = f"reference/{name}.md"
+    if page not in PAGES:
+        shown = name if len(name) <= 60 and name.isprintable() else repr(name[:57]) + "..."
+        sys.stderr.write(f"error: unknown page {shown!r}; {usage}\n")
+        return 2
+    sys.stdout.write(generate(page))
+    return 0
+
+
 if __name__ == "__main__":
-    name = sys.argv[1] if len(sys.argv) > 1 else "case_file"
-    sys.stdout.write(generate(f"reference/{name}.md"))
+    sys.exit(main(sys.argv[1:]))
