@@ -353,7 +353,10 @@ def units(
             parse(value, kind)
         except UnitsError as exc:
             raise _user_error(f"units: {_option(kind)}: {exc}") from None
-    out = conversion(shear_rate, viscosity, radius, surface_modulus, shear_modulus, membrane_viscosity)
+    try:  # values that overflow together (G = inf): one line, never Infinity in the JSON
+        out = conversion(shear_rate, viscosity, radius, surface_modulus, shear_modulus, membrane_viscosity)
+    except UnitsError as exc:
+        raise _user_error(f"units: {exc}") from None
     typer.echo(json.dumps(out) if as_json else describe_conversion(out))
 
 
