@@ -833,15 +833,32 @@ class Case(_Model):
 
         try:
             out = self.physical.conversion()
+            self._plausible_G(out["G"])  # before the scales: the likelier slip, in the words of G
             check_scales(out)
             return out
         except UnitsError as exc:
-            four = ("shear_rate", "viscosity", "radius", "surface_modulus", "shear_modulus")
-            involved = [k for k in INVOLVED.get(getattr(exc, "key", None), four) if getattr(self.physical, k) is not None]
-            culprit = involved[0] if len(involved) == 1 else likeliest_slip(
-                {k: parse(getattr(self.physical, k), k) for k in involved})
-            others = self._physical_given(*(k for k in involved if k != culprit))
-            raise self._physical_problem(culprit, f"{exc}" + (f" (with {others})" if others else "")) from None
+            problem = exc
+        four = ("shear_rate", "viscosity", "radius", "surface_modulus", "shear_modulus")
+        involved = [k for k in INVOLVED.get(getattr(problem, "key", None), four) if getattr(self.physical, k) is not None]
+        culprit = involved[0] if len(involved) == 1 else likeliest_slip(
+            {k: parse(getattr(self.physical, k), k) for k in involved})
+        others = self._physical_given(*(k for k in involved if k != culprit))
+        raise self._physical_problem(culprit, f"{problem}" + (f" (with {others})" if others else ""))
+
+    def _plausible_G(self, G: float) -> None:
+        """Refuse a G from the physical block outside PHYSICAL_G_RANGE, naming its likeliest slip."""
+        from capsim.units import likeliest_slip, parse
+
+        lo, hi = PHYSICAL_G_RANGE
+        if not lo <= G <= hi:
+            four = [k for k in ("shear_rate", "viscosity", "radius", "surface_modulus", "shear_modulus")
+                    if getattr(self.physical, k) is not None]
+            culprit = likeliest_slip({k: parse(getattr(self.physical, k), k) for k in four})
+            vlo, vhi = VALIDATED_RANGES["flow.shear_rate_G"]
+            raise self._physical_problem(
+                culprit,
+                f"with {self._physical_given(*(k for k in four if k != culprit))} gives G = mu k a / E_s = {G:.3g}, "
+                f"outside [{lo:g}, {hi:g}] (capsim is validated for G in [{vlo:g}, {vhi:g}]): check the units")
 
     @model_validator(mode="after")
     def _bending_from_physical(self) -> Case:
@@ -864,19 +881,7 @@ class Case(_Model):
     def _G_from_physical(self) -> Case:
         if self.physical is None:
             return self
-        from capsim.units import likeliest_slip, parse
-
         G = self._conversion()["G"]
-        lo, hi = PHYSICAL_G_RANGE
-        if not lo <= G <= hi:
-            four = [k for k in ("shear_rate", "viscosity", "radius", "surface_modulus", "shear_modulus")
-                    if getattr(self.physical, k) is not None]
-            culprit = likeliest_slip({k: parse(getattr(self.physical, k), k) for k in four})
-            vlo, vhi = VALIDATED_RANGES["flow.shear_rate_G"]
-            raise self._physical_problem(
-                culprit,
-                f"with {self._physical_given(*(k for k in four if k != culprit))} gives G = mu k a / E_s = {G:.3g}, "
-                f"outside [{lo:g}, {hi:g}] (capsim is validated for G in [{vlo:g}, {vhi:g}]): check the units")
         if self._given_agrees("flow", "shear_rate_G", G, "physical", f"physical gives G = {G:.6g}"):
             return self
         self._set_derived("flow", "shear_rate_G", G)
