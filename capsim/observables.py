@@ -282,12 +282,16 @@ RIGID_SPHERE_ROTATION_RATE = 0.5  # |ω| of a rigid sphere in shear: k/2, i.e. f
 
 
 class TankTreadingTracker:
-    """Material nodes that start in the plane z = 0, followed about the centroid.
+    """Material nodes that start in the plane z = 0 (for a rest shape turned off the shear
+    plane, which has no mesh line there: those of the band |z| < band·max|z| away from the
+    z-axis), followed about the centroid.
 
     Each step gives the mean phase-unwrapped angle of these nodes in the
     xy-plane (``tt_angle``, decreasing for the clockwise rotation of shear flow)
     and the instantaneous rate ω = ⟨(r × u)_z / |r|²⟩ over them, reported as
-    ``ttf_ratio`` = |ω| / (k/2), the tank-treading frequency over f_s = k/(4π).
+    ``ttf_ratio`` = |ω| / (k/2) over f_s = k/(4π): the nodes' rate in the lab frame, the
+    membrane's tank-treading when the body does not turn, its turn (and any tank-treading
+    on it) when it does (run_summary tells them apart: rotation_rates).
     """
 
     def __init__(self, rest_positions: np.ndarray, plane_tol: float = 1e-9, band: float = 0.25) -> None:
