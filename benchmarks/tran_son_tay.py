@@ -1,0 +1,296 @@
+"""Red cells against measurement (issue 40): the tank-treading frequency of young red cells in
+a 35 cP dextran solution measured by Tran-Son-Tay, Sutera & Rao, Biophys. J. 46 (1984) 65-72,
+at their five shear rates, against capsim's cell with the membrane viscosity they infer
+(campaigns/tran-son-tay-1984.yaml) and with none (campaigns/tran-son-tay-1984-elastic.yaml),
+and the sensitivity of the computed frequency to the shear modulus, the membrane viscosity
+(±30 %) and the mesh level at one shear rate.
+
+The paper's numbers below are their Tables I-III as digitised in the public repository
+github.com/slitvinov/uDeviceX, tools/tran_son_tay/data/tab1.txt, tab2.txt, tab3.txt (commit
+50278c63500989a0a3757ac05defc6516f970aad), checked against the paper's own text (its scanned
+copy tools/tran_son_tay/papers/tran-son-tay84.pdf at that commit). Young cells only (the
+digitised tables hold the young fraction; the paper's old-cell columns are not used).
+
+    python benchmarks/tran_son_tay.py run [main|elastic|sensitivity ...]   # the runs, resumable
+    python benchmarks/tran_son_tay.py report                                # table and figure
+
+`run` appends each finished run to benchmarks/tran_son_tay.json (a run already there is not
+repeated; one run at level 2 takes 1-3 min on one core); `report` writes
+benchmarks/tran_son_tay.md (included by docs/validation.md) and docs/figures/tran_son_tay.png.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
+
+ROOT = Path(__file__).resolve().parents[1]
+JSON = ROOT / "benchmarks" / "tran_son_tay.json"
+TABLE = ROOT / "benchmarks" / "tran_son_tay.md"
+FIGURE = ROOT / "docs" / "figures" / "tran_son_tay.png"
+CAMPAIGN = ROOT / "campaigns" / "tran-son-tay-1984.yaml"
+ELASTIC = ROOT / "campaigns" / "tran-son-tay-1984-elastic.yaml"
+
+# Table I, young cells (data/tab1.txt): shear rate (1/s); projected half-length a cos(theta)
+# and half-width c (um, uncorrected: scaled by an 8.0 um reference diameter) with their
+# standard deviations; tank-treading frequency f (rad/s) and its standard deviation (N = 30).
+TABLE_I = [
+    (28.6, 5.5, 0.5, 3.2, 0.2, 6.22, 0.31),
+    (42.9, 5.9, 0.7, 3.0, 0.5, 9.42, 0.57),
+    (57.1, 6.5, 0.8, 2.5, 0.3, 12.7, 0.57),
+    (114.3, 7.3, 0.4, 2.3, 0.5, 24.6, 1.07),
+    (171.4, 7.6, 0.4, 2.1, 0.3, 37.4, 1.45),
+]
+# Table II, young cells (data/tab2.txt): the ellipsoid's semi-axes a (long, in the shear
+# plane), b (short, in the plane), c (along the vorticity) in um and its inclination theta in
+# degrees, which they COMPUTED from Table I with Keller & Skalak's model (their eq. 10 for
+# theta), the cells' area and volume assigned (S = 141 um^2, V = 111 um^3): not measured.
+TABLE_II = [
+    (28.6, 5.6, 1.5, 3.2, 12.8),
+    (42.9, 6.0, 1.5, 3.0, 13.0),
+    (57.1, 6.7, 1.6, 2.5, 13.2),
+    (114.3, 7.1, 1.7, 2.2, 12.5),
+    (171.4, 7.3, 1.9, 2.0, 12.7),
+]
+# Table III, young cells, cytoplasm 10 cP (data/tab3.txt): the surface-averaged membrane
+# viscosity they infer, in 1e-4 dyn s/cm = 1e-7 N s/m.
+TABLE_III_MU = [0.96, 0.72, 0.53, 0.53, 0.57]
+
+RADIUS_UM = 2.98          # (3 V / 4 pi)^(1/3) for V = 111 um^3
+SENSITIVITY_RATE = 28.6   # the shear rate of the sensitivity table and of tests/test_tran_son_tay.py
+MAIN_LEVEL = 2
+
+
+def load_base(path: Path) -> tuple[dict, dict]:
+    import yaml
+
+    data = yaml.safe_load(path.read_text())
+    return data["base"], data.get("zip") or {}
+
+
+def case_dicts(path: Path) -> list[dict]:
+    """The campaign's runs as case dicts (its zip lists, in order)."""
+    base, zipped = load_base(path)
+    n = len(next(iter(zipped.values())))
+    out = []
+    for i in range(n):
+        d = json.loads(json.dumps(base))
+        for key, values in zipped.items():
+            node = d
+            *head, last = key.split(".")
+            for part in head:
+                node = node.setdefault(part, {})
+            node[last] = values[i]
+        out.append(d)
+    return out
+
+
+def rate_of(case: dict) -> float:
+    return float(str(case["physical"]["shear_rate"]).split()[0])
+
+
+def run_one(case: dict, label: str, level: int | None = None, t_end: float | None = None) -> dict:
+    """Run a case (dict) to its end and return the summary's numbers, with the frequency in rad/s."""
+    import numpy as np
+
+    from capsim.config import case_from_dict
+    from capsim.runner import run_case
+    from capsim.store import read_trajectory
+
+    case = json.loads(json.dumps(case))
+    if level is not None:
+        case["mesh"]["level"] = level
+    if t_end is not None:
+        case["time"]["t_end"] = t_end
+    with tempfile.TemporaryDirectory() as tmp:
+        case["name"] = "tts"
+        case["output"] = {"path": f"{tmp}/tts.h5", "snapshot_every": case["time"]["t_end"]}
+        c = case_from_dict(case)
+        result = run_case(c)
+        if result.status != "completed":
+            raise SystemExit(f"run {label} ended {result.status}: no row written")
+        ts = read_trajectory(c.output.path)["timeseries"]
+    s = dict(result.summary)
+    k = rate_of(case)
+    t = np.asarray(ts["t"], float)
+    sel = (t >= s["averaging_t_from"]) & (t <= s["averaging_t_to"])
+    mean = {name: float(np.mean(np.asarray(ts[name], float)[sel])) for name in
+            ("ellipsoid_a", "ellipsoid_b", "ellipsoid_c")}
+    tt = np.asarray(ts["tt_angle"], float)
+    half = t >= 0.5 * t[-1]
+    row = {
+        "label": label, "shear_rate": k, "level": c.mesh.level, "t_end": c.time.t_end,
+        "G": c.flow.shear_rate_G, "viscosity_ratio": c.flow.viscosity_ratio,
+        "Bq": (c.membrane.viscosity.shear if c.membrane.viscosity is not None else 0.0),
+        "bending": c.membrane.bending_modulus,
+        "shear_modulus": case["physical"]["shear_modulus"],
+        "membrane_viscosity": case["physical"].get("membrane_viscosity", "0"),
+        "motion": s["motion"], "settled": s.get("settled", float("nan")),
+        "ttf_ratio": s["ttf_ratio"], "ttf_ratio_std": s["ttf_ratio_std"],
+        "tank_treading_ratio": s.get("tank_treading_ratio", float("nan")),
+        "body_rotation_ratio": s.get("body_rotation_ratio", float("nan")),
+        "shape_period": s.get("shape_period", float("nan")),
+        # whole revolutions of the tracked nodes in the second half: ttf_ratio counts them
+        "revolutions_second_half": float(abs(tt[half][-1] - tt[half][0]) / (2 * math.pi)),
+        "averaging": [s["averaging_t_from"], s["averaging_t_to"]],
+        "D_xy": s["D_xy"], "theta_deg": math.degrees(s["theta"]),
+        "axes_um": [mean[n] * RADIUS_UM for n in ("ellipsoid_a", "ellipsoid_b", "ellipsoid_c")],
+        "wall_time_s": result.wall_time_s,
+    }
+    row["f_rad_s"] = row["ttf_ratio"] * k / 2.0   # ttf_ratio = omega / (k/2)
+    return row
+
+
+def load_rows() -> dict:
+    return json.loads(JSON.read_text()) if JSON.exists() else {}
+
+
+def save_row(row: dict) -> None:
+    rows = load_rows()
+    rows[row["label"]] = row
+    JSON.write_text(json.dumps(rows, indent=1, sort_keys=True) + "\n")
+
+
+def jobs() -> dict[str, list[tuple[str, dict, dict]]]:
+    main = case_dicts(CAMPAIGN)
+    elastic = case_dicts(ELASTIC)
+    out: dict[str, list] = {"main": [], "elastic": [], "sensitivity": [], "level3": []}
+    for c in main:
+        out["main"].append((f"viscous k={rate_of(c)} L{MAIN_LEVEL}", c, {}))
+    for c in elastic:
+        out["elastic"].append((f"elastic k={rate_of(c)} L{MAIN_LEVEL}", c, {}))
+    base = next(c for c in main if rate_of(c) == SENSITIVITY_RATE)
+    mu = float(base["physical"]["membrane_viscosity"].split()[0])
+
+    def variant(**physical):
+        d = json.loads(json.dumps(base))
+        d["physical"].update(physical)
+        return d
+
+    out["sensitivity"] = [
+        (f"sens mu_s x0.7 k={SENSITIVITY_RATE} L{MAIN_LEVEL}", variant(membrane_viscosity=f"{0.7 * mu:.4g} N*s/m"), {}),
+        (f"sens mu_s x1.3 k={SENSITIVITY_RATE} L{MAIN_LEVEL}", variant(membrane_viscosity=f"{1.3 * mu:.4g} N*s/m"), {}),
+        (f"sens G_s 5 uN/m k={SENSITIVITY_RATE} L{MAIN_LEVEL}", variant(shear_modulus="5 uN/m"), {}),
+        (f"viscous k={SENSITIVITY_RATE} L1", base, {"level": 1}),
+    ]
+    out["level3"] = [(f"viscous k={SENSITIVITY_RATE} L3", base, {"level": 3})]
+    return out
+
+
+def run(groups: list[str]) -> None:
+    from capsim.threads import apply_policy
+
+    apply_policy(1)
+    done = load_rows()
+    todo = jobs()
+    for group in groups:
+        for label, case, opts in todo[group]:
+            if label in done:
+                continue
+            row = run_one(case, label, **opts)
+            save_row(row)
+            print(f"{label}: f = {row['f_rad_s']:.2f} rad/s, ttf_ratio {row['ttf_ratio']:.4f}, "
+                  f"{row['motion']}, settled {row['settled']}, {row['wall_time_s']:.0f} s", flush=True)
+
+
+def _fmt(x: float, digits: int = 3) -> str:
+    return "—" if x is None or not math.isfinite(x) else f"{x:.{digits}g}"
+
+
+def report() -> None:
+    rows = load_rows()
+    lines = [
+        "| k (1/s) | μ_s (1e-7 N s/m) | G | Bq_s | f measured (rad/s) | f capsim, their μ_s | error | "
+        "f capsim, μ_s = 0 | error | motion (their μ_s) | revolutions averaged |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for (k, _, _, _, _, f, sd), mu in zip(TABLE_I, TABLE_III_MU):
+        v = rows.get(f"viscous k={k} L{MAIN_LEVEL}")
+        e = rows.get(f"elastic k={k} L{MAIN_LEVEL}")
+        cells = [f"{k:g}", f"{mu:.2f}", _fmt(v["G"]) if v else "—", _fmt(v["Bq"]) if v else "—",
+                 f"{f:.3g} ± {sd:.2g}"]
+        for r in (v, e):
+            if r is None:
+                cells += ["not run", "—"]
+            else:
+                cells += [f"{r['f_rad_s']:.3g}", f"{100 * (r['f_rad_s'] / f - 1):+.0f} %"]
+        cells += [f"{v['motion']}{'' if v['settled'] == 1 else ' (not settled)'}" if v else "—",
+                  f"{math.floor(v['revolutions_second_half'])}" if v else "—"]
+        lines.append("| " + " | ".join(cells) + " |")
+    lines += ["", "Shape (their μ_s; semi-axes of the equal-moment ellipsoid, µm, long / along the vorticity / "
+              "short, and the inclination θ of the long axis) against their Table II, which they computed "
+              "from Table I with Keller & Skalak's ellipsoid model (area and volume assigned), not measured:", "",
+              "| k (1/s) | a capsim / theirs | c (vorticity) capsim / theirs | b capsim / theirs | "
+              "θ (deg) capsim / theirs | D_xy capsim |", "|---|---|---|---|---|---|"]
+    for (k, a, b, c, th) in TABLE_II:
+        v = rows.get(f"viscous k={k} L{MAIN_LEVEL}")
+        if v is None:
+            lines.append(f"| {k:g} | — / {a} | — / {c} | — / {b} | — / {th} | — |")
+            continue
+        A, M, S = v["axes_um"]
+        lines.append(f"| {k:g} | {A:.2f} / {a} | {M:.2f} / {c} | {S:.2f} / {b} | {v['theta_deg']:.1f} / {th} | "
+                     f"{v['D_xy']:.3f} |")
+    base = rows.get(f"viscous k={SENSITIVITY_RATE} L{MAIN_LEVEL}")
+    f_meas = next(r[5] for r in TABLE_I if r[0] == SENSITIVITY_RATE)
+    lines += ["", f"Sensitivity at k = {SENSITIVITY_RATE} 1/s (measured f = {f_meas} rad/s):", "",
+              "| change from the case | f capsim (rad/s) | against the case | against measured | motion |",
+              "|---|---|---|---|---|"]
+    sens = [("the case (level 2, G_s 2.5 µN/m, their μ_s)", base),
+            ("μ_s × 0.7", rows.get(f"sens mu_s x0.7 k={SENSITIVITY_RATE} L{MAIN_LEVEL}")),
+            ("μ_s × 1.3", rows.get(f"sens mu_s x1.3 k={SENSITIVITY_RATE} L{MAIN_LEVEL}")),
+            ("μ_s = 0", rows.get(f"elastic k={SENSITIVITY_RATE} L{MAIN_LEVEL}")),
+            ("G_s = 5 µN/m (× 2)", rows.get(f"sens G_s 5 uN/m k={SENSITIVITY_RATE} L{MAIN_LEVEL}")),
+            ("mesh level 1", rows.get(f"viscous k={SENSITIVITY_RATE} L1")),
+            ("mesh level 3", rows.get(f"viscous k={SENSITIVITY_RATE} L3"))]
+    for name, r in sens:
+        if r is None:
+            lines.append(f"| {name} | not run | — | — | — |")
+            continue
+        rel = f"{100 * (r['f_rad_s'] / base['f_rad_s'] - 1):+.1f} %" if base else "—"
+        lines.append(f"| {name} | {r['f_rad_s']:.3g} | {rel} | {100 * (r['f_rad_s'] / f_meas - 1):+.0f} % | "
+                     f"{r['motion']} |")
+    TABLE.write_text("\n".join(lines) + "\n")
+    figure(rows)
+
+
+def figure(rows: dict) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    k = [r[0] for r in TABLE_I]
+    fig, ax = plt.subplots(figsize=(5.2, 3.8))
+    ax.errorbar(k, [r[5] for r in TABLE_I], yerr=[r[6] for r in TABLE_I], fmt="ko", capsize=3,
+                label="measured, young cells (Tran-Son-Tay et al. 1984, mean ± SD)")
+    for kind, style, name in (("viscous", "s-", "capsim, their membrane viscosity"),
+                              ("elastic", "^--", "capsim, no membrane viscosity")):
+        pts = [(r[0], rows[f"{kind} k={r[0]} L{MAIN_LEVEL}"]["f_rad_s"]) for r in TABLE_I
+               if f"{kind} k={r[0]} L{MAIN_LEVEL}" in rows]
+        if pts:
+            ax.plot(*zip(*pts), style, mfc="none", label=name)
+    ax.set_xlabel("shear rate k (1/s)")
+    ax.set_ylabel("tank-treading frequency f (rad/s)")
+    ax.set_xlim(0, 185)
+    ax.set_ylim(0, None)
+    ax.legend(fontsize=7, loc="upper left")
+    ax.set_title("Red cells in 35 cP dextran, λ = 0.29 (level 2)", fontsize=9)
+    fig.tight_layout()
+    FIGURE.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(FIGURE, dpi=120)
+
+
+if __name__ == "__main__":
+    if len(sys.argv) >= 2 and sys.argv[1] == "run":
+        run(sys.argv[2:] or ["main", "elastic", "sensitivity"])
+    elif len(sys.argv) == 2 and sys.argv[1] == "report":
+        report()
+    else:
+        raise SystemExit(__doc__)
