@@ -491,6 +491,26 @@ def axis_keeps_quarter_symmetry(axis, tol: float = 1e-12) -> bool:
     return abs(z) <= tol or math.hypot(x, y) <= tol
 
 
+def sphere_mesh_keeps_quarter_symmetry(base: str, axis) -> bool:
+    """Whether the mesh of a sphere turned from y onto `axis` (capsim.mesh.rest_shape_mesh) is
+    mapped onto itself by the mirror z -> -z and the rotation by pi about z: what auto then finds
+    and uses. The sphere itself keeps both whatever its axis (which only labels the material
+    director); its mesh does when the turn maps the base polyhedron's symmetries onto them (an
+    axis in the shear plane or along z, and others such as [0, 1, 1] on the octahedron). Decided
+    on the level-0 mesh: subdivision maps a symmetry of the base polyhedron to one of every level."""
+    import numpy as np
+
+    from capsim.mesh import rotation_onto, unit_sphere_mesh
+
+    points = unit_sphere_mesh(base, 0).positions @ rotation_onto(axis).T
+    for generator in (np.array([1.0, 1.0, -1.0]), np.array([-1.0, -1.0, 1.0])):
+        images = points * generator
+        distance = np.sqrt(((images[:, None, :] - points[None, :, :]) ** 2).sum(axis=2)).min(axis=1)
+        if not np.all(distance <= 1e-9):
+            return False
+    return True
+
+
 class Mesh(_Model):
     base: Literal["octahedron", "icosahedron"] = "octahedron"
     level: int = Field(3, ge=0, le=6, strict=True)
@@ -972,11 +992,20 @@ class Case(_Model):
                 f"give initial_axis or initial_tilt_deg (= {self.initial_tilt_deg:g}), not both; remove one",
             )
         if self.mesh.symmetry == "quarter" and not axis_keeps_quarter_symmetry(self.axis):
-            raise _FieldProblem(
-                "mesh.symmetry", "quarter",
-                f"needs the rest shape's axis in the shear plane (z = 0) or along z, got initial_axis "
-                f"[{', '.join(f'{c:.6g}' for c in self.axis)}]; use half, auto or none",
-            )
+            shown = f"[{', '.join(f'{c:.6g}' for c in self.axis)}]"
+            if self.shape.kind != "sphere":
+                raise _FieldProblem(
+                    "mesh.symmetry", "quarter",
+                    f"needs the rest shape's axis in the shear plane (z = 0) or along z, got initial_axis "
+                    f"{shown}; use half, auto or none",
+                )
+            # a sphere keeps it whatever its axis; its mesh, turned onto the axis, as auto finds it
+            if not sphere_mesh_keeps_quarter_symmetry(self.mesh.base, self.axis):
+                raise _FieldProblem(
+                    "mesh.symmetry", "quarter",
+                    f"the {self.mesh.base} mesh of a sphere turned onto initial_axis {shown} does not keep it "
+                    "(auto uses half for it); use half, auto or none, or an axis in the shear plane or along z",
+                )
         field = far_field_of(self.flow)
         for group in SYMMETRY_CANDIDATES.get(self.mesh.symmetry, ()) if self.mesh.symmetry != "auto" else ():
             if not all(field.is_invariant(g) for g in SYMMETRY_GROUPS[group]):

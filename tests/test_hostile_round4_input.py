@@ -360,3 +360,27 @@ def test_a_membrane_viscosity_beyond_the_bound_names_the_physical_field(tmp_path
     line = _refused(["validate", path], "physical.membrane_viscosity = '1 N*s/m'", f"Bq = mu_s / (mu a) = {Bq:.3g}",
                     f"at most {BQ_MAX:g}")
     assert "shear = 297619047" not in line
+
+
+@pytest.mark.parametrize("base, axis", [("octahedron", [0, 1, 1]), ("octahedron", [0, -1, 1]),
+                                        ("octahedron", [1, 1, 1]), ("octahedron", [1, 0, 1]),
+                                        ("icosahedron", [0, 1, 1])])
+def test_a_sphere_takes_quarter_exactly_where_auto_uses_it(base, axis):
+    """A sphere keeps the mirror and the rotation whatever its axis; its mesh, turned onto the
+    axis, keeps them for some axes: mesh.symmetry quarter is accepted exactly where auto uses it."""
+    from capsim.solver import build_model
+
+    auto = case_from_dict({"name": "s", "initial_axis": axis, "mesh": {"level": 0, "base": base}})
+    model, _ = build_model(auto)
+    auto_uses_quarter = model.disc.symmetry == "mirror_z+rotation_z"
+    data = {"name": "s", "initial_axis": axis, "mesh": {"level": 0, "base": base, "symmetry": "quarter"}}
+    if auto_uses_quarter:
+        quarter, _ = build_model(case_from_dict(data))
+        assert quarter.disc.symmetry == "mirror_z+rotation_z"
+    else:
+        with pytest.raises(ConfigError, match=r"mesh.symmetry = 'quarter': the .* mesh of a sphere turned onto "
+                           r"initial_axis .* does not keep it \(auto uses half for it\)"):
+            case_from_dict(data)
+    # any other shape off the plane: refused as before
+    with pytest.raises(ConfigError, match=r"needs the rest shape's axis in the shear plane"):
+        case_from_dict({**data, "shape": {"kind": "prolate", "aspect_ratio": 2.0}})
