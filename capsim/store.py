@@ -700,9 +700,13 @@ def _not_a_run_file(f: h5py.File) -> str | None:
 def _read_run_file(path: str | os.PathLike, read: Callable[[h5py.File], Any]) -> Any:
     """``read(f)`` of the run file at `path` opened read-only without a lock (a running or killed
     writer must not stop a reader), after checking that it is one; every failure a one-line
-    :class:`TrajectoryError`. A file that a running capsim process holds is read again a few
-    times when its metadata is met half-flushed, then refused as being written, never called
-    corrupt."""
+    :class:`TrajectoryError`.
+
+    A file that another capsim process writes (:func:`writer_of`) is read from an image of
+    it taken in one read into memory (HDF5's core driver): read in place, its chunk index
+    may point past the end the reader saw at opening, as the writer appends a snapshot
+    meanwhile. An image taken mid-flush is taken again a few times; a file that stays
+    unreadable is refused as being written, never called corrupt."""
     import time
 
     source = os.fspath(path)
@@ -710,12 +714,14 @@ def _read_run_file(path: str | os.PathLike, read: Callable[[h5py.File], Any]) ->
         raise TrajectoryError(f"{source}: no such file")
     if os.path.isdir(source):
         raise TrajectoryError(f"{source}: is a directory, not a run file")
+    writer = writer_of(source)
     for attempt in range(_BUSY_TRIES):
+        in_memory = {} if writer is None else {"driver": "core", "backing_store": False}
         try:
             if not h5py.is_hdf5(source):
                 problem = "not an HDF5 file (empty, truncated or another format)"
             else:
-                with h5py.File(source, "r", locking=False) as f:
+                with h5py.File(source, "r", locking=False, **in_memory) as f:
                     why = _not_a_run_file(f)
                     if why is not None:
                         raise TrajectoryError(f"{source}: {why}")
