@@ -237,6 +237,60 @@ def test_open_run_refuses_what_is_not_a_capsim_run_file(tmp_path):
     assert list(tree["timeseries"]["D_xy"].values) == [0.0, 0.01, 0.02]
 
 
+_WRITER = """\
+import sys, numpy as np, capsim
+from capsim.files import FileLock
+from capsim.store import TrajectoryWriter
+path, n = sys.argv[1], 500
+with FileLock(path):
+    w = TrajectoryWriter(path, config_yaml=capsim.load_case({"name": "h"}).to_yaml(),
+                         elements=np.array([[0, 1, 2, 3, 4, 5]]), rest_positions=np.zeros((n, 3)), version="t")
+    rng = np.random.default_rng(0)
+    for k in range(40):
+        if k == 3:  # three rows and snapshots on disk; the rest when the reader is half-way
+            w.flush()
+            print("ready", flush=True)
+            sys.stdin.readline()
+        w.append_step({"t": 0.1 * k, "D_xy": 0.0})
+        w.append_snapshot(0.1 * k, rng.random((n, 3)))
+    w.flush()
+    print("appended", flush=True)
+    sys.stdin.readline()
+    w.close("completed")
+"""
+
+
+def test_a_healthy_file_read_while_its_writer_appends_is_read(tmp_path, monkeypatch):
+    """The window held open by construction: the reader has opened the file and read its root
+    when the writer (another process, holding the run file's lock) appends 37 snapshots; read in
+    place, the reader then met a chunk past the end it saw ('addr overflow': 'truncated or
+    corrupt?'). Read from an image of the file, it reads the file as it was when opened."""
+    import capsim.store
+
+    path = tmp_path / "run.h5"
+    writer = subprocess.Popen([sys.executable, "-c", _WRITER, str(path)], stdin=subprocess.PIPE,
+                              stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        assert writer.stdout.readline().strip() == "ready"
+        read_group = capsim.store._group_dataset
+        appended = []
+
+        def midway(group):
+            if not appended:  # once, after the file was opened and before its groups are read
+                writer.stdin.write("go\n")
+                writer.stdin.flush()
+                appended.append(writer.stdout.readline().strip())
+            return read_group(group)
+
+        monkeypatch.setattr(capsim.store, "_group_dataset", midway)
+        tree = capsim.open_run(path)
+        assert appended == ["appended"]
+        n_snap = tree["mesh"]["positions"].shape[0]
+        assert n_snap in (3, 40) and tree["timeseries"]["t"].size == n_snap  # one consistent state
+    finally:
+        writer.communicate("end\n", timeout=60)
+
+
 def test_a_file_being_written_is_read_or_said_to_be_being_written_never_corrupt(tmp_path, monkeypatch):
     """Held by its writer (another process holds the run file's lock), a file read at a moment
     its metadata is half-flushed is read again, and if it stays unreadable, refused as being
