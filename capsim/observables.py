@@ -866,6 +866,7 @@ def classify_orbit(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, director:
     ``turning`` (bool); for a turning body the window is its last whole orbit (the last two
     when settled) and ``period`` the orbit period."""
     opts = {k: v for k, v in classifier_options.items() if k in ("rtol", "theta_tol", "window_fraction", "min_window")}
+    t, D_xy, theta = (np.asarray(a, float) for a in (t, D_xy, theta))
     out = classify_motion(t, D_xy, theta, **opts)
     out["motion_in_plane"] = out["motion"]
     out["turning"] = out["motion"] == "tumbling"
