@@ -82,13 +82,14 @@ MAX_YAML_DEPTH = 32
 MAX_SNAPSHOTS = 10_000
 #: where capsim's results have been checked (docs/validation.md, docs/known_answers.md,
 #: docs/user_guide.md): a case outside one of these ranges is run, with a CaseWarning that
-#: names the field, its value and the range. G: the robustness runs from the stiff G = 0.001
-#: (D/G against first-order theory) to G = 1 (no runaway); λ: 0.01 and 100 (validation.md);
+#: names the field, its value and the range. G: Jeffery's rigid limit at G = 5e-4
+#: (known_answers.md), the robustness runs from the stiff G = 0.001 (D/G against first-order
+#: theory) to G = 1 (no runaway); λ: 0.01 and 100 (validation.md);
 #: κ/(E_s a²): the bending runs up to 1e-2 (the red cell's is 3.06e-3); Bq: the relaxation
 #: times of the small-deformation theory at Bq_s = 0, 10, 30 (known_answers.md; the red cell's
 #: is 29.8)
 VALIDATED_RANGES = {
-    "flow.shear_rate_G": (1e-3, 1.0),
+    "flow.shear_rate_G": (5e-4, 1.0),
     "flow.viscosity_ratio": (1e-2, 1e2),
     "membrane.bending_modulus": (0.0, 1e-2),
     "membrane.viscosity.shear": (0.0, 30.0),
@@ -415,7 +416,7 @@ class Flow(_Model):
         0.1, gt=0,
         description="G = μ k a / E_s; or give the case's `physical` block (then G is computed from it "
         "and stored here, and must be in [1e-6, 100]: outside, the units have slipped); validated in "
-        "[1e-3, 1] (a warning outside)",
+        "[5e-4, 1] (a warning outside)",
     )
     capillary_number: Optional[float] = Field(
         None, gt=0,
