@@ -27,8 +27,9 @@ or without an `if __name__ == "__main__":` guard. Called while a process of the
 script's own (a `multiprocessing` pool started by spawn) imports the script again, they
 refuse: put the call under that guard.
 
-Every failure that is the caller's raises one of these exceptions, its message one line
-(the line the CLI prints after `error:`):
+A mistake in what is asked (an argument, a case, a campaign, a path) and a file in the way
+raise one of these exceptions, its message one line (the line the CLI prints after
+`error:`); a run that fails or goes unstable is no exception: its status says so.
 
 | exception | when |
 |---|---|

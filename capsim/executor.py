@@ -56,8 +56,8 @@ from capsim.errors import first_line
 from capsim import threads
 
 __all__ = ["BatchOutcome", "SigtermAsInterrupt", "check_workers", "in_spawned_import_of_main", "kernel_kind",
-           "number_list", "one_line", "path_arg", "path_list", "refuse_in_spawned_import_of_main", "run_batch", "text_list",
-           "warm_up"]
+           "number_list", "one_line", "path_arg", "path_list", "refuse_in_spawned_import_of_main", "run_batch",
+           "text_list", "warm_up"]
 
 #: task(item, progress) -> record (a dict with at least "status" and "status_reason")
 Task = Callable[[Any, Any], dict]
@@ -87,7 +87,8 @@ def check_workers(workers: Any, name: str = "workers", *, default: str | None = 
     if workers is None and default is not None:
         return None
     if isinstance(workers, bool) or not isinstance(workers, numbers.Integral) or workers < 1:
-        raise _config_error(name, workers, "must be a whole number >= 1" + (f" (or None: {default})" if default else ""))
+        or_default = f" (or None: {default})" if default else ""
+        raise _config_error(name, workers, f"must be a whole number >= 1{or_default}")
     return int(workers)
 
 
