@@ -29,7 +29,8 @@ refuse: put the call under that guard.
 
 A mistake in what is asked (an argument, a case, a campaign, a path) and a file in the way
 raise one of these exceptions, its message one line (the line the CLI prints after
-`error:`); a run that fails or goes unstable is no exception: its status says so.
+`error:`). A run that goes unstable or is stopped (a limit, Ctrl-C) returns, its `status`
+saying so; in a sweep, so does each run that fails.
 
 | exception | when |
 |---|---|
