@@ -368,3 +368,22 @@ def test_the_docs_and_the_quantity_table_name_the_classes_the_classifier_has():
         for old in MOTION_ALIASES:  # an old name appears only beside what it means now
             assert all("before issue 39" in text[max(0, m.start() - 150):m.end() + 150]
                        for m in re.finditer(rf"\b{old}\b", text)), (where, old)
+
+
+def test_stop_when_settled_stops_on_the_summarys_own_rule(tmp_path):
+    """A level-0 oblate (b/a = 0.6, G = 0.2) swings from kt ≈ 10 on: time.stop_when_settled
+    stops it once its last two cycles agree, and the summary of the stopped run says settled."""
+    from capsim.config import case_from_dict
+    from capsim.runner import run_case
+
+    case = case_from_dict({
+        "name": "swing", "shape": {"kind": "oblate", "aspect_ratio": 0.6}, "flow": {"shear_rate_G": 0.2},
+        "mesh": {"level": 0}, "time": {"t_end": 80.0, "rtol": 1e-3, "scheme": "rkc", "dt_initial": 0.01,
+                                       "stop_when_settled": True},
+        "output": {"path": str(tmp_path / "swing.h5"), "snapshot_every": 40.0},
+    })
+    s = run_case(case)
+    assert s["status"] == "completed" and s["status_reason"].startswith("orbit settled"), s["status_reason"]
+    assert s["t"] < 60.0 and s["motion"] == "swinging" and s["settled"] == 1.0
+    assert s["period"] == pytest.approx(s["shape_period"], rel=0.05)  # the swing seen in θ and in the shape
+    assert s["ttf_ratio_kind"] == 0.0 and abs(s["body_rotation_ratio"]) < 0.01  # the membrane tank-treads
