@@ -927,13 +927,18 @@ class Case(_Model):
             raise ValueError("must be three finite numbers") from None
         if not all(math.isfinite(c) for c in parts):
             raise ValueError("must be three finite numbers")
-        # scaled by the largest component first: no square overflows (1e200) or underflows (1e-160)
         largest = max(abs(c) for c in parts)
         if largest == 0.0:
             raise ValueError("must be a nonzero vector (the direction of the rest shape's axis)")
-        norm = math.sqrt(sum(c * c for c in parts))
-        if math.isfinite(norm) and abs(norm - 1.0) <= 1e-15:  # already unit (a resolved case): kept as is
-            return tuple(parts)
+        try:
+            norm = math.sqrt(sum(c**2 for c in parts))
+        except OverflowError:  # a component above ~1e154
+            norm = math.inf
+        if math.isfinite(norm) and norm > 1e-140:  # the squares neither overflow nor underflow
+            if abs(norm - 1.0) <= 1e-15:  # already unit (a resolved case): kept as is, so reloading is exact
+                return tuple(parts)
+            return tuple(c / norm for c in parts)  # as before: a run's stored axis stays the bit it was
+        # scaled by the largest component first: no square overflows (1e200) or underflows (1e-160)
         scaled = [c / largest for c in parts]
         norm = math.sqrt(sum(c * c for c in scaled))
         return tuple(c / norm for c in scaled)

@@ -385,3 +385,12 @@ def test_a_sphere_takes_quarter_exactly_where_auto_uses_it(base, axis):
     # any other shape off the plane: refused as before
     with pytest.raises(ConfigError, match=r"needs the rest shape's axis in the shear plane"):
         case_from_dict({**data, "shape": {"kind": "prolate", "aspect_ratio": 2.0}})
+
+
+@pytest.mark.parametrize("axis", [[0, 1, 1], [0.3, 0.5, 0.8], [1, 2, 0], [-3.5, 1e-3, 7], [0, 3, 4]])
+def test_an_ordinary_axis_normalises_to_the_bits_it_did(axis):
+    """The robust normalisation (scaled first) only where the squares overflow or underflow:
+    an axis that loaded before loads to the same bits, so that a run started earlier resumes
+    (its stored, resolved axis is compared with the one its case file gives now)."""
+    norm = math.sqrt(sum(float(c) ** 2 for c in axis))
+    assert case_from_dict({"name": "a", "initial_axis": axis}).initial_axis == tuple(float(c) / norm for c in axis)
