@@ -378,7 +378,11 @@ class Physical(_Model):
 
         E_s = self.conversion()["E_s_N_per_m"]
         a = parse(self.radius, "radius")
-        return parse(self.bending_modulus, "bending_modulus") / E_s / a / a
+        kappa = parse(self.bending_modulus, "bending_modulus")
+        try:
+            return kappa / (E_s * a**2)  # the formula runs were resolved with: the same bits
+        except (OverflowError, ZeroDivisionError):  # a² beyond a float, or 0
+            return kappa / E_s / a / a
 
     def conversion(self) -> dict[str, float]:
         """G, Ca and the time unit (capsim.units.conversion)."""

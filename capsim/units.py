@@ -231,13 +231,15 @@ def scale_values(out: dict[str, float]) -> dict[str, float]:
     """The SI magnitude (in the SI unit of :data:`capsim.quantities.SCALE_UNITS`) of each
     capsim scale, from :func:`conversion`'s result. V = (4π/3) a³: a is the equal-volume radius."""
     k, mu, a, e_s = out["shear_rate_per_s"], out["viscosity_Pa_s"], out["radius_m"], out["E_s_N_per_m"]
-    # products, not powers: a float power raises OverflowError where a product is inf
-    a2, a3 = a * a, a * a * a
+    try:
+        a2, a3, k2 = a**2, a**3, k**2
+    except OverflowError:  # a float power raises where a product is inf (check_scales refuses it)
+        a2, a3, k2 = a * a, a * a * a, k * k
     volume = 4.0 / 3.0 * math.pi * a3
     return {
         "a": a, "1/k": 1.0 / k, "E_s": e_s, "mu": mu, "mu k a": mu * k * a,
         "5/2 mu k V": 2.5 * mu * k * volume, "E_s a^2": e_s * a2, "a^2": a2, "a^3": a3,
-        "mu k^2 a^3": mu * k * k * a3, "k/(4 pi)": k / (4.0 * math.pi), "a k": a * k, "E_s/a": e_s / a,
+        "mu k^2 a^3": mu * k2 * a3, "k/(4 pi)": k / (4.0 * math.pi), "a k": a * k, "E_s/a": e_s / a,
     }
 
 
@@ -252,7 +254,7 @@ def check_scales(out: dict[str, float]) -> dict[str, float]:
     values = scale_values(out)
     factors = {}
     for scale, (si, shown) in SCALE_UNITS.items():
-        factor = values[scale] * float(ureg.Quantity(1.0, si).to(shown).magnitude)
+        factor = float(ureg.Quantity(values[scale], si).to(shown).magnitude)
         if not (math.isfinite(factor) and factor > 0):
             exc = UnitsError(f"the values give the scale {scale} = {factor:.3g} {shown}, not a positive finite number "
                              "(it overflows or underflows, so no output can be shown in physical units): check "
