@@ -70,7 +70,8 @@ RESUME_HEADROOM_BYTES = 16 * 2**20
 
 
 class TrajectoryError(Exception):
-    """A trajectory file that cannot be read; the message is one line naming it."""
+    """A run file that cannot be read (missing, not a capsim run file, damaged, or being written
+    by a running capsim process and not readable just then); the message is one line naming it."""
 
 
 #: room a writer keeps free beyond the largest flush (a snapshot and a chunk of every column),
