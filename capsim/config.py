@@ -864,7 +864,8 @@ class Case(_Model):
         except UnitsError as exc:
             problem = exc
         four = ("shear_rate", "viscosity", "radius", "surface_modulus", "shear_modulus")
-        involved = [k for k in INVOLVED.get(getattr(problem, "key", None), four) if getattr(self.physical, k) is not None]
+        involved = [k for k in INVOLVED.get(getattr(problem, "key", None), four)
+                    if getattr(self.physical, k) is not None]
         culprit = involved[0] if len(involved) == 1 else likeliest_slip(
             {k: parse(getattr(self.physical, k), k) for k in involved})
         others = self._physical_given(*(k for k in involved if k != culprit))
@@ -894,7 +895,8 @@ class Case(_Model):
         if not (math.isfinite(kappa) and kappa <= PHYSICAL_BENDING_MAX):
             raise self._physical_problem(
                 "bending_modulus",
-                f"gives membrane.bending_modulus = κ/(E_s a²) = {kappa:.3g} (with {self._physical_given('radius', 'surface_modulus', 'shear_modulus')}), "
+                f"gives membrane.bending_modulus = κ/(E_s a²) = {kappa:.3g} (with "
+                f"{self._physical_given('radius', 'surface_modulus', 'shear_modulus')}), "
                 f"which must be finite and at most {PHYSICAL_BENDING_MAX:g} (validated up to "
                 f"{VALIDATED_RANGES['membrane.bending_modulus'][1]:g}): check the units")
         if not self._given_agrees("membrane", "bending_modulus", kappa, "physical.bending_modulus",
