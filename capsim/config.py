@@ -751,6 +751,10 @@ def _case_warning(text: str) -> None:
 
 
 def _issue_warning(text: str, source: str) -> None:
+    import multiprocessing
+
+    if multiprocessing.parent_process() is not None:
+        return  # a worker of a sweep or study: the process that planned its cases warned about them
     # one line: at line 0 of the case file, which has no source line to show beneath it
     warnings.warn_explicit(text, CaseWarning, filename=source, lineno=0, module="capsim.config",
                            registry=_SHOWN_WARNINGS)

@@ -394,3 +394,19 @@ def test_an_ordinary_axis_normalises_to_the_bits_it_did(axis):
     (its stored, resolved axis is compared with the one its case file gives now)."""
     norm = math.sqrt(sum(float(c) ** 2 for c in axis))
     assert case_from_dict({"name": "a", "initial_axis": axis}).initial_axis == tuple(float(c) / norm for c in axis)
+
+
+def _case_warnings_here(G: float) -> int:
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        case_from_dict({"name": "w", "flow": {"shear_rate_G": G}})
+    return sum(issubclass(w.category, CaseWarning) for w in caught)
+
+
+def test_a_worker_process_leaves_the_warning_to_the_process_that_planned_the_runs():
+    """A sweep warns once per run when it expands the campaign, not again in each worker."""
+    import multiprocessing
+
+    assert _case_warnings_here(3.0) == 1
+    with multiprocessing.get_context("spawn").Pool(1) as pool:
+        assert pool.apply(_case_warnings_here, (3.0,)) == 0
