@@ -45,10 +45,11 @@ def unwrap_defined(theta: np.ndarray) -> np.ndarray:
 #: eigenvalue split by round-off (a shape of revolution at rest: ~1e-15); their eigenvectors
 #: are then arbitrary, and :func:`principal_frame` chooses them by the shear instead
 DEGENERATE_GAP = 1e-9
-#: the rate of strain of u∞ = (k y, 0, 0) in units of k, and a small weight of the vorticity
-#: axis that orders a degenerate pair the strain cannot (one perpendicular to the shear plane)
+#: the rate of strain of u∞ = (k y, 0, 0) in units of k, and a small weight of the shear plane
+#: that orders a pair the strain cannot (a disk with its normal along y or x: of its two equal
+#: axes the flow stretches the one in the shear plane, never the one along z)
 _STRAIN = np.array([[0.0, 0.5, 0.0], [0.5, 0.0, 0.0], [0.0, 0.0, 0.0]])
-_TIE_BREAK = _STRAIN + 1e-3 * np.diag([0.0, 0.0, 1.0])
+_TIE_BREAK = _STRAIN + 1e-3 * np.diag([1.0, 1.0, 0.0])
 
 
 def principal_frame(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -1094,6 +1095,7 @@ class StepObserver:
         smax = float(np.max(state.strain.principal_stretches[0]))
         row = {"t": t, "dt": dt, "error_estimate": error}
         row.update(step_observables(y, elements, state.geometry, smax))
+        self._continue_lines(row)
         row.update(director_observables(self.director(state.geometry)))
         # compressive tensions: where a membrane without bending stiffness would wrinkle
         _, tau2 = principal_tensions(state.strain, model.law, model.law_params)
@@ -1117,6 +1119,22 @@ class StepObserver:
             row = {key: value for key, value in row.items() if key in self.columns}
         self._remember(row)
         return row
+
+    def _continue_lines(self, row: dict) -> None:
+        """The shape's axes are lines: each row keeps the sign that points it along the row
+        before (the first row's: its first component that is not ~0 positive), so that a
+        series of long_axis or short_axis is continuous (issue 39: a stateless convention
+        flipped the sign whenever the leading component crossed zero, a short axis near y at
+        every step of a swinging disk)."""
+        if self.last is None:
+            return
+        for name in ("long_axis", "short_axis"):
+            keys = [f"{name}_{c}" for c in "xyz"]
+            if not all(k in self.last for k in keys):
+                continue
+            if sum(row[k] * self.last[k] for k in keys) < 0.0:
+                for k in keys:
+                    row[k] = -row[k]
 
     def _viscous(self, y: np.ndarray, u: np.ndarray, state, center: np.ndarray, volume: float) -> tuple:
         """A viscous membrane's traction joins the elastic one in the stresslet (Batchelor's

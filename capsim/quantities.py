@@ -129,13 +129,14 @@ _add("ellipsoid_c", "shortest semi-axis of the equivalent ellipsoid", "1",
      "smallest semi-axis c of the equivalent ellipsoid, in units of a", "a")
 for _c in "xyz":
     _add(f"long_axis_{_c}", f"{_c} component of the longest axis of the equivalent ellipsoid", "1",
-         f"{_c} component of the unit vector along the semi-axis ellipsoid_a; a line has no sign: the first "
-         "component that is not ~0 (x, then y, then z) is positive; of two equal semi-axes (a shape of "
+         f"{_c} component of the unit vector along the semi-axis ellipsoid_a; a line has no sign: on the first "
+         "row its first component that is not ~0 (x, then y, then z) is positive, on every later row the sign "
+         "that points it along the row before (a continuous series); of two equal semi-axes (a shape of "
          "revolution at rest) the one the shear stretches most (capsim.observables.principal_frame)")
     _add(f"short_axis_{_c}", f"{_c} component of the shortest axis of the equivalent ellipsoid", "1",
          f"{_c} component of the unit vector along the semi-axis ellipsoid_c: the symmetry axis of a disk "
          "(oblate spheroid, biconcave red cell), which the motion classifier follows for such a rest shape; a "
-         "line has no sign: the first component that is not ~0 (x, then y, then z) is positive")
+         "line has no sign: its sign is chosen as long_axis's (continuous from row to row)")
     _add(f"director_{_c}", f"{_c} component of the material director", "1",
          f"{_c} component of the rest shape's symmetry axis carried by the membrane: F a/|F a|, a the axis at "
          "rest (initial_axis), F the rest-area-weighted least-squares affine map of the rest surface onto the "

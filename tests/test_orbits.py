@@ -245,6 +245,11 @@ def test_the_first_row_of_an_off_plane_red_cell_is_no_tie_break(tmp_path):
     assert D[0] < 1e-6 and abs(D[1] - D[0]) < 5e-3 and np.all(np.abs(np.diff(D[:5])) < 5e-3)
     for name in ("axis_L", "axis_l", "axis_W", "long_axis_x", "long_axis_y", "long_axis_z"):
         assert abs(ts[name][1] - ts[name][0]) < 5e-3, name
+    # the axes are lines stored with a continuous sign: no row flips against the one before
+    for name in ("long_axis", "short_axis"):
+        v = np.stack([ts[f"{name}_{c}"] for c in "xyz"], axis=1)
+        assert np.all(np.einsum("ij,ij->i", v[1:], v[:-1]) > 0.99), name
+    assert ts["short_axis_y"][0] == pytest.approx(ts["short_axis_y"][1], abs=1e-3)  # the disk's normal
 
 
 # ---------------------------------------------------------------- the closing table
