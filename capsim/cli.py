@@ -10,19 +10,13 @@ import atexit
 import enum
 import gc
 import json
-import sys
 from pathlib import Path
 from typing import Any, Optional
 
 import typer
-from typer.core import TyperGroup
 
+from capsim.cli_errors import OneLineErrors
 from capsim.files import FIGURE_MAGIC
-
-try:  # typer >= 0.2x carries its own copy of click
-    from typer import _click as click
-except ImportError:  # pragma: no cover - older typer on the real click
-    import click
 
 # A command's last ~0.2 s went to the interpreter's teardown collecting the whole heap (numba's,
 # pydantic's, scipy's objects) several times. Frozen at exit, it is left to the OS: objects are
@@ -31,49 +25,13 @@ except ImportError:  # pragma: no cover - older typer on the real click
 atexit.register(gc.freeze)
 
 
-class _OneLineErrors(TyperGroup):
-    """Usage errors (a bad option value, an unknown option, a missing argument) as one
-    line on stderr, exit 2, like every other user error of capsim."""
-
-    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
-        if not standalone_mode:
-            return super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
-        try:
-            code = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
-        except click.exceptions.UsageError as exc:
-            if type(exc).__name__ == "NoArgsIsHelpError":  # the help was printed
-                sys.exit(exc.exit_code)
-            from capsim.errors import first_line
-
-            where = exc.ctx.command_path if exc.ctx is not None else "capsim"
-            text = "".join(first_line(Exception(exc.format_message()), type(exc).__name__).split("Value error, "))
-            typer.echo(f"error: {text.rstrip('.')}; see '{where} -h'", err=True)
-            sys.exit(2)
-        except click.exceptions.ClickException as exc:
-            from capsim.errors import first_line
-
-            typer.echo(f"error: {first_line(Exception(exc.format_message()), type(exc).__name__)}", err=True)
-            sys.exit(exc.exit_code)
-        except typer.Abort:
-            typer.echo("aborted", err=True)
-            sys.exit(1)
-        except OSError as exc:  # the system refused a resource (open-file limit, a path too long, ...): one line
-            where = f": {exc.filename}" if getattr(exc, "filename", None) else ""
-            typer.echo(f"error: {exc.strerror or type(exc).__name__}{str(where)[:300]}", err=True)
-            sys.exit(2)
-        except MemoryError:
-            typer.echo("error: out of memory (a smaller mesh level, or fewer --workers)", err=True)
-            sys.exit(2)
-        sys.exit(code if isinstance(code, int) else 0)
-
-
 app = typer.Typer(
     help="Boundary-integral simulation of elastic capsules in simple shear flow.",
     no_args_is_help=True,
     add_completion=True,
     pretty_exceptions_show_locals=False,
     context_settings={"help_option_names": ["-h", "--help"]},
-    cls=_OneLineErrors,
+    cls=OneLineErrors,
 )
 
 # Choices, as enums so that --help lists them. Written out here (the CLI must not import
@@ -336,10 +294,7 @@ def units(
              "surface_modulus": surface_modulus, "shear_modulus": shear_modulus,
              "membrane_viscosity": membrane_viscosity}
     if capillary_number is not None:
-        try:
-            out = from_capillary_number(capillary_number, given)
-        except UnitsError as exc:
-            raise _user_error(f"units: {exc}") from None
+        out = _units_call(from_capillary_number, capillary_number, given)
         typer.echo(json.dumps(out) if as_json else describe_capillary(out))
         return
     missing = [_option(k) for k in ("shear_rate", "viscosity", "radius") if given[k] is None]
@@ -353,11 +308,18 @@ def units(
             parse(value, kind)
         except UnitsError as exc:
             raise _user_error(f"units: {_option(kind)}: {exc}") from None
-    try:  # values that overflow together (G = inf): one line, never Infinity in the JSON
-        out = conversion(shear_rate, viscosity, radius, surface_modulus, shear_modulus, membrane_viscosity)
+    # values that overflow together (G = inf): one line, never Infinity in the JSON
+    out = _units_call(conversion, shear_rate, viscosity, radius, surface_modulus, shear_modulus, membrane_viscosity)
+    typer.echo(json.dumps(out) if as_json else describe_conversion(out))
+
+
+def _units_call(fn, *args):
+    from capsim.units import UnitsError
+
+    try:
+        return fn(*args)
     except UnitsError as exc:
         raise _user_error(f"units: {exc}") from None
-    typer.echo(json.dumps(out) if as_json else describe_conversion(out))
 
 
 def _version(value: bool) -> None:

@@ -206,9 +206,11 @@ HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 def is_hdf5(path: str | os.PathLike) -> bool:
     """Whether `path` is a readable file that starts as an HDF5 file does (without loading h5py)."""
     try:
+        if not os.path.isfile(path):  # a FIFO or a device would block or stream: not a run file
+            return False
         with open(path, "rb") as fh:
             return fh.read(len(HDF5_SIGNATURE)) == HDF5_SIGNATURE
-    except OSError:
+    except (OSError, ValueError):
         return False
 
 

@@ -2,7 +2,7 @@
 
 ``membrane.MembraneForce`` gives the traction jump Δf; this module turns it into
 velocities (single layer, the λ ≠ 1 double-layer solve, the volume correction)
-in a linear far-field flow given as data (``FarField``, simple shear by
+in a far-field flow given as data (capsim.flows: ``flow.kind``, simple shear by
 default), using the mesh's symmetries when it has them. ``build_model(case)``
 builds the complete model. Pure orchestration: the loops are in ``kernels.py``.
 In units of a, 1/k, ka and
@@ -23,6 +23,10 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from capsim import kernels
+# the far field and the scene's symmetries live in capsim.flows (re-exported here)
+from capsim.flows import (  # noqa: F401
+    INVERSION, MIRROR_Z, ROTATION_Z, SIMPLE_SHEAR, SYMMETRY_CANDIDATES, SYMMETRY_GROUPS, FarField, far_field_of,
+)
 from capsim.geometry import ElementGeometry, element_geometry, interpolate, shape_functions
 from capsim.krylov import gmres
 from capsim.membrane import TRACTION_METHODS, MembraneForce, MembraneState, get_law  # noqa: F401 (re-exported)
@@ -40,68 +44,6 @@ def shear_flow(x: np.ndarray) -> np.ndarray:
     u = np.zeros_like(x)
     u[:, 0] = x[:, 1]
     return u
-
-
-SIMPLE_SHEAR = ((0.0, 1.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
-
-
-@dataclass(frozen=True)
-class FarField:
-    """A linear undisturbed flow u∞(x) = L·x, L the velocity gradient in units of k
-    (L_ij = ∂u_i/∂x_j). The default is simple shear u∞ = (y, 0, 0)."""
-
-    gradient: tuple = SIMPLE_SHEAR
-
-    def __post_init__(self):
-        L = np.asarray(self.gradient, dtype=np.float64)
-        if L.shape != (3, 3) or not np.all(np.isfinite(L)):
-            raise ValueError(f"the far-field velocity gradient must be a finite 3 × 3 matrix, got {self.gradient!r}")
-        object.__setattr__(self, "gradient", tuple(map(tuple, L.tolist())))
-
-    @property
-    def matrix(self) -> np.ndarray:
-        return np.array(self.gradient)
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        # entry by entry, so that simple shear gives u_x = y to the bit
-        u = np.zeros_like(x)
-        for i in range(3):
-            for j in range(3):
-                if self.gradient[i][j] != 0.0:
-                    u[:, i] += self.gradient[i][j] * x[:, j]
-        return u
-
-    def is_invariant(self, signs: np.ndarray) -> bool:
-        """Whether the flow maps onto itself under x → S x, S = diag(signs)."""
-        S = np.diag(signs)
-        return bool(np.array_equal(S @ self.matrix @ S, self.matrix))
-
-
-# The symmetries used: diagonal sign maps x → S x (and u → S u). Simple shear and
-# every rest shape here tilted about z are invariant under MIRROR_Z and ROTATION_Z;
-# under INVERSION (their product) whatever the orientation: u∞(−x) = −u∞(x) for any
-# linear flow, and every rest shape is centred and symmetric under x → −x.
-MIRROR_Z = np.array([1.0, 1.0, -1.0])
-ROTATION_Z = np.array([-1.0, -1.0, 1.0])  # rotation by π about the z-axis
-INVERSION = np.array([-1.0, -1.0, -1.0])  # the point inversion x → −x
-
-#: group name → generators (Discretization.symmetry, the run file's 'symmetry' attribute)
-SYMMETRY_GROUPS = {
-    "mirror_z+rotation_z": [MIRROR_Z, ROTATION_Z],
-    "mirror_z": [MIRROR_Z],
-    "rotation_z": [ROTATION_Z],
-    "inversion": [INVERSION],
-}
-#: mesh.symmetry → the groups tried, largest first. auto keeps the order of the old
-#: boolean setting (quarter, then one of its halves), then the inversion, which every
-#: centred orientation has: an in-plane case is unchanged to the bit.
-SYMMETRY_CANDIDATES = {
-    "auto": ("mirror_z+rotation_z", "mirror_z", "rotation_z", "inversion"),
-    "quarter": ("mirror_z+rotation_z",),
-    "half": ("inversion",),
-    "mirror_z": ("mirror_z",),
-    "none": (),
-}
 
 
 #: a direction along which no two nodes of a symmetric mesh are expected to project alike
@@ -248,7 +190,8 @@ class Discretization:
         # the per-stage split of an evaluation, shared with the membrane force (capsim bench)
         self.clock = StageClock()
 
-    def enable_symmetry(self, positions: np.ndarray, rotation: bool = True, mode: str | None = None) -> np.ndarray | None:
+    def enable_symmetry(self, positions: np.ndarray, rotation: bool = True, mode: str | None = None,
+                        allowed: tuple[str, ...] | None = None) -> np.ndarray | None:
         """Use the symmetries of the problem: the mirror z → −z, the rotation by π
         about the z-axis, (x, y, z) → (−x, −y, z), and the point inversion x → −x.
 
@@ -261,7 +204,8 @@ class Discretization:
         out of the shear plane keeps only the inversion (half of the nodes).
 
         ``mode`` is a key of SYMMETRY_CANDIDATES (the case's mesh.symmetry); without
-        it, ``rotation`` picks the old boolean setting ("auto") or the mirror only.
+        it, ``rotation`` picks the old boolean setting ("auto") or the mirror only;
+        ``allowed`` (the groups the flow keeps, capsim.flows.symmetries_kept) leaves out the others.
         Uses the first group of the mode's list that the mesh has (an image of every
         node); ``self.symmetry`` says which ("mirror_z+rotation_z", "mirror_z",
         "rotation_z", "inversion" or "none"). Returns the positions made exactly
@@ -270,6 +214,8 @@ class Discretization:
         if mode is None:
             mode = "auto" if rotation else "mirror_z"
         for name in SYMMETRY_CANDIDATES[mode]:
+            if allowed is not None and name not in allowed:  # a group the flow does not keep
+                continue
             table = _symmetry_table(positions, SYMMETRY_GROUPS[name])
             if table is not None:
                 break
@@ -837,12 +783,18 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
         near_field_levels=case.quadrature.near_field_levels,
     )
     positions = mesh.positions
+    center = np.asarray(case.initial_center if case.initial_center is not None else (0.0, 0.0, 0.0), dtype=np.float64)
+    if np.any(center != 0.0):  # the scene's body placed away from the origin (the symmetries then find fewer images)
+        positions = positions + center
+    far_field = far_field_of(case.flow)
     if mode != "none":
-        symmetric = disc.enable_symmetry(positions, mode=mode)
+        kept = tuple(name for name, generators in SYMMETRY_GROUPS.items()
+                     if all(far_field.is_invariant(g) for g in generators))
+        symmetric = disc.enable_symmetry(positions, mode=mode, allowed=kept)
         if symmetric is not None:
             positions = symmetric
         elif mode != "auto":
-            raise ValueError(f"mesh.symmetry = {mode}: the mesh of this rest shape does not have it")
+            raise ValueError(f"mesh.symmetry = {mode}: the mesh of this rest shape (or the flow) does not have it")
     rest = positions if rest_positions is None else np.asarray(rest_positions, dtype=np.float64)
     if rest.shape != positions.shape:
         raise ValueError(f"rest positions of shape {rest.shape} for a mesh of {positions.shape[0]} nodes")
@@ -859,6 +811,7 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
         membrane=forces,
         shear_rate_G=case.flow.shear_rate_G,
         viscosity_ratio=case.flow.viscosity_ratio,
+        far_field=far_field,
         volume_correction=case.solver.volume_correction,
         solver_method=case.solver.method,
         solver_tol=case.solver.tol,

@@ -739,6 +739,11 @@ class LinearlyImplicit(Integrator):
             return ("time.scheme", cls.name,
                     "cannot run a viscous membrane (membrane.viscosity): its stage Jacobian "
                     "(capsim.linearization) leaves out the viscous membrane operator; use scheme rkf23 or rkc")
+        kind = getattr(case.flow, "kind", "simple_shear")
+        if kind == "poiseuille":  # its velocity gradient varies in space; the stage Jacobian takes a constant one
+            return ("time.scheme", cls.name,
+                    "cannot run flow.kind poiseuille (its stage Jacobian takes a constant far-field gradient); "
+                    "use scheme rkf23, rkc or auto")
         pre = case.time.preconditioner
         if pre in ("local", "dense") and case.membrane.traction != "galerkin":
             return ("time.preconditioner", pre,

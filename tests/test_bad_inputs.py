@@ -131,7 +131,7 @@ EXPECTED = {
 EXTRA = {
     "campaign_run_ids_too_long.yaml": ("has an id of 336 characters", "more than 200", "255 bytes"),
     "campaign_too_many_runs.yaml": ("more than --max-runs 10000",),
-    "case_huge_unknown_key.yaml": ("unknown field", "(allowed: shear_rate_G, capillary_number, viscosity_ratio, history)"),
+    "case_huge_unknown_key.yaml": ("unknown field", "(allowed: shear_rate_G, capillary_number, viscosity_ratio, history, kind, velocity_gradient, poiseuille_radius)"),
     "case_huge_string_value.yaml": ("must be a number",),
     "case_name_too_long.yaml": ("must have at most 200 characters",),
     "case_evans_fung_hollow_center.yaml": ("give no surface", "must be > 0 on [0, 1]"),

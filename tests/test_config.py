@@ -86,7 +86,7 @@ def test_bad_values_name_field_and_value(tmp_path, text, expected):
 def test_unknown_field_names_it_and_lists_allowed(tmp_path):
     message = _one_line_error(load_case, _write(tmp_path, "name: x\nflow: {shear_rate: 0.1}\n"))
     assert "flow.shear_rate: unknown field 'shear_rate'" in message
-    assert "(allowed: shear_rate_G, capillary_number, viscosity_ratio, history)" in message
+    assert "(allowed: shear_rate_G, capillary_number, viscosity_ratio, history, kind, velocity_gradient, poiseuille_radius)" in message
 
 
 def test_unknown_top_level_field(tmp_path):

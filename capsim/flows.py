@@ -1,0 +1,254 @@
+"""The scene's far field: the undisturbed flows a capsule can be put in (``flow.kind``).
+
+One registry, :data:`FLOWS`: each kind says what its rate is, which fields of ``flow`` it
+reads, and builds the undisturbed velocity u∞(x) the boundary-integral equation takes as
+data (docs/conventions.md; seed 2.11). Every flow is made dimensionless by its own rate:
+lengths by a, velocities by rate·a, time by 1/rate, and G = μ·rate·a/E_s (``flow.shear_rate_G``)
+for every kind:
+
+==================== ============================================ ==========================
+kind                 u∞ (units of rate·a, x in units of a)          rate
+==================== ============================================ ==========================
+simple_shear         (y, 0, 0)                                     k, the shear rate
+planar_extension     (x, −y, 0)                                    ε, the extension rate
+uniaxial_extension   (x, −y/2, −z/2)                               ε, the extension rate
+linear               L·x, L = flow.velocity_gradient (traceless)   the scale L is given in
+poiseuille           R (1 − (y² + z²)/R²) e_x, R = poiseuille_radius U/R (U: centreline speed)
+==================== ============================================ ==========================
+
+Adding a flow is one class here (and its known answer and test). The symmetries of the
+scene (:data:`SYMMETRY_GROUPS`: diagonal sign maps x → S x under which the far field maps
+onto itself, u∞(S x) = S u∞(x)) are the ones ``mesh.symmetry: auto`` may use; the mesh
+decides which of them it has. This module is plain numpy: the case schema imports it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+SIMPLE_SHEAR = ((0.0, 1.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+
+# The symmetries used: diagonal sign maps x → S x (and u → S u). Simple shear and
+# every rest shape here tilted about z are invariant under MIRROR_Z and ROTATION_Z;
+# under INVERSION (their product) whatever the orientation: u∞(−x) = −u∞(x) for any
+# linear flow, and every rest shape is centred and symmetric under x → −x.
+MIRROR_Z = np.array([1.0, 1.0, -1.0])
+ROTATION_Z = np.array([-1.0, -1.0, 1.0])  # rotation by π about the z-axis
+INVERSION = np.array([-1.0, -1.0, -1.0])  # the point inversion x → −x
+
+#: group name → generators (Discretization.symmetry, the run file's 'symmetry' attribute)
+SYMMETRY_GROUPS = {
+    "mirror_z+rotation_z": [MIRROR_Z, ROTATION_Z],
+    "mirror_z": [MIRROR_Z],
+    "rotation_z": [ROTATION_Z],
+    "inversion": [INVERSION],
+}
+#: mesh.symmetry → the groups tried, largest first. auto keeps the order of the old
+#: boolean setting (quarter, then one of its halves), then the inversion, which every
+#: centred orientation has: an in-plane case is unchanged to the bit.
+SYMMETRY_CANDIDATES = {
+    "auto": ("mirror_z+rotation_z", "mirror_z", "rotation_z", "inversion"),
+    "quarter": ("mirror_z+rotation_z",),
+    "half": ("inversion",),
+    "mirror_z": ("mirror_z",),
+    "none": (),
+}
+
+
+@dataclass(frozen=True)
+class FarField:
+    """A linear undisturbed flow u∞(x) = L·x, L the velocity gradient in units of the rate
+    (L_ij = ∂u_i/∂x_j). The default is simple shear u∞ = (y, 0, 0)."""
+
+    gradient: tuple = SIMPLE_SHEAR
+    #: the velocity's Jacobian is the constant ``matrix`` (the linearly implicit scheme uses it)
+    linear: ClassVar[bool] = True
+
+    def __post_init__(self):
+        L = np.asarray(self.gradient, dtype=np.float64)
+        if L.shape != (3, 3) or not np.all(np.isfinite(L)):
+            raise ValueError(f"the far-field velocity gradient must be a finite 3 × 3 matrix, got {self.gradient!r}")
+        object.__setattr__(self, "gradient", tuple(map(tuple, L.tolist())))
+
+    @property
+    def matrix(self) -> np.ndarray:
+        return np.array(self.gradient)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        # entry by entry, so that simple shear gives u_x = y to the bit
+        u = np.zeros_like(x)
+        for i in range(3):
+            for j in range(3):
+                if self.gradient[i][j] != 0.0:
+                    u[:, i] += self.gradient[i][j] * x[:, j]
+        return u
+
+    def is_invariant(self, signs: np.ndarray) -> bool:
+        """Whether the flow maps onto itself under x → S x, S = diag(signs)."""
+        S = np.diag(signs)
+        return bool(np.array_equal(S @ self.matrix @ S, self.matrix))
+
+    def scaled(self, factor: float) -> "FarField":
+        return FarField(tuple(tuple(factor * v for v in row) for row in self.gradient))
+
+
+@dataclass(frozen=True)
+class PoiseuilleFarField:
+    """Unbounded Poiseuille flow along x about the x-axis, u∞ = R (1 − (y² + z²)/R²) e_x in
+    units of (U/R)·a: the centreline speed U is R in these units, the wall shear rate 2."""
+
+    radius: float
+    linear: ClassVar[bool] = False
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        u = np.zeros_like(x)
+        u[:, 0] = self.radius - (x[:, 1] ** 2 + x[:, 2] ** 2) / self.radius
+        return u
+
+    @property
+    def matrix(self) -> np.ndarray:
+        raise ValueError("Poiseuille flow has no constant velocity gradient")
+
+    def is_invariant(self, signs: np.ndarray) -> bool:
+        # u_x is even in y and z and independent of x: u(S x) = S u(x) needs S_x = +1
+        return bool(signs[0] == 1.0)
+
+    def scaled(self, factor: float) -> Any:
+        if factor == 0.0:
+            return FarField(((0.0,) * 3,) * 3)
+        raise ValueError("a Poiseuille far field scales only to rest")
+
+
+# ---------------------------------------------------------------- the registry
+
+#: flow.kind → its class (the schema's choices, the CLI's, the docs' table follow this)
+FLOWS: dict[str, type["Flow"]] = {}
+
+
+def register_flow(cls: type["Flow"]) -> type["Flow"]:
+    FLOWS[cls.name] = cls
+    return cls
+
+
+class Flow:
+    """A kind of undisturbed flow. ``uses``: the fields of ``flow`` it reads (any other of
+    the optional ones is refused); :meth:`far_field` builds u∞ from the case's flow section;
+    :meth:`problem` names a setting of its fields it cannot take (field, value, why)."""
+
+    name: ClassVar[str]
+    description: ClassVar[str]
+    rate: ClassVar[str]
+    uses: ClassVar[tuple[str, ...]] = ()
+
+    @classmethod
+    def far_field(cls, flow: Any) -> Any:
+        raise NotImplementedError
+
+    @classmethod
+    def problem(cls, flow: Any) -> tuple[str, Any, str] | None:
+        return None
+
+
+@register_flow
+class SimpleShear(Flow):
+    name = "simple_shear"
+    description = "u∞ = k (y, 0, 0): x the flow, y the gradient, z the vorticity direction"
+    rate = "k, the shear rate"
+
+    @classmethod
+    def far_field(cls, flow: Any) -> FarField:
+        return FarField(SIMPLE_SHEAR)
+
+
+@register_flow
+class PlanarExtension(Flow):
+    name = "planar_extension"
+    description = "u∞ = ε (x, −y, 0): stretching along x, compression along y (a four-roll mill, a cross-slot)"
+    rate = "ε, the extension rate"
+
+    @classmethod
+    def far_field(cls, flow: Any) -> FarField:
+        return FarField(((1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 0.0)))
+
+
+@register_flow
+class UniaxialExtension(Flow):
+    name = "uniaxial_extension"
+    description = "u∞ = ε (x, −y/2, −z/2): axisymmetric stretching along x"
+    rate = "ε, the extension rate"
+
+    @classmethod
+    def far_field(cls, flow: Any) -> FarField:
+        return FarField(((1.0, 0.0, 0.0), (0.0, -0.5, 0.0), (0.0, 0.0, -0.5)))
+
+
+@register_flow
+class Linear(Flow):
+    name = "linear"
+    description = ("u∞ = L·x with L = flow.velocity_gradient (L_ij = ∂u_i/∂x_j, traceless), in units of the "
+                   "rate that G and the time unit use")
+    rate = "the scale L is written in (simple shear is [[0, 1, 0], [0, 0, 0], [0, 0, 0]])"
+    uses = ("velocity_gradient",)
+
+    @classmethod
+    def far_field(cls, flow: Any) -> FarField:
+        return FarField(tuple(tuple(float(v) for v in row) for row in flow.velocity_gradient))
+
+    @classmethod
+    def problem(cls, flow: Any) -> tuple[str, Any, str] | None:
+        L = flow.velocity_gradient
+        if L is None:
+            return ("velocity_gradient", None, "is required with kind: linear (a 3 × 3 list of rows)")
+        try:
+            M = np.asarray(L, dtype=float)
+        except (TypeError, ValueError):
+            M = np.zeros(0)
+        if M.shape != (3, 3) or not np.all(np.isfinite(M)):
+            return ("velocity_gradient", L, "must be 3 rows of 3 finite numbers")
+        scale = float(np.abs(M).max())
+        if scale == 0.0:
+            return ("velocity_gradient", L, "is zero: no flow (give flow.history kind stop for a capsule at rest)")
+        if abs(np.trace(M)) > 1e-9 * scale:
+            return ("velocity_gradient", L, f"has trace {np.trace(M):g}: an incompressible flow's gradient is traceless")
+        if not 0.1 <= scale <= 10.0:
+            return ("velocity_gradient", L, "has its largest entry outside [0.1, 10]: write it in units of its own "
+                    "rate (largest entry about 1) and put the rate into G")
+        return None
+
+
+@register_flow
+class Poiseuille(Flow):
+    name = "poiseuille"
+    description = ("unbounded Poiseuille flow u∞ = U (1 − (y² + z²)/R²) e_x about the x-axis, R = "
+                   "flow.poiseuille_radius (units of a); the capsule placed with initial_center")
+    rate = "U/R, the centreline speed over the radius (the wall shear rate is 2U/R)"
+    uses = ("poiseuille_radius",)
+
+    @classmethod
+    def far_field(cls, flow: Any) -> PoiseuilleFarField:
+        return PoiseuilleFarField(float(flow.poiseuille_radius))
+
+    @classmethod
+    def problem(cls, flow: Any) -> tuple[str, Any, str] | None:
+        if flow.poiseuille_radius is None:
+            return ("poiseuille_radius", None, "is required with kind: poiseuille (R in units of a, above 1)")
+        return None
+
+
+#: the optional fields of ``flow`` that some kind reads
+FLOW_FIELDS = tuple(sorted({f for cls in FLOWS.values() for f in cls.uses}))
+
+
+def far_field_of(flow: Any) -> Any:
+    """The undisturbed velocity of a case's flow section."""
+    return FLOWS[flow.kind].far_field(flow)
+
+
+def symmetries_kept(flow: Any) -> tuple[str, ...]:
+    """The groups of :data:`SYMMETRY_GROUPS` under which the flow maps onto itself."""
+    field = far_field_of(flow)
+    return tuple(name for name, generators in SYMMETRY_GROUPS.items()
+                 if all(field.is_invariant(g) for g in generators))
