@@ -237,8 +237,9 @@ _add("settled", "whether the motion has settled", "1",
      "in progress or a run too short to tell. time.stop_when_settled stops on the same rule")
 _add("orbit_period", "period of the body's orbit", "1",
      "time for the body's symmetry axis to go once round (its azimuth through 2π: from one passage through the "
-     "yz-plane to the next but one; p and −p are the same axis), the last whole orbit: 2π(r + 1/r) for Jeffery's "
-     "rigid spheroid; NaN when the body does not turn or under one whole orbit", "1/k")
+     "yz-plane to the next but one; p and −p are the same axis), the last whole orbit (twice its second half when "
+     "it begins at the run's start, whose first half holds the start-up): 2π(r + 1/r) for Jeffery's rigid "
+     "spheroid; NaN when the body does not turn or under one whole orbit", "1/k")
 _add("orbit_period_change", "change of the orbit period", "1",
      "|T_last − T_before| / T_last over the last two whole orbits; NaN under two")
 _add("orbit_periods", "whole orbits of the body", "1", "number of whole orbits of the body's symmetry axis in the run")
