@@ -176,7 +176,7 @@ def test_every_motion_class_a_page_names_exists():
         for line in text.splitlines():
             if not re.search(r"motion|class|orbit", line.lower()):
                 continue
-            old_named = re.search(r"\b(was|old|formerly|alias|renamed|read as)\b", line)
+            old_named = re.search(r"\b(was|old|older|before|formerly|alias|aliases|renamed|read as)\b", line, re.I)
             for span in _SPAN.findall(line):
                 token = span.strip()
                 if token in words and token not in MOTIONS and not old_named:
