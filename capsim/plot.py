@@ -839,11 +839,24 @@ def steady_figure(source, theory: bool = True, x: str | None = None):
             ax.plot(xs, y, style, color=color, ms=4,
                     label=(label if first_series else (series if j == 0 else None)))
             periodic = np.array([c["periodic"] for c in settled], dtype=bool)
-            if periodic.any():  # open markers: means over whole periods, not a steady state
-                ax.plot(xs[periodic], y[periodic], style[0], color=color, mfc="white", ms=5, ls="none")
+            if series is not None:  # a panel of several series, each with its marker
+                if periodic.any():  # open markers: means over whole periods, not a steady state
+                    ax.plot(xs[periodic], y[periodic], style[0], color=color, mfc="white", ms=5, ls="none")
+            else:  # the class's marker (issue 39), open where it is a cycle
+                classes = [c["motion"] for c in settled]
+                for motion in dict.fromkeys(classes):
+                    sel = np.array([m == motion for m in classes])
+                    if motion in CLASS_MARKERS or periodic[sel].any():
+                        ax.plot(xs[sel], y[sel], CLASS_MARKERS.get(motion, style[0]), color=color,
+                                mfc="white" if periodic[sel].any() else color, ms=5, ls="none")
             if np.isfinite(err).any():
                 ax.errorbar(xs, y, yerr=np.where(np.isfinite(err), err, 0.0), fmt="none", ecolor=color,
                             elinewidth=0.8, capsize=2)
+    shown = dict.fromkeys(c["motion"] for c in cells if c["settled"] and c["motion"] in CLASS_MARKERS)
+    for motion in shown:  # what each marker means: a proxy per class drawn
+        periodic = motion in PERIODIC_MOTIONS
+        ax_d.plot([], [], CLASS_MARKERS[motion], color="0.3", mfc="white" if periodic else "0.3", ls="none", ms=5,
+                  label=motion.replace("_", " ") + (" (mean over whole periods)" if periodic else ""))
     if unsettled:
         ux = np.array([float(c["swept"][x]) for c in unsettled])
         for ax, name, scale, _, _ in panels[:2]:
@@ -888,6 +901,10 @@ def steady_figure(source, theory: bool = True, x: str | None = None):
 
 
 
+#: the marker of a settled point by its motion class (a steady one keeps its group's circle)
+CLASS_MARKERS = {"swinging": "s", "tumbling": "^", "kayaking": "D", "rolling": "v", "off_plane_tank_treading": "P"}
+
+
 def _spread(cell: dict, name: str) -> float:
     """The error bar of a settled point: the half-amplitude of the last cycle for a periodic
     run (where the summary has it), else the window's standard deviation."""
@@ -903,8 +920,8 @@ def _left_out_note(cells: list[dict], unsettled: list[dict]) -> str:
     text = "points: settled runs, window mean ± its standard deviation"
     if any(c["periodic"] and c["settled"] for c in cells):
         text = ("filled points: steady runs, window mean ± its standard deviation; open points: periodic runs "
-                "(swinging, tumbling, kayaking), mean over whole periods ± half the peak-to-peak of the last "
-                "cycle (a turning body has no mean θ)")
+                "(swinging, tumbling, kayaking; the marker names the class), mean over whole periods ± half the "
+                "peak-to-peak of the last cycle (a turning body has no mean θ)")
     if not unsettled:
         return text
     why: dict[str, int] = {}
@@ -951,7 +968,7 @@ def _summary_cells(ds, names: tuple[str, ...], swept: list[str]) -> list[dict]:
             "values": {n: float(at(n, index)) for n in names},
             "std": {n: float(at(f"{n}_std", index)) for n in names if f"{n}_std" in ds.variables},
             "amplitude": {n: float(at(f"{n}_amplitude", index)) for n in names if f"{n}_amplitude" in ds.variables},
-            "periodic": motion in PERIODIC_MOTIONS, "settled": settled, "why": why,
+            "periodic": motion in PERIODIC_MOTIONS, "settled": settled, "why": why, "motion": motion,
         })
     return cells
 

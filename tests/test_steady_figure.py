@@ -128,3 +128,20 @@ def test_a_campaign_where_every_run_tumbles_says_so_in_the_theta_panel():
     ds["theta"] = ds["theta"].where(ds["motion"] != "tumbling", 0.7)
     fig = plot(ds, "steady")
     assert not any("every run tumbles" in t.get_text() for t in fig.axes[1].texts)
+
+
+def test_settled_points_carry_their_motion_class():
+    """Issue 39: a settled point's marker names its class (a steady one keeps its group's
+    circle), open where it is a cycle, and the legend says what each marker is; an old
+    summary's `oscillating` is drawn as swinging."""
+    ds = _grid([[1, 1], [1, 1]])
+    dims = ("shear_rate_G", "viscosity_ratio")
+    ds["motion"] = (dims, np.array([["steady", "rolling"], ["oscillating", "kayaking"]], dtype=object))
+    fig = plot(ds, "steady")
+    ax = fig.axes[0]
+    marked = {(line.get_marker(), line.get_markerfacecolor() == "white"): list(line.get_xdata())
+              for line in ax.get_lines() if line.get_linestyle() == "None" and len(line.get_xdata())}
+    assert marked[("v", False)] == [0.05]  # rolling: a state, filled
+    assert marked[("s", True)] == [0.1] and marked[("D", True)] == [0.1]  # swinging, kayaking: cycles, open
+    labels = ax.get_legend_handles_labels()[1]
+    assert {"rolling", "swinging (mean over whole periods)", "kayaking (mean over whole periods)"} <= set(labels)
