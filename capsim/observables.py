@@ -753,7 +753,7 @@ def orbit_summary(t: np.ndarray, director: np.ndarray, aspect_ratio: float = 1.0
         halves = [mean(a, b) for a, b in zip(passes[-3:-1], passes[-2:])]
         out["orbit_constant_change"] = ratio(halves[1], halves[0]) ** 2 - 1.0
         out["orbit_period"] = float(passes[-1] - passes[-3])
-        if passes[-3] <= tt[0]:
+        if passes[-3] <= tt[1]:  # a passage before the second row is the start
             # a whole orbit from the run's start holds the start-up (a body at rest deforming
             # tilts its axis by O(G) at once: a stiff prolate's first half orbit is 4e-4 short):
             # twice its second half, the same by the flow's symmetry under a half turn about z
