@@ -66,6 +66,8 @@ TABLE_III_MU = [0.96, 0.72, 0.53, 0.53, 0.57]
 RADIUS_UM = 2.98          # (3 V / 4 pi)^(1/3) for V = 111 um^3
 SENSITIVITY_RATE = 28.6   # the shear rate of the sensitivity table and of tests/test_tran_son_tay.py
 MAIN_LEVEL = 2
+#: the Evans-Fung coefficients times 1.3215: the sphericity of their young cells, 0.792
+THICK = (0.2736, 2.647, -1.4841)
 
 
 def load_base(path: Path) -> tuple[dict, dict]:
@@ -189,6 +191,13 @@ def jobs() -> dict[str, list[tuple[str, dict, dict]]]:
         # the cell of their area (141 um^2) instead of their volume: a = sqrt(0.746 S / 4 pi)
         (f"sens a 2.89 um k={SENSITIVITY_RATE} L{MAIN_LEVEL}", variant(radius="2.89 um"), {}),
     ]
+    # their cells' reduced volume: the Evans-Fung thickness times 1.3215 (c0, c2, c4 scaled
+    # alike) has sphericity 0.792 (level 3; 0.7927 at level 2) = (36 pi V^2)^(1/3)/S for
+    # V = 111 um^3, S = 141 um^2: at a = 2.98 um its area is 141 um^2
+    thick = variant()
+    thick["shape"] = {"kind": "biconcave", "c0": THICK[0], "c2": THICK[1], "c4": THICK[2]}
+    out["shape"] = [(f"sens thick k={SENSITIVITY_RATE} L{MAIN_LEVEL}", thick, {}),
+                    (f"sens G_s 1.25 uN/m k={SENSITIVITY_RATE} L{MAIN_LEVEL}", variant(shear_modulus="1.25 uN/m"), {})]
     out["level3"] = [(f"viscous k={SENSITIVITY_RATE} L3", base, {"level": 3})]
     return out
 
@@ -261,9 +270,12 @@ def report() -> None:
             ("μ_s = 0", rows.get(f"elastic k={SENSITIVITY_RATE} L{MAIN_LEVEL}")),
             ("μ_s × 1.7 (their area-conserving estimate: up to +70 %)",
              rows.get(f"sens mu_s x1.7 k={SENSITIVITY_RATE} L{MAIN_LEVEL}")),
+            ("G_s = 1.25 µN/m (× 0.5)", rows.get(f"sens G_s 1.25 uN/m k={SENSITIVITY_RATE} L{MAIN_LEVEL}")),
             ("G_s = 5 µN/m (× 2)", rows.get(f"sens G_s 5 uN/m k={SENSITIVITY_RATE} L{MAIN_LEVEL}")),
-            ("a = 2.89 µm: their area 141 µm² (volume 101 µm³)",
+            ("the same shape at their area: a = 2.89 µm (area 141 µm², volume 101 µm³)",
              rows.get(f"sens a 2.89 um k={SENSITIVITY_RATE} L{MAIN_LEVEL}")),
+            ("their reduced volume: Evans–Fung thickness × 1.32 (sphericity 0.792, area 141 µm²)",
+             rows.get(f"sens thick k={SENSITIVITY_RATE} L{MAIN_LEVEL}")),
             ("mesh level 1", rows.get(f"viscous k={SENSITIVITY_RATE} L1")),
             ("mesh level 3", rows.get(f"viscous k={SENSITIVITY_RATE} L3"))]
     for name, r in sens:
