@@ -998,11 +998,12 @@ def relaxation_time(t: np.ndarray, D_xy: np.ndarray, t_from: float, floor: float
 
 def relaxation_summary(series: dict[str, np.ndarray], stop_time: float) -> dict:
     """The summary of a run whose flow stopped at ``stop_time`` (flow.history kind stop):
-    the motion is 'relaxing' (a capsule at rest is neither steady in shear nor unstable),
-    the relaxation time is fitted over the last two thirds of the rest."""
+    the motion is 'relaxing' (a capsule at rest is neither steady in shear nor unstable; nor a
+    settled motion in shear: settled 0), the relaxation time is fitted over the last two thirds
+    of the rest."""
     t = np.asarray(series["t"], float)
     t_from = stop_time + (float(t[-1]) - stop_time) / 3.0
-    return {"motion": "relaxing", "relaxation_time": relaxation_time(t, series["D_xy"], t_from),
+    return {"motion": "relaxing", "settled": 0.0, "relaxation_time": relaxation_time(t, series["D_xy"], t_from),
             "flow_stop_time": float(stop_time)}
 
 
