@@ -30,7 +30,8 @@ from pydantic import (
 )
 
 from capsim.errors import bounded_repr, first_line
-from capsim.flows import FLOW_FIELDS, FLOWS, SYMMETRY_CANDIDATES, SYMMETRY_GROUPS, far_field_of
+from capsim.flows import (FLOW_FIELDS, FLOW_HISTORIES, FLOWS, HISTORY_FIELDS, SYMMETRY_CANDIDATES, SYMMETRY_GROUPS,
+                          far_field_of)
 from capsim.timestepping import DEFAULT_SCHEME, SCHEMES
 from capsim.viscosity import VISCOSITY_MODELS
 from capsim.viscosity import is_active as is_viscous
@@ -393,23 +394,37 @@ class Physical(_Model):
 
 
 class FlowHistory(_Model):
-    """How the shear flow changes in time (docs/viscous_membrane.md, "Flows that change in time").
-    Times stay in units of 1/k, k the shear rate before any stop."""
+    """How the flow's rate changes in time (capsim.flows.FLOW_HISTORIES; docs/viscous_membrane.md,
+    "Flows that change in time"). Times stay in units of 1/rate, the rate before any change."""
 
-    kind: Literal["steady", "stop"] = Field(
-        "steady", description="steady: simple shear throughout; stop: simple shear until kt = stop_time, "
-        "then no flow (the capsule relaxes at rest)")
+    kind: Literal[tuple(FLOW_HISTORIES)] = Field(  # type: ignore[valid-type]
+        "steady", description="; ".join(f"{name}: {cls.description}" for name, cls in FLOW_HISTORIES.items()))
     stop_time: Optional[float] = Field(
         None, gt=0, description="kind: stop only: the kt at which the flow stops (at or after time.t_end: "
         "the flow never stops in the run, as in the two-step warm-up copies of a campaign)")
+    step_time: Optional[float] = Field(None, gt=0, description="kind: step only: the kt at which the rate changes")
+    step_factor: Optional[float] = Field(
+        None, ge=-100, le=100, description="kind: step only: the rate after step_time, as a factor of the rate before")
+    omega: Optional[float] = Field(
+        None, gt=0, le=1e4, description="kind: oscillating only: the angular frequency ω in units of the rate "
+        "(the rate is rate·sin(ω t))")
+    table: Optional[list[list[float]]] = Field(
+        None, description="kind: table only: rows [kt, factor], times increasing from 0, interpolated linearly")
 
     @model_validator(mode="after")
-    def _stop_time_of_the_kind(self) -> "FlowHistory":
-        if self.kind == "stop" and self.stop_time is None:
-            raise _FieldProblem("stop_time", None, "is required with kind: stop (the kt at which the flow stops)")
-        if self.kind != "stop" and self.stop_time is not None:
-            raise _FieldProblem("stop_time", self.stop_time, f"applies only to kind: stop, not to kind: {self.kind}; "
-                                "remove it")
+    def _fields_of_the_kind(self) -> "FlowHistory":
+        history = FLOW_HISTORIES[self.kind]
+        for name in HISTORY_FIELDS:
+            value = getattr(self, name)
+            if name in history.uses and value is None:
+                raise _FieldProblem(name, None, f"is required with kind: {self.kind}")
+            if name not in history.uses and value is not None:
+                raise _FieldProblem(name, value, f"applies only to kind: "
+                                    f"{', '.join(k for k, c in FLOW_HISTORIES.items() if name in c.uses)}, not to "
+                                    f"kind: {self.kind}; remove it")
+        problem = history.problem(self)
+        if problem is not None:
+            raise _FieldProblem(*problem)
         return self
 
 
@@ -470,6 +485,16 @@ class Flow(_Model):
     def stop_time(self) -> float | None:
         """The kt at which the flow stops, None for steady shear."""
         return self.history.stop_time if self.history is not None and self.history.kind == "stop" else None
+
+    @property
+    def jump(self) -> tuple[float, float] | None:
+        """(kt, factor after it) of a jump in the rate (kinds stop and step), None without one."""
+        return None if self.history is None else FLOW_HISTORIES[self.history.kind].jump(self.history)
+
+    @property
+    def rate_factor(self):
+        """a(t), the factor of the rate at time t, for a rate that varies smoothly; None otherwise."""
+        return None if self.history is None else FLOW_HISTORIES[self.history.kind].factor(self.history)
 
     @field_validator("viscosity_ratio")
     @classmethod

@@ -91,9 +91,6 @@ class FarField:
         S = np.diag(signs)
         return bool(np.array_equal(S @ self.matrix @ S, self.matrix))
 
-    def scaled(self, factor: float) -> "FarField":
-        return FarField(tuple(tuple(factor * v for v in row) for row in self.gradient))
-
 
 @dataclass(frozen=True)
 class PoiseuilleFarField:
@@ -115,11 +112,6 @@ class PoiseuilleFarField:
     def is_invariant(self, signs: np.ndarray) -> bool:
         # u_x is even in y and z and independent of x: u(S x) = S u(x) needs S_x = +1
         return bool(signs[0] == 1.0)
-
-    def scaled(self, factor: float) -> Any:
-        if factor == 0.0:
-            return FarField(((0.0,) * 3,) * 3)
-        raise ValueError("a Poiseuille far field scales only to rest")
 
 
 # ---------------------------------------------------------------- the registry
@@ -252,3 +244,143 @@ def symmetries_kept(flow: Any) -> tuple[str, ...]:
     field = far_field_of(flow)
     return tuple(name for name, generators in SYMMETRY_GROUPS.items()
                  if all(field.is_invariant(g) for g in generators))
+
+
+# ---------------------------------------------------------------- time dependence (flow.history)
+
+
+@dataclass(frozen=True)
+class ScaledFarField:
+    """A far field times a constant (a step in the rate, flow.history kind step)."""
+
+    field: Any
+    factor: float
+
+    @property
+    def linear(self) -> bool:
+        return self.field.linear
+
+    @property
+    def matrix(self) -> np.ndarray:
+        return self.factor * self.field.matrix
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        return self.factor * self.field(x)
+
+    def is_invariant(self, signs: np.ndarray) -> bool:
+        return self.field.is_invariant(signs)
+
+
+def scaled(field: Any, factor: float) -> Any:
+    """The far field times `factor`; a linear field stays a FarField (0: the zero gradient, as
+    kind stop has always used)."""
+    if isinstance(field, FarField):
+        return FarField(tuple(tuple(factor * v for v in row) for row in field.gradient))
+    return ScaledFarField(field, float(factor))
+
+
+#: flow.history.kind → its class: how the rate changes in time, as a factor a(t) of the
+#: flow's rate (times stay in units of 1/rate, the rate being the flow's own before any change)
+FLOW_HISTORIES: dict[str, type["History"]] = {}
+
+
+def register_history(cls: type["History"]) -> type["History"]:
+    FLOW_HISTORIES[cls.name] = cls
+    return cls
+
+
+class History:
+    """How the rate changes in time. ``uses``: the fields of ``flow.history`` it reads.
+    ``jump``: (time, factor after it) of a jump in the rate, which the steps land on (the runner
+    scales the far field there, and the checkpoint records that it has; None: none);
+    ``factor(history)``: a(t) for a rate that varies smoothly (evaluated at every stage's time;
+    None: constant between jumps)."""
+
+    name: ClassVar[str]
+    description: ClassVar[str]
+    uses: ClassVar[tuple[str, ...]] = ()
+
+    @classmethod
+    def jump(cls, history: Any) -> tuple[float, float] | None:
+        return None
+
+    @classmethod
+    def factor(cls, history: Any) -> Any:
+        return None
+
+    @classmethod
+    def problem(cls, history: Any) -> tuple[str, Any, str] | None:
+        return None
+
+
+@register_history
+class Steady(History):
+    name = "steady"
+    description = "the rate throughout"
+
+
+@register_history
+class Stop(History):
+    name = "stop"
+    description = "the rate until kt = stop_time, then no flow (the capsule relaxes at rest)"
+    uses = ("stop_time",)
+
+    @classmethod
+    def jump(cls, history: Any) -> tuple[float, float] | None:
+        return (float(history.stop_time), 0.0)
+
+
+@register_history
+class Step(History):
+    name = "step"
+    description = "the rate until kt = step_time, then step_factor times it (a step in shear rate)"
+    uses = ("step_time", "step_factor")
+
+    @classmethod
+    def jump(cls, history: Any) -> tuple[float, float] | None:
+        return (float(history.step_time), float(history.step_factor))
+
+
+@register_history
+class Oscillating(History):
+    name = "oscillating"
+    description = ("the rate times sin(ω t), ω = omega in units of the rate (oscillatory shear from rest: "
+                   "the strain amplitude is 1/ω)")
+    uses = ("omega",)
+
+    @classmethod
+    def factor(cls, history: Any) -> Any:
+        omega = float(history.omega)
+        return lambda t: float(np.sin(omega * t))
+
+
+@register_history
+class Table(History):
+    name = "table"
+    description = ("a piecewise-linear factor of the rate: table [[t0, a0], [t1, a1], ...] (times increasing; "
+                   "a0 before t0, the last factor after the last time)")
+    uses = ("table",)
+
+    @classmethod
+    def factor(cls, history: Any) -> Any:
+        t, a = np.asarray(history.table, dtype=float).T
+        return lambda s: float(np.interp(s, t, a))
+
+    @classmethod
+    def problem(cls, history: Any) -> tuple[str, Any, str] | None:
+        rows = history.table
+        try:
+            arr = np.asarray(rows, dtype=float)
+        except (TypeError, ValueError):
+            arr = np.zeros((0, 3))
+        if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] < 2 or not np.all(np.isfinite(arr)):
+            return ("table", rows, "must be at least two rows [kt, factor] of finite numbers")
+        if not np.all(np.diff(arr[:, 0]) > 0) or arr[0, 0] < 0:
+            return ("table", rows, "needs times from 0 on, strictly increasing")
+        if np.abs(arr[:, 1]).max() > 100:
+            return ("table", rows, "has a factor beyond ±100: write the rate's scale into G")
+        return None
+
+
+#: the optional fields of ``flow.history`` that some kind reads
+HISTORY_FIELDS = tuple(sorted({f for cls in FLOW_HISTORIES.values() for f in cls.uses}))

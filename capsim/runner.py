@@ -253,6 +253,8 @@ class _Run:
     # -- parts ----------------------------------------------------------------
     def _rhs(self, x: np.ndarray):
         self.stop.check()
+        integrator = getattr(self, "integrator", None)  # None during the automatic scheme's probe (t = 0)
+        self.model.time = integrator.stage_t if integrator is not None else 0.0
         state = self.model.membrane(x)
         return self.model.velocity(x, state), state
 
@@ -470,7 +472,7 @@ class _Run:
                                       if k not in ("scheme", "scheme_choice")})  # both are root attributes
         series = {k: np.asarray(v) for k, v in self.observer.history.items()}
         motion = run_summary(series, aspect_ratio=self.observer.aspect_ratio)
-        if self.model.flow_stopped:
+        if self.model.flow_stopped and self.model.flow_step_factor == 0.0:  # stopped: it relaxes at rest
             motion.update(relaxation_summary(series, self.model.flow_stop_time))
         if status == "unstable":
             motion["motion"] = "unstable"

@@ -25,7 +25,7 @@ import numpy as np
 from capsim import kernels
 # the far field and the scene's symmetries live in capsim.flows (re-exported here)
 from capsim.flows import (  # noqa: F401
-    INVERSION, MIRROR_Z, ROTATION_Z, SIMPLE_SHEAR, SYMMETRY_CANDIDATES, SYMMETRY_GROUPS, FarField, far_field_of,
+    INVERSION, MIRROR_Z, ROTATION_Z, SIMPLE_SHEAR, SYMMETRY_CANDIDATES, SYMMETRY_GROUPS, FarField, far_field_of, scaled,
 )
 from capsim.geometry import ElementGeometry, element_geometry, interpolate, shape_functions
 from capsim.krylov import gmres
@@ -470,9 +470,15 @@ class CapsuleModel:
     # the membrane's viscosity (capsim.viscosity), None for a purely elastic membrane:
     # then the velocity is a solve at every λ (viscosity.py, eq. V4)
     viscous: Any = None
-    # flow.history kind stop: the kt at which the flow stops (None: steady shear); the runner
-    # calls stop_flow() there, and the checkpoint says whether it has (state: "flow_stopped")
+    # flow.history kinds stop and step: the kt at which the rate jumps (None: no jump) and the
+    # factor after it (0: stop); the runner calls stop_flow() there, and the checkpoint says
+    # whether it has (state: "flow_stopped")
     flow_stop_time: float | None = None
+    flow_step_factor: float = 0.0
+    # flow.history kinds oscillating and table: the rate's factor a(t) at the time of the
+    # evaluation (``time``, set by the runner before each; None: a constant rate)
+    rate_factor: Callable[[float], float] | None = field(default=None, repr=False, compare=False)
+    time: float = field(default=0.0, init=False)
     flow_stopped: bool = field(default=False, init=False)
     _flowing: FarField | None = field(default=None, init=False, repr=False)
     # iterations and relative residual of the last velocity solve (0 at λ = 1)
@@ -607,10 +613,10 @@ class CapsuleModel:
             self.far_field, self.flow_stopped = self._flowing, False
 
     def stop_flow(self) -> None:
-        """No undisturbed flow from now on (flow.history kind stop): u∞ = 0."""
+        """The rate's jump (flow.history): u∞ times flow_step_factor from now on (kind stop: u∞ = 0)."""
         if not self.flow_stopped:
             self._flowing = self.far_field
-        self.far_field = FarField(((0.0,) * 3,) * 3)
+        self.far_field = scaled(self._flowing, self.flow_step_factor)
         self.flow_stopped = True
 
     def velocity(self, x: np.ndarray, state: MembraneState | None = None) -> np.ndarray:
@@ -636,7 +642,8 @@ class CapsuleModel:
         t1 = time.perf_counter()
         self.solver_times["single_layer"] += t1 - t0
         clock = self.disc.clock
-        u_explicit = self.far_field(x) - sl / (8.0 * np.pi * self.shear_rate_G)
+        u_far = self.far_field(x) if self.rate_factor is None else self.rate_factor(self.time) * self.far_field(x)
+        u_explicit = u_far - sl / (8.0 * np.pi * self.shear_rate_G)
         clock.lap("far_field")
         needs_normals = lam != 1.0 or self.volume_correction
         normals = self.disc.nodal_normals(x) if needs_normals else None
@@ -817,6 +824,8 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
         solver_tol=case.solver.tol,
         solver_max_iter=case.solver.max_iter,
         viscous=viscous,
-        flow_stop_time=case.flow.stop_time,
+        flow_stop_time=None if case.flow.jump is None else case.flow.jump[0],
+        flow_step_factor=0.0 if case.flow.jump is None else case.flow.jump[1],
+        rate_factor=case.flow.rate_factor,
     )
     return model, rest

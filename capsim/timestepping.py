@@ -291,7 +291,21 @@ class Integrator:
     def velocity(self, y: np.ndarray) -> np.ndarray:
         return self.evaluate(y)[0]
 
+    #: the time of the evaluation being made (a flow whose rate varies in time reads it)
+    stage_t: float = 0.0
+
+    def _at(self, times) -> Callable[[np.ndarray], np.ndarray]:
+        """``velocity`` with stage_t set to each of `times` in turn: the stages' own times."""
+        times = iter(times)
+
+        def f(y: np.ndarray) -> np.ndarray:
+            self.stage_t = next(times)
+            return self.velocity(y)
+
+        return f
+
     def start(self) -> Any:
+        self.stage_t = self.t
         self.u, aux = self.evaluate(self.y)
         return aux
 
@@ -310,6 +324,7 @@ class Integrator:
             self.steps += 1
             self.last_stages = trial.stages
             if trial.aux is None:  # the scheme did not need the velocity at the new positions
+                self.stage_t = self.t
                 self.u, trial.aux = self.evaluate(y_new)
                 trial.stages += 1
                 self.last_stages += 1
@@ -363,7 +378,8 @@ class EmbeddedRungeKutta(Integrator):
     reference = RKF23.reference
 
     def _try(self, h: float) -> tuple[Trial, np.ndarray, bool]:
-        res = attempt_step(self.velocity, self.y, h, self.tableau, self.error_rtol, k1=self.u)
+        stages = self._at([self.t + c * h for c in self.tableau.c[1:]])
+        res = attempt_step(stages, self.y, h, self.tableau, self.error_rtol, k1=self.u)
         finite = bool(np.isfinite(res.error) and np.all(np.isfinite(res.y)))
         trial = Trial(accepted=finite and res.error <= 1.0, finite=finite, h=h, error=res.error,
                       stages=len(self.tableau.c) - 1)
@@ -411,6 +427,16 @@ def rkc_coefficients(s: int, damping: float = 2.0 / 13.0) -> ChebyshevCoefficien
         mu_t[j] = 2 * b[j] * w1 / b[j - 1]
         gamma_t[j] = -a[j - 1] * mu_t[j]
     return ChebyshevCoefficients(s, mu, nu, mu_t, gamma_t, beta=(1.0 + w0) / w1)
+
+
+def rkc_stage_times(coef: ChebyshevCoefficients) -> np.ndarray:
+    """c_0 ... c_s: the time of each stage Y_j as a fraction of the step (the recursion of
+    :func:`rkc_step` applied to y' = 1; c_s = 1, the method being consistent)."""
+    c = np.zeros(coef.s + 1)
+    c[1] = coef.mu_tilde[1]
+    for j in range(2, coef.s + 1):
+        c[j] = coef.mu[j] * c[j - 1] + coef.nu[j] * c[j - 2] + coef.mu_tilde[j] + coef.gamma_tilde[j]
+    return c
 
 
 def rkc_step(f: Callable[[np.ndarray], np.ndarray], y0: np.ndarray, f0: np.ndarray, h: float,
@@ -516,6 +542,7 @@ class RungeKuttaChebyshev(Integrator):
         """Nonlinear power iteration on v ↦ u(y + v) − u(y), warm-started from
         the last vector; each iteration costs one velocity evaluation."""
         y, u0 = self.y, self.u
+        self.stage_t = self.t  # u0 is the velocity at this time
         delta = self.probe_scale * max(1.0, float(np.linalg.norm(y)))
         v = self.rho_vector if self.rho_vector is not None else u0
         norm = float(np.linalg.norm(v))
@@ -558,9 +585,10 @@ class RungeKuttaChebyshev(Integrator):
             h, cut = coef.beta / self.rho, True
             self.stage_bound_hits += 1
         y0, f0 = self.y, self.u
-        y_new = rkc_step(self.velocity, y0, f0, h, coef)
+        y_new = rkc_step(self._at(self.t + h * rkc_stage_times(coef)[1:s]), y0, f0, h, coef)
         if not np.all(np.isfinite(y_new)):
             return Trial(False, False, h, math.inf, s - 1), y_new, cut
+        self.stage_t = self.t + h
         u_new, aux = self.evaluate(y_new)
         # SSV 1998 (3.1): local error estimate of the second-order solution
         est = (12.0 * (y0 - y_new) + 6.0 * h * (f0 + u_new)) / 15.0
@@ -739,6 +767,10 @@ class LinearlyImplicit(Integrator):
             return ("time.scheme", cls.name,
                     "cannot run a viscous membrane (membrane.viscosity): its stage Jacobian "
                     "(capsim.linearization) leaves out the viscous membrane operator; use scheme rkf23 or rkc")
+        if getattr(case.flow, "rate_factor", None) is not None:  # its W-method stages take no ∂f/∂t
+            return ("time.scheme", cls.name,
+                    f"cannot run flow.history kind {case.flow.history.kind} (a rate that varies in time: its stages "
+                    "take no time derivative); use scheme rkf23, rkc or auto")
         kind = getattr(case.flow, "kind", "simple_shear")
         if kind == "poiseuille":  # its velocity gradient varies in space; the stage Jacobian takes a constant one
             return ("time.scheme", cls.name,
