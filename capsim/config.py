@@ -188,6 +188,12 @@ class Shape(_Model):
     )
     c2: float = Field(2.003, ge=-10, le=10, description="Evans-Fung biconcave coefficient (see c0)")
     c4: float = Field(-1.123, ge=-10, le=10, description="Evans-Fung biconcave coefficient (see c0)")
+    inflation: float = Field(
+        0.0, gt=-0.5, le=0.5,
+        description="pre-inflation α: the membrane's stress-free shape is the initial one shrunk by 1 + α about "
+        "its centre, so at t = 0 it is stretched by 1 + α in every direction (Lac et al. 2004 use α = 0.05 so "
+        "that the membrane is never compressed); every shape and law; 0: the initial shape is stress-free",
+    )
 
     @field_validator("aspect_ratio")
     @classmethod

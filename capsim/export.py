@@ -64,6 +64,10 @@ def model_for(data: dict[str, Any]):
             f"the stored mesh ({rest.shape[0]} nodes) does not match the mesh rebuilt from the case "
             f"({X.shape[0]} nodes)"
         )
+    case = case_of(data)
+    if case.shape.inflation:  # the stored positions are the initial ones: the membrane's reference is shrunk
+        center = np.asarray(case.initial_center or (0.0, 0.0, 0.0), dtype=np.float64)
+        rest = center + (rest - center) / (1.0 + case.shape.inflation)
     model.rest_positions = rest
     return model
 

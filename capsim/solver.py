@@ -806,13 +806,16 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
     if rest.shape != positions.shape:
         raise ValueError(f"rest positions of shape {rest.shape} for a mesh of {positions.shape[0]} nodes")
     law = get_law(case.membrane.law)
+    # shape.inflation α: the stress-free reference is the initial shape shrunk by 1 + α about its
+    # centre (the returned rest positions stay the initial ones: the run starts from them)
+    reference = rest if case.shape.inflation == 0.0 else center + (rest - center) / (1.0 + case.shape.inflation)
     forces = MembraneForce(
-        disc, rest, law, {p: getattr(case.membrane, p) for p in law.parameters},
+        disc, reference, law, {p: getattr(case.membrane, p) for p in law.parameters},
         bending_modulus=case.membrane.bending_modulus,
         traction_method=case.membrane.traction,
     )
     viscosity = case.membrane.viscosity
-    viscous = build_viscous(disc, rest, None if viscosity is None else viscosity.model_dump())
+    viscous = build_viscous(disc, reference, None if viscosity is None else viscosity.model_dump())
     model = CapsuleModel(
         disc=disc,
         membrane=forces,

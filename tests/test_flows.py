@@ -162,3 +162,28 @@ def test_off_the_axis_a_stiff_capsule_moves_at_faxens_speed_and_a_soft_one_migra
         migration[G] = (cy[-1] - cy[i]) / (t[-1] - t[i])
     assert abs(migration[0.002]) < 2e-4 * R  # a small fraction of the flow speed, ~1e-4
     assert migration[0.05] < migration[0.02] < 0.0  # towards the axis, faster when softer
+
+
+def test_a_pre_inflated_capsule_at_rest_keeps_its_shape_under_the_laws_isotropic_tension(tmp_path):
+    """shape.inflation α (issue 41, item 5): the stress-free shape is the initial sphere shrunk by
+    1 + α, so at t = 0 the membrane is stretched by s = 1 + α in every direction; with no flow
+    (a rate factor 0) the Laplace pressure Δf = 2τ/R n of the isotropic tension
+    τ = e^{−Λ1}(W_1 + W_2 s²) (Λ1 = ln s², Λ2 = s² − 1) drives no motion: the sphere stays, and
+    the smallest principal tension is τ (in units of E_s)."""
+    from capsim.membrane import get_law
+
+    alpha = 0.05
+    case = case_from_dict({**_case(tmp_path, name="inflated", history={"kind": "table", "table": [[0, 0], [1, 0]]}),
+                           "shape": {"kind": "sphere", "inflation": alpha}, "membrane": {"law": "neo_hookean"},
+                           "mesh": {"level": 2}, "time": {"t_end": 0.5}})
+    assert run_case(case).status == "completed"
+    s = 1.0 + alpha
+    w1, w2 = get_law("neo_hookean").derivatives(np.array([np.log(s * s)]), np.array([s * s - 1.0]))
+    tau = float(np.exp(-np.log(s * s)) * (w1[0] + w2[0] * s * s))
+    with h5py.File(case.output.path, "r") as f:
+        D, volume, min_tension = (f[f"timeseries/{k}"][()] for k in ("D_xy", "volume", "min_tension"))
+    assert tau > 0
+    assert min_tension[0] * case.flow.shear_rate_G == pytest.approx(tau, rel=1e-2)  # stored in μka = E_s/G
+    assert np.abs(D).max() < 1e-6 and abs(volume[-1] / volume[0] - 1) < 1e-6
+    with pytest.raises(ConfigError, match="shape.inflation"):
+        case_from_dict({"name": "x", "shape": {"inflation": -1.0}})
