@@ -627,10 +627,10 @@ class _TimeCommon(_Model):
     stop_when_steady: bool = Field(False, strict=True)
     stop_when_settled: bool = Field(
         False, strict=True,
-        description="stop when the orbit has settled (checked once per unit of kt): the shape steady "
-        "(tank-treading, or rolling along z), regular oscillations, or a tumbling or kayaking orbit with two "
-        "whole periods whose period and Jeffery orbit constant changed by under 1% over the last one "
-        "(capsim.observables.orbit_settled)",
+        description="stop when the motion has settled (checked once per unit of kt), by the same rule as the "
+        "summary's own 'settled': a steady shape, the last two whole orbits agreeing within 1 % (period and "
+        "orbit constant), or the last two swings within 5 % (docs/method.md, \"Motion classes\"; "
+        "capsim.observables.orbit_settled)",
     )
     max_wall_s: Optional[float] = Field(
         None, gt=0, le=1e9,

@@ -476,6 +476,7 @@ class _Run:
             motion.update(relaxation_summary(series, self.model.flow_stop_time))
         if status == "unstable":
             motion["motion"] = "unstable"
+            motion["settled"] = 0.0
         self.writer.write_summary(motion)
         self.writer.set_attrs(motion=motion["motion"])
         if status == "completed" and not outcome.reason:  # reached t_end: it can be extended

@@ -32,7 +32,8 @@ from capsim._version import __version__
 from capsim.campaign import CAMPAIGN_FILE, INDEX_FILE, expand_campaign, load_campaign, load_index
 from capsim.config import Case, ConfigError
 from capsim.errors import bounded_repr
-from capsim.quantities import FLAGS, TABLE, TURNING_MOTIONS, UNIT_SYSTEMS, attrs_for, case_field_attrs, global_attrs, physical_attrs
+from capsim.quantities import (FLAGS, SETTLED_MOTIONS, TABLE, TURNING_MOTIONS, UNIT_SYSTEMS, attrs_for, case_field_attrs,
+                               global_attrs, physical_attrs)
 from capsim.store import case_from_trajectory, read_run_digest, read_run_record, read_run_status
 
 __all__ = ["SUMMARY_ATTRS", "read_run", "read_run_status", "summarize_campaign", "text_encoding", "write_summary"]
@@ -45,6 +46,9 @@ _FLOATS = ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star",
            "intrinsic_viscosity", "intrinsic_viscosity_std",
            # the director's orbit (issue 26)
            "orbit_period", "orbit_constant", "orbit_constant_first", "orbit_constant_drift", "final_polar_angle",
+           # the classifier's evidence and the rotations told apart (issue 39)
+           "settled", "orbit_constant_change", "orbit_period_change", "orbits_averaged", "shape_period",
+           "body_rotation_ratio", "tank_treading_ratio", "rigid_turn", "ttf_ratio_kind",
            "D_xy_error_estimate", "theta_error_estimate", "ttf_ratio_error_estimate", "Sxy_star_error_estimate")
 _STRINGS = ("status", "status_reason", "motion")
 #: the context of a run from its resolved case: name -> (dtype, value for a run without a case)
@@ -52,7 +56,7 @@ _CONTEXT = {"level": (np.int64, -1), "mesh_base": (np.int8, -1), "law": (object,
             "skalak_c": (np.float64, np.nan), "psi": (np.float64, np.nan), "bending_modulus": (np.float64, np.nan),
             "time_scheme": (np.int8, -1), "rtol": (np.float64, np.nan), "steady_average": (np.int8, 0)}
 #: motions whose window means are settled values
-_SETTLED = frozenset({"steady", "rolling", "kayaking", "oscillating", "tumbling"})
+_SETTLED = frozenset(SETTLED_MOTIONS)  # old names too (oscillating): old files read as they were
 #: settled motions whose in-plane long axis turns round and round: no mean inclination (run
 #: files written before issue 30 still hold the folded mean)
 _TURNING = TURNING_MOTIONS
@@ -107,7 +111,9 @@ def read_run(path: str | os.PathLike) -> dict[str, Any] | None:
     record["intrinsic_viscosity_std"] = 2.5 * record["Sxy_star_std"]
     steps = summary.get("steps", run.get("steps", n - 1 if n else -1))
     record["steps"] = int(steps)
-    record["steady_average"] = int(record["status"] == "completed" and record["motion"] in _SETTLED)
+    # the classifier's own verdict where the file has it (issue 39: the last whole orbits agree), else its class
+    settled = record["settled"] == 1.0 if np.isfinite(record["settled"]) else record["motion"] in _SETTLED
+    record["steady_average"] = int(record["status"] == "completed" and settled)
     if record["motion"] in _TURNING:
         # the long axis turns through every angle: a mean of θ over whole periods is no property
         # of the motion (and its spread the whole range), so θ has no settled value
