@@ -31,7 +31,7 @@ from pydantic import (
 
 from capsim.errors import bounded_repr, first_line
 from capsim.flows import (FLOW_FIELDS, FLOW_HISTORIES, FLOWS, HISTORY_FIELDS, SYMMETRY_CANDIDATES, SYMMETRY_GROUPS,
-                          far_field_of)
+                          WALL_FLOWS, far_field_of)
 from capsim.timestepping import DEFAULT_SCHEME, SCHEMES
 from capsim.viscosity import VISCOSITY_MODELS
 from capsim.viscosity import is_active as is_viscous
@@ -750,6 +750,10 @@ class Output(_Model):
     )
 
 
+#: the smallest gap between membrane and wall the image integrals are resolved at (regular rule)
+WALL_GAP_DEFAULT = 0.1
+
+
 class Guards(_Model):
     """Stability guards checked after every accepted step; crossing one stops the
     run as 'unstable' (non-finite positions and dt < time.dt_min always do)."""
@@ -763,6 +767,12 @@ class Guards(_Model):
     min_dt_fraction: float = Field(
         1e-3, ge=0, lt=1,
         description="stop when the recent time step falls below this fraction of the typical one (stalled run)",
+    )
+    min_wall_gap: float = Field(
+        WALL_GAP_DEFAULT, gt=0, le=1,
+        description="with a wall: stop when the membrane comes closer to it than this (units of a); the wall's "
+        "image integrals use the regular rule, whose error grows as the gap falls below an element's size "
+        "(docs/known_answers.md, 'A capsule near a wall')",
     )
 
 
@@ -805,6 +815,18 @@ def _substitution_problem(solver: Solver, lam: float) -> _FieldProblem | None:
     return None
 
 
+class Wall(_Model):
+    """The scene's boundary: a no-slip plane wall at rest, its normal along the velocity
+    gradient (y), below the capsule (capsim.flows, Blake's Green's function)."""
+
+    distance: float = Field(
+        ..., gt=1.0, le=1e3,
+        description="h: the wall lies at y = y_c − h, h (units of a) below the capsule's initial centre y_c; "
+        "the undisturbed shear flow vanishes on it, u∞ = k (y − y_c + h, 0, 0). The rest shape must clear "
+        "it by guards.min_wall_gap",
+    )
+
+
 class Case(_Model):
     """One simulation: every knob that changes the result, nothing else."""
 
@@ -838,12 +860,43 @@ class Case(_Model):
     solver: Solver = Solver()
     guards: Guards = Guards()
     output: Output = Field(default_factory=Output, validate_default=True)
+    wall: Optional[Wall] = Field(
+        None, description="a no-slip plane wall below the capsule (none: unbounded flow); simple shear, λ = 1, "
+        "an elastic membrane; the run stops 'unstable' (guard min_wall_gap) before the membrane touches it")
     physical: Optional[Physical] = Field(
         None,
         description="dimensional shear rate, viscosity, radius and modulus instead of flow.shear_rate_G, "
         "which is then computed and stored (giving both is an error, unless flow.shear_rate_G is the "
         "value they give, as in a resolved case)",
     )
+
+    @model_validator(mode="after")
+    def _a_wall_this_case_can_take(self) -> Case:
+        if self.wall is None:
+            return self
+        if self.flow.kind not in WALL_FLOWS:
+            raise _FieldProblem("flow.kind", self.flow.kind, f"cannot be bounded by a wall (it does not vanish on a "
+                                f"plane y = const); with wall: {', '.join(WALL_FLOWS)}")
+        if self.flow.viscosity_ratio != 1.0:
+            raise _FieldProblem("flow.viscosity_ratio", self.flow.viscosity_ratio,
+                                "must be 1 with a wall (the wall's double-layer image is not built yet)")
+        if self.membrane.viscosity is not None and self.membrane.viscosity.active:
+            raise _FieldProblem("membrane.viscosity", "active", "cannot be used with a wall yet (its solve has no "
+                                "wall image); remove it or the wall")
+        from capsim.mesh import rest_shape_mesh  # numpy only: the level-0 shape tells how far it reaches
+
+        # the case's own mesh (up to level 3, accurate to 2e-5 a there; level 0's nodes lie 5 % out)
+        mesh = rest_shape_mesh(self.shape.kind, self.mesh.base, min(self.mesh.level, 3), self.initial_tilt_deg,
+                               axis=self.initial_axis,
+                               aspect_ratio=self.shape.aspect_ratio, c0=self.shape.c0, c2=self.shape.c2,
+                               c4=self.shape.c4)
+        below = float(-mesh.positions[:, 1].min())
+        if self.wall.distance - below < self.guards.min_wall_gap:
+            raise _FieldProblem("wall.distance", self.wall.distance,
+                                f"the rest shape reaches {below:.4g} a below its centre: it must clear the wall by "
+                                f"guards.min_wall_gap = {self.guards.min_wall_gap:g} (give distance > "
+                                f"{below + self.guards.min_wall_gap:.4g})")
+        return self
 
     @model_validator(mode="after")
     def _G_from_capillary_number(self) -> Case:

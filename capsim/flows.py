@@ -384,3 +384,42 @@ class Table(History):
 
 #: the optional fields of ``flow.history`` that some kind reads
 HISTORY_FIELDS = tuple(sorted({f for cls in FLOW_HISTORIES.values() for f in cls.uses}))
+
+
+# ---------------------------------------------------------------- the wall (the scene's boundary)
+
+
+@dataclass(frozen=True)
+class AffineFarField:
+    """u∞(x) = L·x + c: a linear flow shifted so that it vanishes on a wall (simple shear above
+    the plane y = y_w: u∞ = (y − y_w, 0, 0))."""
+
+    gradient: tuple
+    offset: tuple
+    linear: ClassVar[bool] = True
+
+    @property
+    def matrix(self) -> np.ndarray:
+        return np.array(self.gradient)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        u = FarField(self.gradient)(x)
+        for i in range(3):
+            if self.offset[i] != 0.0:
+                u[:, i] += self.offset[i]
+        return u
+
+    def is_invariant(self, signs: np.ndarray) -> bool:
+        S = np.diag(signs)
+        return bool(np.array_equal(S @ self.matrix @ S, self.matrix)
+                    and np.array_equal(S @ np.array(self.offset), np.array(self.offset)))
+
+
+#: the flows a wall along y can bound: those that vanish on a plane y = const (no slip)
+WALL_FLOWS = ("simple_shear",)
+
+
+def far_field_above_wall(field: FarField, y_wall: float) -> AffineFarField:
+    """The undisturbed flow that vanishes on the wall y = y_wall: L·(x − y_wall e_y)."""
+    L = np.array(field.gradient)
+    return AffineFarField(field.gradient, tuple(float(v) for v in -L[:, 1] * y_wall))

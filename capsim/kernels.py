@@ -120,6 +120,56 @@ def _element_point(xe, fe, e, phi, dxi, deta):
     return px, py, pz, nx, ny, nz, fx, fy, fz
 
 
+@njit(parallel=True, **_JIT)
+def wall_image_sum(targets, sources, strengths, y_wall):
+    """The image part of Blake's (1971) Green's function of a no-slip plane wall y = y_wall:
+    u(x) = Σ_m [G_B(x, x_m) − G(x − x_m)]·g_m, with (Blake's eq. 10, the wall normal e_y, the
+    source at height h = y_m − y_wall, its image x_m' = x_m − 2h e_y, R = x − x_m', ε = diag(1, −1, 1))
+
+        G_B = G(x − x_m) − G(R) + 2h ε_j ∂/∂R_j [h R_i/R³ − δ_iy/R − R_i R_y/R³],
+
+    so that G_B vanishes on the wall (tests/test_wall.py). Same normalisation as stokeslet_sum
+    (G = I/r + r r/r³); regular wherever the sources are above the wall. targets (Nt, 3),
+    sources (M, 3), strengths (M, 3) → (Nt, 3)."""
+    nt = targets.shape[0]
+    m = sources.shape[0]
+    sx, sy, sz = _columns(sources)
+    gx, gy, gz = _columns(strengths)
+    out = np.zeros((nt, 3))
+    for i in prange(nt):
+        x0, y0, z0 = targets[i, 0], targets[i, 1], targets[i, 2]
+        ux = 0.0
+        uy = 0.0
+        uz = 0.0
+        for j in range(m):
+            h = sy[j] - y_wall
+            rx = x0 - sx[j]
+            ry = y0 - (y_wall - h)
+            rz = z0 - sz[j]
+            rinv = 1.0 / np.sqrt(rx * rx + ry * ry + rz * rz)
+            rinv3 = rinv * rinv * rinv
+            rinv5 = rinv3 * rinv * rinv
+            # − G(R)·g: the image Stokeslet
+            rg = (rx * gx[j] + ry * gy[j] + rz * gz[j]) * rinv3
+            ux -= gx[j] * rinv + rx * rg
+            uy -= gy[j] * rinv + ry * rg
+            uz -= gz[j] * rinv + rz * rg
+            # 2h B·ĝ, ĝ = ε g: the source dipole (h²) and the Stokeslet doublet (h)
+            hx, hy, hz = gx[j], -gy[j], gz[j]
+            rgh = rx * hx + ry * hy + rz * hz
+            c = 3.0 * rgh * rinv5
+            bx = h * (hx * rinv3 - rx * c) - (hx * ry + rx * hy) * rinv3 + rx * ry * c
+            by = h * (hy * rinv3 - ry * c) + rgh * rinv3 - 2.0 * hy * ry * rinv3 + ry * ry * c
+            bz = h * (hz * rinv3 - rz * c) - (hz * ry + rz * hy) * rinv3 + rz * ry * c
+            ux += 2.0 * h * bx
+            uy += 2.0 * h * by
+            uz += 2.0 * h * bz
+        out[i, 0] = ux
+        out[i, 1] = uy
+        out[i, 2] = uz
+    return out
+
+
 @njit(inline="always")
 def _stokeslet(dx, dy, dz, fx, fy, fz):
     """G·f = f/r + r (r·f)/r³ for r = (dx, dy, dz) (seed 2.12a)."""

@@ -228,6 +228,18 @@ def rest_aspect_ratio(rest_geometry: ElementGeometry, axis) -> float:
 # ---------------------------------------------------------------- stresslet
 
 
+def centroid_velocity(geo: ElementGeometry, u: np.ndarray, elements: np.ndarray, phi: np.ndarray,
+                      center: np.ndarray, volume: float) -> dict:
+    """dc/dt of the volume centroid c = ∫_V x dV / V by Reynolds' transport theorem on the membrane's
+    velocity: d/dt ∫_V x dV = ∮ x (u·n) dS, so dc/dt = (∮ x (u·n) dS − c ∮ u·n dS)/V, u interpolated
+    to the regular points with the elements' shape functions ``phi`` (Q, 6)."""
+    uq = np.einsum("qk,ekc->eqc", phi, u[elements])
+    flux = np.einsum("eqc,eqc->eq", uq, geo.normals) * geo.weights
+    moment = np.einsum("eq,eqc->c", flux, geo.points)
+    v = (moment - center * flux.sum()) / volume
+    return {"centroid_velocity_x": float(v[0]), "centroid_velocity_y": float(v[1]), "centroid_velocity_z": float(v[2])}
+
+
 def particle_stresslet(
     geo: ElementGeometry,
     density: np.ndarray,
@@ -1109,6 +1121,9 @@ class StepObserver:
         row["min_tension"] = float(tau2.min()) / model.shear_rate_G
         row["compressed_fraction"] = float(np.mean(tau2 < -COMPRESSION_TOL))
         center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
+        row.update(centroid_velocity(state.geometry, u, elements, model.disc.reg_phi, center, row["volume"]))
+        if getattr(model, "wall_y", None) is not None:
+            row["wall_gap"] = float(y[:, 1].min() - model.wall_y)
         S_star = particle_stresslet(
             state.geometry, state.density, u, elements, model.disc.reg_phi, center, row["volume"],
             model.shear_rate_G, model.viscosity_ratio, state.weights,

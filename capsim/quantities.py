@@ -113,6 +113,13 @@ _add("volume_drift", "relative volume change", "1", "(V − V0)/V0, V0 the volum
 for _c in "xyz":
     _add(f"centroid_{_c}", f"{_c} coordinate of the centroid", "1",
          f"{_c} coordinate of the volume centroid of the capsule, in units of a", "a")
+for _c in "xyz":
+    _add(f"centroid_velocity_{_c}", f"{_c} velocity of the centroid", "1",
+         f"{_c} component of the centroid's velocity dc/dt = (∮ x (u·n) dS − c ∮ u·n dS)/V (Reynolds' transport "
+         "theorem on the membrane's velocity), in units of k a: with a wall its y component is the lift, in "
+         "Poiseuille flow the migration across streamlines", "a k")
+_add("wall_gap", "gap between membrane and wall", "1",
+     "smallest distance of a membrane node from the wall (runs with a wall only), in units of a", "a")
 _add("axis_L", "longest in-plane semi-axis", "1",
      "longer of the two semi-axes in the xy-plane of the equivalent ellipsoid (same second moment of volume), "
      "in units of a", "a")

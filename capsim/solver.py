@@ -25,7 +25,8 @@ import numpy as np
 from capsim import kernels
 # the far field and the scene's symmetries live in capsim.flows (re-exported here)
 from capsim.flows import (  # noqa: F401
-    INVERSION, MIRROR_Z, ROTATION_Z, SIMPLE_SHEAR, SYMMETRY_CANDIDATES, SYMMETRY_GROUPS, FarField, far_field_of, scaled,
+    INVERSION, MIRROR_Z, ROTATION_Z, SIMPLE_SHEAR, SYMMETRY_CANDIDATES, SYMMETRY_GROUPS, FarField, far_field_above_wall, far_field_of,
+    scaled,
 )
 from capsim.geometry import ElementGeometry, element_geometry, interpolate, shape_functions
 from capsim.krylov import gmres
@@ -303,12 +304,14 @@ class Discretization:
         return RestMeasure(np.ascontiguousarray(self.geometry(X).weights), np.ascontiguousarray(duffy), fine)
 
     def single_layer(self, x: np.ndarray, geo: ElementGeometry, density: np.ndarray,
-                     measure: RestMeasure | None = None) -> np.ndarray:
+                     measure: RestMeasure | None = None, y_wall: float | None = None) -> np.ndarray:
         """∫ G·f dS at every node for a density given per element.
 
         density: (N_e, 3) element-constant (seed 3.7) or (N_e, 6, 3) element
         nodal values interpolated quadratically; per unit area of the surface x, or per
-        unit area of the rest shape with its ``measure`` (∫ G·F dA0).
+        unit area of the rest shape with its ``measure`` (∫ G·F dA0). ``y_wall``: a no-slip
+        plane wall there (the scene's wall): G is Blake's, its image part integrated with the
+        regular rule (it is regular while the surface stays above the wall).
         """
         clock = self.clock
         clock.start()
@@ -325,6 +328,9 @@ class Discretization:
         clock.lap("interpolation")
         u = kernels.stokeslet_sum(x[self.targets], geo.points.reshape(-1, 3), strengths)
         clock.lap("stokeslet_sum")
+        if y_wall is not None:
+            u += kernels.wall_image_sum(x[self.targets], geo.points.reshape(-1, 3), strengths, y_wall)
+            clock.lap("wall_image_sum")
         u += kernels.single_layer_singular_correction(
             x, self.elements, self.inc_offsets, self.inc_elem, self.inc_local,
             nodal, geo.points, weights, point_density, *self.duffy_by_node, self.sing_w, measure.duffy_weights,
@@ -475,6 +481,8 @@ class CapsuleModel:
     # whether it has (state: "flow_stopped")
     flow_stop_time: float | None = None
     flow_step_factor: float = 0.0
+    # the scene's no-slip plane wall y = wall_y (None: unbounded): Blake's Green's function
+    wall_y: float | None = None
     # flow.history kinds oscillating and table: the rate's factor a(t) at the time of the
     # evaluation (``time``, set by the runner before each; None: a constant rate)
     rate_factor: Callable[[float], float] | None = field(default=None, repr=False, compare=False)
@@ -637,7 +645,7 @@ class CapsuleModel:
         self.counts["velocity_evaluations"] += 1
         lam = self.viscosity_ratio
         t0 = time.perf_counter()
-        sl = self.disc.single_layer(x, state.geometry, state.density, state.measure)
+        sl = self.disc.single_layer(x, state.geometry, state.density, state.measure, y_wall=self.wall_y)
         self.counts["single_layer_applications"] += 1
         t1 = time.perf_counter()
         self.solver_times["single_layer"] += t1 - t0
@@ -794,6 +802,10 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
     if np.any(center != 0.0):  # the scene's body placed away from the origin (the symmetries then find fewer images)
         positions = positions + center
     far_field = far_field_of(case.flow)
+    wall_y = None
+    if case.wall is not None:  # the wall h below the initial centre; the undisturbed flow vanishes on it
+        wall_y = float(center[1] - case.wall.distance)
+        far_field = far_field_above_wall(far_field, wall_y)
     if mode != "none":
         kept = tuple(name for name, generators in SYMMETRY_GROUPS.items()
                      if all(far_field.is_invariant(g) for g in generators))
@@ -830,5 +842,6 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
         flow_stop_time=None if case.flow.jump is None else case.flow.jump[0],
         flow_step_factor=0.0 if case.flow.jump is None else case.flow.jump[1],
         rate_factor=case.flow.rate_factor,
+        wall_y=wall_y,
     )
     return model, rest

@@ -61,7 +61,8 @@ def guard_violation(row: dict, row0: dict, guards: Guards) -> str | None:
         ("max_area_change", "|A/A0 - 1|", abs(row["area"] / row0["area"] - 1.0), ">", guards.max_area_change),
         ("max_principal_stretch", "largest principal stretch", row["max_principal_stretch"], ">",
          guards.max_principal_stretch),
-    )
+    ) + ((("min_wall_gap", "gap between membrane and wall", row["wall_gap"], "<", guards.min_wall_gap),)
+         if "wall_gap" in row else ())
     for name, label, value, op, limit in checks:
         if (value < limit) if op == "<" else (value > limit):
             # as many digits as show the crossing ('1.00011 > 1.0001', not '1 > 1.0001')

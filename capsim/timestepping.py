@@ -771,6 +771,9 @@ class LinearlyImplicit(Integrator):
             return ("time.scheme", cls.name,
                     f"cannot run flow.history kind {case.flow.history.kind} (a rate that varies in time: its stages "
                     "take no time derivative); use scheme rkf23, rkc or auto")
+        if getattr(case, "wall", None) is not None:  # its frozen-layer Jacobian has no wall image
+            return ("time.scheme", cls.name, "cannot run a case with a wall yet (its stage Jacobian has no wall "
+                    "image); use scheme rkf23, rkc or auto")
         kind = getattr(case.flow, "kind", "simple_shear")
         if kind == "poiseuille":  # its velocity gradient varies in space; the stage Jacobian takes a constant one
             return ("time.scheme", cls.name,
