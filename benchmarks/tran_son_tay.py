@@ -198,6 +198,20 @@ def jobs() -> dict[str, list[tuple[str, dict, dict]]]:
     thick["shape"] = {"kind": "biconcave", "c0": THICK[0], "c2": THICK[1], "c4": THICK[2]}
     out["shape"] = [(f"sens thick k={SENSITIVITY_RATE} L{MAIN_LEVEL}", thick, {}),
                     (f"sens G_s 1.25 uN/m k={SENSITIVITY_RATE} L{MAIN_LEVEL}", variant(shear_modulus="1.25 uN/m"), {})]
+    # a membrane nearer area-incompressible at the highest rate, where Skalak's C = 10 lets
+    # the area grow 7 % (C = 100: K_s/G_s = 201)
+    out["hardening"] = []
+    for c in main:
+        stiff = json.loads(json.dumps(c))
+        stiff["membrane"]["skalak_c"] = 100.0
+        out["hardening"].append((f"sens C 100 k={rate_of(stiff)} L{MAIN_LEVEL}", stiff, {}))
+    # softer at small strain, nearly area-incompressible: G_s = 1.25 uN/m, C = 100
+    out["soft"] = []
+    for c in main:
+        soft = json.loads(json.dumps(c))
+        soft["membrane"]["skalak_c"] = 100.0
+        soft["physical"]["shear_modulus"] = "1.25 uN/m"
+        out["soft"].append((f"sens G_s 1.25 C 100 k={rate_of(soft)} L{MAIN_LEVEL}", soft, {}))
     out["level3"] = [(f"viscous k={SENSITIVITY_RATE} L3", base, {"level": 3})]
     return out
 
@@ -226,15 +240,17 @@ def report() -> None:
     rows = load_rows()
     lines = [
         "| k (1/s) | μ_s (1e-7 N s/m) | G | Bq_s | f measured (rad/s) | f capsim, their μ_s | error | "
-        "f capsim, μ_s = 0 | error | motion (their μ_s) | revolutions averaged |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "f capsim, μ_s = 0 | error | f capsim, their μ_s, Skalak C = 100 | error | motion (their μ_s) | "
+        "revolutions averaged |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for (k, _, _, _, _, f, sd), mu in zip(TABLE_I, TABLE_III_MU):
         v = rows.get(f"viscous k={k} L{MAIN_LEVEL}")
         e = rows.get(f"elastic k={k} L{MAIN_LEVEL}")
+        h = rows.get(f"sens C 100 k={k} L{MAIN_LEVEL}")
         cells = [f"{k:g}", f"{mu:.2f}", _fmt(v["G"]) if v else "—", _fmt(v["Bq"]) if v else "—",
                  f"{f:.3g} ± {sd:.2g}"]
-        for r in (v, e):
+        for r in (v, e, h):
             if r is None:
                 cells += ["not run", "—"]
             else:
@@ -304,6 +320,7 @@ def figure(rows: dict) -> None:
     ax.errorbar(k, [r[5] for r in TABLE_I], yerr=[r[6] for r in TABLE_I], fmt="ko", capsize=3,
                 label="measured, young cells (Tran-Son-Tay et al. 1984, mean ± SD)")
     for kind, style, name in (("viscous", "s-", "capsim, their membrane viscosity"),
+                              ("sens C 100", "d:", "capsim, their membrane viscosity, Skalak C = 100"),
                               ("elastic", "^--", "capsim, no membrane viscosity")):
         pts = [(r[0], rows[f"{kind} k={r[0]} L{MAIN_LEVEL}"]["f_rad_s"]) for r in TABLE_I
                if f"{kind} k={r[0]} L{MAIN_LEVEL}" in rows]
