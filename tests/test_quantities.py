@@ -96,6 +96,12 @@ def written(tmp_path_factory):
         "output": {"path": str(tmp / "viscous.h5"), "snapshot_every": 0.05},
     }))
 
+    # a capsule near a wall: its gap column
+    run_case(case_from_dict({
+        "name": "qw", "mesh": {"level": 0}, "time": {"t_end": 0.02}, "wall": {"distance": 3.0},
+        "output": {"path": str(tmp / "wall.h5"), "snapshot_every": 0.02},
+    }))
+
     campaign = campaign_from_dict({
         "name": "q", "base": {"shape": {"kind": "prolate"}, "time": {"t_end": 0.02}},
         "sweep": {},
@@ -116,7 +122,7 @@ def written(tmp_path_factory):
                                  "output": {"path": str(tmp / "unused.h5")}})
     study = write_study(run_study(study_case, levels=[0, 1], rtols=[1e-3], workers=1, out_dir=tmp / "study"),
                         tmp / "study.nc")
-    run_files = [tmp / "run.h5", tmp / "viscous.h5", *sorted((tmp / "campaign").glob("*.h5"))]
+    run_files = [tmp / "run.h5", tmp / "viscous.h5", tmp / "wall.h5", *sorted((tmp / "campaign").glob("*.h5"))]
     return case, summary, run_files, nc, study
 
 
