@@ -79,10 +79,10 @@ bench-promise: venv
 	$(BIN)/python benchmarks/stepping.py --promise $(CASES)
 
 # red cells against Tran-Son-Tay, Sutera & Rao 1984 (issue 40): the five shear rates with and
-# without membrane viscosity and the sensitivity at 28.6 1/s, level 2, one run at a time (about
-# 15 min on one core; runs already in benchmarks/tran_son_tay.json are kept): writes
+# without membrane viscosity, the sensitivity at 28.6 1/s and two other membrane laws, level 2, one run at a time (about
+# 25 min on one core; runs already in benchmarks/tran_son_tay.json are kept): writes
 # benchmarks/tran_son_tay.md and docs/figures/tran_son_tay.png
 .PHONY: bench-tts
 bench-tts: venv
-	$(BIN)/python benchmarks/tran_son_tay.py run main elastic sensitivity extra shape
+	$(BIN)/python benchmarks/tran_son_tay.py run main elastic sensitivity extra shape hardening soft
 	$(BIN)/python benchmarks/tran_son_tay.py report

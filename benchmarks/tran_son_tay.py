@@ -11,8 +11,13 @@ github.com/slitvinov/uDeviceX, tools/tran_son_tay/data/tab1.txt, tab2.txt, tab3.
 copy tools/tran_son_tay/papers/tran-son-tay84.pdf at that commit). Young cells only (the
 digitised tables hold the young fraction; the paper's old-cell columns are not used).
 
-    python benchmarks/tran_son_tay.py run [main|elastic|sensitivity ...]   # the runs, resumable
-    python benchmarks/tran_son_tay.py report                                # table and figure
+    python benchmarks/tran_son_tay.py run [GROUP ...]   # the runs (all groups but level3), resumable
+    python benchmarks/tran_son_tay.py report            # table and figure
+
+GROUP: main (their mu_s), elastic (none), sensitivity (mu_s x0.7, x1.3, G_s x2, level 1),
+extra (mu_s x1.7, the same shape at their area), shape (their reduced volume, G_s x0.5),
+hardening (Skalak C = 100 at every rate), soft (G_s 1.25 uN/m and C = 100 at every rate),
+level3 (level 3 at 28.6 1/s: ~6 min; not run for the docs).
 
 `run` appends each finished run to benchmarks/tran_son_tay.json (a run already there is not
 repeated; one run at level 2 takes 1-3 min on one core); `report` writes
@@ -338,8 +343,8 @@ def figure(rows: dict) -> None:
     ax.set_xlabel("shear rate k (1/s)")
     ax.set_ylabel("tank-treading frequency f (rad/s)")
     ax.set_xlim(0, 185)
-    ax.set_ylim(0, None)
-    ax.legend(fontsize=7, loc="upper left")
+    ax.set_ylim(0, 64)  # room for the legend above the curves
+    ax.legend(fontsize=6.5, loc="upper left")
     ax.set_title("Red cells in 35 cP dextran, λ = 0.29 (level 2)", fontsize=9)
     fig.tight_layout()
     FIGURE.parent.mkdir(parents=True, exist_ok=True)
@@ -348,7 +353,7 @@ def figure(rows: dict) -> None:
 
 if __name__ == "__main__":
     if len(sys.argv) >= 2 and sys.argv[1] == "run":
-        run(sys.argv[2:] or ["main", "elastic", "sensitivity"])
+        run(sys.argv[2:] or ["main", "elastic", "sensitivity", "extra", "shape", "hardening", "soft"])
     elif len(sys.argv) == 2 and sys.argv[1] == "report":
         report()
     else:
