@@ -134,6 +134,9 @@ class Flow:
     description: ClassVar[str]
     rate: ClassVar[str]
     uses: ClassVar[tuple[str, ...]] = ()
+    #: above a critical rate a capsule finds no steady shape and keeps elongating (the extensions:
+    #: no rotation relieves the stretch); a run it ends is said so (motion "elongating")
+    elongates_without_bound: ClassVar[bool] = False
 
     @classmethod
     def far_field(cls, flow: Any) -> Any:
@@ -158,6 +161,7 @@ class SimpleShear(Flow):
 @register_flow
 class PlanarExtension(Flow):
     name = "planar_extension"
+    elongates_without_bound = True
     description = "u∞ = ε (x, −y, 0): stretching along x, compression along y (a four-roll mill, a cross-slot)"
     rate = "ε, the extension rate"
 
@@ -169,6 +173,7 @@ class PlanarExtension(Flow):
 @register_flow
 class UniaxialExtension(Flow):
     name = "uniaxial_extension"
+    elongates_without_bound = True
     description = "u∞ = ε (x, −y/2, −z/2): axisymmetric stretching along x"
     rate = "ε, the extension rate"
 

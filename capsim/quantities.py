@@ -233,7 +233,9 @@ _add("motion", "class of motion", "",
      "membrane spinning), kayaking (the axis turning about z off the plane on an orbit whose constant holds), "
      "off_plane_tank_treading (the axis still off the plane and off z, the membrane tank-treading), "
      "drifting_to_rolling or drifting_to_plane (a transition in progress: the orbit constant changing by 5 % or "
-     "more per orbit, or a still axis tilting), transient (none of these yet) or unstable; relaxing when the "
+     "more per orbit, or a still axis tilting), transient (none of these yet) or unstable (elongating when, in "
+     "an extensional flow above its critical rate, the shape kept elongating until a guard stopped it); "
+     "relaxing when the "
      "flow stopped during the run (flow.history kind stop); empty when the run did not classify it. The body's "
      "symmetry axis is the shape's own (short_axis of a disk, long_axis of a prolate), not the material director. "
      "Whether the motion has settled is `settled`")
@@ -516,7 +518,7 @@ EXPORT_FIELDS: dict[str, tuple[str, str]] = {
 #: The motion classes of a run summary (capsim.observables.classify_orbit; the decision
 #: procedure and its thresholds: docs/method.md, "Motion classes"), in the order they are told apart
 MOTIONS = ("unstable", "rolling", "tumbling", "kayaking", "drifting_to_rolling", "drifting_to_plane",
-           "steady", "swinging", "off_plane_tank_treading", "transient", "relaxing")
+           "steady", "swinging", "off_plane_tank_treading", "transient", "relaxing", "elongating")
 #: what each class means, one line each (the quantity table and the docs say the same)
 MOTION_MEANINGS: dict[str, str] = {
     "steady": "tank-treading in the shear plane with a steady shape",
@@ -534,6 +536,8 @@ MOTION_MEANINGS: dict[str, str] = {
     "transient": "none of these yet (still evolving, or too short to tell)",
     "unstable": "the run went unstable (a non-finite value or a stability guard)",
     "relaxing": "the flow stopped during the run (flow.history kind stop): the shape relaxes at rest",
+    "elongating": "in an extensional flow above its critical rate: the shape kept elongating, with no steady "
+                  "state, until a stability guard stopped the run (status unstable)",
 }
 #: old names, as run files written before issue 39 hold them: read as the new ones
 MOTION_ALIASES: dict[str, str] = {"oscillating": "swinging"}

@@ -23,6 +23,7 @@ import numpy as np
 from capsim._version import __version__
 from capsim.config import Case
 from capsim.errors import first_line
+from capsim.flows import FLOWS
 from capsim.membrane import law_attributes
 from capsim.mesh import SurfaceMesh, rest_shape_attributes
 from capsim.observables import StepObserver, relaxation_summary, run_summary
@@ -450,6 +451,11 @@ class _Run:
         else:
             remove_checkpoint(self.ckpt_path)
         reason = "; ".join(part for part in (reason, ig.note()) if part)
+        elongating = status == "unstable" and self._kept_elongating()
+        if elongating:
+            D = float(self.observer.last["D_xy"])
+            reason = (f"no steady shape: the capsule kept elongating in {self.case.flow.kind} (D_xy {D:.3g} and "
+                      f"rising at kt = {ig.t:.4g}: above the flow's critical rate); {reason}")
         if self.snapshots.last_time < ig.t:
             self.writer.append_snapshot(ig.t, ig.y)
         first, last = self.observer.first, self.observer.last
@@ -475,7 +481,7 @@ class _Run:
         if self.model.flow_stopped and self.model.flow_step_factor == 0.0:  # stopped: it relaxes at rest
             motion.update(relaxation_summary(series, self.model.flow_stop_time))
         if status == "unstable":
-            motion["motion"] = "unstable"
+            motion["motion"] = "elongating" if elongating else "unstable"
             motion["settled"] = 0.0
         self.writer.write_summary(motion)
         self.writer.set_attrs(motion=motion["motion"])
@@ -485,6 +491,18 @@ class _Run:
         return replace(result, summary=motion)
 
     _status_kept = False
+
+    def _kept_elongating(self) -> bool:
+        """Whether D_xy rose steadily over the last half of a run in a flow where a capsule can
+        elongate without bound (capsim.flows: elongates_without_bound): ≥ 80 % of its steps up,
+        and up by more than 1 % in all."""
+        if not FLOWS[self.case.flow.kind].elongates_without_bound:
+            return False
+        t, D = (np.asarray(self.observer.history.get(k, ()), float) for k in ("t", "D_xy"))
+        late = D[t >= 0.5 * t[-1]] if t.size else D
+        if late.size < 4:
+            return False
+        return bool(np.mean(np.diff(late) > 0) >= 0.8 and late[-1] > 1.01 * late[0])
 
     def _fail(self, exc: BaseException) -> None:
         """Keep what can be kept: a checkpoint of the last accepted step (where the

@@ -187,3 +187,19 @@ def test_a_pre_inflated_capsule_at_rest_keeps_its_shape_under_the_laws_isotropic
     assert np.abs(D).max() < 1e-6 and abs(volume[-1] / volume[0] - 1) < 1e-6
     with pytest.raises(ConfigError, match="shape.inflation"):
         case_from_dict({"name": "x", "shape": {"inflation": -1.0}})
+
+
+def test_above_the_critical_rate_of_extension_the_run_says_the_capsule_kept_elongating(tmp_path):
+    """Issue 41, item 4: a neo-Hookean capsule in planar extension at G = 0.3 finds no steady shape
+    (Lac et al. 2004: no steady state above a critical rate in planar extension); the run ends
+    with motion 'elongating' and a reason that says so first, not a bare guard message."""
+    case = case_from_dict({**_case(tmp_path, name="runaway", kind="planar_extension", shear_rate_G=0.3),
+                           "membrane": {"law": "neo_hookean"}, "mesh": {"level": 1}, "time": {"t_end": 10.0}})
+    result = run_case(case)
+    assert result.status == "unstable"
+    assert result.status_reason.startswith("no steady shape: the capsule kept elongating in planar_extension")
+    assert "guard" in result.status_reason  # and which guard stopped it
+    assert result.summary["motion"] == "elongating"
+    # in shear at the same G the capsule tank-treads: a guard there is no 'elongating'
+    assert run_case(case_from_dict({**_case(tmp_path, name="shear", shear_rate_G=0.3), "mesh": {"level": 1},
+                                    "time": {"t_end": 1.0}})).summary["motion"] != "elongating"
