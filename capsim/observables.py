@@ -1055,6 +1055,10 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
         # the long axis turns through every angle: a mean θ over whole turns is no property of
         # the motion (the folded mean of a uniform turn is arbitrary, its spread the whole range)
         out["theta"] = out["theta_std"] = float("nan")
+    for name in ("centroid_velocity_y", "slip_velocity_x"):  # lift or migration, and slip (issues 41, 42)
+        s = np.asarray(series.get(name, ()), float)
+        if s.size == t.size and np.isfinite(s).all() and t.size:
+            out[name], out[f"{name}_std"] = window_stats(t, s, t0, t1)
     out["averaging_t_from"], out["averaging_t_to"] = t0, t1
     for key in ("period", "D_xy_mean", "D_xy_amplitude", "theta_mean", "theta_amplitude"):
         out[key] = motion[key]
@@ -1079,7 +1083,9 @@ COMPRESSION_TOL = 1e-10  # in E_s: below round-off of the tension at the rest sh
 HISTORY_COLUMNS = ("t", "dt", "tt_angle", *SUMMARY_QUANTITIES, "director_x", "director_y", "director_z",
                    # the shape's orientation and semi-axes (issue 39): the body's axis, its shape period
                    "long_axis_x", "long_axis_y", "long_axis_z", "short_axis_x", "short_axis_y", "short_axis_z",
-                   "ellipsoid_a", "ellipsoid_b", "ellipsoid_c")
+                   "ellipsoid_a", "ellipsoid_b", "ellipsoid_c",
+                   # the body's drift across and along the flow (issues 41, 42): lift or migration, slip
+                   "centroid_velocity_y", "slip_velocity_x")
 
 
 class StepObserver:
@@ -1122,6 +1128,11 @@ class StepObserver:
         row["compressed_fraction"] = float(np.mean(tau2 < -COMPRESSION_TOL))
         center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
         row.update(centroid_velocity(state.geometry, u, elements, model.disc.reg_phi, center, row["volume"]))
+        u_far = model.far_field(center[None])[0]  # the undisturbed flow at the centre, the rate's factor included
+        if getattr(model, "rate_factor", None) is not None:
+            u_far = model.rate_factor(model.time) * u_far
+        for i, c in enumerate("xyz"):
+            row[f"slip_velocity_{c}"] = row[f"centroid_velocity_{c}"] - float(u_far[i])
         if getattr(model, "wall_y", None) is not None:
             row["wall_gap"] = float(y[:, 1].min() - model.wall_y)
         S_star = particle_stresslet(

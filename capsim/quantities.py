@@ -118,6 +118,11 @@ for _c in "xyz":
          f"{_c} component of the centroid's velocity dc/dt = (∮ x (u·n) dS − c ∮ u·n dS)/V (Reynolds' transport "
          "theorem on the membrane's velocity), in units of k a: with a wall its y component is the lift, in "
          "Poiseuille flow the migration across streamlines", "a k")
+for _c in "xyz":
+    _add(f"slip_velocity_{_c}", f"{_c} slip of the centroid", "1",
+         f"{_c} component of the centroid's velocity less the undisturbed flow at the centroid, in units of k a "
+         "(a capsule lagging a Poiseuille flow or a wall's shear has slip_velocity_x < 0); in a summary: its mean "
+         "over the averaging window", "a k")
 _add("wall_gap", "gap between membrane and wall", "1",
      "smallest distance of a membrane node from the wall (runs with a wall only), in units of a", "a")
 _add("axis_L", "longest in-plane semi-axis", "1",
@@ -328,7 +333,8 @@ for _name, _what in (("D_xy", "Taylor deformation parameter"), ("theta", "inclin
     _add(f"{_name}_amplitude", f"oscillation amplitude of the {_what}", TABLE[_name].units,
          f"half the peak-to-peak of {_name} over the last cycle (for a turning body, D_xy's over its last whole "
          f"orbit; θ turns through every angle and has none); NaN unless swinging or turning")
-for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star"):
+for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star", "centroid_velocity_y",
+              "slip_velocity_x"):
     _base = TABLE[_name]
     _add(f"{_name}_std", f"standard deviation of the {_base.long_name}", _base.units,
          f"standard deviation of {_name} over the averaging window; NaN when not reported", _base.scale,

@@ -76,6 +76,7 @@ def _wall_run(tmp_path, h: float | None, G: float, t_end: float, level: int = 1)
     with h5py.File(d["output"]["path"], "r") as f:
         out = {k: float(f[f"timeseries/{k}"][-1]) for k in f["timeseries"]}
         out["symmetry"] = f.attrs["symmetry"]
+    out["summary"] = result.summary
     return out
 
 
@@ -92,6 +93,9 @@ def test_a_stiff_capsule_moves_as_goldman_cox_and_brenners_free_sphere_without_l
     assert stiff["symmetry"] == "mirror_z"
     assert stiff["centroid_velocity_x"] / h == pytest.approx(faxen, rel=1e-3)
     assert stiff["ttf_ratio"] == pytest.approx(faxen, rel=1e-3)
+    # the slip against the undisturbed flow at the centre, in the row and as the summary's window mean
+    assert stiff["slip_velocity_x"] == pytest.approx(-5 / 16 / h**2, rel=0.05)
+    assert stiff["summary"]["slip_velocity_x"] == pytest.approx(stiff["slip_velocity_x"], rel=1e-2)
     lift = {G: run["centroid_velocity_y"] for G, run in runs.items()}
     assert lift[0.001] > lift[0.0005] > 0
     assert abs(2 * lift[0.0005] - lift[0.001]) < 2e-5  # the rigid limit, extrapolated in G
@@ -108,6 +112,8 @@ def test_a_deformable_capsule_lifts_by_the_far_field_law_and_far_away_is_unbound
     law = -9 / (64 * np.pi) * S_yy
     lift = {h: _wall_run(tmp_path, h, G, 3.0) for h in (8.0, 16.0, 50.0)}
     assert lift[8.0]["centroid_velocity_y"] * 64 == pytest.approx(law, rel=0.03)
+    # the summary carries the lift: its window mean (the lift falls as the capsule rises: 7 % over the window)
+    assert lift[8.0]["summary"]["centroid_velocity_y"] == pytest.approx(lift[8.0]["centroid_velocity_y"], rel=0.1)
     slope = np.log(lift[8.0]["centroid_velocity_y"] / lift[16.0]["centroid_velocity_y"]) / np.log(2)
     assert slope == pytest.approx(2.0, abs=0.05)
     far = lift[50.0]
