@@ -82,6 +82,12 @@ bench-promise: venv
 # without membrane viscosity, the sensitivity at 28.6 1/s and two other membrane laws, level 2, one run at a time (about
 # 25 min on one core; runs already in benchmarks/tran_son_tay.json are kept): writes
 # benchmarks/tran_son_tay.md and docs/figures/tran_son_tay.png
+# the scene's cost (flows, the wall) at level 3 and the figures of planar extension's D(G) and the
+# wall's lift(h) (a few minutes): writes benchmarks/scenes.md/.json and docs/figures/{planar_extension_D,wall_lift}.png
+.PHONY: bench-scenes
+bench-scenes: venv
+	PYTHONPATH=. $(BIN)/python benchmarks/scenes.py
+
 .PHONY: bench-tts
 bench-tts: venv
 	$(BIN)/python benchmarks/tran_son_tay.py run main elastic sensitivity extra shape hardening soft
