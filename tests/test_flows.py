@@ -203,3 +203,32 @@ def test_above_the_critical_rate_of_extension_the_run_says_the_capsule_kept_elon
     # in shear at the same G the capsule tank-treads: a guard there is no 'elongating'
     assert run_case(case_from_dict({**_case(tmp_path, name="shear", shear_rate_G=0.3), "mesh": {"level": 1},
                                     "time": {"t_end": 1.0}})).summary["motion"] != "elongating"
+
+
+def test_a_campaign_sweeps_the_flow_and_every_flow_summarises_plots_and_exports(tmp_path):
+    """Issue 41, item 6: flow.kind is a field a campaign can sweep; the summary has it as a
+    dimension; a run of each kind plots and exports (ParaView)."""
+    import xarray as xr
+    from typer.testing import CliRunner
+
+    from capsim.campaign import campaign_from_dict, run_campaign
+    from capsim.cli import app
+    from capsim.summary import summarize_campaign
+
+    campaign = campaign_from_dict({
+        "name": "flows", "base": {"mesh": {"level": 0}, "time": {"t_end": 0.2}, "flow": {"shear_rate_G": 0.05}},
+        "sweep": {"flow.kind": ["simple_shear", "planar_extension", "uniaxial_extension"]},
+        "output": {"dir": str(tmp_path / "runs")}})
+    assert run_campaign(campaign, workers=1)["completed"] == 3
+    ds = summarize_campaign(tmp_path / "runs")
+    assert "kind" in ds.dims and set(ds["kind"].values) == {"simple_shear", "planar_extension", "uniaxial_extension"}
+    assert set(ds["status"].values.ravel()) == {"completed"}
+    ext = float(ds["D_xy"].sel(kind="planar_extension"))
+    shear = float(ds["D_xy"].sel(kind="simple_shear"))
+    assert ext > shear > 0  # at kt 0.2 the extension has stretched it more
+    run = next((tmp_path / "runs").glob("*planar*.h5"))
+    cli = CliRunner()
+    out = cli.invoke(app, ["plot", str(run), "--kind", "deformation", "-o", str(tmp_path / "d.png")])
+    assert out.exit_code == 0, out.output
+    out = cli.invoke(app, ["export", str(run), "--format", "vtu", "-o", str(tmp_path / "vtu")])
+    assert out.exit_code == 0, out.output
