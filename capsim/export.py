@@ -248,6 +248,20 @@ def _write_vtu(out_dir: Path, stem: str, elements, rest, snapshots, factors=None
     return [pvd] + written
 
 
+def _write_wall(out_dir: Path, stem: str, wall: tuple, factors=None) -> Path:
+    """The plane wall y = y_w as one quad (``<stem>_wall.vtu``) over the x and z the capsule
+    covers, for ParaView to draw beside the membrane."""
+    import meshio
+
+    y, x0, x1, z0, z1 = wall
+    f = factors["a"] if factors is not None else 1.0
+    corners = f * np.array([[x0, y, z0], [x1, y, z0], [x1, y, z1], [x0, y, z1]], dtype=np.float64)
+    name = out_dir / f"{stem}_wall.vtu"
+    meshio.write(name, meshio.Mesh(corners, [("quad", np.array([[0, 1, 2, 3]], dtype=np.int64))]),
+                 file_format="vtu", binary=True)
+    return name
+
+
 def export_run(
     path: str | os.PathLike,
     out_dir: str | os.PathLike | None = None,
@@ -294,6 +308,13 @@ def export_run(
             yield float(t) * f_t, x * f_x, _scaled(point, factors), _scaled(cell, factors)
 
     writer = _write_xdmf if fmt == "xdmf" else _write_vtu
+    case = case_of(data)
+    wall = None
+    if case.wall is not None:  # the scene's wall: a rectangle under the capsule's whole path
+        xs = np.concatenate([np.asarray(p, dtype=np.float64) for p in positions])
+        center = np.asarray(case.initial_center or (0.0, 0.0, 0.0), dtype=np.float64)
+        wall = (float(center[1] - case.wall.distance), xs[:, 0].min() - 2.0, xs[:, 0].max() + 2.0,
+                xs[:, 2].min() - 2.0, xs[:, 2].max() + 2.0)
     # Every file is written in a private staging directory inside `out`, then renamed into
     # place: a full disk, a size limit or a kill leaves what was in `out` as it was.
     staging = out / f".capsim-export-{os.getpid()}"
@@ -301,6 +322,8 @@ def export_run(
     try:
         staging.mkdir()
         staged = writer(staging, path.stem, elements, rest, snapshots(), factors)
+        if wall is not None:
+            staged.append(_write_wall(staging, path.stem, wall, factors))
         for file in staged:
             os.replace(file, out / file.name)
     except (OSError, RuntimeError) as exc:
@@ -334,7 +357,8 @@ def export_to_dir(path: str | os.PathLike, out_dir: str | os.PathLike | None = N
     if out.exists() and not out.is_dir():
         raise OutputError(f"output path {out} is not a directory")
     if out.is_dir():
-        planned = [out / f"{path.stem}.xdmf", out / f"{path.stem}_data.h5", out / f"{path.stem}.pvd"]
+        planned = [out / f"{path.stem}.xdmf", out / f"{path.stem}_data.h5", out / f"{path.stem}.pvd",
+                   out / f"{path.stem}_wall.vtu"]
         planned += sorted(out.glob(f"{path.stem}_[0-9][0-9][0-9][0-9].vtu"))
         for target in planned:
             guard_output(target, [path], overwrite, ours=lambda p: protected(p) is None)

@@ -145,3 +145,21 @@ def test_the_gap_guard_stops_a_run_before_the_wall_is_reached():
     assert guard_violation(row0, row0, guards) is None
     reason = guard_violation({**row0, "wall_gap": 0.05}, row0, guards)
     assert reason.startswith("guard min_wall_gap: gap between membrane and wall = 0.05 < 0.1")
+
+
+def test_the_paraview_export_draws_the_wall(tmp_path):
+    """Issue 42, item 5: `capsim export` writes the wall as a quad beside the membrane."""
+    import meshio
+
+    from capsim.export import export_to_dir
+
+    path = tmp_path / "w.h5"
+    run_case(case_from_dict({"name": "w", "mesh": {"level": 0}, "wall": {"distance": 3.0}, "time": {"t_end": 0.1},
+                             "output": {"path": str(path)}}))
+    for fmt in ("xdmf", "vtu"):
+        files = export_to_dir(path, tmp_path / fmt, fmt)
+        wall = [f for f in files if f.name == "w_wall.vtu"]
+        assert wall, files
+        mesh = meshio.read(wall[0])
+        np.testing.assert_allclose(mesh.points[:, 1], -3.0)
+        assert mesh.points[:, 0].min() < -2.0 < 2.0 < mesh.points[:, 0].max()
