@@ -38,7 +38,8 @@ app = typer.Typer(
 # matplotlib or HDF5 for --help); tests/test_registries.py checks them against the registries:
 # plot kinds capsim.plot.KINDS, export formats capsim.export.FORMATS, study references
 # capsim.study.REFERENCES, figure formats capsim.plot.FIGURE_FORMATS.
-_PLOT_KINDS = ("deformation", "inclination", "contour", "trajectory", "tensions", "rheology", "steady", "orbit")
+_PLOT_KINDS = ("deformation", "inclination", "contour", "trajectory", "tensions", "rheology", "steady", "orbit",
+               "orbit_map")
 _EXPORT_FORMATS = ("xdmf", "vtu")
 _STUDY_REFERENCES = ("finest", "richardson")
 _FIGURE_FORMATS = ("png", "pdf", "svg")
@@ -428,7 +429,8 @@ def summarize(
 def plot(
     paths: list[Path] = typer.Argument(
         ..., metavar="PATH...",
-        help="run file (.h5), several for deformation/inclination (overlaid), or campaign summary (.nc) for --kind steady",
+        help="run file (.h5), several for deformation/inclination (overlaid), or campaign summary (.nc) for --kind "
+             "steady and orbit_map",
     ),
     kind: PlotKind = typer.Option(..., "--kind", "-k", help="what to draw"),
     output: Optional[Path] = typer.Option(
@@ -439,7 +441,8 @@ def plot(
     no_theory: bool = typer.Option(False, "--no-theory", help="leave out the first-order theory"),
     unwrap: bool = typer.Option(False, "--unwrap", help="inclination: continue θ through ±π/2 (default: break the line there)"),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing file that is not a figure of this format"),
-    x: Optional[str] = typer.Option(None, "--x", help="steady: the swept field on the axis (default shear_rate_G, else the first numeric one)"),
+    x: Optional[str] = typer.Option(None, "--x", help="steady, orbit_map: the swept field on the axis (default shear_rate_G, else the first numeric one)"),
+    y: Optional[str] = typer.Option(None, "--y", help="orbit_map: the second swept field (default viscosity_ratio, else the next one)"),
     size: Optional[str] = typer.Option(None, "--size", metavar="W,H", help="figure size in inches, e.g. 3.3,2.5 (default 6.4,4.8)"),
     labels: Optional[list[str]] = typer.Option(None, "--label", help="legend label of each overlaid run, once per PATH in order"),
     units: UnitSystem = typer.Option("capsim", "--units", help="the axes' units (--time stays kt): " + _UNITS_HELP),
@@ -455,13 +458,15 @@ def plot(
     capsim plot runs/sphere-G0.1.h5 --kind contour -t 0 -t 2 -t 5
 
     capsim summarize runs/fig9 -o s.nc; capsim plot s.nc --kind steady -o steady.svg
+
+    capsim plot s.nc --kind orbit_map --x shear_rate --y viscosity_ratio -o classes.png
     """
     from capsim.plot import FigureError, write_figure
 
     try:
         out = _files_call(write_figure, paths, kind.value, output, overwrite=overwrite, dpi=dpi,
                           theory=not no_theory, unwrap=unwrap, times=times, node=node, x=x, size=size, labels=labels,
-                          units=units.value)
+                          units=units.value, y=y)
     except FigureError as exc:
         raise _user_error(str(exc)) from None
     typer.echo(str(out))

@@ -1,8 +1,8 @@
 """Figures of the seed's kinds, as PNG, PDF or SVG, without a display.
 
 ``capsim plot PATH --kind KIND [-o FILE.png|.pdf|.svg] [--dpi N]``; PATH is a
-run file (.h5) for every kind but ``steady``, which takes a campaign summary
-(netCDF from ``capsim summarize``). Every ``*_figure`` function returns a
+run file (.h5) for every kind but ``steady`` and ``orbit_map``, which take a
+campaign summary (netCDF from ``capsim summarize``). Every ``*_figure`` function returns a
 :class:`matplotlib.figure.Figure` (no pyplot, no global state);
 :func:`plot` draws one and saves it in the format its file suffix names.
 
@@ -35,7 +35,7 @@ from capsim.mesh import linear_subtriangles  # numba-free: figures need no kerne
 from capsim.quantities import PERIODIC_MOTIONS, canonical_motion
 
 __all__ = [
-    "DPI", "FIGSIZE", "FIGURE_FORMATS", "FIRST_ORDER_G_MAX", "KINDS", "contour_figure", "orbit_figure", "deformation_figure", "inclination_figure",
+    "DPI", "FIGSIZE", "FIGURE_FORMATS", "FIRST_ORDER_G_MAX", "KINDS", "contour_figure", "orbit_figure", "orbit_map_figure", "deformation_figure", "inclination_figure",
     "plot", "relaxation_time", "rheology_figure", "steady_figure", "tensions_figure",
     "section_loops", "trajectory_figure", "xy_section",
 ]
@@ -1009,6 +1009,132 @@ def _short(name: str) -> str:
     return {"viscosity_ratio": "λ", "shear_rate_G": "G", "initial_tilt_deg": "tilt"}.get(name, name)
 
 
+#: the colour of each motion class in an orbit map (the other classes: grey)
+CLASS_COLOURS = {"steady": "#4daf4a", "swinging": "#a6d854", "tumbling": "#e41a1c", "rolling": "#377eb8",
+                 "kayaking": "#984ea3", "off_plane_tank_treading": "#ff7f00", "drifting_to_rolling": "#80b1d3",
+                 "drifting_to_plane": "#fdb462", "transient": "#bdbdbd", "unstable": "#000000"}
+#: swept fields the orbit map puts on its x axis before any other (the first one swept)
+_MAP_X = ("shear_rate_G", "shear_rate", "capillary_number")
+#: and on its y axis
+_MAP_Y = ("viscosity_ratio", "viscosity", "initial_tilt_deg", "bending_modulus")
+
+
+def _map_fields(ds, swept: list[str], x: str | None, y: str | None) -> tuple[str, str | None, list[str]]:
+    """(x, y, the other varying fields) of an orbit map. Default x: G (or the shear rate, or
+    Ca) when swept, else the first swept field that varies; default y: λ (or the viscosity,
+    the tilt, κ) when swept, else the next varying field not one-to-one with x. A field
+    one-to-one with x or y (a zipped viscosity with its λ) is not a further split; the rest
+    (a mesh level) split each cell side by side."""
+    def values(f):
+        return [_shown(v) for v in np.asarray(ds[f].values).ravel()]
+
+    varying = [f for f in swept if len(set(values(f))) > 1] or list(swept)
+    if not varying:
+        raise ValueError("the summary sweeps no field to map the classes over")
+    for name, given in (("--x", x), ("--y", y)):
+        if given is not None and given not in swept:
+            raise ValueError(f"{name} {given!r}: not a swept field of the summary (allowed: {', '.join(swept)})")
+
+    def one_to_one(a, b):
+        pairs = set(zip(values(a), values(b)))
+        return len(pairs) == len({p[0] for p in pairs}) == len({p[1] for p in pairs})
+
+    if x is None:
+        x = next((f for f in _MAP_X if f in varying), varying[0])
+    if y is None:
+        rest = [f for f in varying if f != x and not one_to_one(f, x)]
+        y = next((f for f in _MAP_Y if f in rest), rest[0] if rest else None)
+    if y == x:
+        raise ValueError(f"--y {y!r}: the same field as --x")
+    others = [f for f in varying if f not in (x, y) and not one_to_one(f, x) and not (y and one_to_one(f, y))]
+    return x, y, others
+
+
+def orbit_map_figure(source, x: str | None = None, y: str | None = None):
+    """A campaign's orbit-class map (issue 39): each run of a summary (`capsim summarize`
+    netCDF or its Dataset) as a cell over two swept fields (``x``, ``y``; default the shear
+    rate and λ where swept, see :func:`_map_fields`), coloured and labelled by its motion class
+    (`motion`), filled where the run settled (`settled`/`steady_average` = 1) and hatched
+    with "not settled" where it did not; a run that did not complete is grey with its
+    status. Runs that differ in a further swept field (a mesh level) share the cell side by
+    side, each labelled with that field's value. Returns the Figure (``fig.map_cells``: the
+    drawn cells, for callers and tests)."""
+    import textwrap
+
+    import xarray as xr
+    from matplotlib.patches import Patch, Rectangle
+
+    ds = source if isinstance(source, xr.Dataset) else xr.load_dataset(source)
+    if "motion" not in ds.variables or "D_xy" not in ds.variables:
+        raise ValueError("the summary has no 'motion' (is it a capsim summarize output?)")
+    swept = _swept_fields(ds)
+    x, y, others = _map_fields(ds, swept, x, y)
+    cells = _summary_cells(ds, ("D_xy",), swept)
+    for cell in cells:
+        cell["status"] = cell["why"] if cell["why"] and not cell["why"].endswith(" motion") else "completed"
+
+    def order(f):
+        vals = list(dict.fromkeys(c["swept"][f] for c in cells))
+        try:
+            return sorted(vals, key=float)
+        except (TypeError, ValueError):
+            return vals
+
+    xs = order(x)
+    ys = order(y) if y else [None]
+    split = {}
+    for cell in cells:
+        split.setdefault((cell["swept"][x], cell["swept"][y] if y else None), []).append(cell)
+    fig = _figure(figsize=(max(FIGSIZE[0], 1.6 * len(xs) + 1.6), max(FIGSIZE[1], 1.1 * len(ys) + 1.8)))
+    ax = fig.subplots()
+    drawn = []
+    for (vx, vy), members in split.items():
+        i, j = xs.index(vx), ys.index(vy)
+        members = sorted(members, key=lambda c: tuple(_shown(c["swept"][f]) for f in others))
+        width = 0.94 / len(members)
+        for k, cell in enumerate(members):
+            motion = cell["motion"] or "—"
+            done = cell["status"] == "completed"
+            settled = done and cell["settled"]
+            colour = CLASS_COLOURS.get(motion, "#bdbdbd") if done else "#f0f0f0"
+            x0 = i - 0.47 + k * width
+            ax.add_patch(Rectangle((x0, j - 0.47), width, 0.94, facecolor=colour, alpha=1.0 if settled else 0.45,
+                                   hatch=None if settled else "//", edgecolor="0.3", linewidth=0.8))
+            words = [", ".join(f"{_short(f)} {_shown(cell['swept'][f])}" for f in others)] if others else []
+            if done:
+                words += [textwrap.fill(motion.replace("_", " "), max(8, int(14 * width))),
+                          "settled" if settled else "not settled"]
+            else:
+                words += [cell["status"]]
+            dark = done and motion in ("tumbling", "kayaking", "unstable", "rolling") and settled
+            ax.text(x0 + width / 2, j, "\n".join(w for w in words if w), ha="center", va="center",
+                    fontsize="x-small" if len(members) > 1 else "small", color="white" if dark else "black")
+            drawn.append({"x": vx, "y": vy, "motion": motion, "settled": settled, "status": cell["status"],
+                          **{f: cell["swept"][f] for f in others}})
+    ax.set_xlim(-0.5, len(xs) - 0.5)
+    ax.set_ylim(-0.5, len(ys) - 0.5)
+    ax.set_xticks(range(len(xs)), [_shown(v) for v in xs])
+    ax.set_yticks(range(len(ys)), [_shown(v) for v in ys] if y else [""])
+    ax.set_xlabel(SWEPT_LABELS.get(x, x))
+    ax.set_ylabel(SWEPT_LABELS.get(y, y) if y else "")
+    shown = list(dict.fromkeys(c["motion"] for c in drawn if c["status"] == "completed"))
+    handles = [Patch(facecolor=CLASS_COLOURS.get(m, "#bdbdbd"), edgecolor="0.3", label=m.replace("_", " "))
+               for m in shown]
+    if any(not c["settled"] for c in drawn):
+        handles.append(Patch(facecolor="white", edgecolor="0.3", hatch="//", label="not settled"))
+    if handles:
+        fig.legend(handles=handles, loc="outside right upper", fontsize="small")
+    context = _summary_context(ds)
+    title = str(ds.attrs.get("title", ""))
+    parts = [context[k] for k in ("shape", "law", "lam", "mesh") if context.get(k)]
+    text = (f"{title}: " if title else "") + ", ".join(parts)
+    note = ("each cell one run: its motion class (docs/method.md, \"Motion classes\"), filled where it settled, "
+            "hatched where it did not")
+    _supxlabel(fig, "\n".join(t for t in (text, note) if t))
+    fig.map_cells = drawn
+    return fig
+
+
 def _orbit_axis(data: dict[str, Any]) -> tuple[np.ndarray, str, str]:
     """(the axis the classifier follows at every row, its name, a short symbol): the body's
     symmetry axis from the shape (capsim.observables.body_axis: the short axis of a disk, the
@@ -1183,6 +1309,8 @@ def to_physical(fig, factors: dict[str, float]) -> None:
 
 # kinds that overlay several runs when given a list of them
 OVERLAY_KINDS = ("deformation", "inclination")
+# kinds drawn from a campaign summary (netCDF of capsim summarize), not from a run file
+SUMMARY_KINDS = ("steady", "orbit_map")
 
 KINDS: dict[str, Callable[..., Any]] = {
     "deformation": deformation_figure,
@@ -1193,6 +1321,7 @@ KINDS: dict[str, Callable[..., Any]] = {
     "rheology": rheology_figure,
     "steady": steady_figure,
     "orbit": orbit_figure,
+    "orbit_map": orbit_map_figure,
 }
 
 
@@ -1207,7 +1336,7 @@ def figure_format(output: str | os.PathLike) -> str:
 
 def plot(source, kind: str, output: str | os.PathLike | None = None, *, dpi: float | None = None,
          fmt: str | None = None, size: tuple[float, float] | None = None, units: str = "capsim", **options: Any):
-    """Draw figure `kind` of a run (or, for 'steady', a campaign summary) at ``size``
+    """Draw figure `kind` of a run (or, for 'steady' and 'orbit_map', a campaign summary) at ``size``
     (W, H inches; default the kind's), legends placed by :func:`place_legends`; save it
     when `output` is given, as the format its suffix names (or ``fmt``) at ``dpi``
     (default :data:`DPI`), fonts embedded as TrueType (Type 42) in a PDF and text kept as
@@ -1222,16 +1351,16 @@ def plot(source, kind: str, output: str | os.PathLike | None = None, *, dpi: flo
         raise ValueError(f"--dpi {dpi:g}: must be in [10, 2400]")
     if size is not None:
         size = parse_size(size)
-    if kind == "steady":
-        _refuse_run_file(source)
+    if kind in SUMMARY_KINDS:
+        _refuse_run_file(source, kind)
     from capsim.quantities import UNIT_SYSTEMS
 
     if units not in UNIT_SYSTEMS:
         raise ValueError(f"--units {units!r}: must be one of {', '.join(UNIT_SYSTEMS)}")
     factors = None
     if units == "physical":
-        if kind == "steady":
-            raise ValueError("--units physical: --kind steady draws ratios (D_xy, θ/π, TTF/f_s, S*) against the swept "
+        if kind in SUMMARY_KINDS:
+            raise ValueError(f"--units physical: --kind {kind} draws ratios (D_xy, θ/π, TTF/f_s, S*) against the swept "
                              "field, whose physical values are SI already; allowed: --units capsim (capsim summarize "
                              "--units physical writes the values in physical units)")
         factors = run_factors(source)
@@ -1340,13 +1469,13 @@ def _metadata(fmt: str) -> dict[str, Any]:
     return {"Software": "capsim"}
 
 
-def _refuse_run_file(source) -> None:
+def _refuse_run_file(source, kind: str = "steady") -> None:
     if isinstance(source, (str, os.PathLike)):
         from capsim.store import is_run_file
 
         if is_run_file(source):
-            raise ValueError(f"{os.fspath(source)} is a run file; --kind steady takes a campaign summary "
-                             "(capsim summarize DIR -o summary.nc, then capsim plot summary.nc --kind steady)")
+            raise ValueError(f"{os.fspath(source)} is a run file; --kind {kind} takes a campaign summary "
+                             f"(capsim summarize DIR -o summary.nc, then capsim plot summary.nc --kind {kind})")
 
 
 def default_output(source: str | os.PathLike, kind: str, fmt: str = "png") -> Path:
@@ -1362,9 +1491,10 @@ class FigureError(ValueError):
 def write_figure(paths: Sequence[str | os.PathLike], kind: str, output: str | os.PathLike | None = None, *,
                  overwrite: bool = False, dpi: float | None = None, theory: bool = True, unwrap: bool = False,
                  times: Sequence[float] | None = None, node: int | None = None, x: str | None = None,
-                 size: str | None = None, labels: Sequence[str] | None = None, units: str = "capsim") -> Path:
+                 size: str | None = None, labels: Sequence[str] | None = None, units: str = "capsim",
+                 y: str | None = None) -> Path:
     """`capsim plot`: draw `kind` of one run (several overlaid for :data:`OVERLAY_KINDS`, a
-    summary for 'steady') into `output` (default :func:`default_output`), through the output
+    summary for 'steady' and 'orbit_map') into `output` (default :func:`default_output`), through the output
     guards and a temporary file renamed into place. Raises FigureError, or
     :class:`capsim.files.OutputError`/``StorageError``, each one line. Returns the path."""
     from capsim.files import FIGURE_MAGIC, check_writable, guard_output, replace_atomically, starts_with
@@ -1416,9 +1546,13 @@ def write_figure(paths: Sequence[str | os.PathLike], kind: str, output: str | os
         except ValueError as exc:
             raise FigureError(str(exc)) from None
     if x is not None:
-        if kind != "steady":
-            raise FigureError(f"--x {x!r}: only for --kind steady (the swept field on its axis)")
+        if kind not in SUMMARY_KINDS:
+            raise FigureError(f"--x {x!r}: only for --kind steady and orbit_map (the swept field on its axis)")
         options["x"] = x
+    if y is not None:
+        if kind != "orbit_map":
+            raise FigureError(f"--y {y!r}: only for --kind orbit_map (the second swept field)")
+        options["y"] = y
     source: Any = [str(p) for p in paths] if len(paths) > 1 else path
 
     def draw(tmp: Path) -> None:

@@ -52,6 +52,17 @@ def summary_nc(tmp_path_factory):
     return write_summary(ds, tmp_path_factory.mktemp("summary") / "summary.nc")
 
 
+def _orbit_summary():
+    """A zip summary with motion classes over shear rate x λ (as `capsim summarize` writes it)."""
+    rate, lam = [50.0, 50.0, 200.0, 200.0, 800.0, 800.0], [5.0, 0.2] * 3
+    motion = ["drifting_to_rolling", "off_plane_tank_treading", "drifting_to_rolling", "swinging", "kayaking", "unstable"]
+    return xr.Dataset(
+        {"D_xy": ("run", np.full(6, 0.1)), "theta": ("run", np.full(6, 0.3)), "motion": ("run", np.array(motion, object)),
+         "status": ("run", np.array(["completed"] * 5 + ["unstable"], object)),
+         "steady_average": ("run", np.array([0, 1, 0, 1, 1, 0]))},
+        coords={"run": list("abcdef"), "shear_rate": ("run", rate), "viscosity_ratio": ("run", lam)})
+
+
 def png_size(path):
     head = path.read_bytes()[:24]
     assert head[:8] == b"\x89PNG\r\n\x1a\n"
@@ -67,12 +78,13 @@ EXPECTED_LABELS = {
     "rheology": [("$kt$", r"$S^*_{xy}$, $N_1^*$, $N_2^*$")],
     "steady": [("", "$D_{xy}$"), ("$G = \\mu k a / E_s$", r"$\theta/\pi$")],
     "orbit": [("$kt$", r"angle / $\pi$"), ("director $x$", "director $y$"), ("director $y$", "director $z$")],
+    "orbit_map": [("shear rate $k$ (1/s)", r"viscosity ratio $\lambda$")],
 }
 
 
 @pytest.mark.parametrize("kind", sorted(KINDS))
 def test_every_kind_writes_a_png_with_labelled_axes(kind, tiny_run, summary_nc, tmp_path):
-    source = summary_nc if kind == "steady" else tiny_run
+    source = {"steady": summary_nc, "orbit_map": _orbit_summary()}.get(kind, tiny_run)
     out = tmp_path / f"{kind}.png"
     fig = plot(source, kind, out)
     labels = [(ax.get_xlabel(), ax.get_ylabel()) for ax in fig.axes]
