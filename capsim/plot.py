@@ -1019,14 +1019,14 @@ _MAP_X = ("shear_rate_G", "shear_rate", "capillary_number")
 _MAP_Y = ("viscosity_ratio", "viscosity", "initial_tilt_deg", "bending_modulus")
 
 
-def _map_fields(ds, swept: list[str], x: str | None, y: str | None) -> tuple[str, str | None, list[str]]:
+def _map_fields(cells: list[dict], swept: list[str], x: str | None, y: str | None) -> tuple[str, str | None, list[str]]:
     """(x, y, the other varying fields) of an orbit map. Default x: G (or the shear rate, or
     Ca) when swept, else the first swept field that varies; default y: λ (or the viscosity,
     the tilt, κ) when swept, else the next varying field not one-to-one with x. A field
     one-to-one with x or y (a zipped viscosity with its λ) is not a further split; the rest
     (a mesh level) split each cell side by side."""
-    def values(f):
-        return [_shown(v) for v in np.asarray(ds[f].values).ravel()]
+    def values(f):  # the field's value of each run, in the runs' order
+        return [_shown(c["swept"][f]) for c in cells]
 
     varying = [f for f in swept if len(set(values(f))) > 1] or list(swept)
     if not varying:
@@ -1068,8 +1068,8 @@ def orbit_map_figure(source, x: str | None = None, y: str | None = None):
     if "motion" not in ds.variables or "D_xy" not in ds.variables:
         raise ValueError("the summary has no 'motion' (is it a capsim summarize output?)")
     swept = _swept_fields(ds)
-    x, y, others = _map_fields(ds, swept, x, y)
     cells = _summary_cells(ds, ("D_xy",), swept)
+    x, y, others = _map_fields(cells, swept, x, y)
     for cell in cells:
         cell["status"] = cell["why"] if cell["why"] and not cell["why"].endswith(" motion") else "completed"
 

@@ -89,3 +89,24 @@ def test_a_summary_without_classes_is_refused_in_one_line():
     ds = xr.Dataset({"D_xy": ("run", [0.1, 0.2])}, coords={"run": ["a", "b"], "shear_rate_G": ("run", [0.1, 0.2])})
     with pytest.raises(ValueError, match="no 'motion'"):
         plot(ds, "orbit_map")
+
+
+def test_a_grid_summary_maps_every_combination():
+    """A grid summary (swept fields as dimensions): the axes are its two dimensions, each run
+    at its own pair, a missing run grey with its status."""
+    G, lam = np.array([0.01, 0.1]), np.array([0.2, 1.0, 5.0])
+    dims = ("shear_rate_G", "viscosity_ratio")
+    motion = np.array([["steady", "swinging", "tumbling"], ["steady", "", "kayaking"]], dtype=object)
+    status = np.array([["completed"] * 3, ["completed", "missing", "completed"]], dtype=object)
+    ds = xr.Dataset({"D_xy": (dims, np.ones((2, 3))), "motion": (dims, motion), "status": (dims, status),
+                     "steady_average": (dims, np.array([[1, 1, 0], [1, 0, 1]]))},
+                    coords={"shear_rate_G": G, "viscosity_ratio": lam})
+    cells = {(c["x"], c["y"]): c for c in orbit_map_figure(ds).map_cells}
+    assert len(cells) == 6
+    for i, g in enumerate(G):
+        for j, v in enumerate(lam):
+            cell = cells[(g, v)]
+            assert cell["status"] == status[i, j]
+            if status[i, j] == "completed":
+                assert cell["motion"] == motion[i, j] and cell["settled"] == bool(ds["steady_average"].values[i, j])
+    assert not cells[(0.1, 1.0)]["settled"]
