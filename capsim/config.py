@@ -861,7 +861,7 @@ class Case(_Model):
     guards: Guards = Guards()
     output: Output = Field(default_factory=Output, validate_default=True)
     wall: Optional[Wall] = Field(
-        None, description="a no-slip plane wall below the capsule (none: unbounded flow); simple shear, λ = 1, "
+        None, description="a no-slip plane wall below the capsule (none: unbounded flow); simple shear, any λ, "
         "an elastic membrane; the run stops 'unstable' (guard min_wall_gap) before the membrane touches it")
     physical: Optional[Physical] = Field(
         None,
@@ -877,9 +877,6 @@ class Case(_Model):
         if self.flow.kind not in WALL_FLOWS:
             raise _FieldProblem("flow.kind", self.flow.kind, f"cannot be bounded by a wall (it does not vanish on a "
                                 f"plane y = const); with wall: {', '.join(WALL_FLOWS)}")
-        if self.flow.viscosity_ratio != 1.0:
-            raise _FieldProblem("flow.viscosity_ratio", self.flow.viscosity_ratio,
-                                "must be 1 with a wall (the wall's double-layer image is not built yet)")
         if self.membrane.viscosity is not None and self.membrane.viscosity.active:
             raise _FieldProblem("membrane.viscosity", "active", "cannot be used with a wall yet (its solve has no "
                                 "wall image); remove it or the wall")

@@ -170,6 +170,66 @@ def wall_image_sum(targets, sources, strengths, y_wall):
     return out
 
 
+@njit(parallel=True, **_JIT)
+def wall_image_double_layer(targets, sources, normals_w, u_sources, y_wall):
+    """The image part of the double layer with a no-slip plane wall y = y_wall:
+    D_image[u](x0) = Σ_m u_i(x_m) T^image_ijk(x_m, x0) n_k(x_m) w_m, T the stress tensor
+    (−δ_ik P_j + ∂_k G_ij + ∂_i G_kj) of the image part of Blake's Green's function with its
+    pole at the target x0 (height h = y0 − y_wall, image x0' = x0 − 2h e_y, R = x_m − x0',
+    ε = diag(1, −1, 1)): the image Stokeslet's −T(R) plus the doublets'
+
+        2h ε_j [(h − R_y) K_j − 6 (u·n) R_y R_j/R⁵ + 6 δ_jy (u·R)(n·R)/R⁵],
+        K_j = −6 (u_j (n·R) + (u·R) n_j + (u·n) R_j)/R⁵ + 30 (u·R)(n·R) R_j/R⁷,
+
+    from the image pressure P_j = −2R_j/R³ − 4h ε_j ∂_j(R_y/R³) (tests/test_wall.py checks the
+    contraction against finite differences of wall_image_sum and that pressure). Regular while
+    the targets are above the wall: no desingularisation. Same arguments as double_layer_sum
+    without u at the targets."""
+    nt = targets.shape[0]
+    m = sources.shape[0]
+    sx, sy, sz = _columns(sources)
+    nx, ny, nz = _columns(normals_w)
+    vx, vy, vz = _columns(u_sources)
+    out = np.zeros((nt, 3))
+    for i in prange(nt):
+        x0, y0, z0 = targets[i, 0], targets[i, 1], targets[i, 2]
+        h = y0 - y_wall
+        yi = y_wall - h  # the image pole's y
+        ax = 0.0
+        ay = 0.0
+        az = 0.0
+        for j in range(m):
+            rx = sx[j] - x0
+            ry = sy[j] - yi
+            rz = sz[j] - z0
+            rinv = 1.0 / np.sqrt(rx * rx + ry * ry + rz * rz)
+            rinv2 = rinv * rinv
+            rinv5 = rinv2 * rinv2 * rinv
+            rinv7 = rinv5 * rinv2
+            un = vx[j] * nx[j] + vy[j] * ny[j] + vz[j] * nz[j]
+            ur = vx[j] * rx + vy[j] * ry + vz[j] * rz
+            nr = nx[j] * rx + ny[j] * ry + nz[j] * rz
+            # the image Stokeslet: −T(R), T_ijk = −6 R_i R_j R_k/R⁵
+            c = 6.0 * ur * nr * rinv5
+            ax += c * rx
+            ay += c * ry
+            az += c * rz
+            # the doublets
+            q = 30.0 * ur * nr * rinv7
+            kx = -6.0 * (vx[j] * nr + ur * nx[j] + un * rx) * rinv5 + q * rx
+            ky = -6.0 * (vy[j] * nr + ur * ny[j] + un * ry) * rinv5 + q * ry
+            kz = -6.0 * (vz[j] * nr + ur * nz[j] + un * rz) * rinv5 + q * rz
+            a = h - ry
+            b = 6.0 * un * ry * rinv5
+            ax += 2.0 * h * (a * kx - b * rx)
+            ay -= 2.0 * h * (a * ky - b * ry + 6.0 * ur * nr * rinv5)  # ε_y = −1
+            az += 2.0 * h * (a * kz - b * rz)
+        out[i, 0] = ax
+        out[i, 1] = ay
+        out[i, 2] = az
+    return out
+
+
 @njit(inline="always")
 def _stokeslet(dx, dy, dz, fx, fy, fz):
     """G·f = f/r + r (r·f)/r³ for r = (dx, dy, dz) (seed 2.12a)."""

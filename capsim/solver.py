@@ -381,11 +381,13 @@ class Discretization:
         return float(kernels.surface_flux(self.elements, elems, sizes, self.reg_phi, geo.normals, geo.weights,
                                           np.ascontiguousarray(u, dtype=np.float64)))
 
-    def double_layer(self, x: np.ndarray, geo: ElementGeometry, u: np.ndarray, u_target: np.ndarray | None = None) -> np.ndarray:
+    def double_layer(self, x: np.ndarray, geo: ElementGeometry, u: np.ndarray, u_target: np.ndarray | None = None,
+                     y_wall: float | None = None) -> np.ndarray:
         """D[u](x0) = ∫ (u − u0)·T·n dS at every node, u quadratic over elements.
 
         With n outward, PV∫ u·Tn dS = D[u] − 4π u0 (docs/conventions.md), so rigid-body
-        motions give D = 0 and u = n on the unit sphere gives D = 8π n0.
+        motions give D = 0 and u = n on the unit sphere gives D = 8π n0. ``y_wall``: a no-slip
+        wall there; the image part of Blake's stress tensor is regular and is added as it is.
         """
         if u_target is None:
             u_target = u
@@ -399,6 +401,9 @@ class Discretization:
             x, u, u_target, self.elements, self.inc_offsets, self.inc_elem, self.inc_local,
             geo.points, nw, u_pts, *self.duffy_by_node, self.sing_w, t,
         )
+        if y_wall is not None:
+            out += kernels.wall_image_double_layer(x[t], geo.points.reshape(-1, 3), nw.reshape(-1, 3),
+                                                   u_pts.reshape(-1, 3), y_wall)
         near = self.near_pairs(x, geo)
         if near is not None:
             out += kernels.double_layer_near_correction(
@@ -709,7 +714,8 @@ class CapsuleModel:
 
         def apply(u):
             counts["double_layer_applications"] += 1
-            return u - c * disc.double_layer(x, geo, u) + (1.0 - lam) * normals * (disc.flux(geo, u) / area)
+            return (u - c * disc.double_layer(x, geo, u, y_wall=self.wall_y)
+                    + (1.0 - lam) * normals * (disc.flux(geo, u) / area))
 
         return apply
 
