@@ -379,3 +379,19 @@ def test_make_docs_refuses_a_site_that_is_a_link(tmp_path):
     done = subprocess.run(["make", "-f", str(repo / "Makefile"), "docs"], cwd=tmp_path, capture_output=True, text=True)
     assert done.returncode != 0 and "symbolic link" in done.stderr
     assert (precious / "thesis.tex").read_text() == "keep me"
+
+
+@pytest.mark.parametrize("shared", [True, False])
+def test_the_error_prefix_is_the_same_whether_or_not_stderr_shares_a_pipe(tmp_path, shared):
+    """Finding 10: the prefix was 'Error:' or 'error:' depending on whether stderr shared a pipe
+    with stdout. A usage error and a case error, through a real process both ways."""
+    import subprocess
+    import sys
+
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\nmesh: {level: 99}\n")
+    for args in (["run", "--bogus", "x"], ["validate", str(bad)]):
+        done = subprocess.run([sys.executable, "-m", "capsim.cli", *args], stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT if shared else subprocess.PIPE, text=True)
+        text = (done.stdout if shared else done.stderr).strip()
+        assert done.returncode == 2 and text.startswith("error: ") and "\n" not in text, text
