@@ -338,7 +338,9 @@ class Physical(_Model):
     """Dimensional values that give G = μ k a / E_s (quantities with units, parsed by
     pint: ``"100 1/s"``, ``"1.2 mPa*s"``, ``"2.8 um"``, ``"18 uN/m"``); capsim.units."""
 
-    shear_rate: str = Field(description="shear rate k, e.g. '100 1/s'")
+    shear_rate: str = Field(description="the flow's rate, e.g. '100 1/s': the shear rate k of simple shear (and "
+                            "above a wall), the extension rate ε of the extensions, U/R of Poiseuille flow, the scale "
+                            "of a linear flow's velocity_gradient (capsim.flows)")
     viscosity: str = Field(description="viscosity μ of the outer fluid, e.g. '1.2 mPa*s'")
     inner_viscosity: Optional[str] = Field(
         None, description="viscosity of the inner fluid (a cell's cytoplasm), e.g. '6 mPa*s'; gives "
