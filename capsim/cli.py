@@ -447,7 +447,7 @@ def plot(
     labels: Optional[list[str]] = typer.Option(None, "--label", help="legend label of each overlaid run, once per PATH in order"),
     units: UnitSystem = typer.Option("capsim", "--units", help="the axes' units (--time stays kt): " + _UNITS_HELP),
 ) -> None:
-    """Write a figure (PNG, PDF or SVG) of a run, or of a campaign summary for --kind steady.
+    """Write a figure (PNG, PDF or SVG) of a run, or of a campaign summary for --kind steady and orbit_map.
 
     Examples:
 
