@@ -902,7 +902,9 @@ def classify_orbit(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, director:
     t_last = max(float(t[0]), (1.0 - opts.get("window_fraction", 0.25)) * float(t[-1]))
     last = t >= t_last
     folded = _folded_polar(d)
-    in_plane = bool(folded[last].min() > np.pi / 2 - OFF_PLANE_TOL)
+    # the mean tilt over the window, not its largest: a disk swinging about the plane by ±11° at one
+    # level and ±9° at the next is one motion, not two (issue 39's campaign, dextran at 50 1/s)
+    in_plane = bool(window_stats(t, folded, t_last)[0] > np.pi / 2 - OFF_PLANE_TOL)
     # 3. rolling first: the body may have turned on its way there
     if folded[last].max() < ROLLING_TOL:
         out.update(motion="rolling", t_from=t_last, t_to=float(t[-1]), period=nan, turning=False,
@@ -942,8 +944,12 @@ def classify_orbit(t: np.ndarray, D_xy: np.ndarray, theta: np.ndarray, director:
             out["period"] = nan  # the in-plane projection's period is not the orbit's
         out["theta_mean"] = out["theta_amplitude"] = nan
         return out
-    # 5. not turning, in the plane: the shape in the plane says it all
+    # 5. not turning, in the plane: the shape in the plane says it all, once the axis has stopped
+    # tilting (a disk started off the plane reaches it slowly while its in-plane shape already holds:
+    # stop_when_settled stopped such runs as 'steady' before the membrane's swing had developed)
     if in_plane:
+        if abs(float(folded[last][-1] - folded[last][0])) > theta_tol:
+            out["settled"] = False
         return out
     # 6. not turning, off the plane
     out.update(t_from=t_last, t_to=float(t[-1]), period=nan, D_xy_mean=nan, D_xy_amplitude=nan,

@@ -392,3 +392,24 @@ def test_stop_when_settled_stops_on_the_summarys_own_rule(tmp_path):
     assert s["t"] < 60.0 and s["motion"] == "swinging" and s["settled"] == 1.0
     assert s["period"] == pytest.approx(s["shape_period"], rel=0.05)  # the swing seen in θ and in the shape
     assert s["ttf_ratio_kind"] == 0.0 and abs(s["body_rotation_ratio"]) < 0.01  # the membrane tank-treads
+
+
+def test_an_axis_still_tilting_into_the_plane_is_not_settled_and_a_swing_about_it_is_in_the_plane():
+    """Issue 39's campaign (dextran): a disk started off the plane reaches it slowly while its
+    in-plane shape already holds; stop_when_settled stopped such runs as a settled 'steady'. And
+    a normal swinging about the plane by up to ±11° is in the plane by its mean tilt (one motion
+    at both mesh levels, not off_plane_tank_treading at one and swinging at the other)."""
+    from capsim.observables import classify_orbit
+
+    t = np.linspace(0.0, 20.0, 801)
+    D, theta = np.full_like(t, 0.1), np.full_like(t, 0.3)
+
+    def director(beta, phi=0.5):
+        return np.stack([np.sin(beta) * np.sin(phi), np.sin(beta) * np.cos(phi), np.cos(beta)], axis=1)
+
+    tilting = classify_orbit(t, D, theta, director(np.pi / 2 - 0.15 * np.exp(-t / 20.0)), 0.3)
+    assert tilting["motion"] == "steady" and not tilting["settled"]
+    still = classify_orbit(t, D, theta, director(np.full_like(t, np.pi / 2 - 0.05)), 0.3)
+    assert still["motion"] == "steady" and still["settled"]
+    swing = np.pi / 2 - np.deg2rad(11.0) * np.abs(np.sin(2 * np.pi * t / 4.0))  # up to 11°, ~7° on average
+    assert classify_orbit(t, D, theta, director(swing), 0.3)["motion"] in ("steady", "swinging")
