@@ -235,9 +235,11 @@ def count_runs(campaign: Campaign) -> int:
 
 
 def _check_dotted(key: str, where: str) -> None:
-    """Refuse a dotted path that is not a leaf field of a Case."""
+    """Refuse a dotted path that is not a leaf field of a Case (or a field's short name: flow.G)."""
+    from capsim.config import _ALIASES
+
     model: type[BaseModel] = Case
-    parts = key.split(".")
+    parts = _ALIASES.get(key, key).split(".")
     for i, part in enumerate(parts):
         field = model.model_fields.get(part)
         if field is None:

@@ -437,11 +437,25 @@ class FlowHistory(_Model):
 
 
 class Flow(_Model):
-    """Simple shear v = (k y, 0, 0); G = mu k a / E_s, viscosity ratio lambda."""
+    """The undisturbed flow (kind, capsim.flows) and its rate; G = μ·rate·a/E_s, viscosity ratio λ."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _G_is_shear_rate_G(cls, data: Any) -> Any:
+        """flow.G: the dimensionless rate of every flow, by its short name (stored as shear_rate_G)."""
+        if isinstance(data, dict) and "G" in data:
+            data = dict(data)
+            G = data.pop("G")
+            if "shear_rate_G" in data and data["shear_rate_G"] != G:
+                raise _FieldProblem("G", G, f"and shear_rate_G = {data['shear_rate_G']!r} name one value (G is "
+                                    "shear_rate_G's short name); give one of them")
+            data["shear_rate_G"] = G
+        return data
 
     shear_rate_G: float = Field(
         0.1, gt=0,
-        description="G = μ k a / E_s; or give the case's `physical` block (then G is computed from it "
+        description="G = μ·rate·a/E_s for every flow.kind (rate k, ε or U/R; `flow.G` is its short name); "
+        "or give the case's `physical` block (then G is computed from it "
         "and stored here, and must be in [1e-6, 100]: outside, the units have slipped); validated in "
         "[5e-4, 1] (a warning outside)",
     )
@@ -1485,6 +1499,10 @@ def resolve_case(source: Any, sets: list[str] | None = None, **overrides: Any) -
     return case
 
 
+#: dotted names that are another field's short name
+_ALIASES = {"flow.G": "flow.shear_rate_G"}
+
+
 def apply_overrides(case: Case, **dotted: Any) -> Case:
     """A re-validated copy of `case` with dotted fields replaced.
 
@@ -1509,6 +1527,7 @@ def apply_overrides(case: Case, **dotted: Any) -> Case:
             if isinstance(parent, dict):
                 parent.pop(field, None)
     for key, value in dotted.items():
+        key = _ALIASES.get(key, key)
         parts = key.split(".")
         node, model = data, Case
         for i, part in enumerate(parts[:-1]):

@@ -64,7 +64,9 @@ def _resolves(dotted: str) -> bool:
     except ImportError:
         pass
     from capsim.campaign import Campaign
+    from capsim.config import _ALIASES  # a field's short name (flow.G) names that field
 
+    dotted = _ALIASES.get(dotted, dotted)
     return _in_model(_case_model(), dotted) or _in_model(Campaign, dotted)
 
 

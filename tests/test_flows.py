@@ -236,3 +236,24 @@ def test_a_campaign_sweeps_the_flow_and_every_flow_summarises_plots_and_exports(
     assert out.exit_code == 0, out.output
     out = cli.invoke(app, ["export", str(run), "--format", "vtu", "-o", str(tmp_path / "vtu")])
     assert out.exit_code == 0, out.output
+
+
+def test_flow_G_is_the_dimensionless_rate_of_every_flow_by_its_short_name(tmp_path):
+    """Issue 41, item 1: flow.G = μ·rate·a/E_s for every kind, stored as flow.shear_rate_G (which
+    keeps working); in a case, with --set and as a swept field whose summary dimension is G."""
+    from capsim.campaign import campaign_from_dict, run_campaign
+    from capsim.config import apply_overrides
+    from capsim.summary import summarize_campaign
+
+    case = case_from_dict({"name": "g", "flow": {"kind": "uniaxial_extension", "G": 0.02}})
+    assert case.flow.shear_rate_G == 0.02
+    assert apply_overrides(case, **{"flow.G": 0.03}).flow.shear_rate_G == 0.03
+    with pytest.raises(ConfigError, match="flow.G = 0.02: and shear_rate_G = 0.05 name one value"):
+        case_from_dict({"name": "g", "flow": {"G": 0.02, "shear_rate_G": 0.05}})
+    campaign = campaign_from_dict({"name": "g", "base": {"mesh": {"level": 0}, "time": {"t_end": 0.1},
+                                                         "flow": {"kind": "planar_extension"}},
+                                   "sweep": {"flow.G": [0.01, 0.02]}, "output": {"dir": str(tmp_path / "runs")}})
+    assert run_campaign(campaign, workers=1)["completed"] == 2
+    ds = summarize_campaign(tmp_path / "runs")
+    assert list(ds["G"].values) == [0.01, 0.02]
+    assert float(ds["D_xy"].sel(G=0.02)) > float(ds["D_xy"].sel(G=0.01)) > 0
