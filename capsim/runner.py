@@ -396,7 +396,8 @@ class _Run:
             self._save_checkpoint(self.committed)
         state = LoopState(ig.t, ig.dt, ig.steps, signal=stop.name)
         while (outcome := stop_reason(state, tc, self.case.guards, self.observer.last, self.observer.first,
-                                      self.observer.history, self.observer.aspect_ratio)) is None:
+                                      self.observer.history, self.observer.aspect_ratio,
+                                      self.observer.settle_after)) is None:
             self._follow_flow_history()
             trial = ig.attempt(min(tc.t_end, self.snapshots.next_time, self._next_flow_change()))
             if trial.accepted:

@@ -98,8 +98,9 @@ def _settled(history: dict[str, list[float]], aspect_ratio: float) -> bool:
 
 
 def stop_reason(state: LoopState, time: Time, guards: Guards, row: dict | None, row0: dict | None,
-                history: dict[str, list[float]], aspect_ratio: float = 1.0) -> Stop | None:
-    """The first rule (module docstring) that ends the run, or None."""
+                history: dict[str, list[float]], aspect_ratio: float = 1.0, settle_after: float = 0.0) -> Stop | None:
+    """The first rule (module docstring) that ends the run, or None. ``settle_after``: the kt
+    before which stop_when_settled does not stop (a few of the capsule's own relaxation times)."""
     if state.signal is not None:
         return Stop("interrupted", f"interrupted by {state.signal}")
     at = f"at kt = {state.t:.6g}"
@@ -111,7 +112,7 @@ def stop_reason(state: LoopState, time: Time, guards: Guards, row: dict | None, 
             return Stop("unstable", f"{violation} {at}")
         if time.stop_when_steady and is_steady(history["t"], history["D_xy"], history["theta"]):
             return Stop("completed", f"steady state reached {at}")
-        if time.stop_when_settled and _settled(history, aspect_ratio):
+        if time.stop_when_settled and state.t >= settle_after and _settled(history, aspect_ratio):
             return Stop("completed", f"orbit settled {at}")
     if state.attempted and state.dt < time.dt_min:
         return Stop("unstable", f"guard dt_min: step size collapsed to dt = {state.dt:.3g} < {time.dt_min:g} {at}")

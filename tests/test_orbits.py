@@ -413,3 +413,32 @@ def test_an_axis_still_tilting_into_the_plane_is_not_settled_and_a_swing_about_i
     assert still["motion"] == "steady" and still["settled"]
     swing = np.pi / 2 - np.deg2rad(11.0) * np.abs(np.sin(2 * np.pi * t / 4.0))  # up to 11°, ~7° on average
     assert classify_orbit(t, D, theta, director(swing), 0.3)["motion"] in ("steady", "swinging")
+
+
+def test_stop_when_settled_waits_a_few_of_the_capsules_own_relaxation_times():
+    """Issue 39's campaign: a red cell in dextran (G 2.24, λ 0.2, a viscous membrane) held its
+    shape and tilt over 3/k at kt 12 and was stopped as a settled 'steady', then swung from kt ~20
+    on. The stop rule now waits SETTLE_RELAXATION_TIMES slow relaxation times of the first-order
+    theory (kτ = 12.1 G for a thin-shell sphere at λ = 1; longer with λ, G and membrane viscosity)."""
+    from capsim.config import case_from_dict
+    from capsim.observables import SETTLE_RELAXATION_TIMES, slow_relaxation_time
+    from capsim.solver import build_model
+    from capsim.stopping import LoopState, stop_reason
+
+    sphere, _ = build_model(case_from_dict({"name": "s", "mesh": {"level": 0}, "flow": {"shear_rate_G": 0.1}}))
+    assert slow_relaxation_time(sphere) == pytest.approx(12.1 * 0.1, rel=2e-3)
+    cell, _ = build_model(case_from_dict({
+        "name": "c", "mesh": {"level": 0}, "shape": {"kind": "biconcave"},
+        "membrane": {"law": "skalak", "skalak_c": 10.0, "viscosity": {"shear": 0.6}},
+        "flow": {"shear_rate_G": 2.24, "viscosity_ratio": 0.2}}))
+    wait = SETTLE_RELAXATION_TIMES * slow_relaxation_time(cell)
+    assert wait > 40.0  # the stop at kt 12 cannot happen
+    case = case_from_dict({"name": "s", "time": {"stop_when_settled": True, "t_end": 100.0}})
+    t = np.linspace(0.0, 20.0, 401)
+    history = {"t": list(t), "dt": [0.05] * t.size, "D_xy": [0.3] * t.size, "theta": [0.4] * t.size}
+    for key in ("director_x", "director_y", "director_z"):
+        history[key] = [float("nan")] * t.size
+    row = {"volume": 1.0, "area": 1.0, "min_element_quality": 1.0, "max_principal_stretch": 1.0}
+    state = LoopState(20.0, 0.05, 400, attempted=True, finite=True, accepted=True, h=0.05)
+    assert stop_reason(state, case.time, case.guards, row, row, history, 1.0, 0.0).reason.startswith("orbit settled")
+    assert stop_reason(state, case.time, case.guards, row, row, history, 1.0, wait) is None
