@@ -520,6 +520,8 @@ def study(
     quad: Optional[str] = typer.Option(None, "--quad", help="regular Gauss orders (points per element), comma-separated"),
     reference: StudyReference = typer.Option(
         "finest", "--reference", help="finest (run) or richardson (extrapolated in the level)"),
+    quantity: str = typer.Option("shape", "--quantity", help="shape (D_xy, θ, TTF, S*xy at t_end) or orbit "
+                                 "(the orbit period, orbit constant and body rotation of each run's summary)"),
     t_end: Optional[float] = typer.Option(None, "--t-end", help="override time.t_end"),
     workers: int = typer.Option(
         1, "--workers", min=1, help="runs side by side, in worker processes with cores // workers numba threads each"
@@ -555,6 +557,7 @@ def study(
     try:
         ds = _files_call(api.study, case, level_list, rtol_list, quad=quad_list, reference=reference.value,
                          workers=workers, output=output, runs_dir=runs_dir, overwrite=overwrite, progress=report,
+                         quantity=quantity,
                          inputs=[case_path])
     except ConfigError as exc:
         raise _user_error(str(exc)) from None

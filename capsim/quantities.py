@@ -411,12 +411,18 @@ for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star"):
 
 # ---------------------------------------------------------------- study file (netCDF)
 
-#: observables of the study and of the error estimate (capsim.study.QUANTITIES)
+#: observables of the study and of the error estimate (capsim.study.QUANTITIES), and the orbit's
+#: numbers a study compares with quantity "orbit" (capsim.study.ORBIT_QUANTITIES)
 _STUDIED = ("D_xy", "theta", "ttf_ratio", "Sxy_star")
-for _name in _STUDIED:
+_STUDIED_ORBIT = ("orbit_period", "orbit_constant", "body_rotation_ratio")
+for _name in (*_STUDIED, *_STUDIED_ORBIT):
     _base = TABLE[_name]
-    _add(f"study/{_name}", f"{_base.long_name} at t_end", _base.units,
-         f"{_base.definition}; at t = t_end (last row of the trajectory, theta unwrapped)", _base.scale)
+    if _name in _STUDIED:
+        _add(f"study/{_name}", f"{_base.long_name} at t_end", _base.units,
+             f"{_base.definition}; at t = t_end (last row of the trajectory, theta unwrapped)", _base.scale)
+    else:
+        _add(f"study/{_name}", f"{_base.long_name} of the run's summary", _base.units,
+             f"{_base.definition}; the run summary's window value (its last whole orbits)", _base.scale)
     _add(f"{_name}_error", f"error of the {_base.long_name}", _base.units,
          f"{_name} at t_end minus its reference value", _base.scale)
     _add(f"{_name}_relative_error", f"relative error of the {_base.long_name}", "1",

@@ -60,8 +60,18 @@ __all__ = [
     "write_study",
 ]
 
-#: Observables whose error the study reports.
+#: Observables whose error the study reports (quantity "shape": values at t_end).
 QUANTITIES = ("D_xy", "theta", "ttf_ratio", "Sxy_star")
+#: quantity "orbit" (issue 39): the orbit's numbers of the run summary, window values over its
+#: last whole orbits (compare like with like only where every setting completes two orbits)
+ORBIT_QUANTITIES = ("orbit_period", "orbit_constant", "body_rotation_ratio")
+#: study(quantity=...) → the observables it compares
+QUANTITY_SETS = {"shape": QUANTITIES, "orbit": ORBIT_QUANTITIES}
+
+
+def _studied(ds) -> tuple[str, ...]:
+    """The observables a study Dataset compares (its ``quantity`` attribute; older files: shape)."""
+    return QUANTITY_SETS.get(str(ds.attrs.get("quantity", "shape")), QUANTITIES)
 #: what errors are measured against: the finest run, or the Richardson extrapolation in the level
 REFERENCES = ("finest", "richardson")
 
@@ -109,6 +119,9 @@ def _failed_record(reason: str) -> dict[str, Any]:
     for q in QUANTITIES:
         record[q] = float("nan")
         record[f"{q}_mean"] = float("nan")
+    for q in ORBIT_QUANTITIES:
+        record[q] = float("nan")
+    record["settled"] = float("nan")
     return record
 
 
@@ -139,6 +152,10 @@ def _run_one(case: Case, window: tuple[float, float] | None = None) -> dict[str,
     ts = traj["timeseries"]
     record["n_nodes"] = int(traj["attrs"].get("n_nodes", traj["rest_positions"].shape[0]))
     record.update(final_values(ts, window))
+    motion = summary.summary if hasattr(summary, "summary") else {}
+    for q in (*ORBIT_QUANTITIES, "settled"):
+        value = motion.get(q, float("nan"))
+        record[q] = float(value) if isinstance(value, (int, float)) else float("nan")
     if record["status"] == "completed" and abs(record["t"] - case.time.t_end) > 1e-9 * max(1.0, case.time.t_end):
         record["status_reason"] = f"stopped at kt = {record['t']:.6g} before t_end"
     return record
@@ -242,8 +259,13 @@ def run_study(
     progress: Callable[[str], None] | None = None,
     overwrite: bool = False,
     inputs: Sequence[str | os.PathLike] = (),
+    quantity: str = "shape",
 ):
     """Run the ladder levels × rtols (× regular_orders) and compare with the reference.
+
+    `quantity`: "shape" compares D_xy, θ, TTF and S*_xy at t_end; "orbit" the orbit's numbers
+    of each run's summary (orbit period, orbit constant, the body's rotation rate), window
+    values over its last whole orbits, with each setting's ``settled`` flag beside them.
 
     `reference` is ``"finest"`` (the run at the highest level, smallest rtol and
     highest Gauss order) or ``"richardson"`` (extrapolation in the level of the
@@ -258,6 +280,8 @@ def run_study(
 
     if reference not in REFERENCES:
         raise ValueError(f"reference must be 'finest' or 'richardson', got {reference!r}")
+    if quantity not in QUANTITY_SETS:
+        raise ValueError(f"quantity must be one of {', '.join(QUANTITY_SETS)}, got {quantity!r}")
     levels = sorted({int(v) for v in levels})
     rtols = sorted({float(v) for v in rtols}, reverse=True)  # loosest first: error falls along the axis
     quads = sorted({int(v) for v in regular_orders}) if regular_orders else [case.quadrature.regular_order]
@@ -309,8 +333,10 @@ def run_study(
     status = grid("status", dtype=object, fill="")
     completed = status == "completed"
     data_vars: dict[str, Any] = {}
-    for q in QUANTITIES:
+    for q in QUANTITY_SETS[quantity]:
         data_vars[q] = (dims, np.where(completed, grid(q), np.nan), _attrs(q))
+    if quantity == "orbit":
+        data_vars["settled"] = (dims, np.where(completed, grid("settled"), np.nan), _attrs("settled"))
     data_vars["wall_time_s"] = (dims, grid("wall_time_s"), _attrs("wall_time_s"))
     data_vars["steps"] = (dims, grid("steps", dtype=np.int64, fill=-1), _attrs("steps"))
     data_vars["volume_drift"] = (dims, grid("volume_drift"), _attrs("volume_drift"))
@@ -328,6 +354,7 @@ def run_study(
         attrs={
             **global_attrs(f"capsim accuracy study of case {case.name}"),  # CF-1.10 (issue 16)
             "case_yaml": base.to_yaml(),
+            "quantity": quantity,
             "t_end": float(case.time.t_end),
             "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
             "workers": int(workers),
@@ -361,7 +388,7 @@ def analyse_study(ds, reference: str = "finest"):
     dims = ("regular_order", "rtol", "level")
     shape = tuple(ds.sizes[d] for d in dims)
     out = ds.copy()
-    for q in QUANTITIES:
+    for q in _studied(ds):
         raw = np.asarray(ds[q].values, float)
         if reference == "finest":
             ref, ref_order = float(raw[-1, -1, -1]), float("nan")
@@ -416,8 +443,12 @@ def _settings(ds):
 
 def format_study_table(ds) -> str:
     """The study as a text table: one row per setting, then the observed orders."""
+    studied = _studied(ds)
+    short = {"D_xy": "D_xy", "theta": "θ", "ttf_ratio": "ttf", "Sxy_star": "S*xy", "orbit_period": "T_orbit",
+             "orbit_constant": "C", "body_rotation_ratio": "body"}
     head = ["level", "rtol"] + (["quad"] if "regular_order" in ds.dims else []) + [
-        "nodes", "steps", "wall s", "D_xy", "err D_xy", "err θ", "err ttf", "err S*xy", "vol drift", "status"]
+        "nodes", "steps", "wall s", studied[0], *(f"err {short.get(q, q)}" for q in studied)] + (
+        ["settled"] if "settled" in ds else []) + ["vol drift", "status"]
     rows = []
     for idx in _settings(ds):
         sel = ds.isel(idx)
@@ -426,8 +457,9 @@ def format_study_table(ds) -> str:
             row.append(str(int(sel["regular_order"])))
         row += [
             str(int(sel["n_nodes"])), str(int(sel["steps"])), f"{float(sel['wall_time_s']):.1f}",
-            f"{float(sel['D_xy']):.6f}",
-            *(f"{float(sel[f'{q}_error']):+.2e}" for q in QUANTITIES),
+            f"{float(sel[studied[0]]):.6f}",
+            *(f"{float(sel[f'{q}_error']):+.2e}" for q in studied),
+            *([f"{float(sel['settled']):.0f}"] if "settled" in ds else []),
             f"{float(sel['volume_drift']):.1e}", str(sel["status"].values),
         ]
         rows.append(row)
@@ -435,11 +467,11 @@ def format_study_table(ds) -> str:
     lines = ["  ".join(h.rjust(w) for h, w in zip(head, widths))]
     lines += ["  ".join(c.rjust(w) for c, w in zip(r, widths)) for r in rows]
     lines.append(f"reference ({ds.attrs['reference']}): " + ", ".join(
-        f"{q} = {float(ds[f'{q}_reference']):.6f}" for q in QUANTITIES))
+        f"{q} = {float(ds[f'{q}_reference']):.6f}" for q in studied))
     # Observed orders at the finest tolerance (and Gauss order).
     fine = ds.isel(rtol=-1, **({"regular_order": -1} if "regular_order" in ds.dims else {}))
     levels = [int(v) for v in ds["level"].values]
-    for q in ("D_xy", "theta"):
+    for q in studied[:2]:
         parts = []
         for i, level in enumerate(levels):
             p, p3 = float(fine[f"{q}_order"][i]), float(fine[f"{q}_order3"][i])
@@ -614,10 +646,12 @@ def study(case: "PathLike | Mapping[str, Any] | Case", levels: "int | Sequence[i
           reference: str = "finest", workers: int = 1, output: PathLike | None = None,
           runs_dir: PathLike | None = None, overwrite: bool = False, progress: bool | Callable[[str], None] = False,
           sets: "str | Sequence[str] | None" = None, inputs: "PathLike | Sequence[PathLike]" = (),
-          **overrides: Any) -> "xr.Dataset":
+          quantity: str = "shape", **overrides: Any) -> "xr.Dataset":
     """Accuracy against cost: run the ladder `levels` × `rtols` (× `quad` Gauss orders)
     and compare each run with the `reference` (`"finest"` or `"richardson"`);
-    what `capsim study` does.
+    what `capsim study` does. `quantity`: `"shape"` (D_xy, θ, TTF, S*_xy at t_end) or `"orbit"`
+    (the orbit period, orbit constant and body rotation rate of each run's summary, with its
+    `settled` flag: run each setting for at least two whole orbits).
 
     `levels`, `rtols` and `quad` are numbers or lists of numbers (a single one is a list
     of one; not texts); `workers` a whole number >= 1 (worker processes when > 1, which
@@ -646,6 +680,8 @@ def study(case: "PathLike | Mapping[str, Any] | Case", levels: "int | Sequence[i
     workers = check_workers(workers, default=None)
     if not isinstance(reference, str) or reference not in REFERENCES:
         raise ConfigError(f"reference = {bounded_repr(reference)}: allowed: {', '.join(REFERENCES)}")
+    if not isinstance(quantity, str) or quantity not in QUANTITY_SETS:
+        raise ConfigError(f"quantity = {bounded_repr(quantity)}: allowed: {', '.join(QUANTITY_SETS)}")
     if reference == "richardson" and len(set(levels)) < 2:
         raise ConfigError("reference = 'richardson' needs at least two levels")
     if not (progress is True or progress is False or progress is None or callable(progress)):
@@ -671,10 +707,11 @@ def study(case: "PathLike | Mapping[str, Any] | Case", levels: "int | Sequence[i
     apply_policy(workers=workers)
 
     ds = run_study(case, levels, rtols, regular_orders=quad, reference=reference,
-                   workers=workers, out_dir=runs_dir, progress=report, overwrite=overwrite, inputs=inputs)
+                   workers=workers, out_dir=runs_dir, progress=report, overwrite=overwrite, inputs=inputs,
+                   quantity=quantity)
     if output is not None:
         replace_atomically(output, lambda tmp: write_study(ds, tmp))
-        replace_atomically(png, lambda tmp: plot_pareto(ds, tmp))
+        replace_atomically(png, lambda tmp: plot_pareto(ds, tmp, _studied(ds)[:2]))
     return ds
 
 

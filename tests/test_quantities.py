@@ -122,8 +122,11 @@ def written(tmp_path_factory):
                                  "output": {"path": str(tmp / "unused.h5")}})
     study = write_study(run_study(study_case, levels=[0, 1], rtols=[1e-3], workers=1, out_dir=tmp / "study"),
                         tmp / "study.nc")
+    # a study of the orbit's numbers (capsim study --quantity orbit)
+    orbit_study = write_study(run_study(study_case, levels=[0, 1], rtols=[1e-3], workers=1, quantity="orbit",
+                                        out_dir=tmp / "study_orbit"), tmp / "study_orbit.nc")
     run_files = [tmp / "run.h5", tmp / "viscous.h5", tmp / "wall.h5", *sorted((tmp / "campaign").glob("*.h5"))]
-    return case, summary, run_files, nc, study
+    return case, summary, run_files, nc, (study, orbit_study)
 
 
 def test_every_quantity_written_has_its_entry_and_every_entry_is_used(written):
@@ -132,7 +135,7 @@ def test_every_quantity_written_has_its_entry_and_every_entry_is_used(written):
     problems = []
     for path in run_files:
         problems += _check_run_file(path, used)
-    for path, where in ((nc, "campaign"), (study, "study")):
+    for path, where in ((nc, "campaign"), (study[0], "study"), (study[1], "study")):
         with xr.open_dataset(path, engine="netcdf4") as ds:
             problems += _check_netcdf(ds.load(), where, used)
     assert not problems, "\n".join(problems)

@@ -197,3 +197,33 @@ def test_interrupted_run_stops_the_ladder(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         run_study(small_case(tmp_path), levels=[0, 1, 2], rtols=[1e-3], workers=1)
     assert len(calls) == 1
+
+
+def test_a_study_compares_the_orbits_numbers_with_quantity_orbit(tmp_path, monkeypatch):
+    """Issue 39, item 5: `capsim study --quantity orbit` compares each setting's orbit period,
+    orbit constant and body rotation rate (its run summary's window values) with the reference,
+    with each setting's settled flag beside them. The runs are stood in for by records with a
+    known first-order error in h = 2^-level: the observed order must come out as 1."""
+    import capsim.study as study
+
+    def fake_run_one(case, window=None):
+        rec = study._failed_record("")
+        h = 2.0 ** -case.mesh.level
+        rec.update(status="completed", status_reason="", wall_time_s=1.0 + case.mesh.level, steps=10,
+                   volume_drift=0.0, n_nodes=6 * 4**case.mesh.level + 2, t=case.time.t_end,
+                   orbit_period=15.71 + 0.8 * h, orbit_constant=2.0 - 0.4 * h, body_rotation_ratio=0.8 + 0.1 * h,
+                   settled=1.0)
+        for q in study.QUANTITIES:
+            rec[q] = 0.0
+        return rec
+
+    monkeypatch.setattr(study, "_run_one", fake_run_one)
+    ds = run_study(small_case(tmp_path), levels=[0, 1, 2, 3], rtols=[1e-3], workers=1, quantity="orbit")
+    assert ds.attrs["quantity"] == "orbit" and "D_xy" not in ds and "settled" in ds
+    fine = ds.isel(rtol=-1)
+    assert float(fine["orbit_period_order3"][0]) == pytest.approx(1.0, abs=1e-9)
+    assert float(fine["orbit_constant_error"][0]) == pytest.approx(-0.4 * (1 - 0.125), rel=1e-9)
+    table = format_study_table(ds)
+    assert "err T_orbit" in table and "err C" in table and "settled" in table
+    with pytest.raises(ValueError, match="quantity"):
+        run_study(small_case(tmp_path), levels=[0], rtols=[1e-3], quantity="bogus")
