@@ -98,7 +98,21 @@ def _case_info(data: dict[str, Any]) -> dict[str, Any]:
         "name": str(case.name),
         "mesh": f"{case.mesh.base} level {case.mesh.level} ({np.asarray(data['rest_positions']).shape[0]} nodes)",
         "bending": float(getattr(case.membrane, "bending_modulus", 0.0) or 0.0),
+        # the scene's wall, y = y_w (None: unbounded)
+        "wall_y": (None if getattr(case, "wall", None) is None
+                   else float((case.initial_center or (0.0, 0.0, 0.0))[1] - case.wall.distance)),
     }
+
+
+def _draw_wall(ax, info: dict[str, Any]) -> None:
+    """The wall of a run near one (issue 42) as a hatched band below y = y_w, in the xy-plane figures."""
+    y = info.get("wall_y")
+    if y is None:
+        return
+    lo, hi = ax.get_xlim()
+    ax.axhline(y, color="0.2", lw=1.2, label="wall")
+    ax.fill_between([lo, hi], y - 0.15, y, color="0.85", hatch="////", edgecolor="0.5", lw=0)
+    ax.set_xlim(lo, hi)
 
 
 def _shape_text(info: dict[str, Any]) -> str:
@@ -686,6 +700,7 @@ def contour_figure(source, times: Sequence[float] | None = None, z0: float = 0.0
         for n, (p, _) in enumerate(section_loops(data["positions"][k], data["elements"], z0)):
             p = _closed(p)
             ax.plot(p[:, 0], p[:, 1], color=f"C{j % 10}", label=f"kt = {snap_t[k]:.3g}" if n == 0 else None)
+    _draw_wall(ax, info)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(r"$x/a$")
     ax.set_ylabel(r"$y/a$")
@@ -726,6 +741,7 @@ def trajectory_figure(source, node: int | None = None, direction: Sequence[float
             ax.plot(p[:, 0], p[:, 1], color=style, lw=0.8, ls="--", label=label if n == 0 else None)
     ax.plot(path[:, 0], path[:, 1], "C3.-", label=f"node {node}")
     ax.plot(path[:1, 0], path[:1, 1], "C3o", mfc="none", ms=9, label=f"kt = {data['snapshot_t'][0]:.3g}")
+    _draw_wall(ax, info)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(r"$x/a$")
     ax.set_ylabel(r"$y/a$")

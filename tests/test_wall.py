@@ -240,3 +240,20 @@ def test_the_paraview_export_draws_the_wall(tmp_path):
         mesh = meshio.read(wall[0])
         np.testing.assert_allclose(mesh.points[:, 1], -3.0)
         assert mesh.points[:, 0].min() < -2.0 < 2.0 < mesh.points[:, 0].max()
+
+
+def test_the_section_figures_draw_the_wall(tmp_path):
+    """Issue 42, item 5: capsim plot --kind contour and trajectory draw the wall (a line at y_w)."""
+    from capsim.plot import contour_figure, trajectory_figure
+
+    path = tmp_path / "w.h5"
+    run_case(case_from_dict({"name": "w", "mesh": {"level": 0}, "wall": {"distance": 2.5}, "time": {"t_end": 0.2},
+                             "output": {"path": str(path), "snapshot_every": 0.1}}))
+    for make in (contour_figure, trajectory_figure):
+        fig = make(path)
+        lines = [ln for ln in fig.axes[0].get_lines() if ln.get_label() == "wall"]
+        assert lines and np.allclose(lines[0].get_ydata(), -2.5)
+    unbounded = tmp_path / "u.h5"
+    run_case(case_from_dict({"name": "u", "mesh": {"level": 0}, "time": {"t_end": 0.2},
+                             "output": {"path": str(unbounded), "snapshot_every": 0.1}}))
+    assert not [ln for ln in contour_figure(unbounded).axes[0].get_lines() if ln.get_label() == "wall"]
