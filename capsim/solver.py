@@ -303,6 +303,25 @@ class Discretization:
         fine = weights(self.fine_phi, self.fine_dxi, self.fine_deta, self.fine_w)
         return RestMeasure(np.ascontiguousarray(self.geometry(X).weights), np.ascontiguousarray(duffy), fine)
 
+    #: the wall's image integrals switch to the subdivided rule (every element split into
+    #: 4^near_field_levels) once the membrane comes within this many element sizes of the wall
+    WALL_REFINE_SIZES = 2.0
+
+    def wall_fine_rule(self, x: np.ndarray, geo: ElementGeometry, y_wall: float):
+        """(points, normals, weights) of the subdivided rule at configuration x when the surface is
+        within WALL_REFINE_SIZES element sizes of the wall y = y_wall (the image integrand varies on
+        the scale of the gap there, finer than an element), else None; cached per geometry."""
+        cached = getattr(self, "_wall_fine", None)
+        if cached is not None and cached[0] is geo and cached[1] == y_wall:
+            return cached[2]
+        size = float(np.sqrt(2.0 * geo.weights.sum(axis=1).mean()))
+        rule = None
+        if float(x[:, 1].min()) - y_wall < self.WALL_REFINE_SIZES * size:
+            rule = kernels.element_quadrature(np.ascontiguousarray(x), self.elements, self.fine_phi, self.fine_dxi,
+                                              self.fine_deta, self.fine_w)
+        self._wall_fine = (geo, y_wall, rule)
+        return rule
+
     def single_layer(self, x: np.ndarray, geo: ElementGeometry, density: np.ndarray,
                      measure: RestMeasure | None = None, y_wall: float | None = None) -> np.ndarray:
         """∫ G·f dS at every node for a density given per element.
@@ -329,7 +348,13 @@ class Discretization:
         u = kernels.stokeslet_sum(x[self.targets], geo.points.reshape(-1, 3), strengths)
         clock.lap("stokeslet_sum")
         if y_wall is not None:
-            u += kernels.wall_image_sum(x[self.targets], geo.points.reshape(-1, 3), strengths, y_wall)
+            fine = self.wall_fine_rule(x, geo, y_wall)
+            if fine is None:
+                u += kernels.wall_image_sum(x[self.targets], geo.points.reshape(-1, 3), strengths, y_wall)
+            else:  # close to the wall: the image integrals on the subdivided rule
+                fine_w = fine[2] if measure.fine_weights.shape[0] == 0 else measure.fine_weights
+                _, fine_strengths = kernels.point_strengths(self.fine_phi, nodal, np.ascontiguousarray(fine_w))
+                u += kernels.wall_image_sum(x[self.targets], fine[0].reshape(-1, 3), fine_strengths, y_wall)
             clock.lap("wall_image_sum")
         u += kernels.single_layer_singular_correction(
             x, self.elements, self.inc_offsets, self.inc_elem, self.inc_local,
@@ -402,8 +427,15 @@ class Discretization:
             geo.points, nw, u_pts, *self.duffy_by_node, self.sing_w, t,
         )
         if y_wall is not None:
-            out += kernels.wall_image_double_layer(x[t], geo.points.reshape(-1, 3), nw.reshape(-1, 3),
-                                                   u_pts.reshape(-1, 3), y_wall)
+            fine = self.wall_fine_rule(x, geo, y_wall)
+            if fine is None:
+                out += kernels.wall_image_double_layer(x[t], geo.points.reshape(-1, 3), nw.reshape(-1, 3),
+                                                       u_pts.reshape(-1, 3), y_wall)
+            else:  # close to the wall: the image integrals on the subdivided rule
+                fine_u = interpolate(self.fine_phi, u[self.elements])
+                fine_nw = fine[1] * fine[2][..., None]
+                out += kernels.wall_image_double_layer(x[t], fine[0].reshape(-1, 3), fine_nw.reshape(-1, 3),
+                                                       fine_u.reshape(-1, 3), y_wall)
         near = self.near_pairs(x, geo)
         if near is not None:
             out += kernels.double_layer_near_correction(
