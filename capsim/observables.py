@@ -289,6 +289,22 @@ def stresslet_observables(S_star: np.ndarray) -> dict:
     }
 
 
+def dissipation_ratio(S_star: np.ndarray, far_field, center: np.ndarray, h: float = 1e-4) -> float:
+    """The particle's extra viscous dissipation S:E (Batchelor 1970: a force-free particle in the
+    local rate of strain E of the undisturbed flow) over a rigid sphere's in the same flow,
+    5μV E:E; with S* = S/((5/2)μkV) that is S*:E / (2 E:E). 1 for a rigid sphere in any linear
+    flow; in simple shear it equals S*_xy. E is the far field's at the centroid (Poiseuille: the
+    local one; NaN where it vanishes, on the axis)."""
+    L = np.zeros((3, 3))
+    for j in range(3):
+        step = np.zeros((1, 3))
+        step[0, j] = h
+        L[:, j] = (far_field(center[None] + step)[0] - far_field(center[None] - step)[0]) / (2 * h)
+    E = 0.5 * (L + L.T)
+    EE = float(np.sum(E * E))
+    return float(np.sum(S_star * E) / (2.0 * EE)) if EE > 1e-20 else float("nan")
+
+
 # ---------------------------------------------------------------- tank-treading
 
 RIGID_SPHERE_ROTATION_RATE = 0.5  # |ω| of a rigid sphere in shear: k/2, i.e. f_s = k/(4π)
@@ -1061,7 +1077,7 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
         # the long axis turns through every angle: a mean θ over whole turns is no property of
         # the motion (the folded mean of a uniform turn is arbitrary, its spread the whole range)
         out["theta"] = out["theta_std"] = float("nan")
-    for name in ("centroid_velocity_y", "slip_velocity_x"):  # lift or migration, and slip (issues 41, 42)
+    for name in ("centroid_velocity_y", "slip_velocity_x", "dissipation_ratio"):  # issues 41, 42
         s = np.asarray(series.get(name, ()), float)
         if s.size == t.size and np.isfinite(s).all() and t.size:
             out[name], out[f"{name}_std"] = window_stats(t, s, t0, t1)
@@ -1091,7 +1107,7 @@ HISTORY_COLUMNS = ("t", "dt", "tt_angle", *SUMMARY_QUANTITIES, "director_x", "di
                    "long_axis_x", "long_axis_y", "long_axis_z", "short_axis_x", "short_axis_y", "short_axis_z",
                    "ellipsoid_a", "ellipsoid_b", "ellipsoid_c",
                    # the body's drift across and along the flow (issues 41, 42): lift or migration, slip
-                   "centroid_velocity_y", "slip_velocity_x")
+                   "centroid_velocity_y", "slip_velocity_x", "dissipation_ratio")
 
 
 #: time.stop_when_settled waits this many slow relaxation times of the capsule before it may stop:
@@ -1180,6 +1196,7 @@ class StepObserver:
             S_star = S_star + S_v
             row.update(viscous_row)
         row.update(stresslet_observables(S_star))
+        row["dissipation_ratio"] = dissipation_ratio(S_star, model.far_field, center)
         row.update(self.tracker.update(y, u, center))
         row["solver_iterations"] = float(model.last_solve_info.get("iterations", 0))
         row["solver_residual"] = float(model.last_solve_info.get("residual", 0.0))

@@ -123,6 +123,10 @@ for _c in "xyz":
          f"{_c} component of the centroid's velocity less the undisturbed flow at the centroid, in units of k a "
          "(a capsule lagging a Poiseuille flow or a wall's shear has slip_velocity_x < 0); in a summary: its mean "
          "over the averaging window", "a k")
+_add("dissipation_ratio", "extra dissipation over a rigid sphere's", "1",
+     "the particle's extra viscous dissipation S:E (Batchelor 1970; E the undisturbed flow's rate of strain at "
+     "the centroid) over a rigid sphere's 5μV E:E, i.e. S*:E/(2 E:E): 1 for a rigid sphere in any linear flow, "
+     "S*_xy in simple shear; NaN where E vanishes (the axis of Poiseuille flow); in a summary: its window mean")
 _add("wall_gap", "gap between membrane and wall", "1",
      "smallest distance of a membrane node from the wall (runs with a wall only), in units of a", "a")
 _add("axis_L", "longest in-plane semi-axis", "1",
@@ -334,7 +338,7 @@ for _name, _what in (("D_xy", "Taylor deformation parameter"), ("theta", "inclin
          f"half the peak-to-peak of {_name} over the last cycle (for a turning body, D_xy's over its last whole "
          f"orbit; θ turns through every angle and has none); NaN unless swinging or turning")
 for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star", "centroid_velocity_y",
-              "slip_velocity_x"):
+              "slip_velocity_x", "dissipation_ratio"):
     _base = TABLE[_name]
     _add(f"{_name}_std", f"standard deviation of the {_base.long_name}", _base.units,
          f"standard deviation of {_name} over the averaging window; NaN when not reported", _base.scale,

@@ -51,6 +51,7 @@ _FLOATS = ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star",
            "body_rotation_ratio", "tank_treading_ratio", "rigid_turn", "ttf_ratio_kind",
            # lift (or migration) and slip of the centroid (issues 41, 42)
            "centroid_velocity_y", "centroid_velocity_y_std", "slip_velocity_x", "slip_velocity_x_std",
+           "dissipation_ratio", "dissipation_ratio_std",
            "D_xy_error_estimate", "theta_error_estimate", "ttf_ratio_error_estimate", "Sxy_star_error_estimate")
 _STRINGS = ("status", "status_reason", "motion")
 #: the context of a run from its resolved case: name -> (dtype, value for a run without a case)

@@ -257,3 +257,18 @@ def test_flow_G_is_the_dimensionless_rate_of_every_flow_by_its_short_name(tmp_pa
     ds = summarize_campaign(tmp_path / "runs")
     assert list(ds["G"].values) == [0.01, 0.02]
     assert float(ds["D_xy"].sel(G=0.02)) > float(ds["D_xy"].sel(G=0.01)) > 0
+
+
+def test_the_extra_dissipation_of_a_stiff_capsule_is_a_rigid_spheres_in_every_linear_flow(tmp_path):
+    """Issue 41, item 4: dissipation_ratio = S:E/(5μV E:E) is 1 for a rigid sphere in any linear
+    flow (Batchelor 1970: S = (20/3)πμa³E); a stiff capsule (G → 0, λ = 1) approaches it in shear,
+    planar and uniaxial extension alike, and in shear it is S*_xy."""
+    for kind in ("simple_shear", "planar_extension", "uniaxial_extension"):
+        case = case_from_dict({**_case(tmp_path, name=f"d-{kind}", kind=kind, shear_rate_G=0.0005),
+                               "mesh": {"level": 2}, "time": {"t_end": 0.1}})
+        assert run_case(case).status == "completed"
+        with h5py.File(case.output.path, "r") as f:
+            ratio, sxy = f["timeseries/dissipation_ratio"][-1], f["timeseries/Sxy_star"][-1]
+        assert ratio == pytest.approx(1.0, abs=0.02), kind
+        if kind == "simple_shear":
+            assert ratio == pytest.approx(sxy, rel=1e-6)
