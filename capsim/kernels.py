@@ -150,10 +150,10 @@ def wall_image_sum(targets, sources, strengths, y_wall):
             rinv3 = rinv * rinv * rinv
             rinv5 = rinv3 * rinv * rinv
             # − G(R)·g: the image Stokeslet
-            rg = (rx * gx[j] + ry * gy[j] + rz * gz[j]) * rinv3
-            ux -= gx[j] * rinv + rx * rg
-            uy -= gy[j] * rinv + ry * rg
-            uz -= gz[j] * rinv + rz * rg
+            gi_x, gi_y, gi_z = _stokeslet(rx, ry, rz, gx[j], gy[j], gz[j])
+            ux -= gi_x
+            uy -= gi_y
+            uz -= gi_z
             # 2h B·ĝ, ĝ = ε g: the source dipole (h²) and the Stokeslet doublet (h)
             hx, hy, hz = gx[j], -gy[j], gz[j]
             rgh = rx * hx + ry * hy + rz * hz
@@ -209,11 +209,11 @@ def wall_image_double_layer(targets, sources, normals_w, u_sources, y_wall):
             un = vx[j] * nx[j] + vy[j] * ny[j] + vz[j] * nz[j]
             ur = vx[j] * rx + vy[j] * ry + vz[j] * rz
             nr = nx[j] * rx + ny[j] * ry + nz[j] * rz
-            # the image Stokeslet: −T(R), T_ijk = −6 R_i R_j R_k/R⁵
-            c = 6.0 * ur * nr * rinv5
-            ax += c * rx
-            ay += c * ry
-            az += c * rz
+            # the image Stokeslet: −u·T(R)·n
+            ti_x, ti_y, ti_z = _stresslet(rx, ry, rz, nx[j], ny[j], nz[j], vx[j], vy[j], vz[j])
+            ax -= ti_x
+            ay -= ti_y
+            az -= ti_z
             # the doublets
             q = 30.0 * ur * nr * rinv7
             kx = -6.0 * (vx[j] * nr + ur * nx[j] + un * rx) * rinv5 + q * rx
