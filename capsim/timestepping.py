@@ -399,6 +399,15 @@ class ChebyshevCoefficients:
     mu_tilde: np.ndarray  # μ̃_j
     gamma_tilde: np.ndarray  # γ̃_j
     beta: float           # stability interval [−β, 0]
+    c: np.ndarray = None  # c_j: the time of stage Y_j as a fraction of the step (c_s = 1)
+
+    def __post_init__(self):
+        if self.c is None:  # the recursion of rkc_step applied to y' = 1 (every method is consistent)
+            c = np.zeros(self.s + 1)
+            c[1] = self.mu_tilde[1]
+            for j in range(2, self.s + 1):
+                c[j] = self.mu[j] * c[j - 1] + self.nu[j] * c[j - 2] + self.mu_tilde[j] + self.gamma_tilde[j]
+            object.__setattr__(self, "c", c)
 
 
 @functools.lru_cache(maxsize=None)  # a run uses a few dozen stage counts, each many times
@@ -427,16 +436,6 @@ def rkc_coefficients(s: int, damping: float = 2.0 / 13.0) -> ChebyshevCoefficien
         mu_t[j] = 2 * b[j] * w1 / b[j - 1]
         gamma_t[j] = -a[j - 1] * mu_t[j]
     return ChebyshevCoefficients(s, mu, nu, mu_t, gamma_t, beta=(1.0 + w0) / w1)
-
-
-def rkc_stage_times(coef: ChebyshevCoefficients) -> np.ndarray:
-    """c_0 ... c_s: the time of each stage Y_j as a fraction of the step (the recursion of
-    :func:`rkc_step` applied to y' = 1; c_s = 1, the method being consistent)."""
-    c = np.zeros(coef.s + 1)
-    c[1] = coef.mu_tilde[1]
-    for j in range(2, coef.s + 1):
-        c[j] = coef.mu[j] * c[j - 1] + coef.nu[j] * c[j - 2] + coef.mu_tilde[j] + coef.gamma_tilde[j]
-    return c
 
 
 def rkc_step(f: Callable[[np.ndarray], np.ndarray], y0: np.ndarray, f0: np.ndarray, h: float,
@@ -585,7 +584,7 @@ class RungeKuttaChebyshev(Integrator):
             h, cut = coef.beta / self.rho, True
             self.stage_bound_hits += 1
         y0, f0 = self.y, self.u
-        y_new = rkc_step(self._at(self.t + h * rkc_stage_times(coef)[1:s]), y0, f0, h, coef)
+        y_new = rkc_step(self._at(self.t + h * coef.c[1:s]), y0, f0, h, coef)
         if not np.all(np.isfinite(y_new)):
             return Trial(False, False, h, math.inf, s - 1), y_new, cut
         self.stage_t = self.t + h
