@@ -30,8 +30,8 @@ from pydantic import (
 )
 
 from capsim.errors import bounded_repr, first_line
-from capsim.flows import (FLOW_FIELDS, FLOW_HISTORIES, FLOWS, HISTORY_FIELDS, SYMMETRY_CANDIDATES, SYMMETRY_GROUPS,
-                          WALL_FLOWS, far_field_of)
+from capsim.flows import (FLOW_FIELDS, FLOW_HISTORIES, FLOWS, HISTORY_FIELDS, SYMMETRY_CANDIDATES, WALL_FLOWS,
+                          scene_far_field, symmetries_kept)
 from capsim.timestepping import DEFAULT_SCHEME, SCHEMES
 from capsim.viscosity import VISCOSITY_MODELS
 from capsim.viscosity import is_active as is_viscous
@@ -1119,16 +1119,27 @@ class Case(_Model):
                     f"the {self.mesh.base} mesh of a sphere turned onto initial_axis {shown} does not keep it "
                     "(auto uses half for it); use half, auto or none, or an axis in the shear plane or along z",
                 )
-        field = far_field_of(self.flow)
+        kept = symmetries_kept(scene_far_field(self))
         for group in SYMMETRY_CANDIDATES.get(self.mesh.symmetry, ()) if self.mesh.symmetry != "auto" else ():
-            if not all(field.is_invariant(g) for g in SYMMETRY_GROUPS[group]):
+            if group not in kept:
+                scene = f"flow.kind {self.flow.kind}" + (" above a wall" if self.wall is not None else "")
                 raise _FieldProblem("mesh.symmetry", self.mesh.symmetry,
-                                    f"flow.kind {self.flow.kind} does not keep it ({group}); use auto or none")
+                                    f"{scene} does not keep it ({group}); use auto or none")
             if self.initial_center is not None and any(self.initial_center):
                 raise _FieldProblem("mesh.symmetry", self.mesh.symmetry,
                                     "a capsule placed away from the origin (initial_center) does not keep it; "
                                     "use auto (it finds the symmetries left) or none")
         return self
+
+    @property
+    def center(self) -> tuple[float, float, float]:
+        """The rest shape's centroid at t = 0: initial_center, else the origin."""
+        return self.initial_center if self.initial_center is not None else (0.0, 0.0, 0.0)
+
+    @property
+    def wall_y(self) -> float | None:
+        """y of the scene's wall (wall.distance below the initial centre); None without one."""
+        return None if self.wall is None else float(self.center[1] - self.wall.distance)
 
     @property
     def axis(self) -> tuple[float, float, float]:

@@ -66,7 +66,7 @@ def model_for(data: dict[str, Any]):
         )
     case = case_of(data)
     if case.shape.inflation:  # the stored positions are the initial ones: the membrane's reference is shrunk
-        center = np.asarray(case.initial_center or (0.0, 0.0, 0.0), dtype=np.float64)
+        center = np.asarray(case.center, dtype=np.float64)
         rest = center + (rest - center) / (1.0 + case.shape.inflation)
     model.rest_positions = rest
     return model
@@ -312,8 +312,7 @@ def export_run(
     wall = None
     if case.wall is not None:  # the scene's wall: a rectangle under the capsule's whole path
         xs = np.concatenate([np.asarray(p, dtype=np.float64) for p in positions])
-        center = np.asarray(case.initial_center or (0.0, 0.0, 0.0), dtype=np.float64)
-        wall = (float(center[1] - case.wall.distance), xs[:, 0].min() - 2.0, xs[:, 0].max() + 2.0,
+        wall = (case.wall_y, xs[:, 0].min() - 2.0, xs[:, 0].max() + 2.0,
                 xs[:, 2].min() - 2.0, xs[:, 2].max() + 2.0)
     # Every file is written in a private staging directory inside `out`, then renamed into
     # place: a full disk, a size limit or a kill leaves what was in `out` as it was.

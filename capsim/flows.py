@@ -86,6 +86,10 @@ class FarField:
                     u[:, i] += self.gradient[i][j] * x[:, j]
         return u
 
+    def gradient_at(self, point: np.ndarray) -> np.ndarray:
+        """∂u_i/∂x_j at `point` (3,): the constant L."""
+        return self.matrix
+
     def is_invariant(self, signs: np.ndarray) -> bool:
         """Whether the flow maps onto itself under x → S x, S = diag(signs)."""
         S = np.diag(signs)
@@ -108,6 +112,11 @@ class PoiseuilleFarField:
     @property
     def matrix(self) -> np.ndarray:
         raise ValueError("Poiseuille flow has no constant velocity gradient")
+
+    def gradient_at(self, point: np.ndarray) -> np.ndarray:
+        L = np.zeros((3, 3))
+        L[0, 1], L[0, 2] = -2.0 * point[1] / self.radius, -2.0 * point[2] / self.radius
+        return L
 
     def is_invariant(self, signs: np.ndarray) -> bool:
         # u_x is even in y and z and independent of x: u(S x) = S u(x) needs S_x = +1
@@ -244,9 +253,8 @@ def far_field_of(flow: Any) -> Any:
     return FLOWS[flow.kind].far_field(flow)
 
 
-def symmetries_kept(flow: Any) -> tuple[str, ...]:
-    """The groups of :data:`SYMMETRY_GROUPS` under which the flow maps onto itself."""
-    field = far_field_of(flow)
+def symmetries_kept(field: Any) -> tuple[str, ...]:
+    """The groups of :data:`SYMMETRY_GROUPS` under which a far field maps onto itself."""
     return tuple(name for name, generators in SYMMETRY_GROUPS.items()
                  if all(field.is_invariant(g) for g in generators))
 
@@ -271,6 +279,9 @@ class ScaledFarField:
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         return self.factor * self.field(x)
+
+    def gradient_at(self, point: np.ndarray) -> np.ndarray:
+        return self.factor * self.field.gradient_at(point)
 
     def is_invariant(self, signs: np.ndarray) -> bool:
         return self.field.is_invariant(signs)
@@ -399,25 +410,22 @@ class AffineFarField:
     """u∞(x) = L·x + c: a linear flow shifted so that it vanishes on a wall (simple shear above
     the plane y = y_w: u∞ = (y − y_w, 0, 0))."""
 
-    gradient: tuple
+    base: FarField
     offset: tuple
     linear: ClassVar[bool] = True
 
     @property
     def matrix(self) -> np.ndarray:
-        return np.array(self.gradient)
+        return self.base.matrix
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        u = FarField(self.gradient)(x)
-        for i in range(3):
-            if self.offset[i] != 0.0:
-                u[:, i] += self.offset[i]
-        return u
+        return self.base(x) + np.asarray(self.offset)
+
+    def gradient_at(self, point: np.ndarray) -> np.ndarray:
+        return self.base.matrix
 
     def is_invariant(self, signs: np.ndarray) -> bool:
-        S = np.diag(signs)
-        return bool(np.array_equal(S @ self.matrix @ S, self.matrix)
-                    and np.array_equal(S @ np.array(self.offset), np.array(self.offset)))
+        return self.base.is_invariant(signs) and bool(np.array_equal(signs * np.asarray(self.offset), self.offset))
 
 
 #: the flows a wall along y can bound: those that vanish on a plane y = const (no slip)
@@ -426,5 +434,11 @@ WALL_FLOWS = ("simple_shear",)
 
 def far_field_above_wall(field: FarField, y_wall: float) -> AffineFarField:
     """The undisturbed flow that vanishes on the wall y = y_wall: L·(x − y_wall e_y)."""
-    L = np.array(field.gradient)
-    return AffineFarField(field.gradient, tuple(float(v) for v in -L[:, 1] * y_wall))
+    return AffineFarField(field, tuple(float(v) for v in -field.matrix[:, 1] * y_wall))
+
+
+def scene_far_field(case: Any) -> Any:
+    """The undisturbed flow of a case's scene: its flow.kind, shifted to vanish on its wall
+    (``case.wall_y``) when it has one."""
+    field = far_field_of(case.flow)
+    return field if case.wall_y is None else far_field_above_wall(field, case.wall_y)

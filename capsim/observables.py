@@ -289,18 +289,12 @@ def stresslet_observables(S_star: np.ndarray) -> dict:
     }
 
 
-def dissipation_ratio(S_star: np.ndarray, far_field, center: np.ndarray, h: float = 1e-4) -> float:
+def dissipation_ratio(S_star: np.ndarray, E: np.ndarray) -> float:
     """The particle's extra viscous dissipation S:E (Batchelor 1970: a force-free particle in the
-    local rate of strain E of the undisturbed flow) over a rigid sphere's in the same flow,
-    5μV E:E; with S* = S/((5/2)μkV) that is S*:E / (2 E:E). 1 for a rigid sphere in any linear
-    flow; in simple shear it equals S*_xy. E is the far field's at the centroid (Poiseuille: the
-    local one; NaN where it vanishes, on the axis)."""
-    L = np.zeros((3, 3))
-    for j in range(3):
-        step = np.zeros((1, 3))
-        step[0, j] = h
-        L[:, j] = (far_field(center[None] + step)[0] - far_field(center[None] - step)[0]) / (2 * h)
-    E = 0.5 * (L + L.T)
+    local rate of strain E of the undisturbed flow, in units of the rate) over a rigid sphere's in
+    the same flow, 5μV E:E; with S* = S/((5/2)μkV) that is S*:E / (2 E:E). 1 for a rigid sphere in
+    any linear flow; in simple shear it equals S*_xy. NaN where E vanishes (the axis of Poiseuille
+    flow, a stopped flow)."""
     EE = float(np.sum(E * E))
     return float(np.sum(S_star * E) / (2.0 * EE)) if EE > 1e-20 else float("nan")
 
@@ -1180,9 +1174,7 @@ class StepObserver:
         row["compressed_fraction"] = float(np.mean(tau2 < -COMPRESSION_TOL))
         center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
         row.update(centroid_velocity(state.geometry, u, elements, model.disc.reg_phi, center, row["volume"]))
-        u_far = model.far_field(center[None])[0]  # the undisturbed flow at the centre, the rate's factor included
-        if getattr(model, "rate_factor", None) is not None:
-            u_far = model.rate_factor(model.time) * u_far
+        u_far = model.undisturbed(center[None])[0]  # the undisturbed flow at the centre, now
         for i, c in enumerate("xyz"):
             row[f"slip_velocity_{c}"] = row[f"centroid_velocity_{c}"] - float(u_far[i])
         if getattr(model, "wall_y", None) is not None:
@@ -1196,7 +1188,7 @@ class StepObserver:
             S_star = S_star + S_v
             row.update(viscous_row)
         row.update(stresslet_observables(S_star))
-        row["dissipation_ratio"] = dissipation_ratio(S_star, model.far_field, center)
+        row["dissipation_ratio"] = dissipation_ratio(S_star, model.rate_of_strain(center))
         row.update(self.tracker.update(y, u, center))
         row["solver_iterations"] = float(model.last_solve_info.get("iterations", 0))
         row["solver_residual"] = float(model.last_solve_info.get("residual", 0.0))

@@ -99,8 +99,7 @@ def _case_info(data: dict[str, Any]) -> dict[str, Any]:
         "mesh": f"{case.mesh.base} level {case.mesh.level} ({np.asarray(data['rest_positions']).shape[0]} nodes)",
         "bending": float(getattr(case.membrane, "bending_modulus", 0.0) or 0.0),
         # the scene's wall, y = y_w (None: unbounded)
-        "wall_y": (None if getattr(case, "wall", None) is None
-                   else float((case.initial_center or (0.0, 0.0, 0.0))[1] - case.wall.distance)),
+        "wall_y": case.wall_y,
     }
 
 

@@ -25,8 +25,8 @@ import numpy as np
 from capsim import kernels
 # the far field and the scene's symmetries live in capsim.flows (re-exported here)
 from capsim.flows import (  # noqa: F401
-    INVERSION, MIRROR_Z, ROTATION_Z, SIMPLE_SHEAR, SYMMETRY_CANDIDATES, SYMMETRY_GROUPS, FarField, far_field_above_wall, far_field_of,
-    scaled,
+    INVERSION, MIRROR_Z, ROTATION_Z, SIMPLE_SHEAR, SYMMETRY_CANDIDATES, SYMMETRY_GROUPS, FarField, far_field_of, scaled,
+    scene_far_field, symmetries_kept,
 )
 from capsim.geometry import ElementGeometry, element_geometry, interpolate, shape_functions
 from capsim.krylov import gmres
@@ -657,6 +657,18 @@ class CapsuleModel:
         elif self.flow_stopped:  # undone to a state before the stop
             self.far_field, self.flow_stopped = self._flowing, False
 
+    def undisturbed(self, x: np.ndarray) -> np.ndarray:
+        """u∞ at the points x (N, 3) at the time of this evaluation (``time``: the rate's factor)."""
+        u = self.far_field(x)
+        return u if self.rate_factor is None else self.rate_factor(self.time) * u
+
+    def rate_of_strain(self, point: np.ndarray) -> np.ndarray:
+        """E = sym ∇u∞ at `point` (3,) at the time of this evaluation."""
+        L = self.far_field.gradient_at(point)
+        if self.rate_factor is not None:
+            L = self.rate_factor(self.time) * L
+        return 0.5 * (L + L.T)
+
     def stop_flow(self) -> None:
         """The rate's jump (flow.history): u∞ times flow_step_factor from now on (kind stop: u∞ = 0)."""
         if not self.flow_stopped:
@@ -687,8 +699,7 @@ class CapsuleModel:
         t1 = time.perf_counter()
         self.solver_times["single_layer"] += t1 - t0
         clock = self.disc.clock
-        u_far = self.far_field(x) if self.rate_factor is None else self.rate_factor(self.time) * self.far_field(x)
-        u_explicit = u_far - sl / (8.0 * np.pi * self.shear_rate_G)
+        u_explicit = self.undisturbed(x) - sl / (8.0 * np.pi * self.shear_rate_G)
         clock.lap("far_field")
         needs_normals = lam != 1.0 or self.volume_correction
         normals = self.disc.nodal_normals(x) if needs_normals else None
@@ -836,18 +847,12 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
         near_field_levels=case.quadrature.near_field_levels,
     )
     positions = mesh.positions
-    center = np.asarray(case.initial_center if case.initial_center is not None else (0.0, 0.0, 0.0), dtype=np.float64)
+    center = np.asarray(case.center, dtype=np.float64)
     if np.any(center != 0.0):  # the scene's body placed away from the origin (the symmetries then find fewer images)
         positions = positions + center
-    far_field = far_field_of(case.flow)
-    wall_y = None
-    if case.wall is not None:  # the wall h below the initial centre; the undisturbed flow vanishes on it
-        wall_y = float(center[1] - case.wall.distance)
-        far_field = far_field_above_wall(far_field, wall_y)
+    far_field = scene_far_field(case)  # the flow, vanishing on the wall when there is one
     if mode != "none":
-        kept = tuple(name for name, generators in SYMMETRY_GROUPS.items()
-                     if all(far_field.is_invariant(g) for g in generators))
-        symmetric = disc.enable_symmetry(positions, mode=mode, allowed=kept)
+        symmetric = disc.enable_symmetry(positions, mode=mode, allowed=symmetries_kept(far_field))
         if symmetric is not None:
             positions = symmetric
         elif mode != "auto":
@@ -880,6 +885,6 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
         flow_stop_time=None if case.flow.jump is None else case.flow.jump[0],
         flow_step_factor=0.0 if case.flow.jump is None else case.flow.jump[1],
         rate_factor=case.flow.rate_factor,
-        wall_y=wall_y,
+        wall_y=case.wall_y,
     )
     return model, rest

@@ -95,3 +95,17 @@ def test_the_history_kinds_take_their_fields_and_refuse_the_others_in_one_line()
         case_from_dict({"name": "h", "flow": {"history": {"kind": "oscillating", "omega": 1.0}},
                         "time": {"scheme": "linearly_implicit"}})
     assert case(kind="table", table=[[0, 0], [1, 1]]).flow.rate_factor(0.5) == 0.5
+
+
+def test_the_dissipation_ratio_follows_the_rate_of_the_moment(tmp_path):
+    """dissipation_ratio divides by the rate of strain of the moment, the rate's factor a(t)
+    included: a stiff capsule in oscillating shear stays at the rigid sphere's 1 while a(t) is
+    0.48 (the far field's gradient alone gave a(t) itself)."""
+    case = case_from_dict({"name": "d", "flow": {"shear_rate_G": 0.0005,
+                                                 "history": {"kind": "oscillating", "omega": 2.0}},
+                           "mesh": {"level": 1}, "time": {"t_end": 0.25}, "output": {"path": str(tmp_path / "d.h5")}})
+    assert run_case(case).status == "completed"
+    with h5py.File(case.output.path, "r") as f:
+        ratio = f["timeseries/dissipation_ratio"][-1]
+    assert np.sin(2.0 * 0.25) < 0.5
+    assert ratio == pytest.approx(1.0, abs=0.03)

@@ -46,7 +46,7 @@ def test_every_flow_is_divergence_free_and_keeps_the_symmetries_it_claims(kind):
     assert np.abs(div).max() < 1e-8
     from capsim.flows import SYMMETRY_GROUPS
 
-    for name in symmetries_kept(flow):
+    for name in symmetries_kept(field):
         for S in SYMMETRY_GROUPS[name]:
             np.testing.assert_allclose(field(x * S), field(x) * S, atol=1e-12)
 

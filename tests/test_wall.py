@@ -209,6 +209,10 @@ def test_a_wall_the_case_cannot_take_is_refused_in_one_line():
     case_from_dict({"name": "w", "wall": {"distance": 1.15}})  # clears it by 0.15 > guards.min_wall_gap
     with pytest.raises(ConfigError, match="wall.distance"):
         case_from_dict({"name": "w", "wall": {"distance": 0.5}})
+    # the wall keeps only the mirror z -> -z: an explicit quarter is refused at validation (it got
+    # through to build_model, which raised)
+    with pytest.raises(ConfigError, match="mesh.symmetry = 'quarter': flow.kind simple_shear above a wall"):
+        case_from_dict({"name": "w", "wall": {"distance": 3.0}, "mesh": {"symmetry": "quarter"}})
     with pytest.raises(ConfigError, match="flow.kind = 'planar_extension': cannot be bounded by a wall"):
         case_from_dict({"name": "w", "wall": {"distance": 3.0}, "flow": {"kind": "planar_extension"}})
     # a red cell flat above the wall reaches its half-thickness below the centre, on its rim its radius
