@@ -31,7 +31,7 @@ from pydantic import (
 
 from capsim.errors import bounded_repr, first_line
 from capsim.flows import (FLOW_FIELDS, FLOW_HISTORIES, FLOWS, HISTORY_FIELDS, SYMMETRY_CANDIDATES, WALL_FLOWS,
-                          scene_far_field, symmetries_kept)
+                          fields_problem, scene_far_field, symmetries_kept)
 from capsim.timestepping import DEFAULT_SCHEME, SCHEMES
 from capsim.viscosity import VISCOSITY_MODELS
 from capsim.viscosity import is_active as is_viscous
@@ -421,16 +421,7 @@ class FlowHistory(_Model):
 
     @model_validator(mode="after")
     def _fields_of_the_kind(self) -> "FlowHistory":
-        history = FLOW_HISTORIES[self.kind]
-        for name in HISTORY_FIELDS:
-            value = getattr(self, name)
-            if name in history.uses and value is None:
-                raise _FieldProblem(name, None, f"is required with kind: {self.kind}")
-            if name not in history.uses and value is not None:
-                raise _FieldProblem(name, value, f"applies only to kind: "
-                                    f"{', '.join(k for k, c in FLOW_HISTORIES.items() if name in c.uses)}, not to "
-                                    f"kind: {self.kind}; remove it")
-        problem = history.problem(self)
+        problem = fields_problem(self, FLOW_HISTORIES, HISTORY_FIELDS)
         if problem is not None:
             raise _FieldProblem(*problem)
         return self
@@ -492,13 +483,7 @@ class Flow(_Model):
 
     @model_validator(mode="after")
     def _fields_of_the_kind(self) -> "Flow":
-        flow = FLOWS[self.kind]
-        for name in FLOW_FIELDS:
-            if name not in flow.uses and getattr(self, name) is not None:
-                raise _FieldProblem(name, getattr(self, name), f"applies only to kind: "
-                                    f"{', '.join(k for k, c in FLOWS.items() if name in c.uses)}, not to kind: "
-                                    f"{self.kind}; remove it")
-        problem = flow.problem(self)
+        problem = fields_problem(self, FLOWS, FLOW_FIELDS)
         if problem is not None:
             raise _FieldProblem(*problem)
         return self

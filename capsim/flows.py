@@ -129,20 +129,52 @@ class PoiseuilleFarField:
 FLOWS: dict[str, type["Flow"]] = {}
 
 
-def register_flow(cls: type["Flow"]) -> type["Flow"]:
-    FLOWS[cls.name] = cls
-    return cls
-
-
-class Flow:
-    """A kind of undisturbed flow. ``uses``: the fields of ``flow`` it reads (any other of
-    the optional ones is refused); :meth:`far_field` builds u∞ from the case's flow section;
-    :meth:`problem` names a setting of its fields it cannot take (field, value, why)."""
+class Kind:
+    """What every kind of a registry declares (flow.kind, flow.history.kind): its ``name``, a
+    one-line ``description``, ``uses`` (the optional fields of its section it reads; every one of
+    them is required, any other refused: :func:`fields_problem`) and :meth:`problem` (a setting
+    of those fields it cannot take, as (field, value, why))."""
 
     name: ClassVar[str]
     description: ClassVar[str]
-    rate: ClassVar[str]
     uses: ClassVar[tuple[str, ...]] = ()
+
+    @classmethod
+    def problem(cls, section: Any) -> tuple[str, Any, str] | None:
+        return None
+
+
+def _registrar(registry: dict) -> Any:
+    def register(cls: type) -> type:
+        registry[cls.name] = cls
+        return cls
+
+    return register
+
+
+def fields_problem(section: Any, registry: dict, fields: tuple[str, ...]) -> tuple[str, Any, str] | None:
+    """(field, value, why) for a section (flow, flow.history) whose optional ``fields`` do not fit
+    its kind: one the kind reads left out, or one only another kind reads given; else the kind's
+    own :meth:`Kind.problem`; None when it fits."""
+    kind = registry[section.kind]
+    for name in fields:
+        value = getattr(section, name)
+        if name in kind.uses and value is None:
+            return (name, None, f"is required with kind: {section.kind}")
+        if name not in kind.uses and value is not None:
+            owners = ", ".join(k for k, c in registry.items() if name in c.uses)
+            return (name, value, f"applies only to kind: {owners}, not to kind: {section.kind}; remove it")
+    return kind.problem(section)
+
+
+register_flow = _registrar(FLOWS)
+
+
+class Flow(Kind):
+    """A kind of undisturbed flow: :meth:`far_field` builds u∞ from the case's flow section;
+    ``rate`` says what its rate is."""
+
+    rate: ClassVar[str]
     #: above a critical rate a capsule finds no steady shape and keeps elongating (the extensions:
     #: no rotation relieves the stretch); a run it ends is said so (motion "elongating")
     elongates_without_bound: ClassVar[bool] = False
@@ -150,10 +182,6 @@ class Flow:
     @classmethod
     def far_field(cls, flow: Any) -> Any:
         raise NotImplementedError
-
-    @classmethod
-    def problem(cls, flow: Any) -> tuple[str, Any, str] | None:
-        return None
 
 
 @register_flow
@@ -206,8 +234,6 @@ class Linear(Flow):
     @classmethod
     def problem(cls, flow: Any) -> tuple[str, Any, str] | None:
         L = flow.velocity_gradient
-        if L is None:
-            return ("velocity_gradient", None, "is required with kind: linear (a 3 × 3 list of rows)")
         try:
             M = np.asarray(L, dtype=float)
         except (TypeError, ValueError):
@@ -236,12 +262,6 @@ class Poiseuille(Flow):
     @classmethod
     def far_field(cls, flow: Any) -> PoiseuilleFarField:
         return PoiseuilleFarField(float(flow.poiseuille_radius))
-
-    @classmethod
-    def problem(cls, flow: Any) -> tuple[str, Any, str] | None:
-        if flow.poiseuille_radius is None:
-            return ("poiseuille_radius", None, "is required with kind: poiseuille (R in units of a, above 1)")
-        return None
 
 
 #: the optional fields of ``flow`` that some kind reads
@@ -298,23 +318,15 @@ def scaled(field: Any, factor: float) -> Any:
 #: flow.history.kind → its class: how the rate changes in time, as a factor a(t) of the
 #: flow's rate (times stay in units of 1/rate, the rate being the flow's own before any change)
 FLOW_HISTORIES: dict[str, type["History"]] = {}
+register_history = _registrar(FLOW_HISTORIES)
 
 
-def register_history(cls: type["History"]) -> type["History"]:
-    FLOW_HISTORIES[cls.name] = cls
-    return cls
-
-
-class History:
-    """How the rate changes in time. ``uses``: the fields of ``flow.history`` it reads.
+class History(Kind):
+    """How the rate changes in time.
     ``jump``: (time, factor after it) of a jump in the rate, which the steps land on (the runner
     scales the far field there, and the checkpoint records that it has; None: none);
     ``factor(history)``: a(t) for a rate that varies smoothly (evaluated at every stage's time;
     None: constant between jumps)."""
-
-    name: ClassVar[str]
-    description: ClassVar[str]
-    uses: ClassVar[tuple[str, ...]] = ()
 
     @classmethod
     def jump(cls, history: Any) -> tuple[float, float] | None:
@@ -322,10 +334,6 @@ class History:
 
     @classmethod
     def factor(cls, history: Any) -> Any:
-        return None
-
-    @classmethod
-    def problem(cls, history: Any) -> tuple[str, Any, str] | None:
         return None
 
 
