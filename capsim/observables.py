@@ -289,6 +289,12 @@ def stresslet_observables(S_star: np.ndarray) -> dict:
     }
 
 
+#: row columns that are NaN by definition in some states, not by failure: θ where the shape has
+#: no long axis in the plane (a sphere at rest: THETA_UNDEFINED_GAP), dissipation_ratio where the
+#: undisturbed flow has no rate of strain at the centroid (the Poiseuille axis, a stopped flow)
+MAY_BE_UNDEFINED = ("theta", "dissipation_ratio")
+
+
 def dissipation_ratio(S_star: np.ndarray, E: np.ndarray) -> float:
     """The particle's extra viscous dissipation S:E (Batchelor 1970: a force-free particle in the
     local rate of strain E of the undisturbed flow, in units of the rate) over a rigid sphere's in

@@ -23,7 +23,7 @@ from typing import Sequence
 import numpy as np
 
 from capsim.config import Guards, Time
-from capsim.observables import is_steady, series_settled
+from capsim.observables import MAY_BE_UNDEFINED, is_steady, series_settled
 from capsim.schedules import end_tolerance  # noqa: F401 - a stop rule, kept beside the cadences
 
 
@@ -49,12 +49,10 @@ def step_collapse(dts: Sequence[float], min_fraction: float, window: int = 200, 
 
 def guard_violation(row: dict, row0: dict, guards: Guards) -> str | None:
     """The first stability guard an accepted step crosses, as 'guard NAME: value', or None."""
-    # θ is NaN where the shape has no long axis (a sphere at rest: observables.THETA_UNDEFINED_GAP);
-    # that is a property of the shape, not a failure, as long as D_xy itself is finite
-    # likewise dissipation_ratio where the undisturbed flow has no rate of strain at the centroid
-    # (the axis of Poiseuille flow, a flow stopped by flow.history)
+    # a column the observer may leave undefined (NaN: observables.MAY_BE_UNDEFINED) is a property of
+    # the state, not a failure, as long as D_xy itself is finite
     bad = [key for key, value in row.items()
-           if not np.isfinite(value) and not (key in ("theta", "dissipation_ratio") and np.isnan(value)
+           if not np.isfinite(value) and not (key in MAY_BE_UNDEFINED and np.isnan(value)
                                               and np.isfinite(row.get("D_xy", np.nan)))]
     if bad:
         return f"guard non_finite: {bad[0]} = {row[bad[0]]}"
