@@ -753,6 +753,8 @@ class Output(_Model):
 
 #: the smallest gap between membrane and wall the image integrals are resolved at (regular rule)
 WALL_GAP_DEFAULT = 0.1
+#: guards.min_capsule_gap: the smallest gap between two capsules' membranes a run goes on at (units of a)
+CAPSULE_GAP_DEFAULT = 0.02
 
 
 class Guards(_Model):
@@ -775,6 +777,14 @@ class Guards(_Model):
         "image integrals use the regular rule, whose error grows as the gap falls below an element's size "
         "(docs/known_answers.md, 'A capsule near a wall')",
     )
+
+    min_capsule_gap: float = Field(
+        CAPSULE_GAP_DEFAULT, gt=0, le=1,
+        description="with several capsules (capsules): stop when two membranes come closer than this (units "
+        "of a, the smallest node-to-node distance between two capsules); no contact force acts, so a closer "
+        "approach is refused rather than allowed to overlap (docs/known_answers.md, 'Two capsules')",
+    )
+
 
 
 #: the CaseWarnings of the case being validated by case_from_dict (issued there, with its source)
@@ -822,10 +832,38 @@ class Wall(_Model):
 
     distance: float = Field(
         ..., gt=1.0, le=1e3,
-        description="h: the wall lies at y = y_c − h, h (units of a) below the capsule's initial centre y_c; "
-        "the undisturbed shear flow vanishes on it, u∞ = k (y − y_c + h, 0, 0). The rest shape must clear "
-        "it by guards.min_wall_gap",
+        description="h: the wall lies at y = y_c − h, h (units of a) below the capsule's initial centre y_c "
+        "(with capsules: the first one's); the undisturbed shear flow vanishes on it, u∞ = k (y − y_c + h, 0, 0). "
+        "The rest shape must clear it by guards.min_wall_gap",
     )
+
+
+class Capsule(_Model):
+    """One capsule of a scene of several (``capsules:``): where it starts, and what differs from
+    the top-level sections, which every field it leaves out takes (capsim.bodies)."""
+
+    center: tuple[float, float, float] = Field(
+        ..., description="the capsule's centroid [x, y, z] at t = 0 in units of a")
+    shape: Optional[Shape] = Field(None, description="its rest shape (default: the top-level shape)")
+    initial_axis: Optional[tuple[float, float, float]] = Field(
+        None, description="direction of its rest shape's symmetry axis at t = 0 (default: the top-level "
+        "initial_axis / initial_tilt_deg)")
+    initial_tilt_deg: Optional[float] = Field(
+        None, ge=-90, le=90, description="its in-plane tilt about z (give this or initial_axis, not both)")
+    membrane: Optional[Membrane] = Field(
+        None, description="its membrane; must equal the top-level membrane (capsules with membranes of their "
+        "own are not built yet: refused in one line)")
+    viscosity_ratio: Optional[float] = Field(
+        None, gt=0, description="its λ; must equal flow.viscosity_ratio (per-capsule ratios are not built yet)")
+
+    @model_validator(mode="after")
+    def _one_orientation(self) -> Capsule:
+        if self.initial_axis is not None and self.initial_tilt_deg is not None:
+            raise _FieldProblem("initial_axis", list(self.initial_axis),
+                                "give initial_axis or initial_tilt_deg, not both; remove one")
+        if self.initial_axis is not None and not math.fsum(c * c for c in self.initial_axis) > 0:
+            raise _FieldProblem("initial_axis", list(self.initial_axis), "must be a nonzero direction")
+        return self
 
 
 class Case(_Model):
@@ -864,6 +902,12 @@ class Case(_Model):
     wall: Optional[Wall] = Field(
         None, description="a no-slip plane wall below the capsule (none: unbounded flow); simple shear, any λ, "
         "an elastic membrane; the run stops 'unstable' (guard min_wall_gap) before the membrane touches it")
+    capsules: Optional[list[Capsule]] = Field(
+        None, min_length=1,
+        description="several capsules (capsim.bodies): each with its center and, where it differs from the "
+        "top-level sections, its shape and orientation; every other field comes from the top-level sections. "
+        "Left out: one capsule, placed by initial_center",
+    )
     physical: Optional[Physical] = Field(
         None,
         description="dimensional shear rate, viscosity, radius and modulus instead of flow.shear_rate_G, "
@@ -881,6 +925,8 @@ class Case(_Model):
         if self.membrane.viscosity is not None and self.membrane.viscosity.active:
             raise _FieldProblem("membrane.viscosity", "active", "cannot be used with a wall yet (its solve has no "
                                 "wall image); remove it or the wall")
+        if self.capsules:  # every capsule's clearance: _capsules_this_case_can_take
+            return self
         from capsim.mesh import rest_shape_mesh  # numpy only: the level-0 shape tells how far it reaches
 
         # the case's own mesh (up to level 3, accurate to 2e-5 a there; level 0's nodes lie 5 % out)
@@ -894,6 +940,47 @@ class Case(_Model):
                                 f"the rest shape reaches {below:.4g} a below its centre: it must clear the wall by "
                                 f"guards.min_wall_gap = {self.guards.min_wall_gap:g} (give distance > "
                                 f"{below + self.guards.min_wall_gap:.4g})")
+        return self
+
+    @model_validator(mode="after")
+    def _capsules_this_case_can_take(self) -> Case:
+        """Several capsules (capsim.bodies): placed apart from each other and the wall, their
+        membranes and λ the top-level ones, a scene whose arrays fit."""
+        if not self.capsules:
+            return self
+        from capsim.bodies import MAX_CAPSULES, MAX_SCENE_NODES, body_specs, start_problem
+
+        n = len(self.capsules)
+        if self.initial_center is not None:
+            raise _FieldProblem("initial_center", list(self.initial_center),
+                                "give initial_center or capsules (each with its center), not both; remove one")
+        if n > MAX_CAPSULES:
+            raise _FieldProblem("capsules", f"{n} capsules", f"at most {MAX_CAPSULES} capsules in one scene")
+        if n * self.mesh.n_nodes > MAX_SCENE_NODES:
+            raise _FieldProblem("capsules", f"{n} capsules",
+                                f"{n} x {self.mesh.n_nodes} nodes (mesh.level {self.mesh.level}) exceed the "
+                                f"{MAX_SCENE_NODES} nodes a scene may hold; use fewer capsules or a lower mesh.level")
+        for i, capsule in enumerate(self.capsules):
+            if capsule.membrane is not None and capsule.membrane != self.membrane:
+                raise _FieldProblem(f"capsules[{i}].membrane", "given",
+                                    "differs from the top-level membrane: capsules with membranes of their own are "
+                                    "not built yet; remove it (every capsule takes the top-level membrane)")
+            if capsule.viscosity_ratio is not None and capsule.viscosity_ratio != self.flow.viscosity_ratio:
+                raise _FieldProblem(f"capsules[{i}].viscosity_ratio", capsule.viscosity_ratio,
+                                    f"differs from flow.viscosity_ratio = {self.flow.viscosity_ratio:g}: per-capsule "
+                                    "viscosity ratios are not built yet; remove it")
+        if n > 1:
+            if self.mesh.symmetry in ("quarter", "half"):
+                raise _FieldProblem("mesh.symmetry", self.mesh.symmetry,
+                                    "with several capsules use auto (it finds the symmetries the scene keeps) or none")
+            if self.membrane.viscosity is not None and self.membrane.viscosity.active:
+                raise _FieldProblem("membrane.viscosity", "active", "cannot be used with several capsules yet (its "
+                                    "solve is one capsule's); remove it or use one capsule")
+        specs = body_specs(self)
+        problem = start_problem(specs, self.mesh.base, min(self.mesh.level, 3), self.guards.min_capsule_gap,
+                                self.wall_y, self.guards.min_wall_gap)
+        if problem is not None:
+            raise _FieldProblem(*problem)
         return self
 
     @model_validator(mode="after")
@@ -1118,8 +1205,16 @@ class Case(_Model):
 
     @property
     def center(self) -> tuple[float, float, float]:
-        """The rest shape's centroid at t = 0: initial_center, else the origin."""
+        """The rest shape's centroid at t = 0: initial_center (with capsules: the first one's
+        center), else the origin."""
+        if self.capsules:
+            return self.capsules[0].center
         return self.initial_center if self.initial_center is not None else (0.0, 0.0, 0.0)
+
+    @property
+    def n_capsules(self) -> int:
+        """How many capsules the scene holds (capsules, else 1)."""
+        return len(self.capsules) if self.capsules else 1
 
     @property
     def wall_y(self) -> float | None:

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from capsim import kernels
+from capsim.bodies import Bodies, body_specs, reference_positions, scene_mesh
 # the far field and the scene's symmetries live in capsim.flows (re-exported here)
 from capsim.flows import (  # noqa: F401
     INVERSION, MIRROR_Z, ROTATION_Z, SIMPLE_SHEAR, SYMMETRY_CANDIDATES, SYMMETRY_GROUPS, FarField, far_field_of, scaled,
@@ -520,6 +521,8 @@ class CapsuleModel:
     flow_step_factor: float = 0.0
     # the scene's no-slip plane wall y = wall_y (None: unbounded): Blake's Green's function
     wall_y: float | None = None
+    # the scene's capsules (capsim.bodies): their node and element ranges; each keeps its own volume
+    bodies: Bodies | None = None
     # flow.history kinds oscillating and table: the rate's factor a(t) at the time of the
     # evaluation (``time``, set by the runner before each; None: a constant rate)
     rate_factor: Callable[[float], float] | None = field(default=None, repr=False, compare=False)
@@ -741,9 +744,40 @@ class CapsuleModel:
         """The volume correction P: u − n ⟨n, u⟩/⟨n, n⟩ (fluxes over the surface);
         ``normal_flux``, ⟨n, n⟩, when the caller applies P many times at one configuration;
         ``equivariant``: u and the normals have the mesh's symmetry (``Discretization.flux``)."""
+        if self.several:  # each capsule's own net flux, with its own normals
+            return u - self.body_fluxes(geo, u, normals) * normals
         if normal_flux is None:
             normal_flux = self.disc.flux(geo, normals, equivariant)
         return u - (self.disc.flux(geo, u, equivariant) / normal_flux) * normals
+
+    @property
+    def several(self) -> bool:
+        """Whether the scene holds more than one capsule."""
+        return self.bodies is not None and self.bodies.count > 1
+
+    def body_fluxes(self, geo: ElementGeometry, u: np.ndarray, normals: np.ndarray,
+                    divisor: str = "normal_flux") -> np.ndarray:
+        """Per node, its capsule's ∫ u·n dS over (divisor "normal_flux") its ⟨n, n⟩ or ("area") its
+        area: the coefficient of the volume correction or of the λ ≠ 1 deflation, capsule by capsule."""
+        disc, bodies = self.disc, self.bodies
+        out = np.empty(disc.n_nodes)
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        for i, elems in enumerate(self._body_elements()):
+            flux = float(kernels.surface_flux(disc.elements, elems, disc._ones, disc.reg_phi, geo.normals,
+                                              geo.weights, u))
+            if divisor == "area":
+                below = float(geo.weights[elems].sum())
+            else:
+                below = float(kernels.surface_flux(disc.elements, elems, disc._ones, disc.reg_phi, geo.normals,
+                                                   geo.weights, np.ascontiguousarray(normals, dtype=np.float64)))
+            out[bodies.nodes(i)] = flux / below
+        return out[:, None]
+
+    def _body_elements(self) -> list[np.ndarray]:
+        cached = getattr(self, "_body_element_ranges", None)
+        if cached is None:
+            cached = self._body_element_ranges = self.bodies.element_ranges()
+        return cached
 
     def double_layer_operator(self, x: np.ndarray, geo: ElementGeometry, normals: np.ndarray):
         """u ↦ A u = u − (1−λ)/(8π) D[u] + (1−λ) n ⟨n, u⟩/S at configuration x,
@@ -754,6 +788,14 @@ class CapsuleModel:
         c = (1.0 - lam) / (8.0 * np.pi)
         area = geo.weights.sum()
         counts = self.counts
+
+        if self.several:  # every capsule's own volume mode, deflated by its own flux over its own area
+            def apply(u):
+                counts["double_layer_applications"] += 1
+                return (u - c * disc.double_layer(x, geo, u, y_wall=self.wall_y)
+                        + (1.0 - lam) * normals * self.body_fluxes(geo, u, normals, divisor="area"))
+
+            return apply
 
         def apply(u):
             counts["double_layer_applications"] += 1
@@ -835,21 +877,16 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
     mode = case.mesh.symmetry if symmetry is None else symmetry
     if mode not in SYMMETRY_CANDIDATES:
         raise ValueError(f"symmetry = {mode!r}: must be one of {', '.join(SYMMETRY_CANDIDATES)}")
-    mesh = rest_shape_mesh(
-        case.shape.kind, case.mesh.base, case.mesh.level, case.initial_tilt_deg, axis=case.initial_axis,
-        aspect_ratio=case.shape.aspect_ratio, c0=case.shape.c0, c2=case.shape.c2, c4=case.shape.c4,
-    )
+    specs = body_specs(case)  # the scene's capsules: one, or the capsules list (capsim.bodies)
+    positions, elements, n_vertices, bodies = scene_mesh(specs, case.mesh.base, case.mesh.level)
     disc = Discretization(
-        mesh.elements, mesh.n_vertices,
+        elements, n_vertices,
         regular_order=case.quadrature.regular_order,
         singular_order=case.quadrature.singular_order,
         near_field_factor=case.quadrature.near_field_factor,
         near_field_levels=case.quadrature.near_field_levels,
     )
-    positions = mesh.positions
-    center = np.asarray(case.center, dtype=np.float64)
-    if np.any(center != 0.0):  # the scene's body placed away from the origin (the symmetries then find fewer images)
-        positions = positions + center
+    # a body placed away from the origin keeps fewer symmetries: mesh.symmetry auto finds which
     far_field = scene_far_field(case)  # the flow, vanishing on the wall when there is one
     if mode != "none":
         symmetric = disc.enable_symmetry(positions, mode=mode, allowed=symmetries_kept(far_field))
@@ -863,7 +900,7 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
     law = get_law(case.membrane.law)
     # shape.inflation α: the stress-free reference is the initial shape shrunk by 1 + α about its
     # centre (the returned rest positions stay the initial ones: the run starts from them)
-    reference = rest if case.shape.inflation == 0.0 else center + (rest - center) / (1.0 + case.shape.inflation)
+    reference = reference_positions(rest, bodies, specs)
     forces = MembraneForce(
         disc, reference, law, {p: getattr(case.membrane, p) for p in law.parameters},
         bending_modulus=case.membrane.bending_modulus,
@@ -886,5 +923,6 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
         flow_step_factor=0.0 if case.flow.jump is None else case.flow.jump[1],
         rate_factor=case.flow.rate_factor,
         wall_y=case.wall_y,
+        bodies=bodies,
     )
     return model, rest

@@ -770,6 +770,9 @@ class LinearlyImplicit(Integrator):
             return ("time.scheme", cls.name,
                     f"cannot run flow.history kind {case.flow.history.kind} (a rate that varies in time: its stages "
                     "take no time derivative); use scheme rkf23, rkc or auto")
+        if len(getattr(case, "capsules", None) or ()) > 1:  # its deflation and volume correction are one capsule's
+            return ("time.scheme", cls.name, "cannot run several capsules yet (its stage Jacobian deflates one "
+                    "capsule's volume mode); use scheme rkf23, rkc or auto")
         if getattr(case, "wall", None) is not None:  # its frozen-layer Jacobian has no wall image
             return ("time.scheme", cls.name, "cannot run a case with a wall yet (its stage Jacobian has no wall "
                     "image); use scheme rkf23, rkc or auto")
