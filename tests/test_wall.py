@@ -183,6 +183,24 @@ def test_a_stiff_capsule_moves_as_goldman_cox_and_brenners_free_sphere_without_l
     assert abs(2 * fine[0.00025] - fine[0.0005]) < 1e-5
 
 
+#: Goldman, Cox & Brenner (1967), the exact (bispherical) free sphere in shear: (h/a, U/(kh), 2Ω/k)
+#: at cosh α = 1.5431 (α = 1, gap 0.54 a) and 2.3524 (α = 1.5, gap 1.35 a), from their Part I and
+#: Part II coefficients with F = T = 0 (docs/known_answers.md, "A capsule near a wall": the sources,
+#: and ±8e-5 from the coefficients' five digits)
+GCB_FREE_SPHERE = ((1.5431, 0.92182, 0.92368), (2.3524, 0.97770, 0.97781))
+
+
+def test_a_stiff_capsule_moves_as_goldman_cox_and_brenners_exact_free_sphere_close_to_the_wall(tmp_path):
+    """Close to the wall the far-field law misses (U/(kh) 0.91495 against 0.92182 at h = 1.5431);
+    a stiff capsule (G = 0.0005, kt 0.1: U moves by 1e-5 from kt 0.07 on) at level 2
+    is within 3e-5 of the exact values (level 3: 7e-5, level 1: 5e-4 at h = 1.5431). U is over
+    the centroid's height at the end, k(h + y_c): the capsule lifts by 6e-5 a at h = 1.5431."""
+    for h, U_exact, rotation_exact in GCB_FREE_SPHERE:
+        run = _wall_run(tmp_path, h, 0.0005, 0.1, level=2)
+        assert run["centroid_velocity_x"] / (h + run["centroid_y"]) == pytest.approx(U_exact, abs=2e-4)
+        assert run["ttf_ratio"] == pytest.approx(rotation_exact, abs=2e-4)
+
+
 def test_a_deformable_capsule_lifts_by_the_far_field_law_and_far_away_is_unbounded(tmp_path):
     """G = 0.05, level 1, kt 3: lift·h² 0.1236, 0.1317, 0.1340, 0.1348 at h = 4, 8, 16, 50 against
     (9/64π)(−S_yy) of the unbounded run, 0.1349: 2.3 % at h = 8 (the next term falls like h⁻²
