@@ -598,6 +598,14 @@ class Quadrature(_Model):
     near_field_levels: int = Field(
         1, ge=1, le=3, strict=True, description="near-field elements are split into 4^levels triangles"
     )
+    # two stiff capsules 0.06 a apart (level 2): A of Batchelor & Green 0.5608 without, 0.5523 with, level 3
+    # 0.5486 (docs/known_answers.md, "Two capsules"); costs nothing while the capsules are apart
+    capsule_near_field_factor: float = Field(
+        2.0, ge=0, le=3,
+        description="several capsules: integrate another capsule's elements within this many element sizes "
+        "of a node on subdivided triangles (near_field_levels); 0 = off. Applies while near_field_factor "
+        "is 0 (which covers every element)",
+    )
 
 
 #: the time options that belong to one scheme (set to another value with another scheme: an error),

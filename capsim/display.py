@@ -465,6 +465,7 @@ def summary_rows(summary: dict[str, Any], factors: Mapping[str, float] | None = 
          fmt(period * f_t, ".4g") if isinstance(period, float) and math.isfinite(period)
          and period != summary.get("orbit_period") else None),
         *_orbit_rows(summary, factors),
+        *_scene_rows(summary),
         ("D_xy", _mean_std(summary, "D_xy")),
         ("theta/pi", _mean_std(summary, "theta", math.pi)),
         _ttf(scaled("ttf_ratio", "TTF/f_s", "TTF f"), summary),
@@ -485,6 +486,23 @@ def summary_rows(summary: dict[str, Any], factors: Mapping[str, float] | None = 
         ("output", summary.get("path")),
     ]
     return [(key, str(value)) for key, value in rows if value is not None]
+
+
+def _scene_rows(summary: dict[str, Any]) -> list[tuple[str, str | None]]:
+    """A scene of several capsules: how many (the rows below are their means), the closest
+    approach, and a pair's cross-stream separation at the start, its peak and its end."""
+    per = summary.get("capsule")
+    if not isinstance(per, Mapping):
+        return []
+    n = len(per.get("motion", ()))
+    rows: list[tuple[str, str | None]] = [("capsules", f"{n} (the rows below: the mean over them)")]
+    if isinstance(summary.get("min_capsule_gap"), float):
+        rows.append(("closest approach (a)", fmt(summary["min_capsule_gap"], ".4g")))
+    if isinstance(summary.get("separation_y_final"), float):
+        rows.append(("cross-stream separation (a)",
+                     f"{summary['separation_y_initial']:.4g} at the start, peak {summary['separation_y_peak']:.4g}, "
+                     f"{summary['separation_y_final']:.4g} at the end (streamwise {summary['separation_x_final']:.4g})"))
+    return rows
 
 
 def _ttf(row: tuple[str, str | None], summary: dict[str, Any]) -> tuple[str, str | None]:

@@ -20,6 +20,7 @@ from capsim.geometry import (
     vertex_triangle_quality,
     volume_area,
 )
+from capsim.bodies import smallest_gap
 from capsim.membrane import principal_tensions
 from capsim.quantities import MOTIONS as _MOTIONS
 from capsim.quantities import TURNING_MOTIONS
@@ -324,6 +325,8 @@ class TankTreadingTracker:
     """
 
     def __init__(self, rest_positions: np.ndarray, plane_tol: float = 1e-9, band: float = 0.25) -> None:
+        # the plane through the rest shape's own centre (a capsule placed off z = 0: initial_center, capsules)
+        rest_positions = rest_positions - rest_positions.mean(axis=0)
         self.nodes = np.flatnonzero(np.abs(rest_positions[:, 2]) < plane_tol)
         if self.nodes.size == 0:
             # a rest shape turned out of the shear plane (issue 26) has no mesh line on
@@ -1097,6 +1100,43 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
     return out
 
 
+#: the scene's columns of a run of several capsules (beside every capsule's own columns)
+SCENE_COLUMNS = ("min_capsule_gap", "separation_x", "separation_y", "separation_z",
+                 "suspension_Sxy_star", "suspension_N1_star", "suspension_N2_star")
+
+
+def scene_summary(observer) -> dict:
+    """The summary of a run of several capsules: each capsule's run_summary (its own series and
+    aspect ratio) in the nested ``capsule`` group, one value per capsule; beside it the scene's
+    value of each number, the mean over the capsules (the suspension's particle stress is the
+    mean stresslet), the motion common to every capsule (else "mixed"), and for a pair the
+    relative trajectory's numbers: cross-stream separation at the start, its peak and its end,
+    the streamwise separation at the end, and the closest approach."""
+    parts = [run_summary(observer.capsule_series(i), aspect_ratio=part.aspect_ratio)
+             for i, part in enumerate(observer.parts)]
+    motions = [p["motion"] for p in parts]
+    out: dict = {"motion": motions[0] if len(set(motions)) == 1 else "mixed"}
+    per: dict = {"motion": np.array(motions, dtype=object)}
+    for key in parts[0]:
+        if key == "motion":
+            continue
+        values = np.array([float(p.get(key, np.nan)) for p in parts])
+        per[key] = values
+        out[key] = float(np.mean(values))
+    out["capsule"] = per
+    history = observer.history
+    gap = np.asarray(history.get("min_capsule_gap", ()), float)
+    if gap.size:
+        out["min_capsule_gap"] = float(np.min(gap))
+    sep = {c: np.asarray(history.get(f"separation_{c}", ()), float) for c in "xyz"}
+    if sep["y"].size and np.isfinite(sep["y"]).all():
+        out["separation_y_initial"] = float(sep["y"][0])
+        out["separation_y_final"] = float(sep["y"][-1])
+        out["separation_y_peak"] = float(sep["y"][np.argmax(np.abs(sep["y"]))])
+        out["separation_x_final"] = float(sep["x"][-1])
+    return out
+
+
 # ---------------------------------------------------------------- the per-step row
 
 COMPRESSION_TOL = 1e-10  # in E_s: below round-off of the tension at the rest shape
@@ -1107,7 +1147,9 @@ HISTORY_COLUMNS = ("t", "dt", "tt_angle", *SUMMARY_QUANTITIES, "director_x", "di
                    "long_axis_x", "long_axis_y", "long_axis_z", "short_axis_x", "short_axis_y", "short_axis_z",
                    "ellipsoid_a", "ellipsoid_b", "ellipsoid_c",
                    # the body's drift across and along the flow (issues 41, 42): lift or migration, slip
-                   "centroid_velocity_y", "slip_velocity_x", "dissipation_ratio")
+                   "centroid_velocity_y", "slip_velocity_x", "dissipation_ratio",
+                   # several capsules: the scene's (SCENE_COLUMNS; absent, NaN, for one capsule)
+                   "min_capsule_gap", "separation_x", "separation_y", "separation_z")
 
 
 #: time.stop_when_settled waits this many slow relaxation times of the capsule before it may stop:
@@ -1146,13 +1188,22 @@ class StepObserver:
     ``resume(rows)`` rebuilds the history from the rows already on disk.
     """
 
-    def __init__(self, model, rest_positions: np.ndarray, axis=(0.0, 1.0, 0.0)) -> None:
+    def __init__(self, model, rest_positions: np.ndarray, axis=(0.0, 1.0, 0.0), axes=None) -> None:
         self.model = model
-        self.tracker = TankTreadingTracker(rest_positions)
-        rest_geometry = model.disc.geometry(rest_positions)
-        self.director = MaterialDirector(rest_geometry, axis)
-        #: r of Jeffery's orbit (orbit constant, period) for the run summary
-        self.aspect_ratio = rest_aspect_ratio(rest_geometry, axis)
+        bodies = getattr(model, "bodies", None)
+        #: several capsules (capsim.bodies): each its own row of every per-capsule column (CAPSULE_COLUMNS)
+        self.bodies = bodies if bodies is not None and bodies.count > 1 else None
+        if self.bodies is None:
+            self.tracker = TankTreadingTracker(rest_positions)
+            rest_geometry = model.disc.geometry(rest_positions)
+            self.director = MaterialDirector(rest_geometry, axis)
+            #: r of Jeffery's orbit (orbit constant, period) for the run summary
+            self.aspect_ratio = rest_aspect_ratio(rest_geometry, axis)
+        else:
+            axes = [axis] * self.bodies.count if axes is None else list(axes)
+            self.parts = [_CapsulePart(model, self.bodies, i, rest_positions, axes[i])
+                          for i in range(self.bodies.count)]
+            self.aspect_ratio = self.parts[0].aspect_ratio
         #: the kt before which time.stop_when_settled does not stop: SETTLE_RELAXATION_TIMES of the
         #: capsule's slow first-order relaxation time (its G, λ, K_s/G_s and membrane viscosity)
         self.settle_after = SETTLE_RELAXATION_TIMES * slow_relaxation_time(model)
@@ -1166,35 +1217,24 @@ class StepObserver:
     def observe(self, t: float, y: np.ndarray, u: np.ndarray, state, dt: float, error: float,
                 work: dict[str, float]) -> dict:
         """The row at an accepted state: ``state`` is the membrane state at y,
-        ``work`` the cumulative cost counters and the stages of the step."""
+        ``work`` the cumulative cost counters and the stages of the step. With several
+        capsules every per-capsule column holds one value per capsule (an array)."""
+        if self.bodies is not None:
+            return self._observe_scene(t, y, u, state, dt, error, work)
         model = self.model
-        elements = model.disc.elements
-        smax = float(np.max(state.strain.principal_stretches[0]))
         row = {"t": t, "dt": dt, "error_estimate": error}
-        row.update(step_observables(y, elements, state.geometry, smax))
+        row.update(capsule_row(model, y, u, state.geometry, state.density, state.weights, state.strain,
+                               model.disc.elements, self.director))
         self._continue_lines(row)
-        row.update(director_observables(self.director(state.geometry)))
-        # compressive tensions: where a membrane without bending stiffness would wrinkle
-        _, tau2 = principal_tensions(state.strain, model.law, model.law_params)
-        row["min_tension"] = float(tau2.min()) / model.shear_rate_G
-        row["compressed_fraction"] = float(np.mean(tau2 < -COMPRESSION_TOL))
-        center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
-        row.update(centroid_velocity(state.geometry, u, elements, model.disc.reg_phi, center, row["volume"]))
-        u_far = model.undisturbed(center[None])[0]  # the undisturbed flow at the centre, now
-        for i, c in enumerate("xyz"):
-            row[f"slip_velocity_{c}"] = row[f"centroid_velocity_{c}"] - float(u_far[i])
-        if getattr(model, "wall_y", None) is not None:
-            row["wall_gap"] = float(y[:, 1].min() - model.wall_y)
-        S_star = particle_stresslet(
-            state.geometry, state.density, u, elements, model.disc.reg_phi, center, row["volume"],
-            model.shear_rate_G, model.viscosity_ratio, state.weights,
-        )
         if model.viscous is not None:
+            center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
             S_v, viscous_row = self._viscous(y, u, state, center, row["volume"])
-            S_star = S_star + S_v
+            S_star = row.pop("_S_star") + S_v
             row.update(viscous_row)
-        row.update(stresslet_observables(S_star))
-        row["dissipation_ratio"] = dissipation_ratio(S_star, model.rate_of_strain(center))
+            row.update(stresslet_observables(S_star))
+            row["dissipation_ratio"] = dissipation_ratio(S_star, model.rate_of_strain(center))
+        row.pop("_S_star", None)
+        center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
         row.update(self.tracker.update(y, u, center))
         row["solver_iterations"] = float(model.last_solve_info.get("iterations", 0))
         row["solver_residual"] = float(model.last_solve_info.get("residual", 0.0))
@@ -1203,6 +1243,42 @@ class StepObserver:
             row = {key: value for key, value in row.items() if key in self.columns}
         self._remember(row)
         return row
+
+    def _observe_scene(self, t: float, y: np.ndarray, u: np.ndarray, state, dt: float, error: float,
+                       work: dict[str, float]) -> dict:
+        """The row of a scene of several capsules: each capsule's row (as one capsule's), stacked
+        into one array per column, and the scene's own columns (SCENE_COLUMNS)."""
+        model, bodies = self.model, self.bodies
+        strain = state.strain
+        rows = []
+        for part in self.parts:
+            rows.append(part.row(y, u, state, strain, self.last))
+        row: dict = {"t": t, "dt": dt, "error_estimate": error}
+        for key in rows[0]:
+            if key != "_S_star":
+                row[key] = np.array([r[key] for r in rows])
+        S_mean = np.mean([r["_S_star"] for r in rows], axis=0)
+        for key, value in stresslet_observables(S_mean).items():
+            row[f"suspension_{key}"] = value
+        row["min_capsule_gap"] = smallest_gap(y, bodies)
+        if bodies.count == 2:  # the pair's relative trajectory: capsule 1's centroid less capsule 0's
+            for c in "xyz":
+                row[f"separation_{c}"] = float(row[f"centroid_{c}"][1] - row[f"centroid_{c}"][0])
+        row["solver_iterations"] = float(model.last_solve_info.get("iterations", 0))
+        row["solver_residual"] = float(model.last_solve_info.get("residual", 0.0))
+        row.update({key: float(value) for key, value in work.items()})
+        if self.columns is not None:
+            row = {key: value for key, value in row.items() if key in self.columns}
+        self._remember(row)
+        return row
+
+    def capsule_series(self, i: int) -> dict[str, np.ndarray]:
+        """The history as one capsule's (every per-capsule column at capsule i), for the summary."""
+        out = {}
+        for key, values in self.history.items():
+            a = np.asarray(values, dtype=float)
+            out[key] = a[:, i] if a.ndim == 2 else a
+        return out
 
     def _continue_lines(self, row: dict) -> None:
         """The shape's axes are lines: each row keeps the sign that points it along the row
@@ -1245,16 +1321,106 @@ class StepObserver:
     def resume(self, rows: dict[str, np.ndarray]) -> None:
         """Continue after the rows already written (a resumed run). A file written before a
         column existed keeps its columns (the new ones are left out of its rows) and the
-        history holds NaN for them (the summary then falls back: body_axis)."""
+        history holds NaN for them (the summary then falls back: body_axis). With several
+        capsules a per-capsule column is (steps, capsules)."""
         n = len(rows["t"])
         self.columns = frozenset(rows) if rows else None
-        self.history = {key: [float(v) for v in rows[key]] if key in rows else [float("nan")] * n
-                        for key in HISTORY_COLUMNS}
-        self.first = {key: float(v[0]) for key, v in rows.items()}
-        self.last = {key: float(v[-1]) for key, v in rows.items()}
+
+        def values(a):
+            a = np.asarray(a, dtype=float)
+            return [float(v) for v in a] if a.ndim == 1 else [np.array(v) for v in a]
+
+        def at(a, k):
+            a = np.asarray(a, dtype=float)
+            return float(a[k]) if a.ndim == 1 else np.array(a[k])
+
+        blank = float("nan") if self.bodies is None else np.full(self.bodies.count, np.nan)
+        self.history = {key: values(rows[key]) if key in rows else [blank] * n for key in HISTORY_COLUMNS}
+        self.first = {key: at(v, 0) for key, v in rows.items()}
+        self.last = {key: at(v, -1) for key, v in rows.items()}
 
     def state(self) -> dict[str, np.ndarray]:
+        if self.bodies is not None:
+            return {f"capsule{i}.tracker.{k}": v for i, part in enumerate(self.parts)
+                    for k, v in part.tracker.state().items()}
         return {f"tracker.{k}": v for k, v in self.tracker.state().items()}
 
     def restore(self, state: dict[str, np.ndarray]) -> None:
+        if self.bodies is not None:
+            for i, part in enumerate(self.parts):
+                prefix = f"capsule{i}.tracker."
+                part.tracker.restore({k.removeprefix(prefix): v for k, v in state.items() if k.startswith(prefix)})
+            return
         self.tracker.restore({k.removeprefix("tracker."): v for k, v in state.items() if k.startswith("tracker.")})
+
+
+def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarray, weights: np.ndarray,
+                strain, elements: np.ndarray, director: MaterialDirector) -> dict:
+    """One capsule's columns at an accepted state (its nodes y, u, its elements' geometry,
+    density and weights, its vertex strain, its own connectivity): shape, orientation, membrane
+    state, centroid motion, stresslet (and, as "_S_star", the stresslet tensor itself)."""
+    smax = float(np.max(strain.principal_stretches[0]))
+    row = step_observables(y, elements, geometry, smax)
+    row.update(director_observables(director(geometry)))
+    # compressive tensions: where a membrane without bending stiffness would wrinkle
+    _, tau2 = principal_tensions(strain, model.law, model.law_params)
+    row["min_tension"] = float(tau2.min()) / model.shear_rate_G
+    row["compressed_fraction"] = float(np.mean(tau2 < -COMPRESSION_TOL))
+    center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
+    row.update(centroid_velocity(geometry, u, elements, model.disc.reg_phi, center, row["volume"]))
+    u_far = model.undisturbed(center[None])[0]  # the undisturbed flow at the centre, now
+    for i, c in enumerate("xyz"):
+        row[f"slip_velocity_{c}"] = row[f"centroid_velocity_{c}"] - float(u_far[i])
+    if getattr(model, "wall_y", None) is not None:
+        row["wall_gap"] = float(y[:, 1].min() - model.wall_y)
+    S_star = particle_stresslet(
+        geometry, density, u, elements, model.disc.reg_phi, center, row["volume"],
+        model.shear_rate_G, model.viscosity_ratio, weights,
+    )
+    row["_S_star"] = S_star
+    row.update(stresslet_observables(S_star))
+    row["dissipation_ratio"] = dissipation_ratio(S_star, model.rate_of_strain(center))
+    return row
+
+
+class _CapsulePart:
+    """One capsule of a scene of several, as the observer sees it: its nodes, vertices and
+    elements in the scene's arrays, its own connectivity, its tank-treading tracker and
+    material director."""
+
+    def __init__(self, model, bodies, i: int, rest_positions: np.ndarray, axis) -> None:
+        self.index = i
+        self.nodes, self.vertices, self.elements = bodies.nodes(i), bodies.vertices(i), bodies.elements(i)
+        own = np.empty(bodies.count * bodies.nodes_per_body, dtype=np.int64)
+        own[self.nodes] = np.arange(bodies.nodes_per_body)
+        self.own_elements = np.ascontiguousarray(own[model.disc.elements[self.elements]])
+        self.model = model
+        rest = np.ascontiguousarray(rest_positions[self.nodes])
+        self.tracker = TankTreadingTracker(rest)
+        rest_geometry = self._geometry(model.disc.geometry(rest_positions))
+        self.director = MaterialDirector(rest_geometry, axis)
+        self.aspect_ratio = rest_aspect_ratio(rest_geometry, axis)
+
+    def _geometry(self, geo):
+        e = self.elements
+        return type(geo)(geo.points[e], geo.normals[e], geo.weights[e])
+
+    def row(self, y: np.ndarray, u: np.ndarray, state, strain, last: dict | None) -> dict:
+        from capsim.membrane import VertexStrain
+
+        v = self.vertices
+        mine = VertexStrain(strain.A[v], strain.B[v], strain.normals[v], strain.inv1[v], strain.inv2[v])
+        yi, ui = np.ascontiguousarray(y[self.nodes]), np.ascontiguousarray(u[self.nodes])
+        e = self.elements
+        row = capsule_row(self.model, yi, ui, self._geometry(state.geometry), np.ascontiguousarray(state.density[e]),
+                          np.ascontiguousarray(state.weights[e]), mine, self.own_elements, self.director)
+        if last is not None:  # continuous axes, as one capsule's (StepObserver._continue_lines)
+            index = self.index
+            for name in ("long_axis", "short_axis"):
+                keys = [f"{name}_{c}" for c in "xyz"]
+                if all(k in last for k in keys) and sum(row[k] * last[k][index] for k in keys) < 0.0:
+                    for k in keys:
+                        row[k] = -row[k]
+        center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
+        row.update(self.tracker.update(yi, ui, center))
+        return row

@@ -129,6 +129,29 @@ _add("dissipation_ratio", "extra dissipation over a rigid sphere's", "1",
      "S*_xy in simple shear; NaN where E vanishes (the axis of Poiseuille flow); in a summary: its window mean")
 _add("wall_gap", "gap between membrane and wall", "1",
      "smallest distance of a membrane node from the wall (runs with a wall only), in units of a", "a")
+# several capsules (capsules:, issue 43): the scene's columns beside every capsule's own
+_add("capsule", "capsule index", "1",
+     "zero-based index of a capsule of the scene, in the order of the case's capsules list; a per-capsule "
+     "column is (t, capsule)")
+_add("min_capsule_gap", "smallest gap between two capsules", "1",
+     "smallest node-to-node distance between two capsules' membranes (runs of several capsules), in units of a; "
+     "in a summary: the closest approach over the run", "a")
+for _c, _dir in (("x", "streamwise"), ("y", "cross-stream"), ("z", "spanwise")):
+    _add(f"separation_{_c}", f"{_dir} separation of the pair", "1",
+         f"{_c} of capsule 1's centroid less capsule 0's (runs of two capsules), in units of a", "a")
+for _key in ("Sxy_star", "N1_star", "N2_star"):
+    _add(f"suspension_{_key}", f"mean over the capsules of {_key}", "1",
+         f"{_key} of the capsules' mean particle stresslet (runs of several capsules): the particle stress of the "
+         "suspension is the volume fraction times (5/2) μ k times it", "mu k a")
+_add("separation_y_initial", "cross-stream separation at the start", "1",
+     "separation_y at t = 0, in units of a", "a")
+_add("separation_y_peak", "peak cross-stream separation", "1",
+     "separation_y of the largest magnitude over the run (the pair's closest passage lifts it), in units of a", "a")
+_add("separation_y_final", "final cross-stream separation", "1",
+     "separation_y at the end of the run: after a collision, the pair's net cross-stream displacement plus the "
+     "initial offset, in units of a", "a")
+_add("separation_x_final", "final streamwise separation", "1", "separation_x at the end of the run, in units of a",
+     "a")
 _add("axis_L", "longest in-plane semi-axis", "1",
      "longer of the two semi-axes in the xy-plane of the equivalent ellipsoid (same second moment of volume), "
      "in units of a", "a")
@@ -245,7 +268,8 @@ _add("motion", "class of motion", "",
      "more per orbit, or a still axis tilting), transient (none of these yet) or unstable (elongating when, in "
      "an extensional flow above its critical rate, the shape kept elongating until a guard stopped it); "
      "relaxing when the "
-     "flow stopped during the run (flow.history kind stop); empty when the run did not classify it. The body's "
+     "flow stopped during the run (flow.history kind stop); mixed for several capsules whose classes differ "
+     "(each capsule's in the summary's capsule group); empty when the run did not classify it. The body's "
      "symmetry axis is the shape's own (short_axis of a disk, long_axis of a prolate), not the material director. "
      "Whether the motion has settled is `settled`")
 _add("settled", "whether the motion has settled", "1",
@@ -468,7 +492,8 @@ GROUPS: dict[str, str] = {
     "rest_shape": "measures of the discretised rest shape",
     "run": "the state at the end of the run (last accepted step) and the run's cost",
     "summary": "the motion and, for each observable q, q (time mean) and q_std over the averaging window "
-               "[averaging_t_from, averaging_t_to]",
+               "[averaging_t_from, averaging_t_to]; several capsules: the mean over the capsules, each capsule's "
+               "in the subgroup capsule",
     "error_estimate": "q: |q(run) − q(one level coarser)| + |q(run) − q(rtol × 10)| at t_end; q_mean: the same "
                       "for the time mean over the run's averaging window; q_mesh, q_time: the signed differences",
 }
@@ -534,7 +559,7 @@ EXPORT_FIELDS: dict[str, tuple[str, str]] = {
 #: The motion classes of a run summary (capsim.observables.classify_orbit; the decision
 #: procedure and its thresholds: docs/method.md, "Motion classes"), in the order they are told apart
 MOTIONS = ("unstable", "rolling", "tumbling", "kayaking", "drifting_to_rolling", "drifting_to_plane",
-           "steady", "swinging", "off_plane_tank_treading", "transient", "relaxing", "elongating")
+           "steady", "swinging", "off_plane_tank_treading", "transient", "relaxing", "elongating", "mixed")
 #: what each class means, one line each (the quantity table and the docs say the same)
 MOTION_MEANINGS: dict[str, str] = {
     "steady": "tank-treading in the shear plane with a steady shape",
@@ -554,6 +579,7 @@ MOTION_MEANINGS: dict[str, str] = {
     "relaxing": "the flow stopped during the run (flow.history kind stop): the shape relaxes at rest",
     "elongating": "in an extensional flow above its critical rate: the shape kept elongating, with no steady "
                   "state, until a stability guard stopped the run (status unstable)",
+    "mixed": "several capsules whose motions differ (each capsule's in the summary's capsule group)",
 }
 #: old names, as run files written before issue 39 hold them: read as the new ones
 MOTION_ALIASES: dict[str, str] = {"oscillating": "swinging"}

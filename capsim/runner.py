@@ -26,7 +26,8 @@ from capsim.errors import first_line
 from capsim.flows import FLOWS
 from capsim.membrane import law_attributes
 from capsim.mesh import SurfaceMesh, rest_shape_attributes
-from capsim.observables import StepObserver, relaxation_summary, run_summary
+from capsim.bodies import body_axis, body_specs
+from capsim.observables import StepObserver, relaxation_summary, run_summary, scene_summary
 from capsim.schedules import CheckpointSchedule, SnapshotSchedule
 from capsim.solver import build_model
 from capsim.threads import set_run_threads
@@ -47,6 +48,29 @@ RELAYED_SIGNAL: Callable[[], int | None] = lambda: None
 
 class _StopRequested(Exception):
     pass
+
+
+#: how a run's record reduces a per-capsule column to the scene's one value (several capsules):
+#: the worst capsule for the guards' quantities, the mean for the shape's
+_SCENE_REDUCTION = {"min_element_quality": np.min, "max_principal_stretch": np.max, "min_tension": np.min,
+                    "compressed_fraction": np.max}
+
+
+def _scene_row(first: dict, last: dict) -> tuple[dict, dict]:
+    """The first and last rows with every per-capsule column reduced to one number (a run of
+    several capsules; one capsule's rows as they are): the worst capsule for the guards, the
+    capsule whose volume and area moved most, the mean for the rest."""
+    if not any(isinstance(v, np.ndarray) for v in last.values()):
+        return first, last
+    f, l = dict(first), dict(last)
+    for key in ("volume", "area"):  # the capsule that changed most, its own first and last values
+        k = int(np.argmax(np.abs(np.asarray(last[key]) / np.asarray(first[key]) - 1.0)))
+        f[key], l[key] = float(first[key][k]), float(last[key][k])
+    for row in (f, l):
+        for key, value in row.items():
+            if isinstance(value, np.ndarray):
+                row[key] = float(_SCENE_REDUCTION.get(key, np.mean)(value))
+    return f, l
 
 
 class _StopSignals:
@@ -215,7 +239,7 @@ class _Run:
         set_run_threads(self.model.disc.n_nodes)  # a small mesh runs faster on one thread
         self.model.interrupt_check = stop.check  # SIGTERM honoured between GMRES iterations too
         self.integrator: Integrator = build_integrator(case, self._rhs, X, self.model)
-        self.observer = StepObserver(self.model, X, case.axis)
+        self.observer = StepObserver(self.model, X, case.axis, axes=[body_axis(b) for b in body_specs(case)])
         self.snapshots = SnapshotSchedule(case.output.snapshot_every)
         self.checkpoints = CheckpointSchedule(case.output.checkpoint_every_steps, case.output.checkpoint_every_s)
         self.committed: dict[str, dict[str, Any]] | None = None
@@ -358,7 +382,7 @@ class _Run:
         if self.progress is not None:
             # wall_s: the run's own clock (set-up, compilation and earlier parts included), so the
             # progress display and the closing table show one wall time
-            self.progress({"t": ig.t, "dt": trial.h, "D_xy": row["D_xy"], "step": ig.steps,
+            self.progress({"t": ig.t, "dt": trial.h, "D_xy": float(np.max(row["D_xy"])), "step": ig.steps,
                            "t_end": self.case.time.t_end, "wall_s": self._wall()})
         if self.checkpoints.due(ig.steps):
             self._save_checkpoint(self.committed)
@@ -454,12 +478,12 @@ class _Run:
         reason = "; ".join(part for part in (reason, ig.note()) if part)
         elongating = status == "unstable" and self._kept_elongating()
         if elongating:
-            D = float(self.observer.last["D_xy"])
+            D = float(np.max(self.observer.last["D_xy"]))
             reason = (f"no steady shape: the capsule kept elongating in {self.case.flow.kind} (D_xy {D:.3g} and "
                       f"rising at kt = {ig.t:.4g}: above the flow's critical rate); {reason}")
         if self.snapshots.last_time < ig.t:
             self.writer.append_snapshot(ig.t, ig.y)
-        first, last = self.observer.first, self.observer.last
+        first, last = _scene_row(self.observer.first, self.observer.last)
         work = self._work()
         result = RunResult(
             status=status, status_reason=reason, path=str(self.path), t=ig.t, steps=ig.steps,
@@ -478,7 +502,10 @@ class _Run:
         self.writer.write_run_record({k: v for k, v in result.record().items()
                                       if k not in ("scheme", "scheme_choice")})  # both are root attributes
         series = {k: np.asarray(v) for k, v in self.observer.history.items()}
-        motion = run_summary(series, aspect_ratio=self.observer.aspect_ratio)
+        if self.observer.bodies is not None:  # several capsules: each one's summary and the scene's
+            motion = scene_summary(self.observer)
+        else:
+            motion = run_summary(series, aspect_ratio=self.observer.aspect_ratio)
         if self.model.flow_stopped and self.model.flow_step_factor == 0.0:  # stopped: it relaxes at rest
             motion.update(relaxation_summary(series, self.model.flow_stop_time))
         if status == "unstable":
@@ -501,9 +528,10 @@ class _Run:
             return False
         t, D = (np.asarray(self.observer.history.get(k, ()), float) for k in ("t", "D_xy"))
         late = D[t >= 0.5 * t[-1]] if t.size else D
-        if late.size < 4:
+        if late.shape[0] < 4:
             return False
-        return bool(np.mean(np.diff(late) > 0) >= 0.8 and late[-1] > 1.01 * late[0])
+        late = late.reshape(late.shape[0], -1)  # one column per capsule: any capsule that kept elongating
+        return bool(np.any((np.mean(np.diff(late, axis=0) > 0, axis=0) >= 0.8) & (late[-1] > 1.01 * late[0])))
 
     def _fail(self, exc: BaseException) -> None:
         """Keep what can be kept: a checkpoint of the last accepted step (where the

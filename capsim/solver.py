@@ -150,6 +150,11 @@ class Discretization:
     # (not holding it) are integrated on 4^near_field_levels sub-triangles; 0 = off
     near_field_factor: float = 0.0
     near_field_levels: int = 1
+    # several capsules: elements of another capsule within capsule_near_field_factor × their size of a
+    # node take the subdivided rule (the near-singular integrals between capsules that come close);
+    # node_body: the capsule of every node (None: one capsule)
+    capsule_near_field_factor: float = 0.0
+    node_body: np.ndarray | None = None
 
     def __post_init__(self):
         n_nodes = int(self.elements.max()) + 1
@@ -280,15 +285,48 @@ class Discretization:
     def near_pairs(self, x: np.ndarray, geo: ElementGeometry) -> tuple[np.ndarray, np.ndarray] | None:
         """(offsets, elements) of the near-field pairs at this configuration, found
         once per geometry (the λ ≠ 1 solve applies the double layer many times)."""
-        if self.near_field_factor <= 0.0:
+        between = self.node_body is not None and self.capsule_near_field_factor > 0.0
+        if self.near_field_factor <= 0.0 and not between:
             return None
         if self._near is None or self._near[0] is not geo:
-            offsets, elems = kernels.near_field_pairs(
-                np.ascontiguousarray(x), self.elements, self.inc_offsets, self.inc_elem,
-                self.targets, float(self.near_field_factor),
-            )
-            self._near = (geo, offsets, elems)
-        return self._near[1], self._near[2]
+            if self.near_field_factor > 0.0:
+                offsets, elems = kernels.near_field_pairs(
+                    np.ascontiguousarray(x), self.elements, self.inc_offsets, self.inc_elem,
+                    self.targets, float(self.near_field_factor),
+                )
+            else:
+                offsets, elems = self._between_capsules(x)
+            self._near = (geo, offsets, elems) if offsets is not None else (geo, None, None)
+        return None if self._near[1] is None else (self._near[1], self._near[2])
+
+    def _between_capsules(self, x: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The near-field pairs of a target node and an element of another capsule (CSR), or
+        (None, None) while no two capsules come within the factor of an element's size (the
+        bounding spheres tell: no search then)."""
+        body = self.node_body
+        n_bodies = int(body.max()) + 1
+        counts = np.bincount(body, minlength=n_bodies)
+        centers = np.stack([np.bincount(body, weights=x[:, k], minlength=n_bodies) for k in range(3)], 1)
+        centers /= counts[:, None]
+        radius = np.zeros(n_bodies)
+        np.maximum.at(radius, body, np.linalg.norm(x - centers[body], axis=1))
+        v = x[self.elements[:, :3]]
+        size = float(np.max(np.linalg.norm(v - np.roll(v, 1, axis=1), axis=2)))
+        reach = self.capsule_near_field_factor * size
+        distance = np.linalg.norm(centers[:, None] - centers[None], axis=2) - radius[:, None] - radius[None]
+        np.fill_diagonal(distance, np.inf)
+        if distance.min() > reach:
+            return None, None
+        offsets, elems = kernels.near_field_pairs(
+            np.ascontiguousarray(x), self.elements, self.inc_offsets, self.inc_elem,
+            self.targets, float(self.capsule_near_field_factor),
+        )
+        # keep the other capsules' elements (a capsule's own near field is near_field_factor's)
+        element_body = body[self.elements[:, 0]]
+        owner = np.repeat(body[self.targets], np.diff(offsets))
+        keep = element_body[elems] != owner
+        kept = np.concatenate([[0], np.cumsum(keep)])
+        return kept[offsets].astype(np.int64), np.ascontiguousarray(elems[keep])
 
     def rest_measure(self, rest_positions: np.ndarray) -> RestMeasure:
         """The rest shape's area element at every rule point (``RestMeasure``): the weights
@@ -885,6 +923,8 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
         singular_order=case.quadrature.singular_order,
         near_field_factor=case.quadrature.near_field_factor,
         near_field_levels=case.quadrature.near_field_levels,
+        capsule_near_field_factor=case.quadrature.capsule_near_field_factor,
+        node_body=bodies.node_body if bodies.count > 1 else None,
     )
     # a body placed away from the origin keeps fewer symmetries: mesh.symmetry auto finds which
     far_field = scene_far_field(case)  # the flow, vanishing on the wall when there is one

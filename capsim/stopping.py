@@ -51,11 +51,15 @@ def guard_violation(row: dict, row0: dict, guards: Guards) -> str | None:
     """The first stability guard an accepted step crosses, as 'guard NAME: value', or None."""
     # a column the observer may leave undefined (NaN: observables.MAY_BE_UNDEFINED) is a property of
     # the state, not a failure, as long as D_xy itself is finite
+    # (several capsules: a per-capsule column is an array, its worst capsule decides)
     bad = [key for key, value in row.items()
-           if not np.isfinite(value) and not (key in MAY_BE_UNDEFINED and np.isnan(value)
-                                              and np.isfinite(row.get("D_xy", np.nan)))]
+           if not np.all(np.isfinite(value))
+           and not (key in MAY_BE_UNDEFINED and np.all(np.isnan(value) | np.isfinite(value))
+                    and np.all(np.isfinite(row.get("D_xy", np.nan))))]
     if bad:
-        return f"guard non_finite: {bad[0]} = {row[bad[0]]}"
+        value = np.asarray(row[bad[0]])
+        shown = value if value.ndim == 0 else value[~np.isfinite(value)][0]
+        return f"guard non_finite: {bad[0]} = {shown}"
     checks = (
         ("min_element_quality", "worst element quality", row["min_element_quality"], "<", guards.min_element_quality),
         ("max_volume_drift", "|V/V0 - 1|", abs(row["volume"] / row0["volume"] - 1.0), ">", guards.max_volume_drift),
@@ -63,8 +67,10 @@ def guard_violation(row: dict, row0: dict, guards: Guards) -> str | None:
         ("max_principal_stretch", "largest principal stretch", row["max_principal_stretch"], ">",
          guards.max_principal_stretch),
     ) + ((("min_wall_gap", "gap between membrane and wall", row["wall_gap"], "<", guards.min_wall_gap),)
-         if "wall_gap" in row else ())
+         if "wall_gap" in row else ()) + ((("min_capsule_gap", "gap between two capsules", row["min_capsule_gap"],
+                                            "<", guards.min_capsule_gap),) if "min_capsule_gap" in row else ())
     for name, label, value, op, limit in checks:
+        value = float(np.min(value)) if op == "<" else float(np.max(value))  # the worst capsule
         if (value < limit) if op == "<" else (value > limit):
             # as many digits as show the crossing ('1.00011 > 1.0001', not '1 > 1.0001')
             shown = next((text for text in (f"{value:.{d}g}" for d in (4, 6, 8, 10, 13, 17))

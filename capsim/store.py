@@ -12,6 +12,7 @@ Layout::
     /mesh/positions      (n_snap, Np, 3) snapshots, one per chunk
     /mesh/snapshot_t     (n_snap,)      time of each snapshot (dimension scale)
     /timeseries/<name>   (n_steps,)     one value per accepted step, t as scale
+                         (n_steps, n_caps) several capsules: a per-capsule column, capsule as scale
     /membrane_law        the law, its parameters and moduli   (write_membrane_law)
     /rest_shape          measures of the rest shape           (write_rest_shape)
     /run                 the state at the end and the cost    (write_run_record)
@@ -106,6 +107,9 @@ def _describe(group: h5py.Group, name: str) -> None:
     if name in GROUPS:
         group.attrs["definition"] = GROUPS[name]
 
+
+#: The dimension (and index coordinate) of the per-capsule columns of a scene of several capsules
+CAPSULE_DIM = "capsule"
 
 #: The NAME netCDF-4 gives a dimension scale that is a dimension only, not a variable
 #: (netCDF-C, h5netcdf and xarray read such a dataset as the dimension alone).
@@ -326,10 +330,11 @@ class TrajectoryWriter:
         self._positions.resize((n_snapshots, self._n_nodes, 3))
         self._snapshot_t.resize((n_snapshots,))
         self._timeseries = f["timeseries"]
-        self._keys = tuple(self._timeseries) or None
+        self._keys = tuple(k for k in self._timeseries if k != CAPSULE_DIM) or None
         self._columns = [self._timeseries[key] for key in self._keys or ()]
+        self._wide = {i for i, ds in enumerate(self._columns) if ds.ndim == 2}
         for ds in self._columns:
-            ds.resize((n_steps,))
+            ds.resize((n_steps, *ds.shape[1:]))
         # rewritten when the run ends; the error estimate was of the window and the end that the
         # run had, so it goes too (`capsim run --error-estimate` makes a new one)
         for name in ("summary", "run", "error_estimate"):
@@ -346,7 +351,7 @@ class TrajectoryWriter:
     def steps(self) -> dict[str, np.ndarray]:
         """Every time series written so far, one array per column."""
         self._write_pending()
-        return {key: ds[: self._n_steps] for key, ds in self._timeseries.items()}
+        return {key: ds[: self._n_steps] for key, ds in self._timeseries.items() if key != CAPSULE_DIM}
 
     # -- context manager -------------------------------------------------
     def __enter__(self) -> TrajectoryWriter:
@@ -382,14 +387,19 @@ class TrajectoryWriter:
     def append_step(self, values: dict[str, float]) -> None:
         """Append one row; the keys of the first row fix the columns."""
         if self._keys is None:
-            self._create_timeseries(tuple(values))
+            self._create_timeseries(tuple(values), {key: int(np.size(v)) for key, v in values.items()
+                                                    if isinstance(v, np.ndarray)})
         elif set(values) != set(self._keys):
             new = sorted(set(values) - set(self._keys))
             gone = sorted(set(self._keys) - set(values))
             raise ValueError(
                 f"append_step keys must match the first row: new {new}, missing {gone}"
             )
-        self._pending.append([float(values[key]) for key in self._keys])
+        if self._wide:  # several capsules: a per-capsule column holds one value per capsule
+            self._pending.append([np.asarray(values[key], dtype=np.float64) if i in self._wide
+                                  else float(values[key]) for i, key in enumerate(self._keys)])
+        else:
+            self._pending.append([float(values[key]) for key in self._keys])
         self._n_steps += 1
         self._unflushed_steps += 1
         if self._unflushed_steps >= _STEP_FLUSH_EVERY:
@@ -401,6 +411,9 @@ class TrajectoryWriter:
         # one column after another, as Dataset.resize and Dataset.__setitem__ do, but through
         # the low-level calls with the handles kept: h5py's name lookup and selection building
         # cost ~0.2 ms a column, ~8 ms a flush of ~40 columns (more than a level-3 step's observables)
+        if self._wide:
+            self._write_pending_wide()
+            return
         columns = np.array(self._pending, dtype=np.float64).T.copy()  # C order: each column contiguous
         n = self._n_steps
         m = columns.shape[1]
@@ -412,22 +425,41 @@ class TrajectoryWriter:
             ds.id.write(memory, space, column)
         self._pending = []
 
-    def _create_timeseries(self, keys: tuple[str, ...]) -> None:
+    def _write_pending_wide(self) -> None:
+        """The buffered rows of a scene of several capsules: (steps, capsules) columns beside the
+        scene's own (the rows are few per flush next to an evaluation of several capsules)."""
+        n, m = self._n_steps, len(self._pending)
+        for i, ds in enumerate(self._columns):
+            data = np.array([row[i] for row in self._pending], dtype=np.float64)
+            ds.resize((n, *ds.shape[1:]))
+            ds[n - m:n] = data
+        self._pending = []
+
+    def _create_timeseries(self, keys: tuple[str, ...], widths: dict[str, int] | None = None) -> None:
+        """The columns of the first row; ``widths``: the per-capsule columns of a scene of several
+        capsules and how many capsules (a (t, capsule) dataset each, the capsule's index a coordinate)."""
         if not keys:
             raise ValueError("append_step needs at least one value")
+        widths = widths or {}
         for key in keys:
+            w = widths.get(key)
             ds = self._timeseries.create_dataset(
-                key, shape=(0,), maxshape=(None,), chunks=(1024,), dtype=np.float64
+                key, shape=(0,) if w is None else (0, w), maxshape=(None,) if w is None else (None, w),
+                chunks=(1024,) if w is None else (max(1, 4096 // w), w), dtype=np.float64
             )
             _label(ds, key)
+        capsule = _index(self._timeseries, CAPSULE_DIM, next(iter(widths.values()))) if widths else None
         if "t" in keys:
             t = self._timeseries["t"]
             t.make_scale("t")
             for key in keys:
                 if key != "t":
                     self._timeseries[key].dims[0].attach_scale(t)
+                    if key in widths:
+                        self._timeseries[key].dims[1].attach_scale(capsule)
         self._keys = keys
         self._columns = [self._timeseries[key] for key in keys]
+        self._wide = {i for i, key in enumerate(keys) if key in widths}
 
     def append_snapshot(self, t: float, positions: np.ndarray) -> None:
         positions = np.asarray(positions, dtype=np.float64)
@@ -558,7 +590,18 @@ class TrajectoryWriter:
 def _write_dict(group: h5py.Group, data: dict[str, Any], where: str | None = None) -> None:
     """Datasets for `data` (nested dicts as subgroups), labelled as names in group `where`."""
     for key, value in data.items():
-        if isinstance(value, dict):
+        if isinstance(value, dict) and key == CAPSULE_DIM:
+            # one value per capsule (a run of several): the capsule's index a shared coordinate
+            sub = group.create_group(key)
+            n = len(next(iter(value.values())))
+            capsule = _index(sub, CAPSULE_DIM, n)
+            for name, values in value.items():
+                values = np.asarray(values)
+                if values.dtype == object:
+                    values = values.astype(h5py.string_dtype())
+                _label(ds := sub.create_dataset(name, data=values), name, where)
+                _attach(ds, capsule)
+        elif isinstance(value, dict):
             _write_dict(group.create_group(key), value, where)
         elif value is None:
             raise TypeError(f"cannot store None for '{group.name}/{key}'")
@@ -742,7 +785,7 @@ def _read_run_file(path: str | os.PathLike, read: Callable[[h5py.File], Any]) ->
 def _read_open(f: h5py.File) -> dict[str, Any]:
     attrs = {key: _decode(value) for key, value in f.attrs.items()}
     mesh = f["mesh"]
-    timeseries = {key: ds[()] for key, ds in f["timeseries"].items()}
+    timeseries = {key: ds[()] for key, ds in f["timeseries"].items() if key != CAPSULE_DIM}
     if timeseries:
         n = min(len(v) for v in timeseries.values())
         timeseries = {key: v[:n] for key, v in timeseries.items()}
@@ -856,7 +899,9 @@ def read_run_record(path: str | os.PathLike) -> dict[str, Any] | None:
             attrs = {k: _scalar(v) for k, v in f.attrs.items()}
             summary, run = _scalars(f, "summary"), _scalars(f, "run")
             estimate = _scalars(f, "error_estimate")
-            ts = f["timeseries"] if "timeseries" in f else {}
+            # the scene's columns (a scene of several capsules has (t, capsule) ones too: not scalars)
+            ts = {k: ds for k, ds in f["timeseries"].items() if ds.ndim == 1 and k != CAPSULE_DIM} \
+                if "timeseries" in f else {}
             n = min((len(ds) for ds in ts.values()), default=0)
             first = {k: float(ds[0]) for k, ds in ts.items()} if n else {}
             last = {k: float(ds[n - 1]) for k, ds in ts.items()} if n else {}

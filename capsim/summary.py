@@ -52,8 +52,13 @@ _FLOATS = ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star",
            # lift (or migration) and slip of the centroid (issues 41, 42)
            "centroid_velocity_y", "centroid_velocity_y_std", "slip_velocity_x", "slip_velocity_x_std",
            "dissipation_ratio", "dissipation_ratio_std",
+           # several capsules (issue 43): the closest approach and a pair's relative trajectory (_SCENE_FLOATS)
+           "min_capsule_gap", "separation_y_initial", "separation_y_peak", "separation_y_final", "separation_x_final",
            "D_xy_error_estimate", "theta_error_estimate", "ttf_ratio_error_estimate", "Sxy_star_error_estimate")
 _STRINGS = ("status", "status_reason", "motion")
+#: the numbers only a scene of several capsules has: left out of a campaign none of whose runs has them
+_SCENE_FLOATS = frozenset({"min_capsule_gap", "separation_y_initial", "separation_y_peak", "separation_y_final",
+                           "separation_x_final"})
 #: the context of a run from its resolved case: name -> (dtype, value for a run without a case)
 _CONTEXT = {"level": (np.int64, -1), "mesh_base": (np.int8, -1), "law": (object, ""),
             "skalak_c": (np.float64, np.nan), "psi": (np.float64, np.nan), "bending_modulus": (np.float64, np.nan),
@@ -275,7 +280,8 @@ def summarize_campaign(directory: str | os.PathLike, units: str = "capsim") -> x
                 data[name][at] = value
 
     ds = xr.Dataset(
-        {name: (dims, values, _attrs_for(name)) for name, values in data.items()},
+        {name: (dims, values, _attrs_for(name)) for name, values in data.items()
+         if not (name in _SCENE_FLOATS and np.isnan(values).all())},
         coords=coords,
     )
     if units == "physical":

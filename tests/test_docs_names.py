@@ -106,9 +106,15 @@ def run_file_paths(tmp_path_factory) -> set[str]:
     case = case_from_dict({"name": "n", "mesh": {"level": 0}, "time": {"t_end": 0.2},
                            "output": {"path": str(tmp / "n.h5")}})
     run_case(case)
+    # a pair of capsules: the summary's capsule group
+    pair = case_from_dict({"name": "p", "mesh": {"level": 0}, "time": {"t_end": 0.2},
+                           "capsules": [{"center": [-2.0, 0.2, 0.0]}, {"center": [2.0, -0.2, 0.0]}],
+                           "output": {"path": str(tmp / "p.h5")}})
+    run_case(pair)
     paths: set[str] = set()
-    with h5py.File(tmp / "n.h5", "r") as f:
-        f.visit(paths.add)
+    for name in ("n.h5", "p.h5"):
+        with h5py.File(tmp / name, "r") as f:
+            f.visit(paths.add)
     return paths
 
 

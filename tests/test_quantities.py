@@ -102,6 +102,13 @@ def written(tmp_path_factory):
         "output": {"path": str(tmp / "wall.h5"), "snapshot_every": 0.02},
     }))
 
+    # a pair of capsules: the capsule dimension, the scene's columns and the pair's summary
+    run_case(case_from_dict({
+        "name": "qp", "mesh": {"level": 0}, "time": {"t_end": 0.02},
+        "capsules": [{"center": [-2.0, 0.2, 0.0]}, {"center": [2.0, -0.2, 0.0]}],
+        "output": {"path": str(tmp / "pair.h5"), "snapshot_every": 0.02},
+    }))
+
     campaign = campaign_from_dict({
         "name": "q", "base": {"shape": {"kind": "prolate"}, "time": {"t_end": 0.02}},
         "sweep": {},
@@ -125,7 +132,7 @@ def written(tmp_path_factory):
     # a study of the orbit's numbers (capsim study --quantity orbit)
     orbit_study = write_study(run_study(study_case, levels=[0, 1], rtols=[1e-3], workers=1, quantity="orbit",
                                         out_dir=tmp / "study_orbit"), tmp / "study_orbit.nc")
-    run_files = [tmp / "run.h5", tmp / "viscous.h5", tmp / "wall.h5", *sorted((tmp / "campaign").glob("*.h5"))]
+    run_files = [tmp / "run.h5", tmp / "viscous.h5", tmp / "wall.h5", tmp / "pair.h5", *sorted((tmp / "campaign").glob("*.h5"))]
     return case, summary, run_files, nc, (study, orbit_study)
 
 
