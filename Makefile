@@ -88,6 +88,21 @@ bench-promise: venv
 bench-scenes: venv
 	PYTHONPATH=. $(BIN)/python benchmarks/scenes.py
 
+.PHONY: bench-pair
+bench-pair: venv
+	$(BIN)/capsim sweep campaigns/pair-collision.yaml --workers 2
+	PYTHONPATH=. $(BIN)/python benchmarks/pair_collision.py
+
+# the cost of one velocity evaluation against the number of capsules (issue 43): level 2 with 1-16
+# capsules, level 3 one against the pair, 1 and 2 threads, and the dense Stokeslet sum against
+# fmm3dpy's Stokes FMM, which runs in a throwaway venv outside the project when FMM_PYTHON names its
+# python (python3 -m venv /tmp/fmmvenv && /tmp/fmmvenv/bin/pip install fmm3dpy numpy numba scipy;
+# without it the FMM numbers of benchmarks/capsules.json are kept); a few minutes, most of it the FMM:
+# writes benchmarks/capsules.md and benchmarks/capsules.json
+.PHONY: bench-capsules
+bench-capsules: venv
+	PYTHONPATH=. $(BIN)/python benchmarks/capsules.py $(if $(FMM_PYTHON),--fmm-python $(FMM_PYTHON))
+
 .PHONY: bench-tts
 bench-tts: venv
 	$(BIN)/python benchmarks/tran_son_tay.py run main elastic sensitivity extra shape hardening soft

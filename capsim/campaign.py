@@ -267,7 +267,11 @@ def short_name(key: str) -> str:
     return key.rsplit(".", 1)[-1]
 
 
-def _show_value(value: Any) -> str:
+def _show_value(value: Any, position: int = 0) -> str:
+    """A swept value as a run id shows it; a structured one (a list of capsules, each a mapping)
+    by its position in the sweep's list (its digest tells the cases apart)."""
+    if isinstance(value, dict) or (isinstance(value, (list, tuple)) and any(isinstance(v, dict) for v in value)):
+        return str(position)
     text = format(value, "g") if isinstance(value, float) else str(value)
     return re.sub(r"[^A-Za-z0-9._-]", "_", text)
 
@@ -306,7 +310,8 @@ def expand_campaign(campaign: Campaign, source: str = "<campaign>") -> list[RunS
             # run files, which are extended in place
             physics.get("time", {}).pop("t_end", None)
             digest = hashlib.sha1(json.dumps(physics, sort_keys=True).encode()).hexdigest()[:8]
-            readable = "-".join(f"{short_name(k)}{_show_value(v)}" for k, v in params.items())
+            positions = {**dict(zip(sweep_keys, index)), **{key: z for key in campaign.zip}}
+            readable = "-".join(f"{short_name(k)}{_show_value(v, positions[k])}" for k, v in params.items())
             run_id = f"{readable}-{digest}" if readable else digest
             if len(run_id) > NAME_MAX:
                 raise ConfigError(
