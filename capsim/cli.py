@@ -38,8 +38,8 @@ app = typer.Typer(
 # matplotlib or HDF5 for --help); tests/test_registries.py checks them against the registries:
 # plot kinds capsim.plot.KINDS, export formats capsim.export.FORMATS, study references
 # capsim.study.REFERENCES, figure formats capsim.plot.FIGURE_FORMATS.
-_PLOT_KINDS = ("deformation", "inclination", "contour", "trajectory", "tensions", "rheology", "steady", "orbit",
-               "orbit_map")
+_PLOT_KINDS = ("deformation", "inclination", "contour", "trajectory", "separation", "tensions", "rheology", "steady",
+               "orbit", "orbit_map")
 _EXPORT_FORMATS = ("xdmf", "vtu")
 _STUDY_REFERENCES = ("finest", "richardson")
 _FIGURE_FORMATS = ("png", "pdf", "svg")

@@ -16,6 +16,10 @@ point data
 cell data
     ``traction``            element average of Δf, ∫ Δf dS / S_e (E_s/a)
 
+point and cell data of a run of several capsules (issue 43; one mesh, every capsule's surface)
+    ``capsule``             the capsule's index (0, 1, ...: the case's ``capsules`` order), an
+                            integer to colour or threshold by (one capsule: not written)
+
 T and the stretches live at the vertex nodes; a mid-side node gets the mean of
 its edge's two vertices. Fields are recomputed from the stored positions by
 rebuilding the run's model from its stored case (``runner.build_model``).
@@ -64,12 +68,34 @@ def model_for(data: dict[str, Any]):
             f"the stored mesh ({rest.shape[0]} nodes) does not match the mesh rebuilt from the case "
             f"({X.shape[0]} nodes)"
         )
-    case = case_of(data)
-    if case.shape.inflation:  # the stored positions are the initial ones: the membrane's reference is shrunk
-        center = np.asarray(case.center, dtype=np.float64)
-        rest = center + (rest - center) / (1.0 + case.shape.inflation)
+    from capsim.bodies import body_specs, reference_positions
+
+    # the stored positions are the initial ones: the membrane's reference is each capsule's shrunk
+    # by its own shape.inflation about the centre it was placed at (one capsule: about case.center)
+    specs = body_specs(case_of(data))
+    if any(spec.shape.inflation for spec in specs):
+        rest = reference_positions(rest, model.bodies, specs)
     model.rest_positions = rest
     return model
+
+
+#: the fields a run of several capsules adds (issue 43): name → (what it is, its capsim scale;
+#: "" for a pure number), beside capsim.quantities.EXPORT_FIELDS
+SCENE_FIELDS: dict[str, tuple[str, str]] = {
+    "capsule": ("the capsule's index (0, 1, ... in the case's capsules order), at every node and element", ""),
+}
+
+
+def capsule_fields(data: dict[str, Any]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """(point_data, cell_data) ``capsule`` of a run of several capsules: each node's and each
+    element's capsule index in the union mesh (capsim.bodies layout); ({}, {}) for one capsule."""
+    from capsim.plot import scene_bodies
+
+    bodies = scene_bodies(data)
+    if bodies.count < 2:
+        return {}, {}
+    cell = np.repeat(np.arange(bodies.count, dtype=np.int64), bodies.elements_per_body)
+    return {"capsule": bodies.node_body}, {"capsule": cell}
 
 
 def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -143,7 +169,7 @@ def _units_text(name: str, factors: dict | None) -> str:
     its scale (SCALE_UNITS) with `factors`, else the capsim scale it is measured in."""
     from capsim.quantities import EXPORT_FIELDS, SCALE_UNITS
 
-    scale = EXPORT_FIELDS[name][1]
+    scale = {**EXPORT_FIELDS, **SCENE_FIELDS}[name][1]
     if not scale:
         return "1"
     return SCALE_UNITS[scale][1] if factors is not None else f"1 (capsim scale {scale})"
@@ -175,7 +201,15 @@ def _attribute_type(array: np.ndarray) -> str:
     return {3: "Vector", 9: "Tensor"}.get(array.shape[1], "Matrix")
 
 
-def _write_xdmf(out_dir: Path, stem: str, elements, rest, snapshots, factors=None) -> list[Path]:
+def _field_names(extra: tuple[str, ...]) -> list[str]:
+    """The export fields whose units the index file names: capsim.quantities.EXPORT_FIELDS and
+    the scene's fields this run writes (``extra``)."""
+    from capsim.quantities import EXPORT_FIELDS
+
+    return list(EXPORT_FIELDS) + [name for name in extra if name not in EXPORT_FIELDS]
+
+
+def _write_xdmf(out_dir: Path, stem: str, elements, rest, snapshots, factors=None, extra=()) -> list[Path]:
     h5name = f"{stem}_data.h5"
     xdmf_path = out_dir / f"{stem}.xdmf"
     root = ET.Element("Xdmf", Version="3.0")
@@ -183,9 +217,7 @@ def _write_xdmf(out_dir: Path, stem: str, elements, rest, snapshots, factors=Non
     # the units of time, positions and each field, as XDMF Information elements of the domain
     # (readers such as meshio take every child of the collection for a time step, and an
     # Attribute for its one DataItem)
-    from capsim.quantities import EXPORT_FIELDS
-
-    for name in EXPORT_FIELDS:
+    for name in _field_names(extra):
         ET.SubElement(domain, "Information", Name=f"units_{name}", Value=_units_text(name, factors))
     collection = ET.SubElement(domain, "Grid", Name=stem, GridType="Collection", CollectionType="Temporal")
     elements = np.asarray(elements, dtype=np.int64)
@@ -222,16 +254,14 @@ def _write_xdmf(out_dir: Path, stem: str, elements, rest, snapshots, factors=Non
     return [xdmf_path, out_dir / h5name]
 
 
-def _write_vtu(out_dir: Path, stem: str, elements, rest, snapshots, factors=None) -> list[Path]:
+def _write_vtu(out_dir: Path, stem: str, elements, rest, snapshots, factors=None, extra=()) -> list[Path]:
     import meshio
-
-    from capsim.quantities import EXPORT_FIELDS
 
     written = []
     root = ET.Element("VTKFile", type="Collection", version="0.1", byte_order="LittleEndian")
     # a .vtu has no place for units: the collection file names them, one comment
-    root.append(ET.Comment(" units: " + "; ".join(f"{name}: {_units_text(name, factors)}" for name in EXPORT_FIELDS)
-                           + " "))
+    root.append(ET.Comment(" units: " + "; ".join(f"{name}: {_units_text(name, factors)}"
+                                                   for name in _field_names(extra)) + " "))
     coll = ET.SubElement(root, "Collection")
     for k, (t, x, point, cell) in enumerate(snapshots):
         name = f"{stem}_{k:04d}.vtu"
@@ -296,6 +326,9 @@ def export_run(
         if units not in UNIT_SYSTEMS:
             raise ValueError(f"units must be one of {', '.join(UNIT_SYSTEMS)}, got {units!r}")
     model = model_for(data) if fields else None
+    # several capsules (issue 43): the union mesh holds every capsule's surface; each node and
+    # element carries its capsule's index (a pure number: no unit to scale)
+    capsule_point, capsule_cell = capsule_fields(data)
 
     def snapshots():
         f_t, f_x = (factors["1/k"], factors["a"]) if factors is not None else (1.0, 1.0)
@@ -305,12 +338,13 @@ def export_run(
                 point, cell = {"displacement": x - rest}, {}
             else:
                 point, cell = snapshot_fields(model, x, rest)
-            yield float(t) * f_t, x * f_x, _scaled(point, factors), _scaled(cell, factors)
+            yield (float(t) * f_t, x * f_x, {**_scaled(point, factors), **capsule_point},
+                   {**_scaled(cell, factors), **capsule_cell})
 
     writer = _write_xdmf if fmt == "xdmf" else _write_vtu
     case = case_of(data)
     wall = None
-    if case.wall is not None:  # the scene's wall: a rectangle under the capsule's whole path
+    if case.wall is not None:  # the scene's wall: a rectangle under the capsules' whole paths
         xs = np.concatenate([np.asarray(p, dtype=np.float64) for p in positions])
         wall = (case.wall_y, xs[:, 0].min() - 2.0, xs[:, 0].max() + 2.0,
                 xs[:, 2].min() - 2.0, xs[:, 2].max() + 2.0)
@@ -320,7 +354,7 @@ def export_run(
     shutil.rmtree(staging, ignore_errors=True)
     try:
         staging.mkdir()
-        staged = writer(staging, path.stem, elements, rest, snapshots(), factors)
+        staged = writer(staging, path.stem, elements, rest, snapshots(), factors, tuple(capsule_point))
         if wall is not None:
             staged.append(_write_wall(staging, path.stem, wall, factors))
         for file in staged:

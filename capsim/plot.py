@@ -14,6 +14,14 @@ Sections of the surface are cut from the curved 6-node elements (each element's
 quadratic map, sampled :data:`SECTION_SUBDIVISIONS` times along an edge, the
 crossing solved on the quadratic), not from its four flat sub-triangles.
 
+A run of several capsules (``capsules:``, issue 43; per-capsule columns (t, capsule)): the
+time-series kinds (deformation, inclination, rheology) draw one line per capsule, labelled
+capsule 0, 1, ...; contour and trajectory draw every capsule's outline in the section (contour
+numbers them); tensions draws each capsule along its own section; ``separation`` draws a pair's
+relative trajectory (``separation_y`` against ``separation_x``: capsule 1 less capsule 0) or,
+for more capsules, each one's centroid path in the xy-plane. ``orbit`` draws one capsule and
+refuses a scene of several, in one line; a one-capsule run's figures are as they were.
+
 First-order small-deformation theory (docs/known_answers.md), drawn only where it
 applies: initially spherical capsules with a ν_s = 1/2 law at G ≤
 :data:`FIRST_ORDER_G_MAX`: D_xy → D∞ = (25/4) G (ν_s = 1/2: thin shell and
@@ -37,7 +45,8 @@ from capsim.quantities import PERIODIC_MOTIONS, canonical_motion
 __all__ = [
     "DPI", "FIGSIZE", "FIGURE_FORMATS", "FIRST_ORDER_G_MAX", "KINDS", "contour_figure", "orbit_figure", "orbit_map_figure", "deformation_figure", "inclination_figure",
     "plot", "relaxation_time", "rheology_figure", "steady_figure", "tensions_figure",
-    "section_loops", "trajectory_figure", "xy_section",
+    "section_loops", "trajectory_figure", "xy_section", "separation_figure", "capsule_count", "scene_bodies",
+    "capsule_sections",
 ]
 
 FIGSIZE = (6.4, 4.8)  # inches
@@ -88,7 +97,7 @@ def _case_info(data: dict[str, Any]) -> dict[str, Any]:
         case = case_of(data)
     except Exception:  # noqa: BLE001 - a figure without theory is still a figure
         return {}
-    return {
+    info = {
         "G": float(case.flow.shear_rate_G),
         "lam": float(case.flow.viscosity_ratio),
         "law": str(case.membrane.law),
@@ -101,6 +110,20 @@ def _case_info(data: dict[str, Any]) -> dict[str, Any]:
         # the scene's wall, y = y_w (None: unbounded)
         "wall_y": case.wall_y,
     }
+    if len(getattr(case, "capsules", None) or ()) > 1:  # several capsules (issue 43): the scene's
+        from capsim.bodies import body_specs
+
+        shapes = [spec.shape for spec in body_specs(case)]
+        n = np.asarray(data["rest_positions"]).shape[0]
+        info["capsules"] = len(shapes)
+        info["mesh"] = f"{case.mesh.base} level {case.mesh.level} ({n // len(shapes)} nodes a capsule)"
+        texts = list(dict.fromkeys(_shape_text({"shape": str(s.kind), "aspect_ratio": float(s.aspect_ratio)})
+                                   for s in shapes))
+        if len(texts) == 1:
+            info["shape"], info["aspect_ratio"] = str(shapes[0].kind), float(shapes[0].aspect_ratio)
+        else:  # capsules of different shapes: each named in the caption, no one-capsule theory
+            info["shapes"], info["shape"], info["aspect_ratio"] = texts, "mixed", float("nan")
+    return info
 
 
 def _draw_wall(ax, info: dict[str, Any]) -> None:
@@ -115,6 +138,8 @@ def _draw_wall(ax, info: dict[str, Any]) -> None:
 
 
 def _shape_text(info: dict[str, Any]) -> str:
+    if info.get("shapes"):  # several capsules of different shapes
+        return "capsules " + " and ".join(info["shapes"])
     if info["shape"] in ("oblate", "prolate"):
         return f"{info['shape']} b/a = {info['aspect_ratio']:g}"
     return info["shape"]
@@ -123,8 +148,9 @@ def _shape_text(info: dict[str, Any]) -> str:
 def _caption_parts(info: dict[str, Any]) -> list[tuple[str, str]]:
     """(key, text) of what a caption says about one run."""
     law = info["law"] + (f", κ = {info['bending']:g}" if info.get("bending") else "")
+    scene = [("capsules", f"{info['capsules']} capsules")] if info.get("capsules") else []
     return [("shape", _shape_text(info)), ("law", law), ("lam", f"λ = {info['lam']:g}"),
-            ("G", f"G = {info['G']:g}"), ("mesh", f"mesh {info['mesh']}")]
+            ("G", f"G = {info['G']:g}")] + scene + [("mesh", f"mesh {info['mesh']}")]
 
 
 def _caption(fig, infos: Sequence[dict[str, Any]], extra: str = "") -> str:
@@ -135,7 +161,7 @@ def _caption(fig, infos: Sequence[dict[str, Any]], extra: str = "") -> str:
         text = extra
     else:
         per_run = [dict(_caption_parts(i)) for i in infos]
-        parts = [v for k, v in per_run[0].items() if all(p[k] == v for p in per_run)]
+        parts = [v for k, v in per_run[0].items() if all(p.get(k) == v for p in per_run)]
         # not the case's name: a name such as 'sphere-G0.1' says nothing true after --set G=0.05;
         # the caption is the resolved case's values
         text = ", ".join(parts) + (f"; {extra}" if extra and parts else extra)
@@ -251,6 +277,67 @@ def _series(data: dict[str, Any], name: str) -> np.ndarray:
     return np.asarray(ts[name], dtype=np.float64)
 
 
+# ------------------------------------------------------------ several capsules (issue 43)
+
+#: up to this many capsules each has its own colour and legend entry; more are shaded along a
+#: colour map, the first and the last named
+CAPSULE_LEGEND_MAX = 10
+#: the line styles that tell capsules apart where colour names something else (rheology, overlays)
+_CAPSULE_STYLES = ("-", "--", ":", "-.")
+
+
+def capsule_count(data: dict[str, Any]) -> int:
+    """How many capsules the run's scene holds: the width of its per-capsule (t, capsule)
+    columns, else the stored case's ``capsules`` list; 1 for a one-capsule run."""
+    for value in data["timeseries"].values():
+        if np.ndim(value) == 2:
+            return int(np.shape(value)[1])
+    try:
+        from capsim.export import case_of
+
+        return max(1, len(case_of(data).capsules or ()))
+    except Exception:  # noqa: BLE001 - without a readable case: the columns said one
+        return 1
+
+
+def scene_bodies(data: dict[str, Any]):
+    """The layout of the run's capsules in its union mesh (capsim.bodies.Bodies): capsule i's
+    nodes ``nodes(i)`` and its elements the block ``elements(i)``, read off the stored mesh
+    (every capsule's vertex nodes first, then the mid-side nodes)."""
+    from capsim.bodies import Bodies
+
+    k = capsule_count(data)
+    elements = np.asarray(data["elements"])
+    n = np.asarray(data["rest_positions"]).shape[0]
+    vertices = int(elements[:, 3:].min()) if elements.size else 0
+    if k < 1 or n % k or elements.shape[0] % k or vertices % k:
+        raise ValueError(f"the run's mesh ({n} nodes, {elements.shape[0]} elements) is not {k} capsules of one mesh")
+    bodies = Bodies(k, n // k, elements.shape[0] // k, vertices // k)
+    if k > 1:
+        body = bodies.node_body
+        for i in range(k):
+            if np.any(body[elements[bodies.elements(i)]] != i):
+                raise ValueError(f"the run's mesh is not {k} capsules laid one after another (capsim.bodies)")
+    return bodies
+
+
+def _capsule_looks(k: int) -> list[tuple[Any, str | None]]:
+    """(colour, legend label or None) of each of k capsules drawn in one axes."""
+    if k <= CAPSULE_LEGEND_MAX:
+        return [(f"C{j}", f"capsule {j}") for j in range(k)]
+    from matplotlib import colormaps
+
+    cmap = colormaps["viridis"]
+    return [(cmap(j / (k - 1)), f"capsule {j}" if j in (0, k - 1) else None) for j in range(k)]
+
+
+def _refuse_scene(data: dict[str, Any], kind: str, what: str, hint: str = "") -> None:
+    """ValueError (one line) for a kind that draws one capsule, given a run of several."""
+    k = capsule_count(data)
+    if k > 1:
+        raise ValueError(f"--kind {kind} draws {what} and the run holds {k} capsules" + (f" ({hint})" if hint else ""))
+
+
 def _snapshot_index(data: dict[str, Any], t: float | None) -> int:
     """The snapshot nearest kt = t (the last for None); a t outside the run's snapshots
     (by more than half their spacing) is refused rather than snapped to the end."""
@@ -296,7 +383,9 @@ def _distinct(labels: list[str], infos: list[dict], runs: list) -> list[str]:
     if len(set(labels)) == len(labels):
         return labels
     parts = [dict(_caption_parts(i)) if i else {} for i in infos]
-    keys = [k for k in ("law", "mesh", "shape") if len({p.get(k) for p in parts}) > 1]
+    # a run of several capsules differs by them, not by its mesh's 'a capsule'
+    same = [{**p, "mesh": p["mesh"].replace(" a capsule)", ")")} if "mesh" in p else p for p in parts]
+    keys = [k for k in ("capsules", "law", "mesh", "shape") if len({p.get(k) for p in same}) > 1]
     out = [", ".join([label] + [p[k] for k in keys if k in p]) for label, p in zip(labels, parts)]
     if len(set(out)) < len(out):
         out = [f"{label} ({Path(str(run)).stem})" if not isinstance(run, dict) else label for label, run in zip(out, runs)]
@@ -346,18 +435,47 @@ def _plot_runs(ax, source, name: str, scale: float = 1.0, unwrap: bool = False,
     if labels is not None and len(labels) != len(runs):
         raise ValueError(f"--label given {len(labels)} times for {len(runs)} runs: give one per PATH, in order")
     auto = ["capsim"] if single else [_shape_text(i) if only_shape else _run_label(i, same_shape) for i in infos]
+    given = labels is not None
     labels = list(labels) if labels is not None else _distinct(auto, infos, runs)
     drawn = []
     for i, (data, info) in enumerate(zip(loaded, infos)):
         t, values = _series(data, "t"), _series(data, name)
+        color = "k" if single else f"C{i % 10}"
+        if values.ndim == 2:  # several capsules (issue 43): one line per capsule
+            prefix = labels[i] if given or not single else None  # one run: 'capsule j' alone
+            drawn.append((info,) + _plot_capsules(ax, data, t, values, name, scale, unwrap, prefix,
+                                                  None if single else color))
+            continue
         if name == "theta":
             t, values = theta_for_plot(t, values, _series(data, "D_xy"), unwrap=unwrap)
         values = values / scale
-        color = "k" if single else f"C{i % 10}"
         ax.plot(t, values, "-", color=color, label=labels[i])
         drawn.append((info, t, values, "C0" if single else color))
     _caption(ax.figure, [info for info, *_ in drawn])
     return drawn
+
+
+def _plot_capsules(ax, data, t, values, name, scale, unwrap, prefix, color):
+    """A run of several capsules in a time-series figure: each capsule's column (θ drawn where
+    defined), in its own colour and labelled 'capsule j' (``color`` given: in that colour, the
+    run's among overlaid runs, each capsule in its own line style). Returns (t, every drawn
+    value, the colour of its theory curves)."""
+    D = _series(data, "D_xy") if name == "theta" else None
+    looks = _capsule_looks(values.shape[1])
+    shown = []
+    for j in range(values.shape[1]):
+        tj, vj = t, values[:, j]
+        if name == "theta":
+            tj, vj = theta_for_plot(t, vj, D[:, j], unwrap=unwrap)
+        vj = vj / scale
+        look, label = looks[j]
+        if color is None:
+            ax.plot(tj, vj, "-", color=look, label=label if prefix is None or label is None else f"{prefix}, {label}")
+        else:
+            ax.plot(tj, vj, _CAPSULE_STYLES[j % len(_CAPSULE_STYLES)], color=color,
+                    label=f"{prefix}, capsule {j}" if label is not None else None)
+        shown.append(vj)
+    return t, np.concatenate(shown), "k" if color is None else color
 
 
 def deformation_figure(source, theory: bool = True, labels: Sequence[str] | None = None):
@@ -398,7 +516,7 @@ def inclination_figure(source, theory: bool = True, unwrap: bool = False, labels
     ax = fig.add_subplot()
     drawn = _plot_runs(ax, source, "theta", math.pi, unwrap=unwrap, labels=labels)
     if theory and any(_theory_applies(info) for info, *_ in drawn):
-        ax.axhline(0.25, color="C0" if len(drawn) == 1 else "k", ls="--", lw=1,
+        ax.axhline(0.25, color=drawn[0][3] if len(drawn) == 1 else "k", ls="--", lw=1,
                    label=r"first order, $\theta = \pi/4$")
     ax.set_xlabel(r"$kt$")
     ax.set_ylabel(r"$\theta/\pi$")
@@ -424,19 +542,49 @@ def rheology_figure(source, theory: bool = True):
         # no N2* line: the old derived −N1*/2 was not borne out (REPRODUCTION.md, "N2*"); docs/known_answers.md now gives −(29/7)G
         first = {"Sxy_star": 1.0, "N1_star": 19.0 * info["G"]}
     labels = {"Sxy_star": r"$S^*_{xy}$", "N1_star": r"$N_1^*$", "N2_star": r"$N_2^*$"}
+    k = capsule_count(data)
     for i, (name, label) in enumerate(labels.items()):
-        line, = ax.plot(t, _series(data, name), color=f"C{i}", label=label)
-        line.physical_label = _RHEOLOGY_PHYSICAL[name]
+        values = _series(data, name)
+        if values.ndim == 2:  # several capsules (issue 43): the quantity's colour, each capsule's line style
+            _rheology_capsules(ax, data, t, values, name, label, f"C{i}")
+        else:
+            line, = ax.plot(t, values, color=f"C{i}", label=label)
+            line.physical_label = _RHEOLOGY_PHYSICAL[name]
         if name in first:
             ax.axhline(first[name], color=f"C{i}", ls=":", lw=1)
+    if k > 1:  # which line is which capsule
+        if k <= len(_CAPSULE_STYLES):
+            for j in range(k):
+                ax.plot([], [], _CAPSULE_STYLES[j], color="0.35", label=f"capsule {j}")
+        else:
+            ax.plot([], [], "-", color="0.35", lw=0.6, label=f"capsules 0 to {k - 1}")
+            ax.plot([], [], "-", color="0.35", lw=2.0, label="mean over the capsules")
     if first:
-        ax.plot([], [], "k:", lw=1, label="first order")
+        ax.plot([], [], "k:", lw=1, label="first order (one capsule)" if k > 1 else "first order")
     ax.set_xlabel(r"$kt$")
     ax.set_ylabel(r"$S^*_{xy}$, $N_1^*$, $N_2^*$")
     _tag(ax, x=("t", "$t$"), y=("Sxy_star", r"stresslet $S_{xy}$, $S_{xx} - S_{yy}$, $S_{yy} - S_{zz}$"))
     _caption(fig, [info])
     _legend(ax)
     return fig
+
+
+def _rheology_capsules(ax, data, t, values, name, label, color) -> None:
+    """One quantity of the rheology figure for several capsules: up to four capsules in line
+    styles of its colour; more as thin lines with the mean over the capsules (the suspension's
+    column where the run has it) drawn thick."""
+    k = values.shape[1]
+    if k <= len(_CAPSULE_STYLES):
+        for j in range(k):
+            line, = ax.plot(t, values[:, j], _CAPSULE_STYLES[j], color=color, label=label if j == 0 else None)
+            line.physical_label = _RHEOLOGY_PHYSICAL[name]
+        return
+    for j in range(k):
+        ax.plot(t, values[:, j], "-", color=color, lw=0.6, alpha=0.5)
+    mean = data["timeseries"].get(f"suspension_{name}")
+    mean = np.asarray(mean, dtype=np.float64) if mean is not None else values.mean(axis=1)
+    line, = ax.plot(t, mean, "-", color=color, lw=2.0, label=label)
+    line.physical_label = _RHEOLOGY_PHYSICAL[name]
 
 
 # ------------------------------------------------------------ xy-plane section
@@ -695,18 +843,63 @@ def contour_figure(source, times: Sequence[float] | None = None, z0: float = 0.0
         idx = np.array(sorted({_snapshot_index(data, t) for t in times}))
     fig = _figure()
     ax = fig.add_subplot()
-    for j, k in enumerate(idx):
-        for n, (p, _) in enumerate(section_loops(data["positions"][k], data["elements"], z0)):
-            p = _closed(p)
-            ax.plot(p[:, 0], p[:, 1], color=f"C{j % 10}", label=f"kt = {snap_t[k]:.3g}" if n == 0 else None)
+    several = capsule_count(data) > 1
+    if several:  # several capsules (issue 43): every capsule's outline, each numbered
+        _contour_capsules(ax, data, idx, z0)
+    else:
+        for j, k in enumerate(idx):
+            for n, (p, _) in enumerate(section_loops(data["positions"][k], data["elements"], z0)):
+                p = _closed(p)
+                ax.plot(p[:, 0], p[:, 1], color=f"C{j % 10}", label=f"kt = {snap_t[k]:.3g}" if n == 0 else None)
     _draw_wall(ax, info)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(r"$x/a$")
     ax.set_ylabel(r"$y/a$")
     _tag(ax, x=("centroid_x", "$x$"), y=("centroid_y", "$y$"))
-    _caption(fig, [info], extra=f"section z = {z0:g}" if z0 else "")
+    extra = [f"section z = {z0:g}"] if z0 else []
+    if several:
+        extra.append("numbers: capsule index")
+    _caption(fig, [info], extra="; ".join(extra))
     _legend(ax)
     return fig
+
+
+def capsule_sections(x: np.ndarray, elements: np.ndarray, bodies, z0: float = 0.0, values=None
+                     ) -> list[list[tuple[np.ndarray, np.ndarray | None]]]:
+    """Each capsule's :func:`section_loops` at z = z0 (its block of the union's elements), []
+    for a capsule the plane misses; ValueError when it misses every capsule."""
+    out = []
+    for i in range(bodies.count):
+        try:
+            out.append(section_loops(x, elements[bodies.elements(i)], z0, values))
+        except ValueError as exc:
+            if "does not meet" not in str(exc):
+                raise
+            out.append([])
+    if not any(out):
+        raise ValueError(f"the surface does not meet the plane z = {z0:g}")
+    return out
+
+
+def _contour_capsules(ax, data: dict[str, Any], idx: np.ndarray, z0: float) -> None:
+    """The sections of every capsule at the chosen snapshots (one colour per time) and each
+    capsule's index at the centre of its last section."""
+    bodies = scene_bodies(data)
+    elements = np.asarray(data["elements"])
+    snap_t = np.asarray(data["snapshot_t"])
+    last = []
+    for j, k in enumerate(idx):
+        labelled = False
+        last = capsule_sections(np.asarray(data["positions"][k], dtype=np.float64), elements, bodies, z0)
+        for loops in last:
+            for p, _ in loops:
+                p = _closed(p)
+                ax.plot(p[:, 0], p[:, 1], color=f"C{j % 10}", label=None if labelled else f"kt = {snap_t[k]:.3g}")
+                labelled = True
+    for i, loops in enumerate(last):
+        if loops:
+            c = loops[0][0].mean(axis=0)
+            ax.text(c[0], c[1], str(i), ha="center", va="center", fontsize="small", color="0.3")
 
 
 def trajectory_figure(source, node: int | None = None, direction: Sequence[float] = (1.0, 0.0, 0.0)):
@@ -738,7 +931,10 @@ def trajectory_figure(source, node: int | None = None, direction: Sequence[float
         for n, (p, _) in enumerate(loops):
             p = _closed(p)
             ax.plot(p[:, 0], p[:, 1], color=style, lw=0.8, ls="--", label=label if n == 0 else None)
-    ax.plot(path[:, 0], path[:, 1], "C3.-", label=f"node {node}")
+    label = f"node {node}"
+    if capsule_count(data) > 1:  # several capsules (issue 43): whose node it is
+        label += f" (capsule {int(scene_bodies(data).node_body[node])})"
+    ax.plot(path[:, 0], path[:, 1], "C3.-", label=label)
     ax.plot(path[:1, 0], path[:1, 1], "C3o", mfc="none", ms=9, label=f"kt = {data['snapshot_t'][0]:.3g}")
     _draw_wall(ax, info)
     ax.set_aspect("equal", adjustable="datalim")
@@ -748,6 +944,50 @@ def trajectory_figure(source, node: int | None = None, direction: Sequence[float
     _caption(fig, [info])
     _legend(ax)
     fig.path_node = node  # the chosen node, for callers and tests
+    return fig
+
+
+def separation_figure(source):
+    """The capsules' paths (issue 43). A pair: its relative trajectory, the cross-stream
+    separation ``separation_y`` against the streamwise ``separation_x`` (capsule 1's centroid
+    less capsule 0's, at every step), from its start (open circle) to its end (square). More
+    than two capsules: each capsule's centroid path in the xy-plane, in its colour. A run of
+    one capsule is refused (a material point's path: ``trajectory``)."""
+    data = _load_run(source)
+    info = _case_info(data)
+    k = capsule_count(data)
+    if k < 2:
+        raise ValueError("--kind separation draws the paths of several capsules, and the run holds one "
+                         "(a material point's path: --kind trajectory)")
+    ts = data["timeseries"]
+    t = _series(data, "t")
+    if len(t) == 0:
+        raise ValueError("the run has no time series")
+    fig = _figure()
+    ax = fig.add_subplot()
+    if k == 2 and "separation_x" in ts and "separation_y" in ts:
+        dx, dy = _series(data, "separation_x"), _series(data, "separation_y")
+        ax.plot(dx, dy, "C3-", label="relative trajectory")
+        ax.plot(dx[:1], dy[:1], "C3o", mfc="none", ms=9, label=f"kt = {t[0]:.3g}")
+        ax.plot(dx[-1:], dy[-1:], "C3s", ms=5, label=f"kt = {t[-1]:.3g}")
+        ax.set_xlabel(r"$\Delta x/a$")
+        ax.set_ylabel(r"$\Delta y/a$")
+        _tag(ax, x=("separation_x", r"$\Delta x$"), y=("separation_y", r"$\Delta y$"))
+        extra = "Δx, Δy: capsule 1's centroid less capsule 0's"
+    else:
+        cx, cy = _series(data, "centroid_x"), _series(data, "centroid_y")
+        for j, (color, label) in enumerate(_capsule_looks(k)):
+            ax.plot(cx[:, j], cy[:, j], "-", color=color, label=label)
+            ax.plot(cx[:1, j], cy[:1, j], "o", color=color, mfc="none", ms=7)
+            ax.plot(cx[-1:, j], cy[-1:, j], "s", color=color, ms=4)
+        _draw_wall(ax, info)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel(r"$x/a$")
+        ax.set_ylabel(r"$y/a$")
+        _tag(ax, x=("centroid_x", "$x$"), y=("centroid_y", "$y$"))
+        extra = f"centroid paths from kt = {t[0]:.3g} (circle) to {t[-1]:.3g} (square)"
+    _caption(fig, [info], extra=extra)
+    _legend(ax)
     return fig
 
 
@@ -763,18 +1003,31 @@ def tensions_figure(source, t: float | None = None, z0: float = 0.0):
     x = np.asarray(data["positions"][k], dtype=np.float64)
     fields = membrane_fields(model_for(data), x)
     values = np.stack([fields["principal_tension_1"], fields["principal_tension_2"]], axis=1)
-    p, v = xy_section(x, data["elements"], z0, values, curved=True)
-    s, v = _arc_length_from_largest_x(p, v)
     fig = _figure()
     ax = fig.add_subplot()
-    ax.plot(s, v[:, 0], "C0.-", label=r"$\tau_1$")
-    ax.plot(s, v[:, 1], "C1.-", label=r"$\tau_2$")
+    several = capsule_count(data) > 1
+    if several:  # several capsules (issue 43): each capsule along its own section, in its colour
+        sections = capsule_sections(x, np.asarray(data["elements"]), scene_bodies(data), z0, values)
+        looks = _capsule_looks(len(sections))
+        for i, loops in enumerate(sections):
+            if not loops:
+                continue
+            s, v = _arc_length_from_largest_x(*loops[0])
+            color, name = looks[i]
+            ax.plot(s, v[:, 0], ".-", color=color, label=rf"$\tau_1$, {name}" if name else None)
+            ax.plot(s, v[:, 1], ".--", color=color, label=rf"$\tau_2$, {name}" if name else None)
+    else:
+        p, v = xy_section(x, data["elements"], z0, values, curved=True)
+        s, v = _arc_length_from_largest_x(p, v)
+        ax.plot(s, v[:, 0], "C0.-", label=r"$\tau_1$")
+        ax.plot(s, v[:, 1], "C1.-", label=r"$\tau_2$")
     ax.axhline(0.0, color="0.7", lw=0.8)
     ax.set_xlim(0.0, 1.0)
     ax.set_xlabel(r"arc length along the section, $s/L$")  # from its largest x, counter-clockwise (caption)
     ax.set_ylabel(r"principal tension $/E_s$")
     _tag(ax, y=("G_s", "principal tension"))  # tensions in E_s, the scale of G_s
-    _caption(fig, [info], extra=f"kt = {data['snapshot_t'][k]:.3g}; s from the section's largest x, counter-clockwise")
+    where = "each capsule's section" if several else "the section"
+    _caption(fig, [info], extra=f"kt = {data['snapshot_t'][k]:.3g}; s from {where}'s largest x, counter-clockwise")
     _legend(ax)
     return fig
 
@@ -1181,6 +1434,8 @@ def orbit_figure(source):
     round while the shape stays put). The summary's class, whether it settled, and its
     averaging window (whole orbits or cycles; dashed lines) are marked."""
     data = _load_run(source)
+    _refuse_scene(data, "orbit", "one capsule's orbit", "each capsule's motion class is in the run file's "
+                  "summary/capsule; their paths: --kind separation")
     info = _case_info(data)
     ts = data["timeseries"]
     if "director_x" not in ts:
@@ -1326,12 +1581,15 @@ def to_physical(fig, factors: dict[str, float]) -> None:
 OVERLAY_KINDS = ("deformation", "inclination")
 # kinds drawn from a campaign summary (netCDF of capsim summarize), not from a run file
 SUMMARY_KINDS = ("steady", "orbit_map")
+# kinds drawn from a run of several capsules only (capsules:, issue 43); a one-capsule run is refused
+SCENE_KINDS = ("separation",)
 
 KINDS: dict[str, Callable[..., Any]] = {
     "deformation": deformation_figure,
     "inclination": inclination_figure,
     "contour": contour_figure,
     "trajectory": trajectory_figure,
+    "separation": separation_figure,
     "tensions": tensions_figure,
     "rheology": rheology_figure,
     "steady": steady_figure,
