@@ -981,9 +981,6 @@ class Case(_Model):
             if self.mesh.symmetry in ("quarter", "half"):
                 raise _FieldProblem("mesh.symmetry", self.mesh.symmetry,
                                     "with several capsules use auto (it finds the symmetries the scene keeps) or none")
-            if self.membrane.viscosity is not None and self.membrane.viscosity.active:
-                raise _FieldProblem("membrane.viscosity", "active", "cannot be used with several capsules yet (its "
-                                    "solve is one capsule's); remove it or use one capsule")
         specs = body_specs(self)
         problem = start_problem(specs, self.mesh.base, min(self.mesh.level, 3), self.guards.min_capsule_gap,
                                 self.wall_y, self.guards.min_wall_gap)

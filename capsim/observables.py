@@ -1250,9 +1250,11 @@ class StepObserver:
         into one array per column, and the scene's own columns (SCENE_COLUMNS)."""
         model, bodies = self.model, self.bodies
         strain = state.strain
+        # a viscous membrane: its traction joins each capsule's stresslet (as one capsule's: _viscous)
+        traction = model.viscous.traction(y, state.geometry, u) if model.viscous is not None else None
         rows = []
         for part in self.parts:
-            rows.append(part.row(y, u, state, strain, self.last))
+            rows.append(part.row(y, u, state, strain, self.last, traction))
         row: dict = {"t": t, "dt": dt, "error_estimate": error}
         for key in rows[0]:
             if key != "_S_star":
@@ -1405,15 +1407,31 @@ class _CapsulePart:
         e = self.elements
         return type(geo)(geo.points[e], geo.normals[e], geo.weights[e])
 
-    def row(self, y: np.ndarray, u: np.ndarray, state, strain, last: dict | None) -> dict:
+    def row(self, y: np.ndarray, u: np.ndarray, state, strain, last: dict | None,
+            viscous_traction: np.ndarray | None = None) -> dict:
         from capsim.membrane import VertexStrain
 
         v = self.vertices
         mine = VertexStrain(strain.A[v], strain.B[v], strain.normals[v], strain.inv1[v], strain.inv2[v])
         yi, ui = np.ascontiguousarray(y[self.nodes]), np.ascontiguousarray(u[self.nodes])
         e = self.elements
-        row = capsule_row(self.model, yi, ui, self._geometry(state.geometry), np.ascontiguousarray(state.density[e]),
+        model = self.model
+        geometry = self._geometry(state.geometry)
+        row = capsule_row(model, yi, ui, geometry, np.ascontiguousarray(state.density[e]),
                           np.ascontiguousarray(state.weights[e]), mine, self.own_elements, self.director)
+        if viscous_traction is not None:  # the membrane's viscous share of the stresslet and its dissipation
+            center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
+            own = np.ascontiguousarray(viscous_traction[self.nodes][self.own_elements])
+            S_v = particle_stresslet(geometry, own, ui, self.own_elements, model.disc.reg_phi, center, row["volume"],
+                                     1.0, 1.0)
+            S_star = row["_S_star"] + S_v
+            row["_S_star"] = S_star
+            row.update(stresslet_observables(S_star))
+            row["dissipation_ratio"] = dissipation_ratio(S_star, model.rate_of_strain(center))
+            alone = np.zeros_like(u)  # K is block-diagonal: this capsule's uᵀK u
+            alone[self.nodes] = u[self.nodes]
+            row["Sxy_viscous_star"] = float(S_v[0, 1])
+            row["viscous_dissipation"] = model.viscous.dissipation(y, alone)
         if last is not None:  # continuous axes, as one capsule's (StepObserver._continue_lines)
             index = self.index
             for name in ("long_axis", "short_axis"):

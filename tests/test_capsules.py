@@ -236,3 +236,26 @@ def test_a_pair_collides_as_lac_morel_and_barthes_biesels(tmp_path):
     sx, sy = pair.trajectory(path)
     assert sx[0] == pytest.approx(-8.0) and sy[0] == pytest.approx(0.5)
 
+
+
+@pytest.mark.parametrize("scene", ["viscous membrane", "wall"])
+def test_far_apart_capsules_are_isolated_ones_with_a_viscous_membrane_and_above_a_wall(tmp_path, scene):
+    """The scene's other parts take several capsules: a viscous membrane (its traction in each
+    capsule's stresslet, its dissipation capsule by capsule) and a wall (below the first
+    capsule's centre); 30 a apart along z each capsule is the isolated one (D_xy, θ, S*_xy, the
+    viscous share) to 1e-4, and its lift (5.89e-3 k a) to 1e-5 k a (measured: 5e-6, the
+    neighbour's disturbance)."""
+    extra = ({"membrane": {"viscosity": {"shear": 1.0}}, "flow": {"shear_rate_G": 0.1, "viscosity_ratio": 2.0}}
+             if scene == "viscous membrane" else {"wall": {"distance": 3.0}, "flow": {"shear_rate_G": 0.1}})
+    base = {"mesh": {"level": 1}, "time": {"t_end": 1.0}, **extra}
+    single = run_case(case_from_dict({**base, "name": "one", "output": {"path": str(tmp_path / "one.h5")}}))
+    pair = run_case(case_from_dict({**base, "name": "two", "capsules": [{"center": [0, 0, -15]}, {"center": [0, 0, 15]}],
+                                    "output": {"path": str(tmp_path / "two.h5")}}))
+    assert single.status == pair.status == "completed"
+    one, two = _series(tmp_path / "one.h5"), _series(tmp_path / "two.h5")
+    keys = ["D_xy", "theta", "Sxy_star"] + (["Sxy_viscous_star", "viscous_dissipation"] if scene != "wall"
+                                            else ["centroid_velocity_y", "wall_gap"])
+    for key in keys:
+        for i in range(2):
+            assert two[key][-1, i] == pytest.approx(one[key][-1], rel=1e-4,
+                                                    abs=1e-5 if key == "centroid_velocity_y" else 1e-7), key
