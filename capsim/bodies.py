@@ -62,6 +62,14 @@ class Bodies:
     elements_per_body: int
     vertices_per_body: int
 
+    @classmethod
+    def from_mesh(cls, count: int, elements: np.ndarray) -> "Bodies":
+        """The layout of a scene of ``count`` capsules from its elements alone (a run file's
+        /mesh/elements and its ``n_capsules`` attribute): one connectivity, vertices first."""
+        n_elements, n_nodes = elements.shape[0], int(elements.max()) + 1
+        n_vertices = int(elements[:, :3].max()) + 1
+        return cls(count, n_nodes // count, n_elements // count, n_vertices // count)
+
     def nodes(self, i: int) -> np.ndarray:
         n, nv, k = self.nodes_per_body, self.vertices_per_body, self.count
         if k == 1:

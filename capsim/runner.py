@@ -310,7 +310,9 @@ class _Run:
             self.path, config_yaml=self.config_yaml, elements=elements, rest_positions=X, version=__version__,
             attrs={"n_nodes": X.shape[0], "n_elements": elements.shape[0], "time_scheme": case.time.scheme,
                    "time_scheme_used": self.integrator.name, "time_scheme_choice": self.integrator.choice,
-                   "symmetry": model.disc.symmetry},
+                   "symmetry": model.disc.symmetry,
+                   # several capsules: their layout in the mesh (capsim.bodies.Bodies.from_attrs)
+                   **({"n_capsules": model.bodies.count} if model.several else {})},
         )
         # only now that the new file is in place: a stale one belongs to the run this one replaced
         remove_checkpoint(self.ckpt_path)

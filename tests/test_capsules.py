@@ -44,6 +44,7 @@ def test_the_scene_keeps_every_capsules_vertices_first_and_its_own_mesh():
     assert isinstance(bodies, Bodies) and bodies.count == 2
     assert n_vertices == 2 * bodies.vertices_per_body
     assert elements[:, :3].max() < n_vertices <= elements[:, 3:].min()  # vertices first
+    assert Bodies.from_mesh(2, elements) == bodies  # a run file's mesh and n_capsules give it back
     for i in range(2):
         own = np.empty(x.shape[0], dtype=np.int64)
         own[bodies.nodes(i)] = np.arange(bodies.nodes_per_body)
@@ -184,6 +185,8 @@ def test_per_capsule_columns_and_the_summary_read_with_xarray(tmp_path):
     with xr.open_dataset(tmp_path / "xr.h5", group="summary/capsule", engine="h5netcdf") as per:
         assert per["D_xy"].dims == ("capsule",)
         mean_D = float(per["D_xy"].mean())
+    with h5py.File(tmp_path / "xr.h5", "r") as f:
+        assert f.attrs["n_capsules"] == 2
     record = read_run(tmp_path / "xr.h5")
     assert record["separation_y_initial"] == pytest.approx(-0.5)
     assert record["D_xy"] == pytest.approx(mean_D)
