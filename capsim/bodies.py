@@ -46,6 +46,9 @@ class BodySpec:
     shape: Any  # capsim.config.Shape
     axis: tuple[float, float, float] | None  # None: turned about z by tilt_deg
     tilt_deg: float = 0.0
+    membrane: Any = None  # capsim.config.Membrane: its own law parameters and bending (None: the case's)
+    modulus_ratio: float = 1.0  # its E_s over the case's
+    viscosity_ratio: float | None = None  # its λ (None: the case's)
 
 
 @dataclass(frozen=True)
@@ -112,8 +115,47 @@ def body_specs(case: Any) -> list[BodySpec]:
             axis, tilt = capsule.initial_axis, capsule.initial_tilt_deg or 0.0
         else:
             axis, tilt = case.initial_axis, case.initial_tilt_deg
-        out.append(BodySpec(tuple(capsule.center), shape, axis, tilt))
+        out.append(BodySpec(tuple(capsule.center), shape, axis, tilt, capsule.membrane or case.membrane,
+                            float(capsule.modulus_ratio),
+                            capsule.viscosity_ratio if capsule.viscosity_ratio is not None
+                            else case.flow.viscosity_ratio))
     return out
+
+
+def materials(specs: list[BodySpec], bodies: "Bodies", case: Any) -> dict[str, Any] | None:
+    """The capsules' membranes where they differ (None where every capsule has the case's):
+    per element ``element_scale`` (modulus_ratio) and ``element_params`` (the law's parameters),
+    per vertex node ``vertex_scale`` and ``vertex_params``, per node ``node_bending`` (κ) and
+    ``node_lambda`` (λ) — what the membrane force and the model read instead of one value."""
+    from capsim.membrane import get_law
+
+    law = get_law(case.membrane.law)
+    lam = [spec.viscosity_ratio if spec.viscosity_ratio is not None else case.flow.viscosity_ratio for spec in specs]
+    membranes = [spec.membrane if spec.membrane is not None else case.membrane for spec in specs]
+    scale = [spec.modulus_ratio for spec in specs]
+    params = {p: [getattr(m, p) for m in membranes] for p in law.parameters}
+    bending = [m.bending_modulus for m in membranes]
+    uniform = (len(set(lam)) == 1 and len(set(scale)) == 1 and len(set(bending)) == 1
+               and all(len(set(v)) == 1 for v in params.values()))
+    if uniform and scale[0] == 1.0:
+        return None
+
+    def per(values, count):
+        return np.repeat(np.asarray(values, dtype=np.float64), count)
+
+    n_e, n_v, n = bodies.elements_per_body, bodies.vertices_per_body, bodies.nodes_per_body
+    node = np.empty(bodies.count * n)
+    lam_nodes, bend_nodes = node.copy(), node.copy()
+    for i in range(bodies.count):
+        lam_nodes[bodies.nodes(i)] = lam[i]
+        # κ in units of the case's E_s a²: the capsule's own κ (units of its own E_s) times its modulus
+        bend_nodes[bodies.nodes(i)] = bending[i] * scale[i]
+    return {"element_scale": per(scale, n_e), "vertex_scale": per(scale, n_v),
+            "element_params": {p: per(v, n_e) for p, v in params.items()},
+            "vertex_params": {p: per(v, n_v) for p, v in params.items()},
+            "node_bending": bend_nodes, "node_lambda": None if len(set(lam)) == 1 else lam_nodes,
+            "viscosity_ratios": lam, "modulus_ratios": scale, "law_params": [
+                {p: v[i] for p, v in params.items()} for i in range(bodies.count)]}
 
 
 def body_axis(spec: BodySpec) -> tuple[float, float, float]:
@@ -238,3 +280,61 @@ def start_problem(specs: list[BodySpec], base: str, level: int, min_gap: float, 
                 return (f"capsules[{j}].center", list(specs[j].center),
                         f"{what}: capsules must start apart by guards.min_capsule_gap = {min_gap:g} (units of a)")
     return None
+
+
+def groups_keeping_materials(specs: list[BodySpec], groups: dict[str, list[np.ndarray]]) -> set[str]:
+    """The symmetry groups (``capsim.flows.SYMMETRY_GROUPS``) whose every generator maps each
+    capsule onto a capsule of the same membrane, modulus and λ: the mesh's symmetry search sees
+    only positions, and a mirror that maps a stiff capsule onto a soft one is no symmetry."""
+    centers = np.array([spec.center for spec in specs], dtype=np.float64)
+    kinds = [(spec.membrane, spec.modulus_ratio, spec.viscosity_ratio) for spec in specs]
+    kept = set()
+    for name, generators in groups.items():
+        ok = True
+        for S in generators:
+            images = centers * np.asarray(S, dtype=np.float64)  # a generator is a diagonal (x, y, z) → S x
+            for i, image in enumerate(images):
+                j = np.flatnonzero(np.linalg.norm(centers - image, axis=1) < 1e-9)
+                if j.size == 0 or kinds[int(j[0])] != kinds[i]:
+                    ok = False
+        if ok:
+            kept.add(name)
+    return kept
+
+
+def run_capsule_count(data: dict[str, Any]) -> int:
+    """How many capsules a run file's scene holds (``store.read_trajectory``'s dict): its
+    attribute ``n_capsules``, else the width of its per-capsule (t, capsule) columns, else its
+    stored case's ``capsules`` list; 1 for a one-capsule run."""
+    attrs = data.get("attrs", {})
+    if "n_capsules" in attrs:
+        return int(attrs["n_capsules"])
+    for value in data.get("timeseries", {}).values():
+        if np.ndim(value) == 2:
+            return int(np.shape(value)[1])
+    try:
+        import yaml
+
+        return max(1, len(yaml.safe_load(attrs["config_yaml"]).get("capsules") or ()))
+    except Exception:  # noqa: BLE001 - without a readable case: the columns said one
+        return 1
+
+
+def run_bodies(data: dict[str, Any]) -> Bodies:
+    """The layout of a run file's capsules in its union mesh (every capsule's vertex nodes
+    first, then the mid-side nodes; capsule i's elements the block ``elements(i)``), read off
+    the stored mesh and checked against it."""
+    k = run_capsule_count(data)
+    elements = np.asarray(data["elements"])
+    n = np.asarray(data["rest_positions"]).shape[0]
+    vertices = int(elements[:, 3:].min()) if elements.size else 0
+    if k < 1 or n % k or elements.shape[0] % k or vertices % k:
+        raise ValueError(f"the run's mesh ({n} nodes, {elements.shape[0]} elements) is not {k} capsules of one mesh")
+    bodies = Bodies(k, n // k, elements.shape[0] // k, vertices // k)
+    if k > 1:
+        body = bodies.node_body
+        for i in range(k):
+            if np.any(body[elements[bodies.elements(i)]] != i):
+                raise ValueError(f"the run's mesh is not {k} capsules laid one after another (capsim.bodies)")
+    return bodies
+

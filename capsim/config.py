@@ -859,10 +859,14 @@ class Capsule(_Model):
     initial_tilt_deg: Optional[float] = Field(
         None, ge=-90, le=90, description="its in-plane tilt about z (give this or initial_axis, not both)")
     membrane: Optional[Membrane] = Field(
-        None, description="its membrane; must equal the top-level membrane (capsules with membranes of their "
-        "own are not built yet: refused in one line)")
+        None, description="its membrane: the top-level law, traction and viscosity, its own law parameters "
+        "(psi, skalak_c) and bending_modulus (default: the top-level membrane)")
+    modulus_ratio: float = Field(
+        1.0, gt=0, le=1e3,
+        description="its membrane's elastic modulus E_s over the top-level one's, the unit of every modulus "
+        "(a stiffer cell: > 1); its own G is flow.shear_rate_G / modulus_ratio")
     viscosity_ratio: Optional[float] = Field(
-        None, gt=0, description="its λ; must equal flow.viscosity_ratio (per-capsule ratios are not built yet)")
+        None, gt=0, description="its λ, inner over outer viscosity (default: flow.viscosity_ratio)")
 
     @model_validator(mode="after")
     def _one_orientation(self) -> Capsule:
@@ -969,14 +973,22 @@ class Case(_Model):
                                 f"{n} x {self.mesh.n_nodes} nodes (mesh.level {self.mesh.level}) exceed the "
                                 f"{MAX_SCENE_NODES} nodes a scene may hold; use fewer capsules or a lower mesh.level")
         for i, capsule in enumerate(self.capsules):
-            if capsule.membrane is not None and capsule.membrane != self.membrane:
-                raise _FieldProblem(f"capsules[{i}].membrane", "given",
-                                    "differs from the top-level membrane: capsules with membranes of their own are "
-                                    "not built yet; remove it (every capsule takes the top-level membrane)")
-            if capsule.viscosity_ratio is not None and capsule.viscosity_ratio != self.flow.viscosity_ratio:
-                raise _FieldProblem(f"capsules[{i}].viscosity_ratio", capsule.viscosity_ratio,
-                                    f"differs from flow.viscosity_ratio = {self.flow.viscosity_ratio:g}: per-capsule "
-                                    "viscosity ratios are not built yet; remove it")
+            own = capsule.membrane
+            for name in ("law", "traction", "viscosity"):  # one membrane model for the scene (capsim.bodies)
+                if own is not None and getattr(own, name) != getattr(self.membrane, name):
+                    raise _FieldProblem(f"capsules[{i}].membrane.{name}", getattr(own, name) if name != "viscosity"
+                                        else "given",
+                                        f"differs from the top-level membrane.{name}: every capsule takes one {name} "
+                                        "(its own law parameters, bending_modulus and modulus_ratio may differ)")
+            lam = capsule.viscosity_ratio
+            if lam is not None and lam != self.flow.viscosity_ratio:
+                lo, hi = LAMBDA_RANGE
+                if not lo <= lam <= hi:
+                    raise _FieldProblem(f"capsules[{i}].viscosity_ratio", lam, f"must be in [{lo:g}, {hi:g}]")
+                if self.solver.method == "substitution":
+                    raise _FieldProblem(f"capsules[{i}].viscosity_ratio", lam,
+                                        "differs from flow.viscosity_ratio: capsules of different λ need "
+                                        "solver.method gmres")
         if n > 1:
             if self.mesh.symmetry in ("quarter", "half"):
                 raise _FieldProblem("mesh.symmetry", self.mesh.symmetry,
@@ -1215,6 +1227,14 @@ class Case(_Model):
         if self.capsules:
             return self.capsules[0].center
         return self.initial_center if self.initial_center is not None else (0.0, 0.0, 0.0)
+
+    @property
+    def viscosity_ratios(self) -> tuple[float, ...]:
+        """λ of every capsule (flow.viscosity_ratio unless a capsule has its own)."""
+        lam = self.flow.viscosity_ratio
+        if not self.capsules:
+            return (lam,)
+        return tuple(c.viscosity_ratio if c.viscosity_ratio is not None else lam for c in self.capsules)
 
     @property
     def n_capsules(self) -> int:

@@ -89,9 +89,9 @@ SCENE_FIELDS: dict[str, tuple[str, str]] = {
 def capsule_fields(data: dict[str, Any]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """(point_data, cell_data) ``capsule`` of a run of several capsules: each node's and each
     element's capsule index in the union mesh (capsim.bodies layout); ({}, {}) for one capsule."""
-    from capsim.plot import scene_bodies
+    from capsim.bodies import run_bodies
 
-    bodies = scene_bodies(data)
+    bodies = run_bodies(data)
     if bodies.count < 2:
         return {}, {}
     cell = np.repeat(np.arange(bodies.count, dtype=np.int64), bodies.elements_per_body)

@@ -268,7 +268,9 @@ class HingeBending:
     modulus: float
 
     @classmethod
-    def from_rest(cls, rest_positions: Array, elements: Array, modulus: float) -> "HingeBending":
+    def from_rest(cls, rest_positions: Array, elements: Array, modulus: float | Array) -> "HingeBending":
+        """``modulus``: κ, or one κ per node (several capsules: each hinge takes its edge's first
+        node's; ``modulus`` then keeps the largest)."""
         triangles = linear_subtriangles(elements)
         hinges = surface_hinges(triangles)
         X = np.ascontiguousarray(rest_positions, dtype=np.float64)
@@ -277,9 +279,10 @@ class HingeBending:
         area = 0.5 * (np.linalg.norm(np.cross(e, X[o1] - X[a]), axis=1)
                       + np.linalg.norm(np.cross(X[o2] - X[a], e), axis=1))
         length2 = np.einsum("ij,ij->i", e, e)
-        weight = HINGE_CALIBRATION * modulus * length2 / area
+        kappa = modulus if np.ndim(modulus) == 0 else np.asarray(modulus, dtype=np.float64)[a]
+        weight = HINGE_CALIBRATION * kappa * length2 / area
         theta0 = hinge_angles(X, hinges)
-        return cls(hinges, theta0, np.ascontiguousarray(weight), float(modulus))
+        return cls(hinges, theta0, np.ascontiguousarray(weight), float(np.max(modulus)))
 
     def energy_gradient(self, x: Array) -> tuple[float, Array]:
         return kernels.hinge_bending_gradient(np.ascontiguousarray(x), self.hinges, self.theta0, self.weight)
@@ -720,6 +723,7 @@ class MembraneForce:
         bending_modulus: float = 0.0,
         bending: HingeBending | None = None,
         traction_method: str = "galerkin",
+        material: dict | None = None,
     ):
         if traction_method not in TRACTION_METHODS:
             raise ValueError(f"unknown traction method {traction_method!r} (allowed: {TRACTION_METHODS})")
@@ -728,7 +732,12 @@ class MembraneForce:
         self.traction_solve = TRACTION_MEASURES[self.law.measure](self)
         self.rest_positions = rest_positions
         self.law_params = dict(law_params or {})
-        if bending is None and bending_modulus > 0.0:
+        #: several capsules of their own membranes (capsim.bodies.materials): the law's parameters and
+        #: the modulus per element and per vertex, κ per node; None: one membrane everywhere
+        self.material = material
+        if material is not None and bending is None and float(np.max(material["node_bending"])) > 0.0:
+            bending = HingeBending.from_rest(rest_positions, disc.elements, material["node_bending"])
+        elif bending is None and bending_modulus > 0.0:
             bending = HingeBending.from_rest(rest_positions, disc.elements, bending_modulus)
         if bending is not None and traction_method != "galerkin":
             raise ValueError("bending needs the galerkin traction method")
@@ -782,7 +791,11 @@ class MembraneForce:
             x, self.rest_positions, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta,
         )
         strain = strain_from_gradient(A, n_cur)
-        return strain, tension_tensor(strain, self.law, self.law_params)
+        material = self.material
+        if material is None:
+            return strain, tension_tensor(strain, self.law, self.law_params)
+        tension = tension_tensor(strain, self.law, material["vertex_params"])
+        return strain, material["vertex_scale"][:, None, None] * tension
 
     def gauss_point_strain(self, x: Array, elems: Array | None = None) -> tuple[Array, ...]:
         """Λ1, Λ2, the dual tangents and J0 at the Gauss points of ``elems`` (default: every
@@ -800,7 +813,14 @@ class MembraneForce:
         disc = self.disc
         elems = disc.all_elements if elems is None else elems
         inv1, inv2, dual_cur, dual_ref, jac0 = self.gauss_point_strain(x, elems)
-        w1, w2 = self.law.derivatives(inv1, inv2, **self.law_params)
+        material = self.material
+        if material is None:
+            w1, w2 = self.law.derivatives(inv1, inv2, **self.law_params)
+        else:  # several capsules of their own membranes: parameters and modulus per element
+            params = {k: v[elems][:, None] for k, v in material["element_params"].items()}
+            w1, w2 = self.law.derivatives(inv1, inv2, **params)
+            scale = material["element_scale"][elems][:, None]
+            w1, w2 = w1 * scale, w2 * scale
         rhs = kernels.galerkin_energy_gradient(
             disc.elements, elems, disc.n_nodes, disc.mem_dxi, disc.mem_deta, disc.mem_w,
             jac0, np.ascontiguousarray(w1), np.ascontiguousarray(w2), dual_cur, dual_ref,

@@ -1357,15 +1357,22 @@ class StepObserver:
 
 
 def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarray, weights: np.ndarray,
-                strain, elements: np.ndarray, director: MaterialDirector) -> dict:
+                strain, elements: np.ndarray, director: MaterialDirector, material: dict | None = None) -> dict:
     """One capsule's columns at an accepted state (its nodes y, u, its elements' geometry,
     density and weights, its vertex strain, its own connectivity): shape, orientation, membrane
-    state, centroid motion, stresslet (and, as "_S_star", the stresslet tensor itself)."""
+    state, centroid motion, stresslet (and, as "_S_star", the stresslet tensor itself).
+    ``material``: the capsule's own law parameters, modulus ratio and λ (several capsules of
+    their own membranes; None: the model's)."""
+    law_params = model.law_params if material is None else material["law_params"]
+    modulus = 1.0 if material is None else material["modulus_ratio"]
+    lam = model.viscosity_ratio if material is None else material["viscosity_ratio"]
     smax = float(np.max(strain.principal_stretches[0]))
     row = step_observables(y, elements, geometry, smax)
     row.update(director_observables(director(geometry)))
     # compressive tensions: where a membrane without bending stiffness would wrinkle
-    _, tau2 = principal_tensions(strain, model.law, model.law_params)
+    _, tau2 = principal_tensions(strain, model.law, law_params)
+    if material is not None:
+        tau2 = modulus * tau2
     row["min_tension"] = float(tau2.min()) / model.shear_rate_G
     row["compressed_fraction"] = float(np.mean(tau2 < -COMPRESSION_TOL))
     center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
@@ -1377,7 +1384,7 @@ def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarr
         row["wall_gap"] = float(y[:, 1].min() - model.wall_y)
     S_star = particle_stresslet(
         geometry, density, u, elements, model.disc.reg_phi, center, row["volume"],
-        model.shear_rate_G, model.viscosity_ratio, weights,
+        model.shear_rate_G, lam, weights,
     )
     row["_S_star"] = S_star
     row.update(stresslet_observables(S_star))
@@ -1392,6 +1399,10 @@ class _CapsulePart:
 
     def __init__(self, model, bodies, i: int, rest_positions: np.ndarray, axis) -> None:
         self.index = i
+        material = getattr(model.membrane, "material", None)  # the capsules' own membranes and λ
+        self.material = None if material is None else {
+            "law_params": material["law_params"][i], "modulus_ratio": material["modulus_ratios"][i],
+            "viscosity_ratio": material["viscosity_ratios"][i]}
         self.nodes, self.vertices, self.elements = bodies.nodes(i), bodies.vertices(i), bodies.elements(i)
         own = np.empty(bodies.count * bodies.nodes_per_body, dtype=np.int64)
         own[self.nodes] = np.arange(bodies.nodes_per_body)
@@ -1418,7 +1429,8 @@ class _CapsulePart:
         model = self.model
         geometry = self._geometry(state.geometry)
         row = capsule_row(model, yi, ui, geometry, np.ascontiguousarray(state.density[e]),
-                          np.ascontiguousarray(state.weights[e]), mine, self.own_elements, self.director)
+                          np.ascontiguousarray(state.weights[e]), mine, self.own_elements, self.director,
+                          self.material)
         if viscous_traction is not None:  # the membrane's viscous share of the stresslet and its dissipation
             center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
             own = np.ascontiguousarray(viscous_traction[self.nodes][self.own_elements])

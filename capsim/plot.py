@@ -40,6 +40,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from capsim.mesh import linear_subtriangles  # numba-free: figures need no kernels
+from capsim.bodies import run_bodies, run_capsule_count
 from capsim.quantities import PERIODIC_MOTIONS, canonical_motion
 
 __all__ = [
@@ -286,39 +287,8 @@ CAPSULE_LEGEND_MAX = 10
 _CAPSULE_STYLES = ("-", "--", ":", "-.")
 
 
-def capsule_count(data: dict[str, Any]) -> int:
-    """How many capsules the run's scene holds: the width of its per-capsule (t, capsule)
-    columns, else the stored case's ``capsules`` list; 1 for a one-capsule run."""
-    for value in data["timeseries"].values():
-        if np.ndim(value) == 2:
-            return int(np.shape(value)[1])
-    try:
-        from capsim.export import case_of
-
-        return max(1, len(case_of(data).capsules or ()))
-    except Exception:  # noqa: BLE001 - without a readable case: the columns said one
-        return 1
-
-
-def scene_bodies(data: dict[str, Any]):
-    """The layout of the run's capsules in its union mesh (capsim.bodies.Bodies): capsule i's
-    nodes ``nodes(i)`` and its elements the block ``elements(i)``, read off the stored mesh
-    (every capsule's vertex nodes first, then the mid-side nodes)."""
-    from capsim.bodies import Bodies
-
-    k = capsule_count(data)
-    elements = np.asarray(data["elements"])
-    n = np.asarray(data["rest_positions"]).shape[0]
-    vertices = int(elements[:, 3:].min()) if elements.size else 0
-    if k < 1 or n % k or elements.shape[0] % k or vertices % k:
-        raise ValueError(f"the run's mesh ({n} nodes, {elements.shape[0]} elements) is not {k} capsules of one mesh")
-    bodies = Bodies(k, n // k, elements.shape[0] // k, vertices // k)
-    if k > 1:
-        body = bodies.node_body
-        for i in range(k):
-            if np.any(body[elements[bodies.elements(i)]] != i):
-                raise ValueError(f"the run's mesh is not {k} capsules laid one after another (capsim.bodies)")
-    return bodies
+# the layout of a run file's capsules (capsim.bodies owns it; export reads it there too)
+capsule_count, scene_bodies = run_capsule_count, run_bodies
 
 
 def _capsule_looks(k: int) -> list[tuple[Any, str | None]]:

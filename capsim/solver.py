@@ -23,7 +23,8 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from capsim import kernels
-from capsim.bodies import Bodies, body_specs, reference_positions, scene_mesh
+from capsim.bodies import (Bodies, body_specs, groups_keeping_materials, materials, reference_positions,
+                           scene_mesh)
 # the far field and the scene's symmetries live in capsim.flows (re-exported here)
 from capsim.flows import (  # noqa: F401
     INVERSION, MIRROR_Z, ROTATION_Z, SIMPLE_SHEAR, SYMMETRY_CANDIDATES, SYMMETRY_GROUPS, FarField, far_field_of, scaled,
@@ -561,6 +562,9 @@ class CapsuleModel:
     wall_y: float | None = None
     # the scene's capsules (capsim.bodies): their node and element ranges; each keeps its own volume
     bodies: Bodies | None = None
+    # capsules of different λ: λ at every node (None: viscosity_ratio everywhere). The double layer
+    # then acts on (1 − λ) u, each capsule's term with its own λ (``double_layer_operator``)
+    node_lambda: np.ndarray | None = None
     # flow.history kinds oscillating and table: the rate's factor a(t) at the time of the
     # evaluation (``time``, set by the runner before each; None: a constant rate)
     rate_factor: Callable[[float], float] | None = field(default=None, repr=False, compare=False)
@@ -734,6 +738,7 @@ class CapsuleModel:
             state = self.membrane(x)
         self.counts["velocity_evaluations"] += 1
         lam = self.viscosity_ratio
+        viscous_interior = lam != 1.0 or self.node_lambda is not None  # a double-layer solve
         t0 = time.perf_counter()
         sl = self.disc.single_layer(x, state.geometry, state.density, state.measure, y_wall=self.wall_y)
         self.counts["single_layer_applications"] += 1
@@ -742,7 +747,7 @@ class CapsuleModel:
         clock = self.disc.clock
         u_explicit = self.undisturbed(x) - sl / (8.0 * np.pi * self.shear_rate_G)
         clock.lap("far_field")
-        needs_normals = lam != 1.0 or self.volume_correction
+        needs_normals = viscous_interior or self.volume_correction
         normals = self.disc.nodal_normals(x) if needs_normals else None
         clock.lap("normals")
         if self.viscous is not None:
@@ -755,7 +760,7 @@ class CapsuleModel:
                     f"viscous membrane velocity solve did not converge: residual {info['residual']:.2e} > tol "
                     f"{self.solver_tol:.1e} after {info['iterations']} iterations "
                     f"(membrane.viscosity.shear = {self.viscous.shear:g})")
-        elif lam == 1.0:
+        elif not viscous_interior:
             self.last_solve_info = {"iterations": 0, "residual": 0.0}
             u = u_explicit
         else:
@@ -827,6 +832,19 @@ class CapsuleModel:
         area = geo.weights.sum()
         counts = self.counts
 
+        if self.node_lambda is not None:
+            # capsules of different λ: D[(1 − λ) u] (D[w](x0) = ∫ (w − w0)·T·n dS; on another capsule's
+            # surface ∫ T·n dS = 0 at x0, so each capsule's term carries its own 1 − λ), every capsule's
+            # volume mode deflated with its own (1 − λ)
+            w = (1.0 - self.node_lambda)[:, None]
+
+            def apply(u):
+                counts["double_layer_applications"] += 1
+                wu = w * u
+                return (u - disc.double_layer(x, geo, wu, y_wall=self.wall_y) / (8.0 * np.pi)
+                        + w * normals * self.body_fluxes(geo, u, normals, divisor="area"))
+
+            return apply
         if self.several:  # every capsule's own volume mode, deflated by its own flux over its own area
             def apply(u):
                 counts["double_layer_applications"] += 1
@@ -847,12 +865,15 @@ class CapsuleModel:
     ) -> np.ndarray:
         lam = self.viscosity_ratio
         apply = self.double_layer_operator(x, geo, normals)
+        # the operator's spectrum lies in [min(1, λ), max(1, λ)] (over the capsules' λ): the
+        # Richardson step 2/(lo + hi), 2/(1 + λ) for one λ
+        lams = [lam] if self.node_lambda is None else [float(self.node_lambda.min()), float(self.node_lambda.max())]
+        omega = 2.0 / (min(1.0, *lams) + max(1.0, *lams))
         if self._last_velocity is not None and self._last_velocity.shape == rhs.shape:
             guess = self._last_velocity
             if self._last_rhs is not None and self._last_rhs.shape == rhs.shape:
-                # the operator's spectrum lies in [min(1, λ), max(1, λ)]: carry the change
-                # of the right-hand side over with the Richardson step 2/(1+λ)
-                guess = guess + (2.0 / (1.0 + lam)) * (rhs - self._last_rhs)
+                # carry the change of the right-hand side over with the Richardson step
+                guess = guess + omega * (rhs - self._last_rhs)
         else:
             guess = rhs
         self._last_rhs = rhs
@@ -876,7 +897,6 @@ class CapsuleModel:
         elif residual > self.solver_tol:
             # successive substitution (seed §3) as Richardson iteration with the
             # optimal step for a spectrum in [min(1, λ), max(1, λ)]: rate |1−λ|/(1+λ)
-            omega = 2.0 / (1.0 + lam)
             while residual > self.solver_tol and iterations < self.solver_max_iter:
                 u = u + omega * r
                 r = rhs - apply(u)
@@ -929,7 +949,10 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
     # a body placed away from the origin keeps fewer symmetries: mesh.symmetry auto finds which
     far_field = scene_far_field(case)  # the flow, vanishing on the wall when there is one
     if mode != "none":
-        symmetric = disc.enable_symmetry(positions, mode=mode, allowed=symmetries_kept(far_field))
+        allowed = set(symmetries_kept(far_field))
+        if bodies.count > 1:  # a symmetry maps a capsule onto one of the same membrane and λ
+            allowed &= groups_keeping_materials(specs, SYMMETRY_GROUPS)
+        symmetric = disc.enable_symmetry(positions, mode=mode, allowed=tuple(allowed))
         if symmetric is not None:
             positions = symmetric
         elif mode != "auto":
@@ -941,10 +964,12 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
     # shape.inflation α: the stress-free reference is the initial shape shrunk by 1 + α about its
     # centre (the returned rest positions stay the initial ones: the run starts from them)
     reference = reference_positions(rest, bodies, specs)
+    material = materials(specs, bodies, case) if bodies.count > 1 else None  # capsules' own membranes, λ
     forces = MembraneForce(
         disc, reference, law, {p: getattr(case.membrane, p) for p in law.parameters},
         bending_modulus=case.membrane.bending_modulus,
         traction_method=case.membrane.traction,
+        material=material,
     )
     viscosity = case.membrane.viscosity
     viscous = build_viscous(disc, reference, None if viscosity is None else viscosity.model_dump())
@@ -964,5 +989,6 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
         rate_factor=case.flow.rate_factor,
         wall_y=case.wall_y,
         bodies=bodies,
+        node_lambda=None if material is None else material["node_lambda"],
     )
     return model, rest

@@ -536,7 +536,8 @@ class RungeKuttaChebyshev(Integrator):
         # a GMRES velocity (λ ≠ 1, a viscous membrane) is exact only to its tolerance: probe with a
         # perturbation whose response stands well above that noise
         viscosity = getattr(case.membrane, "viscosity", None)
-        exact = case.flow.viscosity_ratio == 1.0 and not (viscosity is not None and viscosity.active)
+        exact = (all(lam == 1.0 for lam in getattr(case, "viscosity_ratios", (case.flow.viscosity_ratio,)))
+                 and not (viscosity is not None and viscosity.active))
         return {**super().settings(case, model), "max_stages": tc.max_stages,
                 "rho_refresh_steps": tc.rho_refresh_steps,
                 "probe_scale": 1.5e-8 if exact else max(1.5e-8, 100.0 * case.solver.tol)}
@@ -956,7 +957,7 @@ class Automatic(Integrator):
 
     @classmethod
     def resolve(cls, case: Any, model: Any, rhs: RightHandSide, y0: np.ndarray) -> tuple[type, str, int, Any]:
-        lam = case.flow.viscosity_ratio
+        lam = max(getattr(case, "viscosity_ratios", (case.flow.viscosity_ratio,)))  # the most viscous capsule
         implicit = cls._implicit_ok(case)
         if lam >= cls.TUMBLING_LAMBDA:
             if implicit:

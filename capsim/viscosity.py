@@ -282,7 +282,8 @@ class KelvinVoigtMembrane:
             K, mass = self._stiffness_at(x), None
         red = self._reduction_for(model)
         r = red.reduced
-        double = model.double_layer_operator(x, geo, normals) if lam != 1.0 else None
+        double = (model.double_layer_operator(x, geo, normals)
+                  if lam != 1.0 or getattr(model, "node_lambda", None) is not None else None)
         elements = disc.elements
 
         if self.preconditioner == "local":  # factorised here, at x

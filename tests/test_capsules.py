@@ -197,7 +197,8 @@ def test_per_capsule_columns_and_the_summary_read_with_xarray(tmp_path):
     ([{"center": [0, 0, 0]}, {"center": [2.01, 0, 0]}], "capsules[1].center"),         # within the gap
     ([], "capsules"),                                                                   # empty
     ([{"center": [0, 0, 0], "colour": "red"}], "colour"),                              # unknown field
-    ([{"center": [0, 0, 0], "viscosity_ratio": 3.0}], "capsules[0].viscosity_ratio"),  # not built
+    ([{"center": [0, 0, 0], "membrane": {"law": "skalak"}}], "capsules[0].membrane.law"),  # one law
+    ([{"center": [0, 0, 0], "viscosity_ratio": 1e4}], "capsules[0].viscosity_ratio"),    # out of range
     ([{"center": [3 * i, 0, 0]} for i in range(65)], "capsules"),                      # too many
 ])
 def test_bad_capsules_are_refused_in_one_line(tmp_path, capsules, field):
@@ -262,3 +263,32 @@ def test_far_apart_capsules_are_isolated_ones_with_a_viscous_membrane_and_above_
         for i in range(2):
             assert two[key][-1, i] == pytest.approx(one[key][-1], rel=1e-4,
                                                     abs=1e-5 if key == "centroid_velocity_y" else 1e-7), key
+
+
+@pytest.mark.parametrize("own, single", [
+    ({"modulus_ratio": 2.0}, {"flow": {"shear_rate_G": 0.05}}),
+    ({"viscosity_ratio": 3.0}, {"flow": {"shear_rate_G": 0.1, "viscosity_ratio": 3.0}}),
+    ({"membrane": {"bending_modulus": 0.01}}, {"membrane": {"bending_modulus": 0.01}}),
+    ({"membrane": {"law": "skalak", "skalak_c": 50.0}}, {"membrane": {"law": "skalak", "skalak_c": 50.0}}),
+])
+def test_a_capsule_of_its_own_membrane_or_viscosity_is_the_isolated_capsule_of_them(tmp_path, own, single):
+    """Capsules of different membranes and λ (capsim.bodies.materials): far apart, each is the
+    isolated capsule of its own: twice the modulus is the capsule at half the G (its tensions in
+    the flow's μka the same), λ = 3 the λ = 3 capsule, its own bending or Skalak C its own run
+    (D_xy, θ, S*_xy to 1e-4, measured 5e-6; the smallest tension, an extreme over the vertices,
+    to 5e-4, measured 1.2e-4). The two are no images of each
+    other: the scene keeps only the rotation about z, which maps each onto itself."""
+    base = {"mesh": {"level": 1}, "time": {"t_end": 1.5}, "flow": {"shear_rate_G": 0.1}}
+    top = {k: v for k, v in single.items() if k == "membrane" and "law" in v}  # one law for the scene
+    lone = run_case(case_from_dict({**base, **single, "name": "lone", "output": {"path": str(tmp_path / "a.h5")}}))
+    other = {**base, **({"membrane": {"law": top["membrane"]["law"]}} if top else {}), "name": "two",
+             "capsules": [{"center": [0, 0, -15], **own}, {"center": [0, 0, 15]}],
+             "output": {"path": str(tmp_path / "b.h5")}}
+    pair = run_case(case_from_dict(other))
+    assert lone.status == pair.status == "completed"
+    a, b = _series(tmp_path / "a.h5"), _series(tmp_path / "b.h5")
+    for key in ("D_xy", "theta", "Sxy_star", "min_tension"):  # the extreme of a field: 1.2e-4 measured
+        assert b[key][-1, 0] == pytest.approx(a[key][-1], rel=5e-4 if key == "min_tension" else 1e-4), key
+    with h5py.File(tmp_path / "b.h5", "r") as f:
+        assert f.attrs["symmetry"] == "rotation_z"
+
