@@ -78,6 +78,13 @@ bench-split: venv
 bench-promise: venv
 	$(BIN)/python benchmarks/stepping.py --promise $(CASES)
 
+# auto's pick against every fixed scheme in wall time (issue 44: within 1.25x of the fastest), the
+# stepping cases at levels 2 and 3 made cheaper, rtol 1e-4, median of 3 interleaved (about 10 min;
+# CASES=g2 a3 to run some): writes benchmarks/auto_choice.md and benchmarks/auto_choice.json
+.PHONY: bench-auto
+bench-auto: venv
+	$(BIN)/python benchmarks/auto_choice.py $(CASES)
+
 # red cells against Tran-Son-Tay, Sutera & Rao 1984 (issue 40): the five shear rates with and
 # without membrane viscosity, the sensitivity at 28.6 1/s and two other membrane laws, level 2, one run at a time (about
 # 25 min on one core; runs already in benchmarks/tran_son_tay.json are kept): writes
@@ -102,6 +109,10 @@ bench-pair: venv
 .PHONY: bench-capsules
 bench-capsules: venv
 	PYTHONPATH=. $(BIN)/python benchmarks/capsules.py $(if $(FMM_PYTHON),--fmm-python $(FMM_PYTHON))
+
+.PHONY: bench-error-model
+bench-error-model: venv
+	$(BIN)/python benchmarks/error_model.py
 
 .PHONY: bench-tts
 bench-tts: venv

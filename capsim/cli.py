@@ -112,6 +112,9 @@ def run(
     ),
     t_end: Optional[float] = typer.Option(None, "--t-end", help="override time.t_end"),
     level: Optional[int] = typer.Option(None, "--level", help="override mesh.level"),
+    accuracy: Optional[str] = typer.Option(None, "--accuracy", metavar="QUANTITY=TARGET",
+                                           help="an accuracy target, e.g. D_xy=1e-3: capsim picks the level and rtol"),
+    verify: bool = typer.Option(False, "--verify", help="afterwards, the error estimate against the accuracy target"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress line"),
     resume: bool = typer.Option(
         False, "--resume", help="continue an interrupted run from the checkpoint beside its output, "
@@ -137,8 +140,12 @@ def run(
     from capsim.config import ConfigError
     from capsim.files import LockedError, OutputError, StorageError, is_hdf5
 
+    quantity, target = _accuracy_option(accuracy)
     case = _load(case_path, sets, **{"output.path": str(output) if output is not None else None,
-                                     "time.t_end": t_end, "mesh.level": level})
+                                     "time.t_end": t_end, "mesh.level": level, "accuracy.quantity": quantity,
+                                     "accuracy.target": target})
+    if case.accuracy is not None:  # the prediction, before the run
+        typer.echo(case.accuracy.choice, err=True)
     factors = _factors(case, str(case_path)) if units.value == "physical" else None  # refused before the run
     try:
         summary = api.run(case, inputs=[] if is_hdf5(case_path) else [case_path], overwrite=overwrite, resume=resume, progress=not quiet)
@@ -154,10 +161,10 @@ def run(
     from capsim.display import print_summary
 
     print_summary({**summary, "shear_rate_G": case.flow.shear_rate_G}, title=case.name, factors=factors)
-    if error_estimate and summary.get("status") == "completed":
+    if (error_estimate or verify) and summary.get("status") == "completed":
         from capsim.study import run_error_estimate
 
-        typer.echo(_files_call(run_error_estimate, case, summary))
+        typer.echo(_files_call(run_error_estimate, case, summary, verify=verify))
     raise typer.Exit(code=0 if summary.get("status") == "completed" else 1)
 
 
@@ -500,6 +507,17 @@ def export(
     except ExportError as exc:
         raise _user_error(str(exc)) from None
     typer.echo(f"{files[0]} ({len(files)} files)")
+
+
+def _accuracy_option(text: str | None) -> tuple[str | None, float | None]:
+    """--accuracy QUANTITY=TARGET as (quantity, target); a malformed one exits 2."""
+    if text is None:
+        return None, None
+    quantity, _, target = text.partition("=")
+    try:
+        return quantity.strip(), float(target)
+    except ValueError:
+        raise _user_error(f"--accuracy {text!r}: give QUANTITY=TARGET, e.g. --accuracy D_xy=1e-3") from None
 
 
 def _number_list(text: str, kind: type, option: str) -> list:

@@ -15,7 +15,7 @@ import stat
 import warnings
 from contextvars import ContextVar
 from collections.abc import Mapping
-from typing import Any, Literal, Optional, get_args, get_origin
+from typing import Any, Literal, Optional, Union, get_args, get_origin
 
 import yaml
 from pydantic import (
@@ -622,12 +622,18 @@ class _TimeCommon(_Model):
     t_end: float = Field(
         10.0, gt=0, description="end time, at least 1e-6 and at least dt_min (else no step is taken)"
     )
-    rtol: float = Field(
-        1.0e-4, gt=0, lt=1,
+    rtol: Union[float, Literal["auto"]] = Field(
+        "auto",
         description="the time error's bound, the same for every scheme: max over t of |D_xy error| <= 1.5 rtol "
         "and |theta error| <= 6 rtol rad (docs/time_stepping.md); at least 1e-10: the velocities it "
-        "compares are accurate to ~1e-12 (quadrature round-off, solver.tol), so a smaller one chases noise",
+        "compares are accurate to ~1e-12 (quadrature round-off, solver.tol), so a smaller one chases noise. "
+        "auto (the default): the largest tolerance whose time error stays below a tenth of the mesh level's "
+        "own error (capsim.accuracy, from the error model: docs/benchmarks.md, \"Error model\"); rtol_choice "
+        "then says what it chose and why",
     )
+    rtol_choice: Optional[str] = Field(
+        None, description="set by capsim, not a setting: why time.rtol auto (or the accuracy target) chose "
+        "the tolerance the case holds")
     # dt_min and dt_max come before dt_initial so that its check can see both.
     dt_min: float = Field(1.0e-8, gt=0)
     dt_max: float = Field(0.5, gt=0)
@@ -662,7 +668,13 @@ class _TimeCommon(_Model):
 
     @field_validator("rtol")
     @classmethod
-    def _rtol_above_round_off(cls, v: float) -> float:
+    def _rtol_above_round_off(cls, v):
+        if v == "auto":
+            return v
+        if not v > 0:
+            raise ValueError("must be > 0 (or auto)")
+        if not v < 1:
+            raise ValueError("must be < 1 (or auto)")
         if v < 1e-10:
             raise ValueError("must be >= 1e-10 (the velocities are accurate to ~1e-12)")
         return v
@@ -878,8 +890,24 @@ class Capsule(_Model):
         return self
 
 
+class Accuracy(_Model):
+    """An accuracy target (capsim.accuracy): the mesh level and time.rtol that meet it at the least
+    predicted cost, from the error model (docs/benchmarks.md, "Error model")."""
+
+    quantity: Literal["D_xy", "theta", "Sxy_star"] = Field(
+        ..., description="the value at t_end the target is for: D_xy, theta (θ) or Sxy_star (S*_xy)")
+    target: float = Field(
+        ..., gt=0, lt=1,
+        description="its largest error: relative (a fraction of the value) for D_xy and Sxy_star, in rad for theta")
+    choice: Optional[str] = Field(
+        None, description="set by capsim, not a setting: the level and rtol chosen, the predicted error and cost")
+
+
 class Case(_Model):
-    """One simulation: every knob that changes the result, nothing else."""
+    """One simulation: every knob that changes the result, nothing else.
+
+    Validated in order: the fields, then the cross-field checks below (the accuracy target and
+    time.rtol auto first: the others see the level and tolerance they choose)."""
 
     name: str = Field(
         min_length=1, max_length=NAME_MAX, pattern=r"^[A-Za-z0-9._-]+$",
@@ -914,6 +942,9 @@ class Case(_Model):
     wall: Optional[Wall] = Field(
         None, description="a no-slip plane wall below the capsule (none: unbounded flow); simple shear, any λ, "
         "an elastic membrane; the run stops 'unstable' (guard min_wall_gap) before the membrane touches it")
+    accuracy: Optional[Accuracy] = Field(
+        None, description="an accuracy target: capsim picks mesh.level and time.rtol that meet it at the least "
+        "predicted cost (give it or those two, not both); capsim run --verify checks it afterwards")
     capsules: Optional[list[Capsule]] = Field(
         None, min_length=1,
         description="several capsules (capsim.bodies): each with its center and, where it differs from the "
@@ -926,6 +957,48 @@ class Case(_Model):
         "which is then computed and stored (giving both is an error, unless flow.shear_rate_G is the "
         "value they give, as in a resolved case)",
     )
+
+    @model_validator(mode="after")
+    def _level_and_tolerance_from_the_error_model(self) -> Case:
+        """The accuracy target's level and rtol, else time.rtol auto's rtol (capsim.accuracy); a
+        resolved case (a run file's) holds the choice and is taken as it is."""
+        from capsim import accuracy as error_model
+
+        if self.accuracy is not None and self.accuracy.choice is None:
+            for field, given in (("mesh.level", "level" in self.mesh.model_fields_set),
+                                 ("time.rtol", self.time.rtol != "auto")):
+                if given:
+                    raise _FieldProblem("accuracy", self.accuracy.quantity,
+                                        f"give accuracy or {field}, not both: the target chooses it; remove one")
+            try:
+                best = error_model.choose(self.accuracy.quantity, self.accuracy.target, self.time.t_end,
+                                          *self._error_model_class())
+            except error_model.AccuracyError as exc:
+                raise _FieldProblem("accuracy.target", self.accuracy.target, str(exc).split(": ", 1)[1]) from None
+            self._set_resolved("mesh", "level", best["level"])
+            self._set_resolved("time", "rtol", best["rtol"])
+            self._set_resolved("time", "rtol_choice", best["why"])
+            self._set_resolved("accuracy", "choice", best["why"])
+        elif self.time.rtol == "auto":
+            rtol, why = error_model.auto_rtol(self.mesh.level, *self._error_model_class())
+            self._set_resolved("time", "rtol", rtol)
+            self._set_resolved("time", "rtol_choice", why)
+        return self
+
+    def _error_model_class(self) -> tuple[str, bool]:
+        """(rest shape, λ = 1) of the case: what selects its entry of the error model (several
+        capsules: the first one's shape, λ = 1 when every capsule's is)."""
+        shape = self.capsules[0].shape.kind if self.capsules and self.capsules[0].shape is not None \
+            else self.shape.kind
+        return shape, all(lam == 1.0 for lam in self.viscosity_ratios)
+
+    def _set_resolved(self, section: str, name: str, value: Any) -> None:
+        """A value capsim chooses (frozen models: set once while validating), left out of the
+        fields the user set: a campaign's run ids, made of those, do not change with it."""
+        old = getattr(self, section)
+        new = old.model_copy(update={name: value})
+        object.__setattr__(new, "__pydantic_fields_set__", set(old.model_fields_set))
+        object.__setattr__(self, section, new)
 
     @model_validator(mode="after")
     def _a_wall_this_case_can_take(self) -> Case:
@@ -1561,6 +1634,7 @@ def load_case_with(path: str | os.PathLike, sets: list[str] | None = None, **ove
 #: as (derived field, the field of the old case it was computed from; None: always). Every
 #: physical value enters G; the radius and the moduli enter κ/(E_s a²) and the viscosity and
 #: the radius Bq = μ_s/(μ a) too, when the case computes them from physical.
+_UNSET = "<unless the case set it>"  # a derived field's source: dropped unless the old case gave it itself
 DERIVED_FIELDS = {
     "physical": (("flow.shear_rate_G", None), ("membrane.bending_modulus", "physical.bending_modulus"),
                  ("membrane.viscosity.shear", "physical.membrane_viscosity"),
@@ -1569,7 +1643,21 @@ DERIVED_FIELDS = {
     "physical.bending_modulus": (("membrane.bending_modulus", None),),
     "physical.membrane_viscosity": (("membrane.viscosity.shear", None),),
     "physical.inner_viscosity": (("flow.viscosity_ratio", None),),
+    # time.rtol auto and the accuracy target choose again for another level or target
+    "mesh.level": (("time.rtol", "time.rtol_choice"), ("time.rtol_choice", None), ("accuracy.choice", None)),
+    "accuracy": (("mesh.level", _UNSET), ("time.rtol", _UNSET), ("time.rtol_choice", None), ("accuracy.choice", None)),
 }
+
+
+def _was_set(case: Case, dotted: str) -> bool:
+    """Whether the case gave the dotted field itself (not its default, nor a value capsim chose)."""
+    *path, name = dotted.split(".")
+    node: Any = case
+    for part in path:
+        node = getattr(node, part, None)
+        if node is None:
+            return False
+    return name in node.model_fields_set
 
 
 def _lookup(data: dict, dotted: str) -> Any:
@@ -1636,7 +1724,10 @@ def apply_overrides(case: Case, **dotted: Any) -> Case:
         if not any(key == given or key.startswith(given + ".") for key in dotted):
             continue
         for derived, source in derived_fields:
-            if derived in dotted or (source is not None and _lookup(old, source) is None):
+            if source == _UNSET:
+                if derived in dotted or _was_set(case, derived):
+                    continue
+            elif derived in dotted or (source is not None and _lookup(old, source) is None):
                 continue
             *path, field = derived.split(".")
             parent = _lookup(data, ".".join(path))

@@ -474,6 +474,8 @@ def summary_rows(summary: dict[str, Any], factors: Mapping[str, float] | None = 
         scaled("N2_star", "N2*", "S_yy - S_zz"),
         ("scheme", summary.get("scheme")),
         ("scheme chosen because", summary.get("scheme_choice")),
+        ("rtol", (f"{summary['rtol']:g}" + (f" ({summary['rtol_choice']})" if summary.get("rtol_choice") else ""))
+         if isinstance(summary.get("rtol"), float) else None),
         ("steps", fmt(summary.get("steps"), "d")),
         ("velocity evaluations", fmt(summary.get("velocity_evaluations"), "d")),
         ("layer applications", fmt(summary.get("layer_applications"), "d")),

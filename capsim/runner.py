@@ -141,6 +141,8 @@ class RunResult(Mapping):
     wall_time_s: float | None = None
     scheme: str | None = None
     scheme_choice: str | None = None
+    rtol: float | None = None
+    rtol_choice: str | None = None  # time.rtol auto or the accuracy target: what it chose and why
     velocity_evaluations: int | None = None
     layer_applications: int | None = None
     linear_iterations: int | None = None
@@ -311,6 +313,8 @@ class _Run:
             attrs={"n_nodes": X.shape[0], "n_elements": elements.shape[0], "time_scheme": case.time.scheme,
                    "time_scheme_used": self.integrator.name, "time_scheme_choice": self.integrator.choice,
                    "symmetry": model.disc.symmetry,
+                   # the tolerance the run steps with, and why (time.rtol auto, the accuracy target; else given)
+                   "time_rtol": float(case.time.rtol), "time_rtol_choice": case.time.rtol_choice or "given",
                    # several capsules: their layout in the mesh (capsim.bodies.Bodies.from_attrs)
                    **({"n_capsules": model.bodies.count} if model.several else {})},
         )
@@ -490,7 +494,8 @@ class _Run:
         result = RunResult(
             status=status, status_reason=reason, path=str(self.path), t=ig.t, steps=ig.steps,
             rejected_steps=ig.rejected, wall_time_s=self._wall(),
-            scheme=ig.name, scheme_choice=ig.choice or None, velocity_evaluations=int(work["velocity_evaluations"]),
+            scheme=ig.name, scheme_choice=ig.choice or None, rtol=float(self.case.time.rtol),
+            rtol_choice=self.case.time.rtol_choice, velocity_evaluations=int(work["velocity_evaluations"]),
             layer_applications=int(work["layer_applications"]),
             linear_iterations=int(work["linear_iterations"]),
             layer_matrices=int(work["layer_matrices"]),
@@ -502,7 +507,7 @@ class _Run:
             bending_modulus=float(self.case.membrane.bending_modulus),
         )
         self.writer.write_run_record({k: v for k, v in result.record().items()
-                                      if k not in ("scheme", "scheme_choice")})  # both are root attributes
+                                      if k not in ("scheme", "scheme_choice", "rtol", "rtol_choice")})  # root attributes
         series = {k: np.asarray(v) for k, v in self.observer.history.items()}
         if self.observer.bodies is not None:  # several capsules: each one's summary and the scene's
             motion = scene_summary(self.observer)

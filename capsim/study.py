@@ -298,7 +298,8 @@ def run_study(
         run_dir = Path(out_dir)
         run_dir.mkdir(parents=True, exist_ok=True)
 
-    base = apply_overrides(case, **{"time.stop_when_steady": False, "time.stop_when_settled": False})
+    base = apply_overrides(case, **{"time.stop_when_steady": False, "time.stop_when_settled": False,
+                                    "accuracy": None})  # the ladder sets the level and rtol itself
     jobs: list[tuple[Case, tuple[int, int, int]]] = []
     for iq, q in enumerate(quads):
         for ir, rtol in enumerate(rtols):
@@ -560,13 +561,16 @@ def error_estimate(case: Case, summary: dict[str, Any], workers: int = 2,
 
     tmp = tempfile.mkdtemp(prefix="capsim-errest-")
     try:
-        base = apply_overrides(case, **{"time.stop_when_steady": False, "time.stop_when_settled": False})
+        # the reruns at a given level and rtol: not the accuracy target's choice, nor rtol auto's again
+        base = apply_overrides(case, **{"time.stop_when_steady": False, "time.stop_when_settled": False,
+                                        "accuracy": None})
         loose_rtol = min(case.time.rtol * rtol_factor, 0.5)
         jobs: list[tuple[Case, str]] = [(apply_overrides(base, **{
             "time.rtol": loose_rtol, "output.path": str(Path(tmp) / "time.h5")}), "time")]
         if case.mesh.level > 0:
             jobs.append((apply_overrides(base, **{
-                "mesh.level": case.mesh.level - 1, "output.path": str(Path(tmp) / "mesh.h5")}), "mesh"))
+                "mesh.level": case.mesh.level - 1, "time.rtol": case.time.rtol,
+                "output.path": str(Path(tmp) / "mesh.h5")}), "mesh"))
         records = _run_jobs(jobs, workers, None, window=window)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -631,11 +635,36 @@ def format_error_estimate(summary: dict[str, Any], estimate: dict[str, Any]) -> 
     return "\n".join(lines)
 
 
-def run_error_estimate(case: Case, summary: dict[str, Any], workers: int = 2) -> str:
-    """`capsim run --error-estimate`: estimate, store in the run file, return the lines to print."""
+def run_error_estimate(case: Case, summary: dict[str, Any], workers: int = 2, verify: bool = False) -> str:
+    """`capsim run --error-estimate`: estimate, store in the run file, return the lines to print;
+    with `verify` (``--verify``) the last line says whether the case's accuracy target was met."""
     estimate = error_estimate(case, summary, workers=workers)
     write_error_estimate(case.output.path, estimate)  # the run's result itself is read-only (RunResult)
-    return format_error_estimate(summary, estimate)
+    text = format_error_estimate(summary, estimate)
+    return text + "\n" + verification(case, estimate) if verify else text
+
+
+def verification(case: Case, estimate: dict[str, Any]) -> str:
+    """Whether the run met its accuracy target: the error estimate of the target's quantity at
+    t_end (relative for D_xy and S*_xy, rad for θ) against the target and the prediction."""
+    target = case.accuracy
+    if target is None:
+        return "verify: the case has no accuracy target (give accuracy: {quantity, target} or --accuracy)"
+    from capsim import accuracy as error_model
+
+    q = target.quantity
+    value, d_mesh, d_time = (estimate.get(f"{q}{k}") for k in ("_value", "_mesh", "_time"))
+    if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in (value, d_mesh, d_time)):
+        return f"verify: no error estimate of {q} (level 0 has no coarser mesh): the target is unchecked"
+    # the run's own error by Richardson: the coarser level's difference over 2^p − 1 (p the order
+    # of the error model's entry), the 10× looser tolerance's over 9 (time error ∝ rtol)
+    entry, _ = error_model.entry(*case._error_model_class())
+    order = float(entry["order"][q])
+    error = abs(d_mesh) / (2.0**order - 1.0) + abs(d_time) / 9.0
+    achieved = error if q == "theta" else error / max(abs(float(value)), 1e-300)
+    met = achieved <= target.target
+    return (f"verify: {q} error {achieved:.2g} (Richardson from the reruns, order {order:.2g}) "
+            f"{'<=' if met else '>'} target {target.target:g}: target {'met' if met else 'NOT met'} ({target.choice})")
 
 
 PathLike = str | os.PathLike
