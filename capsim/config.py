@@ -941,7 +941,7 @@ class Case(_Model):
     output: Output = Field(default_factory=Output, validate_default=True)
     wall: Optional[Wall] = Field(
         None, description="a no-slip plane wall below the capsule (none: unbounded flow); simple shear, any λ, "
-        "an elastic membrane; the run stops 'unstable' (guard min_wall_gap) before the membrane touches it")
+        "any membrane; the run stops 'unstable' (guard min_wall_gap) before the membrane touches it")
     accuracy: Optional[Accuracy] = Field(
         None, description="an accuracy target: capsim picks mesh.level and time.rtol that meet it at the least "
         "predicted cost (give it or those two, not both); capsim run --verify checks it afterwards")
@@ -1007,9 +1007,6 @@ class Case(_Model):
         if self.flow.kind not in WALL_FLOWS:
             raise _FieldProblem("flow.kind", self.flow.kind, f"cannot be bounded by a wall (it does not vanish on a "
                                 f"plane y = const); with wall: {', '.join(WALL_FLOWS)}")
-        if self.membrane.viscosity is not None and self.membrane.viscosity.active:
-            raise _FieldProblem("membrane.viscosity", "active", "cannot be used with a wall yet (its solve has no "
-                                "wall image); remove it or the wall")
         if self.capsules:  # every capsule's clearance: _capsules_this_case_can_take
             return self
         from capsim.mesh import rest_shape_mesh  # numpy only: the level-0 shape tells how far it reaches
