@@ -114,6 +114,10 @@ bench-capsules: venv
 bench-error-model: venv
 	$(BIN)/python benchmarks/error_model.py
 
+.PHONY: bench-accuracy-target
+bench-accuracy-target: venv
+	$(BIN)/python benchmarks/accuracy_target.py
+
 .PHONY: bench-tts
 bench-tts: venv
 	$(BIN)/python benchmarks/tran_son_tay.py run main elastic sensitivity extra shape hardening soft

@@ -8,7 +8,7 @@ the reference runs). A target is met when |value − reference| (relative for D_
 for θ) is at most the target; cost is velocity evaluations × the median seconds of one evaluation
 at the level (the error model's, so that the comparison does not move with the machine's load).
 
-    python benchmarks/accuracy_target.py        # ~10 min on one core
+    python benchmarks/accuracy_target.py        # ~10 min on one core (make bench-accuracy-target)
 
 writes benchmarks/accuracy_target.md (included by docs/benchmarks.md) and .json.
 """
