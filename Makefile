@@ -110,6 +110,10 @@ bench-pair: venv
 bench-capsules: venv
 	PYTHONPATH=. $(BIN)/python benchmarks/capsules.py $(if $(FMM_PYTHON),--fmm-python $(FMM_PYTHON))
 
+.PHONY: bench-scheme-cost
+bench-scheme-cost: venv
+	PYTHONPATH=. $(BIN)/python benchmarks/scheme_cost.py
+
 .PHONY: bench-error-model
 bench-error-model: venv
 	$(BIN)/python benchmarks/error_model.py

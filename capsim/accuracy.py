@@ -30,8 +30,11 @@ from typing import Any
 MODEL_FILE = Path(__file__).with_name("error_model.json")
 #: the time error time.rtol auto allows: this fraction of the level's mesh error
 TIME_FRACTION = 0.1
-#: the tolerances auto and the target choose among (loosest first)
-RTOL_LADDER = (1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4, 5e-5, 2e-5, 1e-5)
+#: the tolerances auto and the target choose among (loosest first). Never looser than 2e-3, whatever
+#: the mesh: beyond the values at t_end the model knows, a loose tolerance lets the volume drift
+#: (a tumbling oblate at λ 10, level 1, rkc: past the 1 % guard by kt 13 at rtol 1e-2, 0.19 % over
+#: kt 40 at 2e-3; the promise table's case (e) likewise at 1e-2)
+RTOL_LADDER = (2e-3, 1e-3, 5e-4, 2e-4, 1e-4, 5e-5, 2e-5, 1e-5)
 #: the quantities a target may name (the model's), and their other names
 ALIASES = {"theta": "theta", "θ": "theta", "D_xy": "D_xy", "D": "D_xy", "Sxy_star": "Sxy_star",
            "S*_xy": "Sxy_star"}

@@ -4,7 +4,7 @@
 per unit time as counts × costs: the counts (accepted steps, velocity evaluations, layer
 applications beyond one per evaluation, GMRES iterations of the stage solves, dense layer
 matrices) from its measurement of ρ and the tolerance; the costs, seconds per operation, from
-:data:`COSTS`, a table measured by :func:`calibrate` on the octahedron at levels 1-3 (the
+:data:`COSTS`, a table measured by ``benchmarks/scheme_cost.py`` on the octahedron at levels 1-3 (the
 sphere in shear, quarter symmetry, λ = 1 and 5, one thread per the CLI's policy) and
 interpolated in the number of nodes. No timing happens in a run: the table is data, so the
 choice stays deterministic (a resumed run makes it again).
@@ -25,9 +25,9 @@ The operations (each run's counters, :class:`capsim.runner.RunResult`):
   time.jacobian_refresh_steps steps) with what is built from it: the product with the Hessian,
   the LU factorisations of the (3N)² stage operators (∝ N³) until the next rebuild.
 
-:func:`calibrate` runs short runs of every scheme (DESIGNS) at each level, ``rounds`` times
+``benchmarks/scheme_cost.py`` (its ``calibrate``) runs short runs of every scheme at each level,
 interleaved, and fits the costs to their median wall times by non-negative least squares
-(wall = Σ count × cost), per level. ``python -m capsim.scheme_cost`` prints a new table.
+(wall = Σ count × cost), per level, and prints a new table (``make bench-scheme-cost``).
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from typing import Any
 OPERATIONS = ("step", "evaluation", "layer", "iteration_local", "iteration_dense", "matrix")
 
 #: seconds per operation at the octahedron's levels 1, 2, 3 (n_nodes: costs), quarter symmetry
-#: (targets = a quarter of the nodes or so). Measured by calibrate() on this project's 2-core
+#: (targets = a quarter of the nodes or so). Measured by benchmarks/scheme_cost.py on this project's 2-core
 #: development machine (x86_64, shared, capsim 0.1.0 at issue 44), rounds 3:
 COSTS: dict[int, dict[str, float]] = {
     66: {"step": 1.2e-3, "evaluation": 4.0e-5, "layer": 9.2e-5, "iteration_local": 1.0e-4, "iteration_dense": 0.0,
@@ -92,89 +92,3 @@ def run_counts(result: Any) -> dict[str, float]:
     return {"step": float(result["steps"]) + float(result.get("rejected_steps") or 0), "evaluation": evals,
             "layer": max(float(result["layer_applications"]) - evals, 0.0),
             "iteration_local": 0.0 if dense else its, "iteration_dense": its if dense else 0.0, "matrix": mats}
-
-
-# ---------------------------------------------------------------- the calibration
-
-#: (name, scheme, preconditioner, G, λ, kt per level) of the calibration runs
-DESIGNS = (
-    ("rkf23", "rkf23", None, 0.1, 1.0, {1: 2.0, 2: 1.0, 3: 0.3}),
-    ("rkc", "rkc", None, 0.1, 1.0, {1: 4.0, 2: 2.0, 3: 0.6}),
-    ("rkc-stiff", "rkc", None, 0.001, 1.0, {1: 1.0, 2: 0.5, 3: 0.1}),
-    ("rkc-lambda5", "rkc", None, 0.1, 5.0, {1: 2.0, 2: 1.0, 3: 0.3}),
-    ("li-local", "linearly_implicit", "local", 0.001, 1.0, {1: 2.0, 2: 1.0, 3: 0.3}),
-    ("li-local-lambda5", "linearly_implicit", "local", 0.1, 5.0, {1: 2.0, 2: 1.0, 3: 0.3}),
-    ("li-dense", "linearly_implicit", "dense", 0.001, 1.0, {1: 2.0, 2: 1.0, 3: 0.3}),
-    ("li-dense-G0.1", "linearly_implicit", "dense", 0.1, 1.0, {1: 4.0, 2: 2.0, 3: 0.6}),
-)
-
-
-def calibrate(levels: tuple[int, ...] = (1, 2, 3), rounds: int = 3, rtol: float = 1e-4,
-              verbose: bool = True) -> dict[int, dict[str, Any]]:
-    """Run DESIGNS at each level ``rounds`` times (interleaved) and fit the costs per level:
-    {n_nodes: {"level", "costs", "runs": [(name, counts, median wall, predicted wall)]}}."""
-    import statistics
-    import tempfile
-    from pathlib import Path
-
-    import numpy as np
-    from scipy.optimize import nnls
-
-    from capsim.config import case_from_dict
-    from capsim.runner import run_case
-
-    out: dict[int, dict[str, Any]] = {}
-    with tempfile.TemporaryDirectory() as d:
-        tmp = Path(d)
-
-        def case(name, scheme, pre, g, lam, kt, level, rnd):
-            time = {"scheme": scheme, "rtol": rtol, "t_end": kt}
-            if pre is not None:
-                time["preconditioner"] = pre
-            return case_from_dict({"name": f"{name}-{level}-{rnd}", "mesh": {"level": level},
-                                   "flow": {"shear_rate_G": g, "viscosity_ratio": lam}, "time": time,
-                                   "output": {"path": str(tmp / f"{name}-{level}-{rnd}.h5"), "snapshot_every": 1.0}})
-
-        for name, scheme, pre, g, lam, kts in DESIGNS:  # kernels compiled or loaded before timing
-            run_case(case(name, scheme, pre, g, lam, 0.02, 1, "warm"))
-        for level in levels:
-            walls: dict[str, list[float]] = {name: [] for name, *_ in DESIGNS}
-            counts: dict[str, dict[str, float]] = {}
-            n_nodes = None
-            for rnd in range(rounds):
-                for name, scheme, pre, g, lam, kts in DESIGNS:
-                    c = case(name, scheme, pre, g, lam, kts[level], level, rnd)
-                    n_nodes = c.mesh.n_nodes
-                    result = run_case(c)
-                    walls[name].append(float(result["wall_time_s"]))
-                    counts[name] = run_counts(result)
-                    if verbose:
-                        print(f"level {level} round {rnd} {name}: {result['wall_time_s']:.3f} s {counts[name]}",
-                              flush=True)
-            names = [n for n, *_ in DESIGNS]
-            a = np.array([[counts[n][op] for op in OPERATIONS] for n in names])
-            b = np.array([statistics.median(walls[n]) for n in names])
-            # relative residuals: weight each run by its own wall time
-            x, _ = nnls(a / b[:, None], np.ones_like(b))
-            fitted = dict(zip(OPERATIONS, (float(v) for v in x)))
-            out[n_nodes] = {"level": level, "costs": fitted,
-                            "runs": [(n, counts[n], float(w), float(a[i] @ x)) for i, (n, w) in
-                                     enumerate(zip(names, b))]}
-            if verbose:
-                print(f"level {level} ({n_nodes} nodes): " + ", ".join(f"{k} {v:.3g}" for k, v in fitted.items()))
-                for n, _, w, p in out[n_nodes]["runs"]:
-                    print(f"    {n}: measured {w:.3f} s, fitted {p:.3f} s")
-    return out
-
-
-if __name__ == "__main__":  # python -m capsim.scheme_cost [rounds]
-    import sys
-
-    from capsim.threads import apply_policy
-
-    apply_policy()
-    table = calibrate(rounds=int(sys.argv[1]) if len(sys.argv) > 1 else 3)
-    print("COSTS = {")
-    for n, entry in table.items():
-        print(f"    {n}: {{" + ", ".join(f'"{k}": {v:.2g}' for k, v in entry["costs"].items()) + "},")
-    print("}")

@@ -901,7 +901,7 @@ class Automatic(Integrator):
     then predicts for each candidate the counts of a run to t_end — accepted steps, velocity
     evaluations, further layer applications, stage-solve GMRES iterations, dense layer matrices
     — and prices them with ``capsim.scheme_cost.costs_for`` (seconds per operation at this
-    mesh's nodes, a table measured once by ``capsim.scheme_cost.calibrate``; nothing is timed in
+    mesh's nodes, a table measured once by ``benchmarks/scheme_cost.py``; nothing is timed in
     the run, so the choice is deterministic: same rest shape, same measurement, same table, and a
     resumed run makes it again). The counts (per unit time):
 
