@@ -501,7 +501,7 @@ def test_a_resume_under_another_version_records_both(tmp_path, monkeypatch):
 
 
 def test_sighup_closes_the_run_as_interrupted(tmp_path):
-    case_file = _case_file(tmp_path, t_end=50.0)
+    case_file = _case_file(tmp_path, t_end=50.0, rtol=1e-5)  # long enough to be stopped (rtol auto: ~1 s)
     proc = subprocess.Popen([sys.executable, "-m", "capsim.cli", "run", str(case_file), "-q"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     out = tmp_path / "r.h5"
@@ -525,6 +525,7 @@ def test_ctrl_c_in_a_sweep_is_recorded_as_sigint(tmp_path):
     out = tmp_path / "c"
     d = _campaign(out)
     d["base"]["time"]["t_end"] = 50.0
+    d["base"]["time"]["rtol"] = 1e-5  # long enough to be stopped
     (tmp_path / "c.yaml").write_text(yaml.safe_dump(d))
     proc = subprocess.Popen([sys.executable, "-m", "capsim.cli", "sweep", str(tmp_path / "c.yaml"), "--workers", "2",
                              "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
