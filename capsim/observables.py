@@ -1236,8 +1236,14 @@ class StepObserver:
         row.pop("_S_star", None)
         center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
         row.update(self.tracker.update(y, u, center))
-        row["solver_iterations"] = float(model.last_solve_info.get("iterations", 0))
-        row["solver_residual"] = float(model.last_solve_info.get("residual", 0.0))
+        return self._close_row(row, work)
+
+    def _close_row(self, row: dict, work: dict[str, float]) -> dict:
+        """The solve's and the cost's columns, the file's own columns only (an old run extended),
+        remembered as the last row."""
+        info = self.model.last_solve_info
+        row["solver_iterations"] = float(info.get("iterations", 0))
+        row["solver_residual"] = float(info.get("residual", 0.0))
         row.update({key: float(value) for key, value in work.items()})
         if self.columns is not None:
             row = {key: value for key, value in row.items() if key in self.columns}
@@ -1266,13 +1272,7 @@ class StepObserver:
         if bodies.count == 2:  # the pair's relative trajectory: capsule 1's centroid less capsule 0's
             for c in "xyz":
                 row[f"separation_{c}"] = float(row[f"centroid_{c}"][1] - row[f"centroid_{c}"][0])
-        row["solver_iterations"] = float(model.last_solve_info.get("iterations", 0))
-        row["solver_residual"] = float(model.last_solve_info.get("residual", 0.0))
-        row.update({key: float(value) for key, value in work.items()})
-        if self.columns is not None:
-            row = {key: value for key, value in row.items() if key in self.columns}
-        self._remember(row)
-        return row
+        return self._close_row(row, work)
 
     def capsule_series(self, i: int) -> dict[str, np.ndarray]:
         """The history as one capsule's (every per-capsule column at capsule i), for the summary."""

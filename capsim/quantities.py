@@ -141,8 +141,8 @@ for _c, _dir in (("x", "streamwise"), ("y", "cross-stream"), ("z", "spanwise")):
          f"{_c} of capsule 1's centroid less capsule 0's (runs of two capsules), in units of a", "a")
 for _key in ("Sxy_star", "N1_star", "N2_star"):
     _add(f"suspension_{_key}", f"mean over the capsules of {_key}", "1",
-         f"{_key} of the capsules' mean particle stresslet (runs of several capsules): the particle stress of the "
-         "suspension is the volume fraction times (5/2) μ k times it", "mu k a")
+         f"{_key} of the capsules' mean particle stresslet (runs of several capsules), in units of (5/2) μ k V: "
+         "the particle stress of the suspension is the volume fraction times (5/2) μ k times it", "5/2 mu k V")
 _add("separation_y_initial", "cross-stream separation at the start", "1",
      "separation_y at t = 0, in units of a", "a")
 _add("separation_y_peak", "peak cross-stream separation", "1",
