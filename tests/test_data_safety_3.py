@@ -503,7 +503,10 @@ def test_a_resume_under_another_version_records_both(tmp_path, monkeypatch):
 def test_sighup_closes_the_run_as_interrupted(tmp_path):
     case_file = _case_file(tmp_path, t_end=50.0, rtol=1e-5)  # long enough to be stopped (rtol auto: ~1 s)
     proc = subprocess.Popen([sys.executable, "-m", "capsim.cli", "run", str(case_file), "-q"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            # SIGHUP's default disposition, however the tests were started: under nohup
+                            # it is inherited ignored, which capsim keeps (as SIGINT in a background job)
+                            preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_DFL))
     out = tmp_path / "r.h5"
     try:
         deadline = time.monotonic() + 120
