@@ -25,6 +25,7 @@ between capsules that the contact guard reads.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -74,10 +75,16 @@ class Bodies:
         return cls(count, n_nodes // count, n_elements // count, n_vertices // count)
 
     def nodes(self, i: int) -> np.ndarray:
+        return self.node_index[i]
+
+    @cached_property
+    def node_index(self) -> tuple[np.ndarray, ...]:
+        """Every capsule's nodes (``nodes``), made once: the per-step and per-solve users index with them."""
         n, nv, k = self.nodes_per_body, self.vertices_per_body, self.count
         if k == 1:
-            return np.arange(n)
-        return np.concatenate([i * nv + np.arange(nv), k * nv + i * (n - nv) + np.arange(n - nv)])
+            return (np.arange(n),)
+        return tuple(np.concatenate([i * nv + np.arange(nv), k * nv + i * (n - nv) + np.arange(n - nv)])
+                     for i in range(k))
 
     def vertices(self, i: int) -> np.ndarray:
         """Capsule i's vertex nodes (the rows of the membrane's vertex strain that are its)."""
@@ -86,11 +93,13 @@ class Bodies:
     def elements(self, i: int) -> slice:
         return slice(i * self.elements_per_body, (i + 1) * self.elements_per_body)
 
-    def element_ranges(self) -> list[np.ndarray]:
-        return [np.arange(i * self.elements_per_body, (i + 1) * self.elements_per_body, dtype=np.int64)
-                for i in range(self.count)]
+    @cached_property
+    def element_index(self) -> tuple[np.ndarray, ...]:
+        """Every capsule's elements as index arrays (the flux kernels take them)."""
+        return tuple(np.arange(i * self.elements_per_body, (i + 1) * self.elements_per_body, dtype=np.int64)
+                     for i in range(self.count))
 
-    @property
+    @cached_property
     def node_body(self) -> np.ndarray:
         """The capsule of every node (N,)."""
         out = np.empty(self.count * self.nodes_per_body, dtype=np.int64)
@@ -254,20 +263,15 @@ def winding_numbers(points: np.ndarray, x: np.ndarray, elements: np.ndarray) -> 
     return out
 
 
-def start_problem(specs: list[BodySpec], base: str, level: int, min_gap: float, wall_y: float | None = None,
-                  min_wall_gap: float = 0.0) -> tuple[str, Any, str] | None:
+def start_problem(specs: list[BodySpec], base: str, level: int, min_gap: float) -> tuple[str, Any, str] | None:
     """(field, value, what) of the first capsule placed where it cannot start: inside or within
-    ``min_gap`` of another (meshes at ``level``), or within ``min_wall_gap`` of the wall; None
-    when every capsule can start. Only pairs whose bounding spheres come within the gap are
+    ``min_gap`` of another (meshes at ``level``); None when every capsule can start (the wall's
+    clearance: the case's wall check). Only pairs whose bounding spheres come within the gap are
     measured."""
     parts = [body_mesh(spec, base, level) for spec in specs]
     centers = [np.asarray(spec.center, dtype=np.float64) for spec in specs]
     radii = [float(np.linalg.norm(p[0] - c, axis=1).max()) for p, c in zip(parts, centers)]
     for j, (x, _, _) in enumerate(parts):
-        if wall_y is not None and float(x[:, 1].min()) - wall_y < min_wall_gap:
-            return (f"capsules[{j}].center", list(specs[j].center),
-                    f"its rest shape reaches {float(x[:, 1].min()) - wall_y:.4g} a above the wall: it must clear it "
-                    f"by guards.min_wall_gap = {min_wall_gap:g}")
         for i in range(j):
             if np.linalg.norm(centers[i] - centers[j]) > radii[i] + radii[j] + min_gap:
                 continue

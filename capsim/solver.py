@@ -787,8 +787,10 @@ class CapsuleModel:
         """The volume correction P: u − n ⟨n, u⟩/⟨n, n⟩ (fluxes over the surface);
         ``normal_flux``, ⟨n, n⟩, when the caller applies P many times at one configuration;
         ``equivariant``: u and the normals have the mesh's symmetry (``Discretization.flux``)."""
-        if self.several:  # each capsule's own net flux, with its own normals
-            return u - self.body_fluxes(geo, u, normals) * normals
+        if self.several:  # each capsule's own net flux over its own ⟨n, n⟩
+            if normal_flux is None:
+                normal_flux = self.body_flux(geo, normals)
+            return u - (self.body_flux(geo, u) / normal_flux)[self.bodies.node_body][:, None] * normals
         if normal_flux is None:
             normal_flux = self.disc.flux(geo, normals, equivariant)
         return u - (self.disc.flux(geo, u, equivariant) / normal_flux) * normals
@@ -798,65 +800,48 @@ class CapsuleModel:
         """Whether the scene holds more than one capsule."""
         return self.bodies is not None and self.bodies.count > 1
 
-    def body_fluxes(self, geo: ElementGeometry, u: np.ndarray, normals: np.ndarray,
-                    divisor: str = "normal_flux") -> np.ndarray:
-        """Per node, its capsule's ∫ u·n dS over (divisor "normal_flux") its ⟨n, n⟩ or ("area") its
-        area: the coefficient of the volume correction or of the λ ≠ 1 deflation, capsule by capsule."""
-        disc, bodies = self.disc, self.bodies
-        out = np.empty(disc.n_nodes)
+    def body_flux(self, geo: ElementGeometry, u: np.ndarray) -> np.ndarray:
+        """∫ u·n dS over each capsule (count,): the volume correction's and the λ ≠ 1 deflation's."""
+        disc = self.disc
         u = np.ascontiguousarray(u, dtype=np.float64)
-        for i, elems in enumerate(self._body_elements()):
-            flux = float(kernels.surface_flux(disc.elements, elems, disc._ones, disc.reg_phi, geo.normals,
-                                              geo.weights, u))
-            if divisor == "area":
-                below = float(geo.weights[elems].sum())
-            else:
-                below = float(kernels.surface_flux(disc.elements, elems, disc._ones, disc.reg_phi, geo.normals,
-                                                   geo.weights, np.ascontiguousarray(normals, dtype=np.float64)))
-            out[bodies.nodes(i)] = flux / below
-        return out[:, None]
-
-    def _body_elements(self) -> list[np.ndarray]:
-        cached = getattr(self, "_body_element_ranges", None)
-        if cached is None:
-            cached = self._body_element_ranges = self.bodies.element_ranges()
-        return cached
+        return np.array([kernels.surface_flux(disc.elements, elems, disc._ones, disc.reg_phi, geo.normals,
+                                              geo.weights, u) for elems in self.bodies.element_index])
 
     def double_layer_operator(self, x: np.ndarray, geo: ElementGeometry, normals: np.ndarray):
         """u ↦ A u = u − (1−λ)/(8π) D[u] + (1−λ) n ⟨n, u⟩/S at configuration x,
         the deflated operator of the λ ≠ 1 equation (``velocity``); each call counts
-        one double-layer application."""
+        one double-layer application. Several capsules: each capsule's volume mode is deflated
+        by its own flux over its own area; capsules of different λ (``node_lambda``): D acts on
+        (1 − λ) u (D[w](x0) = ∫ (w − w0)·T·n dS; on another capsule's surface ∫ T·n dS = 0 at x0,
+        so each capsule's term carries its own 1 − λ), and each deflation its own 1 − λ."""
         lam = self.viscosity_ratio
-        disc = self.disc
-        c = (1.0 - lam) / (8.0 * np.pi)
-        area = geo.weights.sum()
-        counts = self.counts
+        disc, counts, wall = self.disc, self.counts, self.wall_y
+        if self.node_lambda is None:
+            w = 1.0 - lam
+            c = w / (8.0 * np.pi)
 
-        if self.node_lambda is not None:
-            # capsules of different λ: D[(1 − λ) u] (D[w](x0) = ∫ (w − w0)·T·n dS; on another capsule's
-            # surface ∫ T·n dS = 0 at x0, so each capsule's term carries its own 1 − λ), every capsule's
-            # volume mode deflated with its own (1 − λ)
+            def layer(u):
+                return c * disc.double_layer(x, geo, u, y_wall=wall)
+        else:
             w = (1.0 - self.node_lambda)[:, None]
 
-            def apply(u):
-                counts["double_layer_applications"] += 1
-                wu = w * u
-                return (u - disc.double_layer(x, geo, wu, y_wall=self.wall_y) / (8.0 * np.pi)
-                        + w * normals * self.body_fluxes(geo, u, normals, divisor="area"))
+            def layer(u):
+                return disc.double_layer(x, geo, w * u, y_wall=wall) / (8.0 * np.pi)
+        if self.several:  # the areas once per configuration, the fluxes at every application
+            body = self.bodies.node_body
+            areas = np.array([geo.weights[elems].sum() for elems in self.bodies.element_index])
 
-            return apply
-        if self.several:  # every capsule's own volume mode, deflated by its own flux over its own area
-            def apply(u):
-                counts["double_layer_applications"] += 1
-                return (u - c * disc.double_layer(x, geo, u, y_wall=self.wall_y)
-                        + (1.0 - lam) * normals * self.body_fluxes(geo, u, normals, divisor="area"))
+            def deflation(u):
+                return (self.body_flux(geo, u) / areas)[body][:, None]
+        else:
+            area = geo.weights.sum()
 
-            return apply
+            def deflation(u):
+                return disc.flux(geo, u) / area
 
         def apply(u):
             counts["double_layer_applications"] += 1
-            return (u - c * disc.double_layer(x, geo, u, y_wall=self.wall_y)
-                    + (1.0 - lam) * normals * (disc.flux(geo, u) / area))
+            return u - layer(u) + w * normals * deflation(u)
 
         return apply
 

@@ -149,7 +149,7 @@ def test_each_capsule_keeps_its_own_volume(tmp_path):
     geo = model.disc.geometry(Y)
     from capsim import kernels
 
-    for elems in model.bodies.element_ranges():
+    for elems in model.bodies.element_index:
         flux = kernels.surface_flux(model.disc.elements, elems, np.ones(elems.size), model.disc.reg_phi,
                                     geo.normals, geo.weights, u)
         assert abs(flux) < 1e-12
