@@ -972,33 +972,25 @@ class Case(_Model):
                                         f"give accuracy or {field}, not both: the target chooses it; remove one")
             try:
                 best = error_model.choose(self.accuracy.quantity, self.accuracy.target, self.time.t_end,
-                                          *self._error_model_class())
+                                          *self.error_model_class())
             except error_model.AccuracyError as exc:
                 raise _FieldProblem("accuracy.target", self.accuracy.target, str(exc).split(": ", 1)[1]) from None
-            self._set_resolved("mesh", "level", best["level"])
-            self._set_resolved("time", "rtol", best["rtol"])
-            self._set_resolved("time", "rtol_choice", best["why"])
-            self._set_resolved("accuracy", "choice", best["why"])
+            self._set_derived("mesh", "level", best["level"], chosen=True)
+            self._set_derived("time", "rtol", best["rtol"], chosen=True)
+            self._set_derived("time", "rtol_choice", best["why"], chosen=True)
+            self._set_derived("accuracy", "choice", best["why"], chosen=True)
         elif self.time.rtol == "auto":
-            rtol, why = error_model.auto_rtol(self.mesh.level, *self._error_model_class())
-            self._set_resolved("time", "rtol", rtol)
-            self._set_resolved("time", "rtol_choice", why)
+            rtol, why = error_model.auto_rtol(self.mesh.level, *self.error_model_class())
+            self._set_derived("time", "rtol", rtol, chosen=True)
+            self._set_derived("time", "rtol_choice", why, chosen=True)
         return self
 
-    def _error_model_class(self) -> tuple[str, bool]:
+    def error_model_class(self) -> tuple[str, bool]:
         """(rest shape, λ = 1) of the case: what selects its entry of the error model (several
         capsules: the first one's shape, λ = 1 when every capsule's is)."""
         shape = self.capsules[0].shape.kind if self.capsules and self.capsules[0].shape is not None \
             else self.shape.kind
         return shape, all(lam == 1.0 for lam in self.viscosity_ratios)
-
-    def _set_resolved(self, section: str, name: str, value: Any) -> None:
-        """A value capsim chooses (frozen models: set once while validating), left out of the
-        fields the user set: a campaign's run ids, made of those, do not change with it."""
-        old = getattr(self, section)
-        new = old.model_copy(update={name: value})
-        object.__setattr__(new, "__pydantic_fields_set__", set(old.model_fields_set))
-        object.__setattr__(self, section, new)
 
     @model_validator(mode="after")
     def _a_wall_this_case_can_take(self) -> Case:
@@ -1007,21 +999,22 @@ class Case(_Model):
         if self.flow.kind not in WALL_FLOWS:
             raise _FieldProblem("flow.kind", self.flow.kind, f"cannot be bounded by a wall (it does not vanish on a "
                                 f"plane y = const); with wall: {', '.join(WALL_FLOWS)}")
-        if self.capsules:  # every capsule's clearance: _capsules_this_case_can_take
-            return self
-        from capsim.mesh import rest_shape_mesh  # numpy only: the level-0 shape tells how far it reaches
+        from capsim.bodies import body_mesh, body_specs  # numpy only
 
-        # the case's own mesh (up to level 3, accurate to 2e-5 a there; level 0's nodes lie 5 % out)
-        mesh = rest_shape_mesh(self.shape.kind, self.mesh.base, min(self.mesh.level, 3), self.initial_tilt_deg,
-                               axis=self.initial_axis,
-                               aspect_ratio=self.shape.aspect_ratio, c0=self.shape.c0, c2=self.shape.c2,
-                               c4=self.shape.c4)
-        below = float(-mesh.positions[:, 1].min())
-        if self.wall.distance - below < self.guards.min_wall_gap:
+        # each capsule's own mesh (up to level 3, accurate to 2e-5 a there; level 0's nodes lie 5 % out)
+        gap = self.guards.min_wall_gap
+        for j, spec in enumerate(body_specs(self)):
+            lowest = float(body_mesh(spec, self.mesh.base, min(self.mesh.level, 3))[0][:, 1].min())
+            if lowest - self.wall_y >= gap:
+                continue
+            if self.capsules:
+                raise _FieldProblem(f"capsules[{j}].center", list(spec.center),
+                                    f"its rest shape reaches {lowest - self.wall_y:.4g} a above the wall: it must "
+                                    f"clear it by guards.min_wall_gap = {gap:g}")
+            below = spec.center[1] - lowest
             raise _FieldProblem("wall.distance", self.wall.distance,
                                 f"the rest shape reaches {below:.4g} a below its centre: it must clear the wall by "
-                                f"guards.min_wall_gap = {self.guards.min_wall_gap:g} (give distance > "
-                                f"{below + self.guards.min_wall_gap:.4g})")
+                                f"guards.min_wall_gap = {gap:g} (give distance > {below + gap:.4g})")
         return self
 
     @model_validator(mode="after")
@@ -1064,8 +1057,7 @@ class Case(_Model):
                 raise _FieldProblem("mesh.symmetry", self.mesh.symmetry,
                                     "with several capsules use auto (it finds the symmetries the scene keeps) or none")
         specs = body_specs(self)
-        problem = start_problem(specs, self.mesh.base, min(self.mesh.level, 3), self.guards.min_capsule_gap,
-                                self.wall_y, self.guards.min_wall_gap)
+        problem = start_problem(specs, self.mesh.base, min(self.mesh.level, 3), self.guards.min_capsule_gap)
         if problem is not None:
             raise _FieldProblem(*problem)
         return self
@@ -1096,9 +1088,15 @@ class Case(_Model):
                                 f"give {section}.{name} or {source}, not both ({gives}); remove one")
         return True
 
-    def _set_derived(self, section: str, name: str, value: float) -> None:
-        # frozen models: the section with the computed value, set once while validating
-        object.__setattr__(self, section, getattr(self, section).model_copy(update={name: value}))
+    def _set_derived(self, section: str, name: str, value: Any, chosen: bool = False) -> None:
+        """The section with a computed value (frozen models: set once while validating). ``chosen``:
+        a value capsim chooses (rtol auto, the accuracy target) is left out of the fields the user
+        set, so that a campaign's run ids, made of those, do not change with it."""
+        old = getattr(self, section)
+        new = old.model_copy(update={name: value})
+        if chosen:
+            object.__setattr__(new, "__pydantic_fields_set__", set(old.model_fields_set))
+        object.__setattr__(self, section, new)
 
     # ---- values computed from the physical block: finite, inside their fields' bounds, and
     # refused naming the physical value the user gave (not the computed field)
