@@ -1100,11 +1100,6 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
     return out
 
 
-#: the scene's columns of a run of several capsules (beside every capsule's own columns)
-SCENE_COLUMNS = ("min_capsule_gap", "separation_x", "separation_y", "separation_z",
-                 "suspension_Sxy_star", "suspension_N1_star", "suspension_N2_star")
-
-
 def scene_summary(observer) -> dict:
     """The summary of a run of several capsules: each capsule's run_summary (its own series and
     aspect ratio) in the nested ``capsule`` group, one value per capsule; beside it the scene's
@@ -1147,9 +1142,9 @@ HISTORY_COLUMNS = ("t", "dt", "tt_angle", *SUMMARY_QUANTITIES, "director_x", "di
                    "long_axis_x", "long_axis_y", "long_axis_z", "short_axis_x", "short_axis_y", "short_axis_z",
                    "ellipsoid_a", "ellipsoid_b", "ellipsoid_c",
                    # the body's drift across and along the flow (issues 41, 42): lift or migration, slip
-                   "centroid_velocity_y", "slip_velocity_x", "dissipation_ratio",
-                   # several capsules: the scene's (SCENE_COLUMNS; absent, NaN, for one capsule)
-                   "min_capsule_gap", "separation_x", "separation_y", "separation_z")
+                   "centroid_velocity_y", "slip_velocity_x", "dissipation_ratio")
+#: several capsules: the scene's columns the summary reads back (a pair's relative trajectory)
+SCENE_HISTORY_COLUMNS = ("min_capsule_gap", "separation_x", "separation_y", "separation_z")
 
 
 #: time.stop_when_settled waits this many slow relaxation times of the capsule before it may stop:
@@ -1201,13 +1196,16 @@ class StepObserver:
             self.aspect_ratio = rest_aspect_ratio(rest_geometry, axis)
         else:
             axes = [axis] * self.bodies.count if axes is None else list(axes)
-            self.parts = [_CapsulePart(model, self.bodies, i, rest_positions, axes[i])
+            rest_geometry = model.disc.geometry(rest_positions)
+            self.parts = [_CapsulePart(model, self.bodies, i, rest_positions, rest_geometry, axes[i])
                           for i in range(self.bodies.count)]
             self.aspect_ratio = self.parts[0].aspect_ratio
         #: the kt before which time.stop_when_settled does not stop: SETTLE_RELAXATION_TIMES of the
         #: capsule's slow first-order relaxation time (its G, λ, K_s/G_s and membrane viscosity)
         self.settle_after = SETTLE_RELAXATION_TIMES * slow_relaxation_time(model)
-        self.history: dict[str, list[float]] = {key: [] for key in HISTORY_COLUMNS}
+        #: the columns kept in memory (one capsule's, and a scene's own where it has several)
+        self.history_columns = HISTORY_COLUMNS + (SCENE_HISTORY_COLUMNS if self.bodies is not None else ())
+        self.history: dict[str, list[float]] = {key: [] for key in self.history_columns}
         self.first: dict | None = None
         self.last: dict | None = None
         #: the columns of the run file being continued, when it was written before some of
@@ -1253,7 +1251,8 @@ class StepObserver:
     def _observe_scene(self, t: float, y: np.ndarray, u: np.ndarray, state, dt: float, error: float,
                        work: dict[str, float]) -> dict:
         """The row of a scene of several capsules: each capsule's row (as one capsule's), stacked
-        into one array per column, and the scene's own columns (SCENE_COLUMNS)."""
+        into one array per column, and the scene's own columns: the smallest gap, a pair's separation,
+        the suspension's mean stresslet (capsim.quantities)."""
         model, bodies = self.model, self.bodies
         strain = state.strain
         # a viscous membrane: its traction joins each capsule's stresslet (as one capsule's: _viscous)
@@ -1317,7 +1316,7 @@ class StepObserver:
         if self.first is None:
             self.first = row
         self.last = row
-        for key in HISTORY_COLUMNS:
+        for key in self.history_columns:
             self.history[key].append(row.get(key, float("nan")))
 
     def resume(self, rows: dict[str, np.ndarray]) -> None:
@@ -1337,7 +1336,7 @@ class StepObserver:
             return float(a[k]) if a.ndim == 1 else np.array(a[k])
 
         blank = float("nan") if self.bodies is None else np.full(self.bodies.count, np.nan)
-        self.history = {key: values(rows[key]) if key in rows else [blank] * n for key in HISTORY_COLUMNS}
+        self.history = {key: values(rows[key]) if key in rows else [blank] * n for key in self.history_columns}
         self.first = {key: at(v, 0) for key, v in rows.items()}
         self.last = {key: at(v, -1) for key, v in rows.items()}
 
@@ -1397,7 +1396,7 @@ class _CapsulePart:
     elements in the scene's arrays, its own connectivity, its tank-treading tracker and
     material director."""
 
-    def __init__(self, model, bodies, i: int, rest_positions: np.ndarray, axis) -> None:
+    def __init__(self, model, bodies, i: int, rest_positions: np.ndarray, rest_geometry, axis) -> None:
         self.index = i
         material = getattr(model.membrane, "material", None)  # the capsules' own membranes and λ
         self.material = None if material is None else {
@@ -1410,7 +1409,7 @@ class _CapsulePart:
         self.model = model
         rest = np.ascontiguousarray(rest_positions[self.nodes])
         self.tracker = TankTreadingTracker(rest)
-        rest_geometry = self._geometry(model.disc.geometry(rest_positions))
+        rest_geometry = self._geometry(rest_geometry)  # the scene's, this capsule's elements
         self.director = MaterialDirector(rest_geometry, axis)
         self.aspect_ratio = rest_aspect_ratio(rest_geometry, axis)
 

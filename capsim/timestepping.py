@@ -103,11 +103,6 @@ class StepController:
 # ---------------------------------------------------------------- the error norm's length
 
 
-#: a capsule's centroid this far from the origin (units of a) is taken off before its extent is
-#: measured; nearer, the positions are measured as they are (a capsule at the origin: unchanged)
-CENTROID_SHIFT = 1e-6
-
-
 def scene_size(bodies: Any) -> Callable[[np.ndarray], float]:
     """The length an error estimate is relative to (time.rtol · this): max(1, the largest
     extent of a capsule about its own centroid). Measured from the origin (max |y|), a capsule
@@ -118,8 +113,7 @@ def scene_size(bodies: Any) -> Callable[[np.ndarray], float]:
         parts = [y] if bodies is None or bodies.count == 1 else bodies.split(y)
         extent = 0.0
         for part in parts:
-            c = part.mean(axis=0)
-            extent = max(extent, float(np.abs(part - c if np.abs(c).max() > CENTROID_SHIFT else part).max()))
+            extent = max(extent, float(np.abs(part - part.mean(axis=0)).max()))
         return max(1.0, extent)
 
     return size
