@@ -122,6 +122,13 @@ bench-error-model: venv
 bench-accuracy-target: venv
 	$(BIN)/python benchmarks/accuracy_target.py
 
+# time.rtol auto against rtol 1e-4 (issue 44): evaluations saved and D_xy, θ moved against each case's
+# own mesh error (one level coarser), the stepping cases at levels <= 3, one run each (about a minute;
+# CASES=a e to run some): writes benchmarks/rtol_auto.md and benchmarks/rtol_auto.json
+.PHONY: bench-rtol-auto
+bench-rtol-auto: venv
+	$(BIN)/python benchmarks/rtol_auto.py $(CASES)
+
 .PHONY: bench-tts
 bench-tts: venv
 	$(BIN)/python benchmarks/tran_son_tay.py run main elastic sensitivity extra shape hardening soft
