@@ -26,6 +26,7 @@ import math
 import os
 import sys
 import tempfile
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -33,9 +34,12 @@ for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np
 
+from capsim.accuracy import SAFETY_QUANTILE
+
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = ROOT / "capsim" / "error_model.json"
 MD = ROOT / "benchmarks" / "error_model.md"
+PARTIAL = Path(tempfile.gettempdir()) / "capsim-error-model-rows.json"
 
 #: the training cases: (label, case fields); kt 4 each
 TRAINING = {
@@ -49,7 +53,36 @@ TRAINING = {
                                                       "membrane": {"law": "skalak", "skalak_c": 10.0,
                                                                    "bending_modulus": 1e-3},
                                                       "flow": {"shear_rate_G": 0.2, "viscosity_ratio": 0.2}},
+    "prolate 1.5, neo-Hookean, G 0.05, λ 1": {"shape": {"kind": "prolate", "aspect_ratio": 1.5},
+                                              "membrane": {"law": "neo_hookean"}, "flow": {"shear_rate_G": 0.05}},
+    "prolate 2.5, Skalak C 1, G 0.2, λ 5": {"shape": {"kind": "prolate", "aspect_ratio": 2.5},
+                                            "membrane": {"law": "skalak", "skalak_c": 1.0},
+                                            "flow": {"shear_rate_G": 0.2, "viscosity_ratio": 5.0}},
+    "oblate 0.6, thin shell, G 0.1, λ 5": {"shape": {"kind": "oblate", "aspect_ratio": 0.6},
+                                           "flow": {"shear_rate_G": 0.1, "viscosity_ratio": 5.0}},
+    "sphere, Skalak C 1, G 0.025, λ 1": {"membrane": {"law": "skalak", "skalak_c": 1.0},
+                                         "flow": {"shear_rate_G": 0.025}},
+    "sphere, Mooney-Rivlin, G 0.1, λ 0.3": {"membrane": {"law": "mooney_rivlin"},
+                                            "flow": {"shear_rate_G": 0.1, "viscosity_ratio": 0.3}},
+    "biconcave, thin shell, G 0.3, λ 1": {"shape": {"kind": "biconcave"}, "flow": {"shear_rate_G": 0.3}},
+    "biconcave, neo-Hookean, G 0.05, λ 5": {"shape": {"kind": "biconcave"}, "membrane": {"law": "neo_hookean"},
+                                            "flow": {"shear_rate_G": 0.05, "viscosity_ratio": 5.0}},
 }
+#: and a grid over the rest shape, law, G and λ (none of them a case of benchmarks/accuracy_target.py,
+#: which checks the model on cases it was not built from)
+GRID_SHAPES = {"sphere": {}, "prolate 1.5": {"kind": "prolate", "aspect_ratio": 1.5},
+               "prolate 3": {"kind": "prolate", "aspect_ratio": 3.0}, "oblate 0.5": {"kind": "oblate", "aspect_ratio": 0.5},
+               "biconcave": {"kind": "biconcave"}}
+GRID_LAWS = {"thin shell": {"law": "thin_shell"}, "neo-Hookean": {"law": "neo_hookean"},
+             "Skalak C 10": {"law": "skalak", "skalak_c": 10.0}}
+GRID_G, GRID_LAMBDA = (0.025, 0.08, 0.3), (0.3, 1.0, 5.0)
+for _shape, _shape_fields in GRID_SHAPES.items():
+    for _law, _law_fields in GRID_LAWS.items():
+        for _G in GRID_G:
+            for _lam in GRID_LAMBDA:
+                TRAINING.setdefault(f"grid: {_shape}, {_law}, G {_G:g}, λ {_lam:g}",
+                                    {"shape": _shape_fields, "membrane": _law_fields,
+                                     "flow": {"shear_rate_G": _G, "viscosity_ratio": _lam}})
 QUANTITIES = ("D_xy", "theta", "Sxy_star")
 #: θ's error is absolute (rad: θ is an angle, 0 where the shape is round); the others relative
 ABSOLUTE = ("theta",)
@@ -98,47 +131,63 @@ def measure(label: str, fields: dict, tmp: str) -> dict:
     return out
 
 
-#: what selects a training case for a case: its rest shape and whether λ = 1 (the double-layer solve
-#: changes the time error tenfold: D_xy's per unit rtol 0.06 at λ = 1, 1.1 at λ = 5)
-CLASS_OF = {
-    "sphere, thin shell, G 0.1, λ 1": {"shape": "sphere", "lambda_one": True},
-    "sphere, neo-Hookean, G 0.05, λ 5": {"shape": "sphere", "lambda_one": False},
-    "oblate 0.5, Skalak C 10, G 0.1, λ 1": {"shape": "oblate", "lambda_one": True},
-    "biconcave, Skalak C 10, κ 1e-3, G 0.2, λ 0.2": {"shape": "biconcave", "lambda_one": False},
-}
+def features(label: str) -> dict:
+    """The case's features as capsim computes them (Case.error_model_features)."""
+    from capsim.config import case_from_dict
+
+    d = {"name": "train", "mesh": {"level": 2}, "time": {"t_end": T_END, "rtol": 1e-4}}
+    for key, value in TRAINING[label].items():
+        d[key] = {**d.get(key, {}), **value}
+    return case_from_dict(d).error_model_features()
 
 
-def _entry(rows: list[dict]) -> dict:
-    """The model of a set of training cases: the largest error over them, per level (mesh;
-    levels 4-6 continued with the smallest observed order) and per rtol (time, made
-    non-decreasing in rtol), and their cost law."""
-    out: dict = {"mesh": {}, "time": {}, "order": {}}
+def _entry(row: dict) -> dict:
+    """One training case's model: its error per level (mesh; levels 4-6 continued with its
+    observed order), per rtol (time, made non-decreasing in rtol), and its cost law."""
+    out: dict = {"label": row["label"], "features": features(row["label"]), "mesh": {}, "time": {}, "order": {}}
     for q in QUANTITIES:
-        errors = np.array([r["mesh"][q]["errors"] for r in rows])  # (case, level)
-        order = min(r["mesh"][q]["order"] for r in rows)
-        per_level = {str(lv): float(errors[:, k].max()) for k, lv in enumerate(MESH_LEVELS)}
+        errors, order = row["mesh"][q]["errors"], row["mesh"][q]["order"]
+        per_level = {str(lv): float(e) for lv, e in zip(MESH_LEVELS, errors)}
         for lv in (4, 5, 6):  # each level halves h: the error falls by 2^order
             per_level[str(lv)] = per_level[str(lv - 1)] / 2.0**order
         out["mesh"][q], out["order"][q] = per_level, order
-        # the error at each rtol (ratio × rtol), the largest over the cases, then non-decreasing in rtol
-        errs = np.array([[ratio * rtol for ratio, rtol in zip(r["time"][q], TIME_RTOLS)] for r in rows]).max(axis=0)
+        errs = np.array([ratio * rtol for ratio, rtol in zip(row["time"][q], TIME_RTOLS)])
         errs = np.maximum.accumulate(errs[::-1])[::-1]  # TIME_RTOLS loosest first
         out["time"][q] = {f"{rtol:g}": float(e) for rtol, e in zip(TIME_RTOLS, errs)}
     logs = -np.log(np.array(TIME_RTOLS))
-    fits = [np.polyfit(logs, np.log(np.array(r["cost"]["evaluations_per_kt"])), 1) for r in rows]
-    b = float(np.median([f[0] for f in fits]))
-    a = float(max(np.exp(np.log(np.array(r["cost"]["evaluations_per_kt"])) - b * logs).max() for r in rows))
-    out["evaluations_per_kt"] = {"a": a, "b": b}
+    evaluations = np.log(np.array(row["cost"]["evaluations_per_kt"]))
+    b = float(np.polyfit(logs, evaluations, 1)[0])
+    out["evaluations_per_kt"] = {"a": float(np.exp(evaluations - b * logs).max()), "b": b}
     return out
 
 
+def leave_one_out(cases: list[dict]) -> dict:
+    """Each training case predicted from the others (capsim.accuracy.nearest): the ratios actual /
+    predicted of the mesh error at levels 1-3, per quantity."""
+    from capsim import accuracy
+
+    ratios: dict = {q: [] for q in QUANTITIES}
+    for k, case in enumerate(cases):
+        others = cases[:k] + cases[k + 1:]
+        predicted, _ = accuracy.nearest(case["features"], others)
+        for q in QUANTITIES:
+            for lv in MESH_LEVELS:
+                ratios[q].append(case["mesh"][q][str(lv)] / predicted["mesh"][q][str(lv)])
+    return ratios
+
+
 def fit(rows: list[dict]) -> dict:
-    """The model: one entry per class of training case (CLASS_OF) and the envelope of all,
-    and the seconds of one evaluation at each level (the median over the cases)."""
+    """The model: one entry per training case, the safety factor of each quantity (the ratio
+    actual / predicted that SAFETY_QUANTILE of the left-out cases stay under, at least 1), and
+    the seconds of one evaluation at each level (the median over the cases)."""
+    from capsim import accuracy
+
+    cases = [_entry(r) for r in rows]
+    ratios = leave_one_out(cases)
     model: dict = {"quantities": list(QUANTITIES), "absolute": list(ABSOLUTE), "t_end": T_END,
-                   "time_rtols": [float(r) for r in TIME_RTOLS], "classes": [], "envelope": _entry(rows)}
-    for r in rows:
-        model["classes"].append({"label": r["label"], **CLASS_OF[r["label"]], **_entry([r])})
+                   "time_rtols": [float(r) for r in TIME_RTOLS], "cases": cases,
+                   "safety": {q: max(1.0, float(np.quantile(ratios[q], accuracy.SAFETY_QUANTILE))) for q in QUANTITIES},
+                   "leave_one_out": ratios}
     seconds = {str(lv): float(np.median([r["cost"]["seconds_per_evaluation"][str(lv)] for r in rows]))
                for lv in MESH_LEVELS}
     for lv in (4, 5, 6):  # an evaluation's work grows as the nodes², 4² a level (the dense sums)
@@ -148,33 +197,55 @@ def fit(rows: list[dict]) -> dict:
 
 
 def report(model: dict, rows: list[dict]) -> str:
-    lines = ["Mesh error at each level (relative; θ in rad) against the Richardson extrapolation of levels "
-             "1-3 at rtol 1e-5 (observed order), and time error at each rtol (level 2, against rtol 1e-6), "
-             "at kt 4; the model of each training case is its own row, the envelope the largest of all:", "",
-             "| training case | quantity | level 1 | level 2 | level 3 | order | rtol 1e-2 | 1e-3 | 1e-4 | 1e-5 |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
-    for entry in [*model["classes"], {"label": "envelope (outside the classes)", **model["envelope"]}]:
-        for q in QUANTITIES:
-            e, t = entry["mesh"][q], entry["time"][q]
-            lines.append(f"| {entry['label']} | {q} | {e['1']:.2g} | {e['2']:.2g} | {e['3']:.2g} | "
-                         f"{entry['order'][q]:.2f} | " + " | ".join(f"{t[f'{r:g}']:.2g}" for r in TIME_RTOLS) + " |")
-    c = model["seconds_per_evaluation"]
-    lines += ["", "Cost: velocity evaluations per unit kt ≈ a · rtol^(−b) per class (" +
-              "; ".join(f"{e['label']}: a {e['evaluations_per_kt']['a']:.3g}, b {e['evaluations_per_kt']['b']:.3g}"
-                        for e in model["classes"]) + "); seconds per evaluation (one core, median): " +
-              ", ".join(f"level {lv} {s:.2g}" for lv, s in c.items()) + " (levels 4-6: ×16 a level, not measured)."]
+    ratios, safety = model["leave_one_out"], model["safety"]
+    lines = ["Each training case left out and predicted from the others (capsim.accuracy.nearest): the ratio "
+             "actual / predicted of its mesh error at levels 1-3; the safety factor a target's prediction is "
+             f"multiplied by covers {100 * SAFETY_QUANTILE:g} % of them:", "",
+             "| quantity | ratios: 10 % | median | 90 % | largest | safety factor |", "|---|---|---|---|---|---|"]
+    for q in QUANTITIES:
+        r = np.array(ratios[q])
+        lines.append(f"| {q} | {np.quantile(r, 0.1):.2g} | {np.median(r):.2g} | {np.quantile(r, 0.9):.2g} | "
+                     f"{r.max():.2g} | {safety[q]:.2g} |")
+    lines += ["", f"The {len(model['cases'])} training cases (kt 4): mesh error at each level (relative; θ in rad) "
+              "against the Richardson extrapolation of levels 1-3 at rtol 1e-5 (observed order), and D_xy's time "
+              "error at rtol 1e-3 and 1e-4 (level 2, against rtol 1e-6):", "",
+              "| training case | D_xy level 1 | 2 | 3 | θ level 1 | 2 | 3 | S*_xy level 1 | 2 | 3 | "
+              "D_xy time, rtol 1e-3 | 1e-4 |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for c in model["cases"]:
+        mesh = " | ".join(f"{c['mesh'][q][lv]:.2g}" for q in QUANTITIES for lv in ("1", "2", "3"))
+        lines.append(f"| {c['label']} | {mesh} | {c['time']['D_xy']['0.001']:.2g} | {c['time']['D_xy']['0.0001']:.2g} |")
+    sec = model["seconds_per_evaluation"]
+    lines += ["", "Seconds per evaluation (one core, median over the training cases): " +
+              ", ".join(f"level {lv} {v:.2g}" for lv, v in sec.items()) + " (levels 4-6: ×16 a level, not measured)."]
+    failed = [label for label in TRAINING if label not in {r["label"] for r in rows}]
+    if failed:
+        lines += ["", "Training cases that did not run to kt 4 (a guard stopped them; left out): " + "; ".join(failed) + "."]
     return "\n".join(lines) + "\n"
 
 
+def _measure_alone(label: str) -> dict:
+    """measure() in a worker process, in its own temporary folder; a run that fails is a row that says so."""
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            return measure(label, TRAINING[label], tmp)
+        except RuntimeError as exc:
+            return {"label": label, "failed": str(exc)[-300:]}
+
+
 def main() -> None:
-    if "--fit" in sys.argv:  # refit the rows kept in the model file (no runs)
-        rows = json.loads(MODEL.read_text())["rows"]
-    else:
-        rows = []
-        for label, fields in TRAINING.items():
-            print(label, flush=True)
-            with tempfile.TemporaryDirectory() as tmp:
-                rows.append(measure(label, fields, tmp))
+    # the rows kept in the model file are reused (--fit: no runs at all; --all: measure every case again)
+    kept = {} if "--all" in sys.argv else {r["label"]: r for r in json.loads(MODEL.read_text()).get("rows", [])}
+    if PARTIAL.exists() and "--all" not in sys.argv:  # an interrupted measurement goes on where it stopped
+        kept.update({r["label"]: r for r in json.loads(PARTIAL.read_text())})
+    missing = [label for label in TRAINING if label not in kept and "--fit" not in sys.argv]
+    workers = int(next((a.split("=", 1)[1] for a in sys.argv if a.startswith("--workers=")), "1"))
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        for label, row in zip(missing, pool.map(_measure_alone, missing)):
+            print(label, "failed: " + row["failed"] if "failed" in row else "", flush=True)
+            kept[label] = row
+            PARTIAL.write_text(json.dumps(list(kept.values()), indent=1) + "\n")  # kept as it goes
+    # a training case that cannot run (a guard stops it) is said and left out
+    rows = [kept[label] for label in TRAINING if label in kept and "failed" not in kept[label]]
     model = fit(rows)
     model["rows"] = rows
     MODEL.write_text(json.dumps(model, indent=1) + "\n")

@@ -2,19 +2,25 @@
 ``accuracy`` target, from the error model measured by ``benchmarks/error_model.py``
 (``capsim/error_model.json``; its tables: docs/benchmarks.md, "Error model").
 
-The model holds, for each reported quantity q (D_xy, θ, S*_xy at t_end), the mesh's error at
-each level e_mesh(q, level) (relative; θ absolute in rad), the time error per unit rtol
-k_time(q) (the largest over the training cases: |q(rtol) − q(rtol → 0)| ≤ k_time · rtol),
-and the cost: velocity evaluations per unit kt ≈ a · rtol^(−b), times the seconds of one
-evaluation at each level. Both are the largest over training cases that span the shapes,
-laws, λ and G of the validation: a prediction is an envelope, not a fit to one case.
+The model holds, for each training case (shapes, laws, λ and G spanning the validation) and
+each reported quantity q (D_xy, θ, S*_xy at t_end): the mesh's error at each level
+e_mesh(q, level) (relative; θ absolute in rad), the time error at each rtol, and the cost:
+velocity evaluations per unit kt ≈ a · rtol^(−b), times the seconds of one evaluation at
+each level.
 
-- ``auto_rtol(level)``: the largest rtol of :data:`RTOL_LADDER` whose time error stays below
-  :data:`TIME_FRACTION` of the level's mesh error for every quantity: a tighter tolerance
+- ``nearest(features)``: the training cases nearest to a case (:data:`DISTANCE`: the rest
+  shape first, then whether λ = 1, bending, the law and its parameter, G, λ, the aspect ratio); several within
+  :data:`TIE` of the nearest give their largest errors. A shape no training case has takes the
+  envelope of all, said so.
+- ``auto_rtol(level, features)``: the largest rtol of :data:`RTOL_LADDER` whose time error stays
+  below :data:`TIME_FRACTION` of the level's mesh error for every quantity: a tighter tolerance
   buys no digit the mesh has.
-- ``choose(quantity, target, relative, t_end)``: the (level, rtol) of least predicted cost whose
-  predicted error, mesh plus time, meets the target; :class:`AccuracyError` when no level of
-  the model can (a target finer than level 6 gives, a quantity the model has no value for).
+- ``choose(quantity, target, t_end, features)``: the (level, rtol) of least predicted cost whose
+  predicted error, (mesh + time) × the model's safety factor for q, meets the target. The
+  safety factor is measured, not chosen: leave each training case out, predict it from the
+  others, and take the ratio actual / predicted that covers :data:`SAFETY_QUANTILE` of them
+  (benchmarks/error_model.py). :class:`AccuracyError` when no level of the model can (a target
+  finer than level 6 gives, a quantity the model has no value for).
 
 This module reads a JSON file and does arithmetic: no numba, no capsim imports.
 """
@@ -50,20 +56,72 @@ def model() -> dict[str, Any]:
     return json.loads(MODEL_FILE.read_text(encoding="utf-8"))
 
 
-def entry(shape: str, lambda_one: bool) -> tuple[dict[str, Any], str]:
-    """(the model's entry, its label) for a case of this rest shape and λ: the training case of
-    the same shape and λ regime (λ = 1 or not), else the envelope of all, said so."""
-    m = model()
-    for e in m["classes"]:
-        if e["shape"] == shape and e["lambda_one"] == lambda_one:
-            return e, e["label"]
-    return m["envelope"], (f"the envelope of every training case ({shape}, λ {'=' if lambda_one else '≠'} 1 is "
-                           "outside the error model's training cases)")
+#: how far a training case is from a case, per feature (a different rest shape outweighs every
+#: other: the mesh's error is set first by the curvature it must resolve; then the λ regime, as
+#: the double-layer solve changes the time error tenfold; then bending, law, G, λ, aspect ratio)
+DISTANCE = {"shape": 100.0, "lambda_one": 10.0, "bending": 3.0, "law": 2.0, "law_parameter": 2.0,
+            "log10_G": 2.0, "log10_lambda": 1.0, "aspect_ratio": 4.0}
+#: training cases within this distance of the nearest count too (their largest error is taken)
+TIE = 1.0
+#: the fraction of left-out training cases whose error the safety factor covers (error_model.py)
+SAFETY_QUANTILE = 0.9
+
+
+def distance(a: dict[str, Any], b: dict[str, Any]) -> float:
+    """The distance between two cases' features (:data:`DISTANCE`)."""
+    w = DISTANCE
+    lam_a, lam_b = float(a["viscosity_ratio"]), float(b["viscosity_ratio"])
+    return (w["shape"] * (a["shape"] != b["shape"])
+            + w["lambda_one"] * ((lam_a == 1.0) != (lam_b == 1.0))
+            + w["bending"] * (bool(a["bending"]) != bool(b["bending"]))
+            + w["law"] * (a["law"] != b["law"])
+            # Skalak's C (area dilatation over shear) or Mooney-Rivlin's ψ: per decade of 1 + p
+            + w["law_parameter"] * abs(math.log10((1.0 + a.get("law_parameter", 0.0)) / (1.0 + b.get("law_parameter", 0.0))))
+            + w["log10_G"] * abs(math.log10(float(a["G"]) / float(b["G"])))
+            + w["log10_lambda"] * abs(math.log10(lam_a / lam_b))
+            + w["aspect_ratio"] * abs(float(a["aspect_ratio"]) - float(b["aspect_ratio"])))
+
+
+def merge(cases: list[dict[str, Any]]) -> dict[str, Any]:
+    """One model entry from several training cases: the largest error per level and per rtol,
+    the smallest order, the largest cost."""
+    names = cases[0]["mesh"].keys()
+    out: dict[str, Any] = {"mesh": {}, "time": {}, "order": {}}
+    for q in names:
+        out["mesh"][q] = {lv: max(float(c["mesh"][q][lv]) for c in cases) for lv in cases[0]["mesh"][q]}
+        out["time"][q] = {r: max(float(c["time"][q][r]) for c in cases) for r in cases[0]["time"][q]}
+        out["order"][q] = min(float(c["order"][q]) for c in cases)
+    a = max(float(c["evaluations_per_kt"]["a"]) for c in cases)
+    b = max(float(c["evaluations_per_kt"]["b"]) for c in cases)
+    out["evaluations_per_kt"] = {"a": a, "b": b}
+    return out
+
+
+def nearest(features: dict[str, Any], cases: list[dict[str, Any]] | None = None) -> tuple[dict[str, Any], str]:
+    """(the model's entry, its label) for a case of these features: the training cases nearest to
+    it (within TIE of the nearest, their largest errors); a shape none of them has: the envelope
+    of all, said so."""
+    cases = model()["cases"] if cases is None else cases
+    ranked = sorted((distance(features, c["features"]), k) for k, c in enumerate(cases))
+    if ranked[0][0] >= DISTANCE["shape"]:
+        return merge(cases), (f"the envelope of every training case (no training case is a {features['shape']})")
+    chosen = [cases[k] for d, k in ranked if d <= ranked[0][0] + TIE]
+    return merge(chosen), "; ".join(c["label"] for c in chosen)
+
+
+#: a sphere of the thin-shell law at G 0.1, λ 1: the training case of the demo (the default case)
+DEFAULT_FEATURES = {"shape": "sphere", "aspect_ratio": 1.0, "law": "thin_shell", "law_parameter": 0.0, "G": 0.1,
+                    "viscosity_ratio": 1.0, "bending": False}
+
+
+def entry(features: dict[str, Any] | None = None) -> tuple[dict[str, Any], str]:
+    """(the model's entry, its label) for a case of these features (nearest)."""
+    return nearest(features or DEFAULT_FEATURES)
 
 
 def levels() -> list[int]:
     m = model()
-    return sorted(int(k) for k in m["envelope"]["mesh"][m["quantities"][0]])
+    return sorted(int(k) for k in m["cases"][0]["mesh"][m["quantities"][0]])
 
 
 def mesh_error(e: dict[str, Any], quantity: str, level: int) -> float:
@@ -86,10 +144,11 @@ def time_error(e: dict[str, Any], quantity: str, rtol: float) -> float:
     return vs[-1]
 
 
-def auto_rtol(level: int, shape: str = "sphere", lambda_one: bool = True) -> tuple[float, str]:
+def auto_rtol(level: int, features: dict[str, Any] | None = None) -> tuple[float, str]:
     """(rtol, why) for time.rtol auto: the largest of RTOL_LADDER whose time error stays below
-    TIME_FRACTION of the level's mesh error for every quantity."""
-    e, label = entry(shape, lambda_one)
+    TIME_FRACTION of the level's mesh error for every quantity (the model's best estimate,
+    without the safety factor of a target: this rule is a ratio of two estimates)."""
+    e, label = entry(features)
     names = model()["quantities"]
     level = max(level, min(levels()))  # level 0: its mesh error is above level 1's, as is its tolerance
     for rtol in RTOL_LADDER:
@@ -116,28 +175,33 @@ def predicted_cost(e: dict[str, Any], level: int, rtol: float, t_end: float) -> 
     return evaluations * float(model()["seconds_per_evaluation"][str(level)])
 
 
-def choose(quantity: str, target: float, t_end: float, shape: str = "sphere", lambda_one: bool = True
-           ) -> dict[str, Any]:
-    """The (level, rtol) of least predicted cost whose predicted error, mesh plus time, meets
-    ``target`` (relative for D_xy and S*_xy, rad for θ). AccuracyError when no level of the
+def safety(quantity: str) -> float:
+    """The factor on a predicted error that covers SAFETY_QUANTILE of the left-out training cases."""
+    return float(model()["safety"][quantity])
+
+
+def choose(quantity: str, target: float, t_end: float, features: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The (level, rtol) of least predicted cost whose predicted error, (mesh + time) × safety(q),
+    meets ``target`` (relative for D_xy and S*_xy, rad for θ). AccuracyError when no level of the
     model can."""
     q = canonical(quantity)
     if not (isinstance(target, (int, float)) and math.isfinite(target) and target > 0):
         raise AccuracyError(f"accuracy.target = {target!r}: a positive number is expected")
-    e, label = entry(shape, lambda_one)
+    e, label = entry(features)
+    factor = safety(q)
     best = None
     for level in levels():
         for rtol in RTOL_LADDER:
-            error = mesh_error(e, q, level) + time_error(e, q, rtol)
+            error = factor * (mesh_error(e, q, level) + time_error(e, q, rtol))
             if error <= target:
                 cost = predicted_cost(e, level, rtol, t_end)
                 if best is None or cost < best["cost_s"]:
                     best = {"quantity": q, "level": level, "rtol": rtol, "error": error, "cost_s": cost}
                 break  # a tighter rtol at this level costs more
     if best is None:
-        finest = mesh_error(e, q, max(levels()))
+        finest = factor * mesh_error(e, q, max(levels()))
         raise AccuracyError(f"accuracy.target = {target:g}: finer than the finest level gives for {q} "
                             f"({finest:.2g} at level {max(levels())}; error model of {label}); ask for at least that")
     best["why"] = (f"accuracy {q} {target:g}: level {best['level']}, rtol {best['rtol']:g}; predicted error "
-                   f"{best['error']:.2g}, predicted cost {best['cost_s']:.3g} s on one core (error model of {label})")
+                   f"{best['error']:.2g} (safety factor {factor:.2g} included), predicted cost {best['cost_s']:.3g} s on one core (error model of {label})")
     return best

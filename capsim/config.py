@@ -972,7 +972,7 @@ class Case(_Model):
                                         f"give accuracy or {field}, not both: the target chooses it; remove one")
             try:
                 best = error_model.choose(self.accuracy.quantity, self.accuracy.target, self.time.t_end,
-                                          *self.error_model_class())
+                                          self.error_model_features())
             except error_model.AccuracyError as exc:
                 raise _FieldProblem("accuracy.target", self.accuracy.target, str(exc).split(": ", 1)[1]) from None
             self._set_derived("mesh", "level", best["level"], chosen=True)
@@ -980,17 +980,25 @@ class Case(_Model):
             self._set_derived("time", "rtol_choice", best["why"], chosen=True)
             self._set_derived("accuracy", "choice", best["why"], chosen=True)
         elif self.time.rtol == "auto":
-            rtol, why = error_model.auto_rtol(self.mesh.level, *self.error_model_class())
+            rtol, why = error_model.auto_rtol(self.mesh.level, self.error_model_features())
             self._set_derived("time", "rtol", rtol, chosen=True)
             self._set_derived("time", "rtol_choice", why, chosen=True)
         return self
 
-    def error_model_class(self) -> tuple[str, bool]:
-        """(rest shape, λ = 1) of the case: what selects its entry of the error model (several
-        capsules: the first one's shape, λ = 1 when every capsule's is)."""
-        shape = self.capsules[0].shape.kind if self.capsules and self.capsules[0].shape is not None \
-            else self.shape.kind
-        return shape, all(lam == 1.0 for lam in self.viscosity_ratios)
+    def error_model_features(self) -> dict[str, Any]:
+        """What selects the case's training cases in the error model (capsim.accuracy.nearest): rest
+        shape and aspect ratio, law, G, λ, bending (several capsules: the first one's shape and
+        membrane, the λ farthest from 1)."""
+        first = self.capsules[0] if self.capsules else None
+        shape = first.shape if first is not None and first.shape is not None else self.shape
+        membrane = first.membrane if first is not None and getattr(first, "membrane", None) is not None \
+            else self.membrane
+        lam = max(self.viscosity_ratios, key=lambda v: abs(math.log(v)) if v > 0 else 0.0)
+        parameter = {"skalak": "skalak_c", "mooney_rivlin": "psi"}.get(self.membrane.law)
+        return {"shape": shape.kind, "aspect_ratio": float(shape.aspect_ratio), "law": self.membrane.law,
+                "law_parameter": float(getattr(membrane, parameter, None) or 0.0) if parameter else 0.0,
+                "G": float(self.flow.shear_rate_G), "viscosity_ratio": float(lam),
+                "bending": bool((getattr(membrane, "bending_modulus", None) or 0.0) > 0)}
 
     @model_validator(mode="after")
     def _a_wall_this_case_can_take(self) -> Case:

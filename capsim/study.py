@@ -658,7 +658,7 @@ def verification(case: Case, estimate: dict[str, Any]) -> str:
         return f"verify: no error estimate of {q} (level 0 has no coarser mesh): the target is unchecked"
     # the run's own error by Richardson: the coarser level's difference over 2^p − 1 (p the order
     # of the error model's entry), the 10× looser tolerance's over 9 (time error ∝ rtol)
-    entry, _ = error_model.entry(*case.error_model_class())
+    entry, _ = error_model.entry(case.error_model_features())
     order = float(entry["order"][q])
     error = abs(d_mesh) / (2.0**order - 1.0) + abs(d_time) / 9.0
     achieved = error if q == "theta" else error / max(abs(float(value)), 1e-300)
