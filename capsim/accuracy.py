@@ -63,6 +63,12 @@ DISTANCE = {"shape": 100.0, "lambda_one": 10.0, "bending": 3.0, "law": 2.0, "law
             "log10_G": 2.0, "log10_lambda": 1.0, "aspect_ratio": 4.0}
 #: training cases within this distance of the nearest count too (their largest error is taken)
 TIE = 1.0
+#: a case farther than this from every training case is outside the model's range (said so): e.g.
+#: G or λ a decade and a half beyond the grid, or another law at another G
+FAR = 2.5
+#: training cases whose errors at the chosen level differ more than this factor: the prediction is
+#: uncertain there (said so, with the check to run)
+SPREAD = 10.0
 #: the fraction of left-out training cases whose error the safety factor covers (error_model.py)
 SAFETY_QUANTILE = 0.9
 
@@ -106,7 +112,10 @@ def nearest(features: dict[str, Any], cases: list[dict[str, Any]] | None = None)
     if ranked[0][0] >= DISTANCE["shape"]:
         return merge(cases), (f"the envelope of every training case (no training case is a {features['shape']})")
     chosen = [cases[k] for d, k in ranked if d <= ranked[0][0] + TIE]
-    return merge(chosen), "; ".join(c["label"] for c in chosen)
+    label = "; ".join(c["label"] for c in chosen)
+    if ranked[0][0] > FAR:
+        label += f" (the nearest is {ranked[0][0]:.2g} away, beyond {FAR:g}: outside the training's range)"
+    return {**merge(chosen), "members": chosen}, label
 
 
 #: a sphere of the thin-shell law at G 0.1, λ 1: the training case of the demo (the default case)
@@ -201,7 +210,26 @@ def choose(quantity: str, target: float, t_end: float, features: dict[str, Any] 
     if best is None:
         finest = factor * mesh_error(e, q, max(levels()))
         raise AccuracyError(f"accuracy.target = {target:g}: finer than the finest level gives for {q} "
-                            f"({finest:.2g} at level {max(levels())}; error model of {label}); ask for at least that")
+                            f"({finest:.2g} at level {max(levels())}; error model of {label}); ask for at least that, "
+                            "or measure this case's own errors with capsim study")
     best["why"] = (f"accuracy {q} {target:g}: level {best['level']}, rtol {best['rtol']:g}; predicted error "
-                   f"{best['error']:.2g} (safety factor {factor:.2g} included), predicted cost {best['cost_s']:.3g} s on one core (error model of {label})")
+                   f"{best['error']:.2g} (safety factor {factor:.2g} included), predicted cost {best['cost_s']:.3g} s "
+                   f"on one core (error model of {label})")
+    caveat = uncertainty(e, q, best["level"], label)
+    if caveat:
+        best["why"] += "; " + caveat
     return best
+
+
+def uncertainty(e: dict[str, Any], quantity: str, level: int, label: str) -> str:
+    """What makes a prediction uncertain, said with the check to run ('' when nothing does): the
+    case is outside the training's range, or its nearest training cases disagree SPREAD-fold."""
+    members = e.get("members", [])
+    errors = [float(c["mesh"][quantity][str(level)]) for c in members]
+    check = "check it with capsim run --verify or capsim study"
+    if "outside the training's range" in label:
+        return f"outside the error model's range: {check}"
+    if len(errors) > 1 and max(errors) > SPREAD * max(min(errors), 1e-300):
+        return (f"the nearest training cases disagree {max(errors) / max(min(errors), 1e-300):.0f}-fold at level "
+                f"{level}: {check}")
+    return ""

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
@@ -102,6 +103,22 @@ def test_a_case_takes_its_nearest_training_cases_and_a_shape_none_has_takes_the_
     spheres = [c for c in cases if c["features"]["shape"] == "sphere"]
     entry, label = accuracy.nearest({**first, "shape": "prolate"}, spheres)
     assert label.startswith("the envelope") and entry["mesh"] == accuracy.merge(spheres)["mesh"]
+
+
+def test_an_uncertain_prediction_says_so_and_names_the_check():
+    """A case farther than FAR from every training case (G 0.001: the grid's smallest is 0.025) is
+    outside the model's range; training cases that disagree SPREAD-fold make the prediction
+    uncertain; both say which check to run. A case amid agreeing training cases says nothing."""
+    far = case_from_dict({"name": "a", "flow": {"shear_rate_G": 0.001}, "accuracy": {"quantity": "D_xy", "target": 2e-2}})
+    assert "outside the error model's range" in far.accuracy.choice and "capsim study" in far.accuracy.choice
+    near = case_from_dict({"name": "a", "flow": {"shear_rate_G": 0.1}, "accuracy": {"quantity": "D_xy", "target": 2e-2}})
+    assert "check it" not in near.accuracy.choice
+    a, b = (json.loads(json.dumps(c)) for c in accuracy.model()["cases"][:2])
+    b["mesh"]["D_xy"]["2"] = 11 * a["mesh"]["D_xy"]["2"]
+    entry = {**accuracy.merge([a, b]), "members": [a, b]}
+    assert "disagree 11-fold at level 2" in accuracy.uncertainty(entry, "D_xy", 2, "two cases")
+    b["mesh"]["D_xy"]["2"] = 9 * a["mesh"]["D_xy"]["2"]
+    assert accuracy.uncertainty(entry, "D_xy", 2, "two cases") == ""
 
 
 def test_the_safety_factor_is_the_quantile_of_the_left_out_cases():
