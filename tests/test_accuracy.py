@@ -113,6 +113,13 @@ def test_an_uncertain_prediction_says_so_and_names_the_check():
     assert "outside the error model's range" in far.accuracy.choice and "capsim study" in far.accuracy.choice
     near = case_from_dict({"name": "a", "flow": {"shear_rate_G": 0.1}, "accuracy": {"quantity": "D_xy", "target": 2e-2}})
     assert "check it" not in near.accuracy.choice
+    # an uncertain prediction of a fine level is refused with the study that measures the case (one line):
+    # an oblate 0.7 between oblate 0.5 training cases that converge (G 0.08) and some that do not (G 0.025)
+    with pytest.raises(ConfigError) as err:
+        case_from_dict({"name": "a", "shape": {"kind": "oblate", "aspect_ratio": 0.7}, "membrane": {"law": "neo_hookean"},
+                        "flow": {"shear_rate_G": 0.05, "viscosity_ratio": 3.0},
+                        "accuracy": {"quantity": "D_xy", "target": 2e-2}})
+    assert "\n" not in str(err.value) and "capsim study" in str(err.value) and "disagree" in str(err.value)
     a, b = (json.loads(json.dumps(c)) for c in accuracy.model()["cases"][:2])
     b["mesh"]["D_xy"]["2"] = 11 * a["mesh"]["D_xy"]["2"]
     entry = {**accuracy.merge([a, b]), "members": [a, b]}
