@@ -83,6 +83,16 @@ for _shape, _shape_fields in GRID_SHAPES.items():
                 TRAINING.setdefault(f"grid: {_shape}, {_law}, G {_G:g}, λ {_lam:g}",
                                     {"shape": _shape_fields, "membrane": _law_fields,
                                      "flow": {"shear_rate_G": _G, "viscosity_ratio": _lam}})
+#: and the grid's edges: small G and large λ, and bending (κ 1e-3), on the thin-shell law
+for _shape, _shape_fields in GRID_SHAPES.items():
+    if _shape == "prolate 3":
+        continue
+    for _lam in (1.0, 10.0):
+        TRAINING.setdefault(f"edge: {_shape}, thin shell, G 0.005, λ {_lam:g}",
+                            {"shape": _shape_fields, "flow": {"shear_rate_G": 0.005, "viscosity_ratio": _lam}})
+        TRAINING.setdefault(f"edge: {_shape}, thin shell, κ 1e-3, G 0.1, λ {_lam:g}",
+                            {"shape": _shape_fields, "membrane": {"bending_modulus": 1e-3},
+                             "flow": {"shear_rate_G": 0.1, "viscosity_ratio": _lam}})
 QUANTITIES = ("D_xy", "theta", "Sxy_star")
 #: θ's error is absolute (rad: θ is an angle, 0 where the shape is round); the others relative
 ABSOLUTE = ("theta",)

@@ -66,6 +66,9 @@ TIE = 1.0
 #: a case farther than this from every training case is outside the model's range (said so): e.g.
 #: G or λ a decade and a half beyond the grid, or another law at another G
 FAR = 2.5
+#: rtol auto outside the training's range: never looser than this (the default before rtol auto, the
+#: tolerance the validation tables were measured at)
+OUTSIDE_RTOL = 1e-4
 #: training cases whose errors at the chosen level differ more than this factor: the prediction is
 #: uncertain there (said so, with the check to run)
 SPREAD = 10.0
@@ -165,10 +168,15 @@ def auto_rtol(level: int, features: dict[str, Any] | None = None) -> tuple[float
     for rtol in RTOL_LADDER:
         if all(time_error(e, q, rtol) <= TIME_FRACTION * mesh_error(e, q, level) for q in names):
             break
+    outside = "outside the training's range" in label
+    if outside and rtol > OUTSIDE_RTOL:  # the model does not know this case: the tolerance validated without it
+        rtol = OUTSIDE_RTOL
     limiting = max(names, key=lambda q: time_error(e, q, rtol) / mesh_error(e, q, level))
     why = (f"auto: rtol {rtol:g} keeps the time error below {TIME_FRACTION:g} of the level-{level} mesh error "
            f"of every reported value ({limiting}: {time_error(e, limiting, rtol):.2g} against "
            f"{mesh_error(e, limiting, level):.2g}; error model of {label})")
+    if outside:
+        why += f"; never looser than {OUTSIDE_RTOL:g} outside the training's range"
     return rtol, why
 
 

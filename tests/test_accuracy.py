@@ -106,11 +106,16 @@ def test_a_case_takes_its_nearest_training_cases_and_a_shape_none_has_takes_the_
 
 
 def test_an_uncertain_prediction_says_so_and_names_the_check():
-    """A case farther than FAR from every training case (G 0.001: the grid's smallest is 0.025) is
-    outside the model's range; training cases that disagree SPREAD-fold make the prediction
-    uncertain; both say which check to run. A case amid agreeing training cases says nothing."""
-    far = case_from_dict({"name": "a", "flow": {"shear_rate_G": 0.001}, "accuracy": {"quantity": "D_xy", "target": 2e-2}})
+    """A case farther than FAR from every training case (bending at G 0.0005: the training's bending
+    cases are at G 0.1, its smallest G 0.005 has no bending) is outside the model's range: a target
+    says so, and rtol auto falls back to OUTSIDE_RTOL; training cases that disagree SPREAD-fold make
+    the prediction uncertain; both say which check to run. A case amid agreeing training cases says
+    nothing."""
+    fields = {"name": "a", "flow": {"shear_rate_G": 0.0005}, "membrane": {"bending_modulus": 1e-3}}
+    far = case_from_dict({**fields, "accuracy": {"quantity": "theta", "target": 0.5}})
     assert "outside the error model's range" in far.accuracy.choice and "capsim study" in far.accuracy.choice
+    auto = case_from_dict({**fields, "mesh": {"level": 2}})
+    assert auto.time.rtol <= accuracy.OUTSIDE_RTOL and "outside the training's range" in auto.time.rtol_choice
     near = case_from_dict({"name": "a", "flow": {"shear_rate_G": 0.1}, "accuracy": {"quantity": "D_xy", "target": 2e-2}})
     assert "check it" not in near.accuracy.choice
     # an uncertain prediction of a fine level is refused with the study that measures the case (one line):
