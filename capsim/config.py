@@ -987,18 +987,18 @@ class Case(_Model):
 
     def error_model_features(self) -> dict[str, Any]:
         """What selects the case's training cases in the error model (capsim.accuracy.nearest): rest
-        shape and aspect ratio, law, G, λ, bending (several capsules: the first one's shape and
-        membrane, the λ farthest from 1)."""
-        first = self.capsules[0] if self.capsules else None
-        shape = first.shape if first is not None and first.shape is not None else self.shape
-        membrane = first.membrane if first is not None and getattr(first, "membrane", None) is not None \
-            else self.membrane
-        lam = max(self.viscosity_ratios, key=lambda v: abs(math.log(v)) if v > 0 else 0.0)
-        parameter = {"skalak": "skalak_c", "mooney_rivlin": "psi"}.get(self.membrane.law)
-        return {"shape": shape.kind, "aspect_ratio": float(shape.aspect_ratio), "law": self.membrane.law,
-                "law_parameter": float(getattr(membrane, parameter, None) or 0.0) if parameter else 0.0,
-                "G": float(self.flow.shear_rate_G), "viscosity_ratio": float(lam),
-                "bending": bool((getattr(membrane, "bending_modulus", None) or 0.0) > 0)}
+        shape and aspect ratio, law and its parameter, G, λ, bending (several capsules: the first
+        one's shape and membrane, the λ farthest from 1)."""
+        from capsim.bodies import body_specs  # numpy only
+
+        first = body_specs(self)[0]
+        membrane = first.membrane or self.membrane
+        parameter = {"skalak": "skalak_c", "mooney_rivlin": "psi"}.get(membrane.law)
+        return {"shape": first.shape.kind, "aspect_ratio": float(first.shape.aspect_ratio), "law": membrane.law,
+                "law_parameter": float(getattr(membrane, parameter)) if parameter else 0.0,
+                "G": float(self.flow.shear_rate_G),
+                "viscosity_ratio": float(max(self.viscosity_ratios, key=lambda v: abs(math.log(v)))),
+                "bending": membrane.bending_modulus > 0}
 
     @model_validator(mode="after")
     def _a_wall_this_case_can_take(self) -> Case:
