@@ -118,9 +118,10 @@ def nearest(features: dict[str, Any], cases: list[dict[str, Any]] | None = None)
         return merge(cases), (f"the envelope of every training case (no training case is a {features['shape']})")
     chosen = [cases[k] for d, k in ranked if d <= ranked[0][0] + TIE]
     label = "; ".join(c["label"] for c in chosen)
-    if ranked[0][0] > FAR:
+    outside = ranked[0][0] > FAR
+    if outside:
         label += f" (the nearest is {ranked[0][0]:.2g} away, beyond {FAR:g}: outside the training's range)"
-    return {**merge(chosen), "members": chosen}, label
+    return {**merge(chosen), "members": chosen, "outside": outside}, label
 
 
 #: a sphere of the thin-shell law at G 0.1, λ 1: the training case of the demo (the default case)
@@ -168,7 +169,7 @@ def auto_rtol(level: int, features: dict[str, Any] | None = None) -> tuple[float
     for rtol in RTOL_LADDER:
         if all(time_error(e, q, rtol) <= TIME_FRACTION * mesh_error(e, q, level) for q in names):
             break
-    outside = "outside the training's range" in label
+    outside = e.get("outside", False)
     if outside and rtol > OUTSIDE_RTOL:  # the model does not know this case: the tolerance validated without it
         rtol = OUTSIDE_RTOL
     limiting = max(names, key=lambda q: time_error(e, q, rtol) / mesh_error(e, q, level))
@@ -226,7 +227,7 @@ def choose(quantity: str, target: float, t_end: float, features: dict[str, Any] 
     best["why"] = (f"accuracy {q} {target:g}: level {best['level']}, rtol {best['rtol']:g}; predicted error "
                    f"{best['error']:.2g} (safety factor {factor:.2g} included), predicted cost {best['cost_s']:.3g} s "
                    f"on one core (error model of {label})")
-    caveat = uncertainty(e, q, best["level"], label)
+    caveat = uncertainty(e, q, best["level"])
     if caveat and best["level"] > MEASURE_LEVEL:
         # an uncertain prediction of a fine level: measuring the case's own errors (levels 1-3) costs
         # less than trusting it (the oblate 0.7 of benchmarks/accuracy_target.md: level 6 predicted, level 2 enough)
@@ -239,13 +240,13 @@ def choose(quantity: str, target: float, t_end: float, features: dict[str, Any] 
     return best
 
 
-def uncertainty(e: dict[str, Any], quantity: str, level: int, label: str) -> str:
+def uncertainty(e: dict[str, Any], quantity: str, level: int) -> str:
     """What makes a prediction uncertain, said with the check to run ('' when nothing does): the
     case is outside the training's range, or its nearest training cases disagree SPREAD-fold."""
     members = e.get("members", [])
     errors = [float(c["mesh"][quantity][str(level)]) for c in members]
     check = "check it with capsim run --verify or capsim study"
-    if "outside the training's range" in label:
+    if e.get("outside", False):
         return f"outside the error model's range: {check}"
     if len(errors) > 1 and max(errors) > SPREAD * max(min(errors), 1e-300):
         return (f"the nearest training cases disagree {max(errors) / max(min(errors), 1e-300):.0f}-fold at level "

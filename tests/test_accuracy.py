@@ -128,9 +128,9 @@ def test_an_uncertain_prediction_says_so_and_names_the_check():
     a, b = (json.loads(json.dumps(c)) for c in accuracy.model()["cases"][:2])
     b["mesh"]["D_xy"]["2"] = 11 * a["mesh"]["D_xy"]["2"]
     entry = {**accuracy.merge([a, b]), "members": [a, b]}
-    assert "disagree 11-fold at level 2" in accuracy.uncertainty(entry, "D_xy", 2, "two cases")
+    assert "disagree 11-fold at level 2" in accuracy.uncertainty(entry, "D_xy", 2)
     b["mesh"]["D_xy"]["2"] = 9 * a["mesh"]["D_xy"]["2"]
-    assert accuracy.uncertainty(entry, "D_xy", 2, "two cases") == ""
+    assert accuracy.uncertainty(entry, "D_xy", 2) == ""
 
 
 def test_the_safety_factor_is_the_quantile_of_the_left_out_cases():
