@@ -738,7 +738,7 @@ class CapsuleModel:
             state = self.membrane(x)
         self.counts["velocity_evaluations"] += 1
         lam = self.viscosity_ratio
-        viscous_interior = lam != 1.0 or self.node_lambda is not None  # a double-layer solve
+        viscous_interior = self.solves_double_layer
         t0 = time.perf_counter()
         sl = self.disc.single_layer(x, state.geometry, state.density, state.measure, y_wall=self.wall_y)
         self.counts["single_layer_applications"] += 1
@@ -794,6 +794,11 @@ class CapsuleModel:
         if normal_flux is None:
             normal_flux = self.disc.flux(geo, normals, equivariant)
         return u - (self.disc.flux(geo, u, equivariant) / normal_flux) * normals
+
+    @property
+    def solves_double_layer(self) -> bool:
+        """Whether a velocity solves the double layer: some capsule's λ is not 1."""
+        return self.viscosity_ratio != 1.0 or self.node_lambda is not None
 
     @property
     def several(self) -> bool:

@@ -273,7 +273,7 @@ class KelvinVoigtMembrane:
         from capsim.kernels import solve_reduced_mass
         from capsim.krylov import gmres
 
-        disc, counts, lam = model.disc, model.counts, model.viscosity_ratio
+        disc, counts = model.disc, model.counts
         self._operators = None  # a new configuration: assembled once, kept for the observables
         rest = self._rest_traction(model)
         if rest is None:
@@ -282,8 +282,7 @@ class KelvinVoigtMembrane:
             K, mass = self._stiffness_at(x), None
         red = self._reduction_for(model)
         r = red.reduced
-        double = (model.double_layer_operator(x, geo, normals)
-                  if lam != 1.0 or getattr(model, "node_lambda", None) is not None else None)
+        double = model.double_layer_operator(x, geo, normals) if model.solves_double_layer else None
         elements = disc.elements
 
         if self.preconditioner == "local":  # factorised here, at x
