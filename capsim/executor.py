@@ -198,10 +198,11 @@ def kernel_kind(case) -> tuple:
     symmetry = case.mesh.symmetry
     if symmetry == "auto":
         symmetry = "quarter" if axis_keeps_quarter_symmetry(case.axis) else "half"
+    double_layer = any(lam != 1.0 for lam in case.viscosity_ratios)
     return (
-        m.law, m.traction, any(lam != 1.0 for lam in case.viscosity_ratios), m.bending_modulus > 0,
+        m.law, m.traction, double_layer, m.bending_modulus > 0,
         q.near_field_factor > 0, symmetry,
-        case.solver.method if any(lam != 1.0 for lam in case.viscosity_ratios) else None,
+        case.solver.method if double_layer else None,
         tc.scheme, tc.preconditioner if tc.scheme == "linearly_implicit" else None,
         m.viscosity.model if m.viscosity is not None and m.viscosity.active else None,
     )

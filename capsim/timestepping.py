@@ -530,7 +530,7 @@ class RungeKuttaChebyshev(Integrator):
         # a GMRES velocity (λ ≠ 1, a viscous membrane) is exact only to its tolerance: probe with a
         # perturbation whose response stands well above that noise
         viscosity = getattr(case.membrane, "viscosity", None)
-        exact = (all(lam == 1.0 for lam in getattr(case, "viscosity_ratios", (case.flow.viscosity_ratio,)))
+        exact = (all(lam == 1.0 for lam in case.viscosity_ratios)
                  and not (viscosity is not None and viscosity.active))
         return {**super().settings(case, model), "max_stages": tc.max_stages,
                 "rho_refresh_steps": tc.rho_refresh_steps,
@@ -1002,7 +1002,7 @@ class Automatic(Integrator):
         tc = case.time
         t_end = float(tc.t_end)
         costs = costs_for(int(n_nodes or case.mesh.n_nodes), target_fraction)
-        lam = max(getattr(case, "viscosity_ratios", (case.flow.viscosity_ratio,)))
+        lam = max(case.viscosity_ratios)
         extra = max(layers_per_evaluation - 1.0, 0.0)
         rho = max(rho, 1e-300)
         slow = math.sqrt((1.0 + lam) / 2.0)  # the accuracy steps' factor at λ (VISCOUS_STEP)
