@@ -46,7 +46,7 @@ from capsim import __version__  # noqa: E402
 from capsim.config import case_from_dict  # noqa: E402
 from capsim.store import read_trajectory  # noqa: E402
 from _common import run_or_stop  # noqa: E402
-from stepping import CASES  # noqa: E402
+from stepping import CASES, theta_difference  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 MD, JSON = HERE / "rtol_auto.md", HERE / "rtol_auto.json"
@@ -93,10 +93,6 @@ def _run(key: str, rtol, tmp: Path, coarser: bool = False, t_end: float | None =
     return dict(result), read_trajectory(result["path"])["timeseries"]
 
 
-def _dtheta(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return (a - b + np.pi / 2) % np.pi - np.pi / 2
-
-
 def _at_snapshots(series: dict, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """D_xy and θ at the snapshot times (the steps are clipped to them: rows of every run)."""
     i = np.searchsorted(series["t"], times - 1e-9)
@@ -109,7 +105,7 @@ def compare(run: dict, other: dict, times: np.ndarray) -> dict:
     """|run − other| for D_xy and θ at t_end and as the max over the snapshot times (rows of both,
     no interpolation); θ modulo π, where both have a long axis (D_xy > LONG_AXIS)."""
     (d1, th1), (d2, th2) = _at_snapshots(run, times), _at_snapshots(other, times)
-    d, theta = np.abs(d1 - d2), np.abs(_dtheta(th1, th2))
+    d, theta = np.abs(d1 - d2), np.abs(theta_difference(th1, th2))
     defined = (np.minimum(d1, d2) > LONG_AXIS) & np.isfinite(theta)
     return {"D_xy_end": float(d[-1]), "theta_end": float(theta[-1]),
             "D_xy_max": float(d.max()), "theta_max": float(theta[defined].max(initial=0.0))}

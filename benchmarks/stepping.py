@@ -127,6 +127,11 @@ def _run(key: str, scheme: str, rtol: float, tmp: Path, cases: dict | None = Non
     return dict(result), read_trajectory(result["path"])["timeseries"]
 
 
+def theta_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """θ_a − θ_b modulo π, in [−π/2, π/2): the long axis has no head."""
+    return (a - b + np.pi / 2) % np.pi - np.pi / 2
+
+
 def errors(run: dict, ref: dict) -> tuple[float, float]:
     """max |ΔD_xy| and max |Δθ| (mod π, where D_xy > 1e-3) against the reference at the run's times."""
     t = run["t"]
@@ -134,7 +139,7 @@ def errors(run: dict, ref: dict) -> tuple[float, float]:
     # θ is NaN where the shape has no long axis (the sphere at kt = 0): interpolate the defined part
     ok = np.isfinite(ref["theta"])
     theta_ref = np.interp(t, ref["t"][ok], unwrap_defined(ref["theta"])[ok])
-    dtheta = (run["theta"] - theta_ref + np.pi / 2) % np.pi - np.pi / 2
+    dtheta = theta_difference(run["theta"], theta_ref)
     defined = np.minimum(run["D_xy"], d_ref) > 1e-3
     return float(np.abs(run["D_xy"] - d_ref).max()), float(np.abs(dtheta[defined]).max(initial=0.0))
 
