@@ -27,6 +27,9 @@ for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
 import numpy as np
+from error_model import richardson3
+
+from capsim.study import richardson
 
 ROOT = Path(__file__).resolve().parents[1]
 MD, JSON = ROOT / "benchmarks" / "accuracy_target.md", ROOT / "benchmarks" / "accuracy_target.json"
@@ -106,9 +109,7 @@ def measure(label: str, fields: dict, tmp: Path) -> dict:
     out: dict = {"label": label, "targets": [], "reference_levels": finest}
     for q, target in TARGETS:
         values = np.array([grid[(lv, min(r for (l2, r) in grid if l2 == lv))][q] for lv in finest])
-        d1, d2 = values[1] - values[0], values[2] - values[1]
-        order = float(np.clip(math.log2(d1 / d2) if d1 and d2 and d1 / d2 > 0 else 2.0, 1.5, 4.0))
-        reference = values[2] + d2 / (2.0**order - 1.0)
+        reference, _ = richardson3(values)  # the error model's own recipe
         scale = 1.0 if q == "theta" else abs(reference)
 
         def error(v: float) -> float:
@@ -131,9 +132,7 @@ def measure(label: str, fields: dict, tmp: Path) -> dict:
             runs = [_run(_fields(fields, mesh={"level": lv}, time={"rtol": rtol}), tmp / f"s{lv}-{rtol:g}.h5")
                     for lv in LEVELS]
             own = np.array([run[q] for run in runs])
-            e1, e2 = own[1] - own[0], own[2] - own[1]
-            p = float(np.clip(math.log2(e1 / e2) if e1 and e2 and e1 / e2 > 0 else 2.0, 1.5, 4.0))
-            own_ref = own[2] + e2 / (2.0**p - 1.0)
+            own_ref, p = richardson(own, np.array(LEVELS))  # what capsim study --reference richardson takes
             own_scale = 1.0 if q == "theta" else abs(own_ref)
             ok = [k for k, v in enumerate(own) if abs(v - own_ref) / own_scale <= target]
             if not ok:  # the study's extrapolation: level 3's error falls by 2^p a level

@@ -230,7 +230,7 @@ def _order_three_level(f: np.ndarray) -> np.ndarray:
     return out
 
 
-def _richardson(f: np.ndarray, levels: np.ndarray) -> tuple[float, float]:
+def richardson(f: np.ndarray, levels: np.ndarray) -> tuple[float, float]:
     """Extrapolated value and the order used, from values f over consecutive levels."""
     ok = np.isfinite(f)
     f, levels = f[ok], levels[ok]
@@ -394,7 +394,7 @@ def analyse_study(ds, reference: str = "finest"):
         if reference == "finest":
             ref, ref_order = float(raw[-1, -1, -1]), float("nan")
         else:
-            ref, ref_order = _richardson(raw[-1, -1, :], levels)
+            ref, ref_order = richardson(raw[-1, -1, :], levels)
         err = raw - ref
         out[f"{q}_error"] = (dims, err, _attrs(f"{q}_error", reference=reference))
         rel = np.abs(err) / abs(ref) if ref else np.full(shape, np.nan)

@@ -22,7 +22,7 @@ from capsim.runner import run_case
 from capsim.study import (
     QUANTITIES,
     _order_three_level,
-    _richardson,
+    richardson,
     analyse_study,
     error_estimate,
     format_study_table,
@@ -52,7 +52,7 @@ def test_three_level_order_and_richardson_on_exact_h2_sequence():
     f = 1.0 + 0.3 * (2.0 ** -levels) ** 2  # f = f* + C h^2
     p3 = _order_three_level(f)
     assert np.allclose(p3[:2], 2.0) and np.isnan(p3[2:]).all()
-    ref, p = _richardson(f, levels)
+    ref, p = richardson(f, levels)
     assert p == pytest.approx(2.0)
     assert ref == pytest.approx(1.0, abs=1e-12)
 
