@@ -21,6 +21,11 @@ each level.
   others, and take the ratio actual / predicted that covers :data:`SAFETY_QUANTILE` of them
   (benchmarks/error_model.py). :class:`AccuracyError` when no level of the model can (a target
   finer than level 6 gives, a quantity the model has no value for).
+- ``plan(quantity, target, t_end, features, method)``: how a target is met: ``predict`` (the
+  choice above), ``measure`` (the ladder of :mod:`capsim.ladder`: levels 1, 2, … at one rtol,
+  each run's error estimated from the levels below it by :func:`measured_error`, the first that
+  meets the target kept), or ``auto``: predict where the model is sure of the case, measure where
+  it is not (outside its range, or its nearest training cases disagree :data:`SPREAD`-fold).
 
 This module reads a JSON file and does arithmetic: no numba, no capsim imports.
 """
@@ -72,8 +77,18 @@ OUTSIDE_RTOL = 1e-4
 #: training cases whose errors at the chosen level differ more than this factor: the prediction is
 #: uncertain there (said so, with the check to run)
 SPREAD = 10.0
-#: an uncertain prediction finer than this level is refused with the study that measures the case
+#: an uncertain prediction finer than this level is refused under method predict (method auto
+#: measures instead: the ladder's levels 1-3 cost less than trusting it)
 MEASURE_LEVEL = 3
+#: how a target is met (accuracy.method): auto picks predict or measure per case (plan)
+METHODS = ("auto", "predict", "measure")
+#: the measured ladder's largest observed order: beyond it two differences say little more
+#: (the training's Richardson orders are clipped to [1.5, 4] alike, benchmarks/error_model.py)
+LADDER_MAX_ORDER = 4.0
+#: the ladder's order from only two levels (no observed order yet): the smallest of the training's
+#: (clipped) orders; 18-40 % of its cases are below 2 (D_xy, S*_xy, θ), which 2 would underestimate
+#: up to 1.6-fold: the level-2 estimate errs large, never small, on a case like them
+LADDER_TWO_LEVEL_ORDER = 1.5
 #: the fraction of left-out training cases whose error the safety factor covers (error_model.py)
 SAFETY_QUANTILE = 0.9
 
@@ -200,10 +215,12 @@ def safety(quantity: str) -> float:
     return float(model()["safety"][quantity])
 
 
-def choose(quantity: str, target: float, t_end: float, features: dict[str, Any] | None = None) -> dict[str, Any]:
+def choose(quantity: str, target: float, t_end: float, features: dict[str, Any] | None = None,
+           quiet_uncertain: bool = False) -> dict[str, Any]:
     """The (level, rtol) of least predicted cost whose predicted error, (mesh + time) × safety(q),
-    meets ``target`` (relative for D_xy and S*_xy, rad for θ). AccuracyError when no level of the
-    model can."""
+    meets ``target`` (relative for D_xy and S*_xy, rad for θ), with ``uncertain`` (what makes the
+    prediction uncertain, '' when nothing does). AccuracyError when no level of the model can, and
+    for an uncertain prediction finer than MEASURE_LEVEL unless ``quiet_uncertain``."""
     q = canonical(quantity)
     if not (isinstance(target, (int, float)) and math.isfinite(target) and target > 0):
         raise AccuracyError(f"accuracy.target = {target!r}: a positive number is expected")
@@ -228,16 +245,97 @@ def choose(quantity: str, target: float, t_end: float, features: dict[str, Any] 
                    f"{best['error']:.2g} (safety factor {factor:.2g} included), predicted cost {best['cost_s']:.3g} s "
                    f"on one core (error model of {label})")
     caveat = uncertainty(e, q, best["level"])
-    if caveat and best["level"] > MEASURE_LEVEL:
+    best["uncertain"] = caveat
+    if caveat and best["level"] > MEASURE_LEVEL and not quiet_uncertain:
         # an uncertain prediction of a fine level: measuring the case's own errors (levels 1-3) costs
         # less than trusting it (the oblate 0.7 of benchmarks/accuracy_target.md: level 6 predicted, level 2 enough)
         raise AccuracyError(f"accuracy.target = {target:g}: the error model cannot place this case ({caveat.split(': ')[0]}; "
                             f"it predicts level {best['level']}, {best['cost_s']:.2g} s); measuring is cheaper: "
-                            f"capsim study CASE.yaml --levels 1,2,3 --rtols {best['rtol']:g} --reference richardson, "
-                            "then give mesh.level")
+                            "give accuracy.method measure (or auto), which runs levels 1, 2, ... until the case's own "
+                            "error estimate meets the target")
     if caveat:
         best["why"] += "; " + caveat
     return best
+
+
+def plan(quantity: str, target: float, t_end: float, features: dict[str, Any] | None = None,
+         method: str = "auto", max_level: int = 4) -> dict[str, Any]:
+    """How the target is met: ``{"method": "predict", level, rtol, error, cost_s, why}`` (:func:`choose`)
+    or ``{"method": "measure", "level": 1, rtol, why}`` (the ladder of :mod:`capsim.ladder`, up to
+    ``max_level``). ``auto`` predicts where the model is sure of the case and measures where it is not:
+    the prediction is uncertain, or it says no level can (an uncertain model's "impossible" is a guess
+    too). AccuracyError for a target no method can take (an unknown quantity, not a positive number;
+    under predict, what :func:`choose` refuses)."""
+    if method not in METHODS:
+        raise AccuracyError(f"accuracy.method = {method!r}: allowed: {', '.join(METHODS)}")
+    q = canonical(quantity)
+    if not (isinstance(target, (int, float)) and math.isfinite(target) and target > 0):
+        raise AccuracyError(f"accuracy.target = {target!r}: a positive number is expected")
+    if method == "predict":
+        return {**choose(q, target, t_end, features), "method": "predict"}
+    reason = "asked for (accuracy.method measure)"
+    if method == "auto":
+        try:
+            best = choose(q, target, t_end, features, quiet_uncertain=True)
+        except AccuracyError:
+            e, _ = entry(features)
+            if not uncertainty(e, q, MEASURE_LEVEL):
+                raise
+            best = {"uncertain": uncertainty(e, q, MEASURE_LEVEL)}
+            reason = "the error model predicts no level can"
+        if not best["uncertain"]:
+            return {**best, "method": "predict"}
+        reason = (f"the error model cannot place this case ({best['uncertain'].split(': ')[0]}"
+                  + (f"; it predicts level {best['level']}" if "level" in best else f"; {reason}") + ")")
+    rtol = ladder_rtol(q, target, features)
+    why = (f"accuracy {q} {target:g}: measured, {reason}: levels 1, 2, ... up to {max_level} at rtol {rtol:g}, "
+           "each run's error estimated from the levels below it (Richardson), the first that meets the target kept")
+    return {"method": "measure", "quantity": q, "level": 1, "rtol": rtol, "why": why}
+
+
+def ladder_rtol(quantity: str, target: float, features: dict[str, Any] | None = None) -> float:
+    """The measured ladder's one tolerance: the loosest of RTOL_LADDER whose predicted time error
+    (with the safety factor) is at most TIME_FRACTION of the target; never looser than OUTSIDE_RTOL
+    outside the training's range (the time error is predicted too)."""
+    e, _ = entry(features)
+    q = canonical(quantity)
+    for rtol in RTOL_LADDER:
+        if safety(q) * time_error(e, q, rtol) <= TIME_FRACTION * target:
+            break
+    return min(rtol, OUTSIDE_RTOL) if e.get("outside", False) else rtol
+
+
+def measured_error(values: list[float], relative: bool, period: float | None = None) -> dict[str, Any]:
+    """The error of the last of ``values`` (one quantity at consecutive mesh levels, one rtol) by
+    Richardson from the levels below it: |f_L − f_(L−1)| / (2^p − 1), relative to |f_L| when
+    ``relative``; differences taken modulo ``period`` (θ: π).
+
+    p is the observed order log2(|d_(L−1)| / |d_L|) of the last two differences (at most
+    LADDER_MAX_ORDER) where they have one sign and shrink: the levels converge. Where they do not
+    (the sign changes, or the last difference is the larger: not yet in the asymptotic range)
+    ``converging`` is False and the error is the larger difference: no estimate, a scale. From two
+    levels only, p is LADDER_TWO_LEVEL_ORDER (``order_from_levels`` False).
+
+    Returns {"error", "order", "converging", "order_from_levels"}."""
+    def diff(a: float, b: float) -> float:
+        d = a - b
+        return (d + period / 2) % period - period / 2 if period else d
+
+    if len(values) < 2:
+        return {"error": math.inf, "order": math.nan, "converging": False, "order_from_levels": False}
+    scale = max(abs(values[-1]), 1e-300) if relative else 1.0
+    d = diff(values[-1], values[-2])
+    if len(values) == 2:
+        p = LADDER_TWO_LEVEL_ORDER
+        return {"error": abs(d) / (2.0**p - 1.0) / scale, "order": p, "converging": True, "order_from_levels": False}
+    d_prev = diff(values[-2], values[-3])
+    if d == 0.0:
+        return {"error": 0.0, "order": math.inf, "converging": True, "order_from_levels": True}
+    if d * d_prev > 0 and abs(d) < abs(d_prev):
+        p = min(math.log2(abs(d_prev) / abs(d)), LADDER_MAX_ORDER)
+        return {"error": abs(d) / (2.0**p - 1.0) / scale, "order": p, "converging": True, "order_from_levels": True}
+    return {"error": max(abs(d), abs(d_prev)) / scale, "order": math.nan, "converging": False,
+            "order_from_levels": True}
 
 
 def uncertainty(e: dict[str, Any], quantity: str, level: int) -> str:

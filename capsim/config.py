@@ -891,16 +891,25 @@ class Capsule(_Model):
 
 
 class Accuracy(_Model):
-    """An accuracy target (capsim.accuracy): the mesh level and time.rtol that meet it at the least
-    predicted cost, from the error model (docs/benchmarks.md, "Error model")."""
+    """An accuracy target (capsim.accuracy): the mesh level and time.rtol that meet it, predicted at
+    the least cost from the error model (docs/benchmarks.md, "Error model"), or measured on the
+    case's own levels 1, 2, ... (capsim.ladder)."""
 
     quantity: Literal["D_xy", "theta", "Sxy_star"] = Field(
         ..., description="the value at t_end the target is for: D_xy, theta (θ) or Sxy_star (S*_xy)")
     target: float = Field(
         ..., gt=0, lt=1,
         description="its largest error: relative (a fraction of the value) for D_xy and Sxy_star, in rad for theta")
+    method: Literal["auto", "predict", "measure"] = Field(
+        "auto", description="predict: the level and rtol the error model predicts; measure: run levels 1, 2, ... "
+        "at one rtol and keep the first whose own error estimate (Richardson from the levels below it) meets the "
+        "target; auto: predict where the model is sure of the case, measure where it is not. Set to what auto "
+        "chose in a resolved case")
+    max_level: int = Field(
+        4, ge=2, le=6, description="measure: the finest level the ladder runs (level 5 costs minutes to hours a run)")
     choice: Optional[str] = Field(
-        None, description="set by capsim, not a setting: the level and rtol chosen, the predicted error and cost")
+        None, description="set by capsim, not a setting: the level and rtol chosen, the predicted error and cost, "
+        "or the ladder to run")
 
 
 class Case(_Model):
@@ -971,10 +980,11 @@ class Case(_Model):
                     raise _FieldProblem("accuracy", self.accuracy.quantity,
                                         f"give accuracy or {field}, not both: the target chooses it; remove one")
             try:
-                best = error_model.choose(self.accuracy.quantity, self.accuracy.target, self.time.t_end,
-                                          self.error_model_features())
+                best = error_model.plan(self.accuracy.quantity, self.accuracy.target, self.time.t_end,
+                                        self.error_model_features(), self.accuracy.method, self.accuracy.max_level)
             except error_model.AccuracyError as exc:
                 raise _FieldProblem("accuracy.target", self.accuracy.target, str(exc).split(": ", 1)[1]) from None
+            self._set_derived("accuracy", "method", best["method"], chosen=True)
             self._set_derived("mesh", "level", best["level"], chosen=True)
             self._set_derived("time", "rtol", best["rtol"], chosen=True)
             self._set_derived("time", "rtol_choice", best["why"], chosen=True)
@@ -1648,7 +1658,8 @@ DERIVED_FIELDS = {
     "physical.inner_viscosity": (("flow.viscosity_ratio", None),),
     # time.rtol auto and the accuracy target choose again for another level or target
     "mesh.level": (("time.rtol", "time.rtol_choice"), ("time.rtol_choice", None), ("accuracy.choice", None)),
-    "accuracy": (("mesh.level", _UNSET), ("time.rtol", _UNSET), ("time.rtol_choice", None), ("accuracy.choice", None)),
+    "accuracy": (("mesh.level", _UNSET), ("time.rtol", _UNSET), ("time.rtol_choice", None), ("accuracy.choice", None),
+                 ("accuracy.method", _UNSET)),
 }
 
 

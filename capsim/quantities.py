@@ -482,6 +482,29 @@ for _name in _STUDIED:
         _add(f"error_estimate/{_key}_time", f"time-step part of the error estimate of the {_base.long_name}",
              _base.units, f"{_name} {_of} of the run minus that of the run at loose_rtol", _base.scale)
 
+# ---------------------------------------------------------------- accuracy/ (a measured accuracy target: capsim.ladder)
+
+_add("accuracy/quantity", "quantity of the accuracy target", "", "D_xy, theta or Sxy_star at t_end")
+_add("accuracy/target", "accuracy target", "1", "the largest error asked for: relative for D_xy and Sxy_star, "
+     "in rad for theta")
+_add("accuracy/rtol", "time tolerance of the ladder's runs", "1", "capsim.accuracy.ladder_rtol: its predicted time "
+     "error a tenth of the target")
+_add("accuracy/met", "whether the kept run's error estimate meets the target", "1", "1: met, 0: not met")
+_add("accuracy/verdict", "the ladder's verdict", "", "the level kept, its error estimate and how it was had, "
+     "met or NOT met (the line capsim run prints)")
+_add("accuracy/error_model", "the error model's training cases nearest the case", "",
+     "capsim.accuracy.nearest: the cases whose predicted time error is added")
+_add("accuracy/level", "mesh level of each run", "1", "1, 2, ... up to the level kept (this file's run)")
+_add("accuracy/values", "the target's quantity at t_end at each level", "1", "relative errors are of these; "
+     "theta in rad")
+_add("accuracy/errors", "error estimate of each level's run", "1", "|f_L − f_(L−1)| / (2^p − 1) (relative for D_xy, "
+     "Sxy_star), p the observed order of the last two differences (at most 4; 1.5 from two levels), plus the "
+     "predicted time error; where the levels do not converge, the larger difference; NaN at the first level")
+_add("accuracy/orders", "order used for each level's estimate", "1", "log2(|d_(L−1)| / |d_L|) of the last two "
+     "differences; 1.5 from two levels; NaN where not converging")
+_add("accuracy/evaluations", "velocity evaluations of each level's run", "1", "its run's velocity_evaluations")
+_add("accuracy/wall_time_s", "wall-clock time of each level's run", "s", "its run's wall_time_s")
+
 # ---------------------------------------------------------------- groups
 
 #: What each group of a run file holds (written as the group's ``definition`` attribute).
@@ -494,6 +517,8 @@ GROUPS: dict[str, str] = {
     "summary": "the motion and, for each observable q, q (time mean) and q_std over the averaging window "
                "[averaging_t_from, averaging_t_to]; several capsules: the mean over the capsules, each capsule's "
                "in the subgroup capsule",
+    "accuracy": "a measured accuracy target (capsim.ladder): the levels run at one rtol, the target's quantity and "
+                "error estimate at each, the level kept (this file's run) and whether it meets the target",
     "error_estimate": "q: |q(run) − q(one level coarser)| + |q(run) − q(rtol × 10)| at t_end; q_mean: the same "
                       "for the time mean over the run's averaging window; q_mesh, q_time: the signed differences",
 }

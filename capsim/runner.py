@@ -143,6 +143,7 @@ class RunResult(Mapping):
     scheme_choice: str | None = None
     rtol: float | None = None
     rtol_choice: str | None = None  # time.rtol auto or the accuracy target: what it chose and why
+    accuracy: str | None = None  # a measured accuracy target (capsim.ladder): the level kept, its error, met or not
     velocity_evaluations: int | None = None
     layer_applications: int | None = None
     linear_iterations: int | None = None
@@ -203,7 +204,17 @@ def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool 
     With ``overwrite=False`` (the CLI without --overwrite) an existing run file found once the
     lock is held is refused (:class:`capsim.files.OutputError`). A stop during set-up (before
     the first row) returns status 'interrupted' with nothing written.
+
+    A case whose accuracy target is measured (``accuracy.method`` measure) runs the ladder of
+    :mod:`capsim.ladder` (levels 1, 2, … into this output path), which cannot be resumed.
     """
+    if case.accuracy is not None and case.accuracy.method == "measure":
+        if resume:
+            raise ResumeError("a measured accuracy target runs its ladder of levels again from level 1; run it "
+                              "without --resume (or resume the kept run's file itself: capsim run RUN.h5 --resume)")
+        from capsim.ladder import run_measured
+
+        return run_measured(case, progress, overwrite=overwrite)
     with _StopSignals() as stop, FileLock(case.output.path):
         if not overwrite and not resume and Path(case.output.path).exists():
             # checked again under the lock: another run may have written this path since the

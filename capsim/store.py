@@ -18,6 +18,7 @@ Layout::
     /run                 the state at the end and the cost    (write_run_record)
     /summary             motion and window statistics         (write_summary)
     /error_estimate      capsim run --error-estimate          (write_error_estimate)
+    /accuracy            a measured accuracy target's ladder  (write_accuracy)
 
 Every dataset takes units, long_name and definition from the one table
 :mod:`capsim.quantities`; every group its ``definition`` from
@@ -58,7 +59,7 @@ __all__ = [
     "free_bytes", "is_run_file", "lock_path",
     "case_from_trajectory", "checkpoint_path", "guard_run_output", "mark_abandoned", "open_run", "read_case", "read_checkpoint", "read_run_record",
     "END_STATE", "read_end_state", "read_run_status", "read_trajectory", "remove_checkpoint", "write_checkpoint",
-    "write_error_estimate", "writer_of",
+    "write_accuracy", "write_error_estimate", "writer_of",
 ]
 
 STATUSES = frozenset({"completed", "unstable", "interrupted", "failed"})
@@ -337,7 +338,7 @@ class TrajectoryWriter:
             ds.resize((n_steps, *ds.shape[1:]))
         # rewritten when the run ends; the error estimate was of the window and the end that the
         # run had, so it goes too (`capsim run --error-estimate` makes a new one)
-        for name in ("summary", "run", "error_estimate"):
+        for name in ("summary", "run", "error_estimate", "accuracy"):
             if name in f:
                 del f[name]
         self._n_steps, self._n_snapshots, self._unflushed_steps = n_steps, n_snapshots, 0
@@ -617,16 +618,40 @@ def write_error_estimate(path: str | os.PathLike, estimate: dict[str, Any]) -> N
 
     The group is written into a copy that is renamed over the run file (room for the
     copy checked first): a full disk or a kill leaves the completed run file as it was."""
+    _write_group(path, "error_estimate", tuple(estimate), lambda group: _write_dict(group, estimate, "error_estimate"))
+
+
+def write_accuracy(path: str | os.PathLike, record: dict[str, Any]) -> None:
+    """Store a measured accuracy target's ladder (:func:`capsim.ladder.run_measured`) as the kept
+    run file's ``accuracy`` group, replacing any, as :func:`write_error_estimate` does: the
+    per-level lists (values, error estimates, orders, costs) over the coordinate ``level``, the
+    rest (target, rtol, verdict) as scalars."""
+    per_level = {k: v for k, v in record.items() if isinstance(v, (list, tuple)) and k != "level"}
+
+    def fill(group: h5py.Group) -> None:
+        _write_dict(group, {k: v for k, v in record.items() if k not in per_level and k != "level"}, "accuracy")
+        level = group.create_dataset("level", data=np.asarray(record["level"], dtype=np.int64))
+        _label(level, "level", "accuracy")
+        level.make_scale("level")
+        for key, values in per_level.items():
+            _label(ds := group.create_dataset(key, data=np.asarray(values)), key, "accuracy")
+            _attach(ds, level)
+
+    _write_group(path, "accuracy", tuple(record), fill)
+
+
+def _write_group(path: str | os.PathLike, name: str, keys: tuple[str, ...], fill) -> None:
+    """Group `name` (replacing any) filled by ``fill(group)``, written into a copy renamed over the run file."""
     def change(copy: Path) -> None:
         with h5py.File(copy, "a") as f:
-            if "error_estimate" in f:
-                del f["error_estimate"]
-            group = f.create_group("error_estimate")
-            _describe(group, "error_estimate")
-            _write_dict(group, estimate, "error_estimate")
+            if name in f:
+                del f[name]
+            group = f.create_group(name)
+            _describe(group, name)
+            fill(group)
 
     with FileLock(path):
-        copy_and_replace(path, change, headroom=_needed_bytes(0, tuple(estimate)))
+        copy_and_replace(path, change, headroom=_needed_bytes(0, keys))
 
 
 # ---------------------------------------------------------------- checkpoints

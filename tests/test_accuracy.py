@@ -112,19 +112,26 @@ def test_an_uncertain_prediction_says_so_and_names_the_check():
     the prediction uncertain; both say which check to run. A case amid agreeing training cases says
     nothing."""
     fields = {"name": "a", "flow": {"shear_rate_G": 0.0005}, "membrane": {"bending_modulus": 1e-3}}
-    far = case_from_dict({**fields, "accuracy": {"quantity": "theta", "target": 0.5}})
+    far = case_from_dict({**fields, "accuracy": {"quantity": "theta", "target": 0.5, "method": "predict"}})
     assert "outside the error model's range" in far.accuracy.choice and "capsim study" in far.accuracy.choice
+    # under method auto (the default) such a case is measured, said why
+    measured = case_from_dict({**fields, "accuracy": {"quantity": "theta", "target": 0.5}})
+    assert measured.accuracy.method == "measure" and "outside the error model's range" in measured.accuracy.choice
     auto = case_from_dict({**fields, "mesh": {"level": 2}})
     assert auto.time.rtol <= accuracy.OUTSIDE_RTOL and "outside the training's range" in auto.time.rtol_choice
     near = case_from_dict({"name": "a", "flow": {"shear_rate_G": 0.1}, "accuracy": {"quantity": "D_xy", "target": 2e-2}})
     assert "check it" not in near.accuracy.choice
-    # an uncertain prediction of a fine level is refused with the study that measures the case (one line):
-    # an oblate 0.7 between oblate 0.5 training cases that converge (G 0.08) and some that do not (G 0.025)
+    # an uncertain prediction of a fine level: method predict refuses it in one line, naming the method
+    # that measures the case; auto measures it (an oblate 0.7 between oblate 0.5 training cases that
+    # converge (G 0.08) and some that do not (G 0.025))
+    oblate = {"name": "a", "shape": {"kind": "oblate", "aspect_ratio": 0.7}, "membrane": {"law": "neo_hookean"},
+              "flow": {"shear_rate_G": 0.05, "viscosity_ratio": 3.0}}
     with pytest.raises(ConfigError) as err:
-        case_from_dict({"name": "a", "shape": {"kind": "oblate", "aspect_ratio": 0.7}, "membrane": {"law": "neo_hookean"},
-                        "flow": {"shear_rate_G": 0.05, "viscosity_ratio": 3.0},
-                        "accuracy": {"quantity": "D_xy", "target": 2e-2}})
-    assert "\n" not in str(err.value) and "capsim study" in str(err.value) and "disagree" in str(err.value)
+        case_from_dict({**oblate, "accuracy": {"quantity": "D_xy", "target": 2e-2, "method": "predict"}})
+    assert "\n" not in str(err.value) and "accuracy.method measure" in str(err.value) and "disagree" in str(err.value)
+    auto = case_from_dict({**oblate, "accuracy": {"quantity": "D_xy", "target": 2e-2}})
+    assert auto.accuracy.method == "measure" and auto.mesh.level == 1 and "disagree" in auto.accuracy.choice
+    assert auto.time.rtol == accuracy.ladder_rtol("D_xy", 2e-2, auto.error_model_features())
     a, b = (json.loads(json.dumps(c)) for c in accuracy.model()["cases"][:2])
     b["mesh"]["D_xy"]["2"] = 11 * a["mesh"]["D_xy"]["2"]
     entry = {**accuracy.merge([a, b]), "members": [a, b]}
@@ -172,3 +179,77 @@ def test_verify_says_whether_the_target_was_met(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "capsim.cli", "run", str(path), "--accuracy", "D_xy"],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "--accuracy" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+
+
+def test_the_ladder_estimate_is_richardson_with_the_observed_order():
+    """measured_error on values f_L = f* + C 2^(-pL): from three levels, the observed order p and the
+    exact error of the last; from two, order LADDER_TWO_LEVEL_ORDER (1.5): an estimate above the true
+    error for any p >= 1.5; differences that change sign or grow are not converging (never accepted);
+    θ's differences are taken modulo π."""
+    import math
+
+    f_star, C = 0.4, -0.3
+    for p in (1.5, 2.0, 3.0):
+        f = [f_star + C * 2.0 ** (-p * level) for level in (1, 2, 3)]
+        three = accuracy.measured_error(f, relative=True)
+        assert three["converging"] and three["order"] == pytest.approx(p, rel=1e-9)
+        assert three["error"] == pytest.approx(abs(f[-1] - f_star) / abs(f[-1]), rel=1e-9)
+        two = accuracy.measured_error(f[:2], relative=False)
+        assert two["order"] == accuracy.LADDER_TWO_LEVEL_ORDER and not two["order_from_levels"]
+        assert abs(f[1] - f_star) <= two["error"] <= 1.0001 * abs(f[1] - f_star) * (2**p - 1) / (2**1.5 - 1)
+    # beyond LADDER_MAX_ORDER the order is clipped (the estimate grows, never shrinks)
+    f = [f_star + C * 2.0 ** (-6 * level) for level in (1, 2, 3)]
+    assert accuracy.measured_error(f, relative=False)["order"] == accuracy.LADDER_MAX_ORDER
+    for f in ([0.37, 0.33, 0.35], [0.30, 0.31, 0.33]):  # a sign change; a growing difference
+        e = accuracy.measured_error(f, relative=False)
+        assert not e["converging"] and e["error"] == pytest.approx(max(abs(f[2] - f[1]), abs(f[1] - f[0])))
+    # θ near ±π/2 (one orientation): 1.5706 and -1.5706 differ by 0.001 modulo π, not by π
+    theta = [1.5606, 1.5706, -1.5706]
+    e = accuracy.measured_error(theta, relative=False, period=math.pi)
+    assert e["converging"] and e["error"] < 1e-3
+
+
+def test_a_measured_target_keeps_the_first_level_whose_own_estimate_meets_it(tmp_path):
+    """The ladder on the demo's sphere (kt 2): D_xy to 5 % is met at level 2 by its estimate from
+    levels 1-2, and a level-3 run confirms it (|D2 − D3| / D3 below the target); the kept file is
+    the plain level-2 run with the ladder's record; a target beyond max_level says NOT met."""
+    import h5py
+
+    from capsim.runner import run_case
+    from capsim.store import read_case
+
+    base = {"name": "m", "flow": {"shear_rate_G": 0.1}, "time": {"t_end": 2.0}}
+    case = case_from_dict({**base, "accuracy": {"quantity": "D_xy", "target": 0.05, "method": "measure"},
+                           "output": {"path": str(tmp_path / "m.h5")}})
+    result = run_case(case)
+    assert result.status == "completed" and "level 2" in result.accuracy and "target met" in result.accuracy
+    kept = read_case(result.path)
+    assert kept.mesh.level == 2 and kept.accuracy is None and kept.time.rtol == case.time.rtol
+    with h5py.File(result.path) as f:
+        levels, values, errors = (f["accuracy"][k][()] for k in ("level", "values", "errors"))
+        assert list(levels) == [1, 2] and bool(f["accuracy/met"][()]) and errors[-1] <= 0.05
+        assert values[-1] == float(f["timeseries/D_xy"][-1])
+    finer = run_case(case_from_dict({**base, "mesh": {"level": 3}, "time": {**base["time"], "rtol": case.time.rtol},
+                                     "output": {"path": str(tmp_path / "f.h5")}}))
+    assert abs(values[-1] - finer.final_D_xy) / finer.final_D_xy <= 0.05
+    short = run_case(case_from_dict({**base, "accuracy": {"quantity": "D_xy", "target": 1e-4, "method": "measure",
+                                                          "max_level": 2},
+                                     "output": {"path": str(tmp_path / "s.h5")}}))
+    assert "NOT met by accuracy.max_level 2" in short.accuracy
+    with h5py.File(short.path) as f:
+        assert not bool(f["accuracy/met"][()]) and list(f["accuracy/level"][()]) == [1, 2]
+    from capsim.checkpoint import ResumeError
+
+    with pytest.raises(ResumeError):
+        run_case(case, resume=True)
+
+
+def test_the_cli_prints_the_plan_before_and_the_verdict_after_a_measured_target(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text(f"name: c\nflow: {{shear_rate_G: 0.1}}\ntime: {{t_end: 1}}\noutput: {{path: {tmp_path / 'c.h5'}}}\n")
+    out = subprocess.run([sys.executable, "-m", "capsim.cli", "run", str(path), "--accuracy", "D_xy=5e-2", "--set",
+                          "accuracy.method=measure", "--verify", "-q"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stderr.startswith("accuracy D_xy 0.05: measured, asked for")  # the plan, before the runs
+    last = out.stdout.strip().splitlines()[-1]
+    assert last.startswith("accuracy D_xy 0.05: level 2") and last.endswith("target met")

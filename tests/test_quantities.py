@@ -109,6 +109,12 @@ def written(tmp_path_factory):
         "output": {"path": str(tmp / "pair.h5"), "snapshot_every": 0.02},
     }))
 
+    # a measured accuracy target: the kept run's accuracy group (capsim.ladder)
+    run_case(case_from_dict({
+        "name": "qa", "time": {"t_end": 0.02}, "output": {"path": str(tmp / "measured.h5")},
+        "accuracy": {"quantity": "D_xy", "target": 0.5, "method": "measure", "max_level": 2},
+    }))
+
     campaign = campaign_from_dict({
         "name": "q", "base": {"shape": {"kind": "prolate"}, "time": {"t_end": 0.02}},
         "sweep": {},
@@ -132,7 +138,7 @@ def written(tmp_path_factory):
     # a study of the orbit's numbers (capsim study --quantity orbit)
     orbit_study = write_study(run_study(study_case, levels=[0, 1], rtols=[1e-3], workers=1, quantity="orbit",
                                         out_dir=tmp / "study_orbit"), tmp / "study_orbit.nc")
-    run_files = [tmp / "run.h5", tmp / "viscous.h5", tmp / "wall.h5", tmp / "pair.h5", *sorted((tmp / "campaign").glob("*.h5"))]
+    run_files = [tmp / "run.h5", tmp / "viscous.h5", tmp / "wall.h5", tmp / "pair.h5", tmp / "measured.h5", *sorted((tmp / "campaign").glob("*.h5"))]
     return case, summary, run_files, nc, (study, orbit_study)
 
 
@@ -161,7 +167,8 @@ def test_entries_are_well_formed():
             assert q.units == "1", (key, "a capsim scale belongs to a dimensionless value")
     # string-valued entries are the categorical ones
     assert {k for k, q in TABLE.items() if q.units == ""} == {
-        "status", "status_reason", "motion", "law", "membrane_law/name", "run_id"}
+        "status", "status_reason", "motion", "law", "membrane_law/name", "run_id", "accuracy/quantity",
+        "accuracy/verdict", "accuracy/error_model"}
     # one name, one meaning: the long_name of D_xy is the same in the run file, summary and study
     assert attrs_for("D_xy")["long_name"] == attrs_for("D_xy", "campaign")["long_name"]
     assert attrs_for("D_xy", "study")["long_name"].startswith(attrs_for("D_xy")["long_name"])
