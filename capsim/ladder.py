@@ -9,18 +9,21 @@ differences, or the training's smallest order from two levels). The first run wh
 grow are not yet converging and are never accepted. Past ``accuracy.max_level`` the finest run is
 kept and the target is said NOT met, with the estimate.
 
-Every level writes the case's own output path (the next level replaces the run before it): the
-file that stays is the kept run, a plain run of its level and rtol (its case has no target, so a
-``--resume --t-end`` extends it as any run), with the ladder's record in its ``accuracy`` group
-(:func:`capsim.store.write_accuracy`). A stopped ladder leaves the level it was running as an
-interrupted run, as any run does.
+Every level runs into a hidden file beside the output and, completed, replaces the output with
+the ladder so far in its ``accuracy`` group (:func:`capsim.store.move_run`,
+:func:`capsim.store.write_accuracy`): the output is always the finest completed level, so a
+ladder stopped or failing at a later level loses nothing it had (the stopped level's own file and
+checkpoint go; the verdict says why it stopped). The file that stays is a plain run of its level
+and rtol (its case has no target, so ``--resume --t-end`` extends it as any run).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+import os
+from pathlib import Path
+from typing import Any, Callable
 
 from capsim.config import Case, apply_overrides
 
@@ -35,12 +38,13 @@ def _value_at_t_end(path: str, quantity: str) -> float:
         return float(f["timeseries"][quantity][-1])
 
 
-def run_measured(case: Case, progress=None, overwrite: bool = True):
-    """Run the ladder for the case's accuracy target; returns the kept run's
-    :class:`capsim.runner.RunResult` with ``accuracy`` the verdict (one line)."""
+def run_measured(case: Case, run_one: Callable, progress=None, overwrite: bool = True):
+    """Run the ladder for the case's accuracy target, each level by ``run_one(case, progress=…,
+    overwrite=…)`` (:func:`capsim.runner.run_case`, which calls this: passed in, not imported);
+    returns the kept run's :class:`capsim.runner.RunResult` with ``accuracy`` the verdict (one line)."""
     from capsim import accuracy as error_model
-    from capsim.runner import run_case
-    from capsim.store import write_accuracy
+    from capsim.checkpoint import checkpoint_path
+    from capsim.store import move_run, write_accuracy
 
     target = case.accuracy
     q = target.quantity
@@ -48,36 +52,64 @@ def run_measured(case: Case, progress=None, overwrite: bool = True):
     entry, label = error_model.entry(case.error_model_features())
     # the runs share one rtol: their differences are the mesh's; the time error is the model's, added
     time_error = error_model.safety(q) * error_model.time_error(entry, q, case.time.rtol)
+    out = Path(case.output.path)
+    work = out.with_name(f".{out.name}.ladder-{os.getpid()}.h5")  # beside it: one file system, one rename
     record: dict[str, Any] = {"level": [], "values": [], "errors": [], "orders": [], "evaluations": [],
                               "wall_time_s": []}
-    result, met, estimate = None, False, None
+    kept, verdict, met = None, "", False
     for level in range(1, target.max_level + 1):
-        run = apply_overrides(case, **{"accuracy": None, "mesh.level": level, "time.rtol": case.time.rtol})
-        result = run_case(run, progress=progress, overwrite=overwrite or level > 1)
+        run = apply_overrides(case, **{"accuracy": None, "mesh.level": level, "time.rtol": case.time.rtol,
+                                       "output.path": str(work)})
+        result = run_one(run, progress=progress, overwrite=True)
         if result.status != "completed":  # stopped, failed or unstable: the ladder ends with it, said so
-            verdict = (f"accuracy {q} {target.target:g}: the ladder stopped at level {level} (the run {result.status}: "
-                       f"{result.status_reason}); target unchecked")
-            return dataclasses.replace(result, accuracy=verdict)
+            stopped = f"the level-{level} run {result.status}: {result.status_reason}"
+            if kept is None:  # nothing kept yet: the run's own file, where the output was to be, says why
+                move_run(work, out, apply_overrides(run, **{"output.path": str(out)}).to_yaml(), overwrite=overwrite)
+                return dataclasses.replace(result, path=str(out),
+                                           accuracy=f"accuracy {q} {target.target:g}: {stopped}; target unchecked")
+            for leftover in (work, checkpoint_path(work)):
+                leftover.unlink(missing_ok=True)
+            verdict = f"{verdict}; the ladder then stopped ({stopped})"
+            write_accuracy(out, {**_scalars(q, target, case, met, verdict, label), **record})
+            return dataclasses.replace(kept, accuracy=verdict)
         record["level"].append(level)
-        record["values"].append(_value_at_t_end(result.path, q))
+        record["values"].append(_value_at_t_end(str(work), q))
         record["evaluations"].append(int(result.velocity_evaluations or 0))
         record["wall_time_s"].append(float(result.wall_time_s or 0.0))
         estimate = error_model.measured_error(record["values"], relative, PERIODS.get(q))
-        record["errors"].append(float(estimate["error"] + time_error) if len(record["values"]) > 1 else math.nan)
+        first = len(record["values"]) == 1
+        record["errors"].append(math.nan if first else float(estimate["error"] + time_error))
         record["orders"].append(float(estimate["order"]))
-        if len(record["values"]) > 1 and estimate["converging"] and estimate["error"] + time_error <= target.target:
-            met = True
+        met = not first and estimate["converging"] and estimate["error"] + time_error <= target.target
+        # each completed level replaces the one before at the output path, with the ladder so far:
+        # a ladder stopped later keeps the finest level it completed
+        move_run(work, out, apply_overrides(run, **{"output.path": str(out)}).to_yaml(), overwrite=overwrite or level > 1)
+        kept = dataclasses.replace(result, path=str(out))
+        verdict = _verdict(q, target, case, record, estimate, met)
+        if not met and level == target.max_level:
+            finer = error_model.predicted_cost(entry, level + 1, case.time.rtol, case.time.t_end)
+            verdict += f" by accuracy.max_level {level} (level {level + 1} would cost ~{finer:.2g} s, predicted)"
+        elif not met:
+            verdict += f" yet (the ladder goes on to level {level + 1})"
+        write_accuracy(out, {**_scalars(q, target, case, met, verdict, label), **record})
+        if met:
             break
-    error = record["errors"][-1]
+    return dataclasses.replace(kept, accuracy=verdict)
+
+
+def _scalars(q: str, target, case: Case, met: bool, verdict: str, label: str) -> dict[str, Any]:
+    return {"quantity": q, "target": float(target.target), "rtol": float(case.time.rtol), "met": bool(met),
+            "verdict": verdict, "error_model": label}
+
+
+def _verdict(q: str, target, case: Case, record: dict[str, Any], estimate: dict[str, Any], met: bool) -> str:
+    level, error = record["level"][-1], record["errors"][-1]
+    if len(record["level"]) == 1:
+        return (f"accuracy {q} {target.target:g}: level {level} at rtol {case.time.rtol:g} kept, its error not "
+                "estimated (one level): target NOT met")
     how = (f"order {estimate['order']:.2g} observed" if estimate["order_from_levels"] and estimate["converging"]
            else f"order {estimate['order']:.2g} assumed from two levels" if estimate["converging"]
            else "levels not yet converging: the larger difference")
-    verdict = (f"accuracy {q} {target.target:g}: level {level} at rtol {case.time.rtol:g} kept, its error "
-               f"{error:.2g} ({how}; measured on levels {', '.join(map(str, record['level']))}, "
-               f"{sum(record['wall_time_s']):.1f} s in all): target {'met' if met else 'NOT met'}")
-    if not met:
-        finer = error_model.predicted_cost(entry, level + 1, case.time.rtol, case.time.t_end)
-        verdict += f" by accuracy.max_level {level} (level {level + 1} would cost ~{finer:.2g} s, predicted)"
-    write_accuracy(result.path, {"quantity": q, "target": float(target.target), "rtol": float(case.time.rtol),
-                                 "met": met, "verdict": verdict, "error_model": label, **record})
-    return dataclasses.replace(result, accuracy=verdict)
+    return (f"accuracy {q} {target.target:g}: level {level} at rtol {case.time.rtol:g} kept, its error {error:.2g} "
+            f"({how}; measured on levels {', '.join(map(str, record['level']))}, {sum(record['wall_time_s']):.1f} s "
+            f"in all): target {'met' if met else 'NOT met'}")

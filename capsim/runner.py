@@ -214,7 +214,7 @@ def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool 
                               "without --resume (or resume the kept run's file itself: capsim run RUN.h5 --resume)")
         from capsim.ladder import run_measured
 
-        return run_measured(case, progress, overwrite=overwrite)
+        return run_measured(case, run_case, progress, overwrite=overwrite)
     with _StopSignals() as stop, FileLock(case.output.path):
         if not overwrite and not resume and Path(case.output.path).exists():
             # checked again under the lock: another run may have written this path since the

@@ -59,7 +59,7 @@ __all__ = [
     "free_bytes", "is_run_file", "lock_path",
     "case_from_trajectory", "checkpoint_path", "guard_run_output", "mark_abandoned", "open_run", "read_case", "read_checkpoint", "read_run_record",
     "END_STATE", "read_end_state", "read_run_status", "read_trajectory", "remove_checkpoint", "write_checkpoint",
-    "write_accuracy", "write_error_estimate", "writer_of",
+    "move_run", "write_accuracy", "write_error_estimate", "writer_of",
 ]
 
 STATUSES = frozenset({"completed", "unstable", "interrupted", "failed"})
@@ -638,6 +638,22 @@ def write_accuracy(path: str | os.PathLike, record: dict[str, Any]) -> None:
             _attach(ds, level)
 
     _write_group(path, "accuracy", tuple(record), fill)
+
+
+def move_run(source: str | os.PathLike, target: str | os.PathLike, config_yaml: str, overwrite: bool = True) -> None:
+    """Move a completed run file to `target` (same file system), its stored case rewritten to
+    `config_yaml` (the case with its new output.path, so that ``capsim run TARGET --resume``
+    reads the path it is at); an existing target is replaced only with `overwrite`
+    (:class:`capsim.files.OutputError` otherwise). The ladder of a measured accuracy target keeps
+    each completed level this way (capsim.ladder)."""
+    from capsim.files import OutputError
+
+    with FileLock(target):
+        if not overwrite and os.path.exists(target):
+            raise OutputError(f"{target} exists; use --overwrite to replace it")
+        with h5py.File(source, "a") as f:
+            f.attrs["config_yaml"] = config_yaml
+        os.replace(source, target)
 
 
 def _write_group(path: str | os.PathLike, name: str, keys: tuple[str, ...], fill) -> None:

@@ -258,3 +258,29 @@ def test_the_cli_prints_the_plan_before_and_the_verdict_after_a_measured_target(
     assert out.stderr.startswith("accuracy D_xy 0.05: measured, asked for")  # the plan, before the runs
     last = out.stdout.strip().splitlines()[-1]
     assert last.startswith("accuracy D_xy 0.05: level 2") and last.endswith("target met")
+
+
+def test_a_ladder_stopped_at_a_later_level_keeps_the_finest_level_it_completed(tmp_path):
+    """Ctrl-C during level 2 (raised from the progress callback): the output is level 1's completed
+    run with the ladder so far (one level: its error not estimated, NOT met) and the verdict says why
+    it stopped; no hidden level file or checkpoint is left beside it."""
+    import h5py
+
+    from capsim.ladder import run_measured
+    from capsim.store import read_case
+
+    def stop_at_level_2(case, progress=None, overwrite=True):
+        def interrupt(state):
+            if case.mesh.level == 2 and state["step"] >= 3:
+                raise KeyboardInterrupt
+        return run_case(case, progress=interrupt, overwrite=overwrite)
+
+    case = case_from_dict({"name": "k", "time": {"t_end": 1.0}, "output": {"path": str(tmp_path / "k.h5")},
+                           "accuracy": {"quantity": "D_xy", "target": 0.05, "method": "measure"}})
+    result = run_measured(case, stop_at_level_2)
+    assert result.status == "completed" and "level 1" in result.accuracy and "interrupted" in result.accuracy
+    assert read_case(tmp_path / "k.h5").mesh.level == 1
+    with h5py.File(tmp_path / "k.h5") as f:
+        assert f.attrs["status"] == "completed" and list(f["accuracy/level"][()]) == [1]
+        assert not bool(f["accuracy/met"][()]) and "stopped" in f["accuracy/verdict"][()].decode()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["k.h5"]

@@ -55,6 +55,9 @@ def test_three_level_order_and_richardson_on_exact_h2_sequence():
     ref, p = richardson(f, levels)
     assert p == pytest.approx(2.0)
     assert ref == pytest.approx(1.0, abs=1e-12)
+    # differences that change sign give no observed order (the sizes alone would say 1.4 here): 2
+    _, p = richardson(np.array([0.372, 0.326, 0.349]), np.arange(1, 4))
+    assert p == 2.0
 
 
 def test_analyse_study_reference_and_orders_on_synthetic_dataset():
