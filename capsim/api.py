@@ -148,7 +148,9 @@ def run(case: "PathLike | Mapping[str, Any] | Case", *, output: PathLike | None 
 
     Returns a [`RunResult`][capsim.runner.RunResult]: `status` (`"completed"` when the
     run reached its end), the path, cost, and the summary of the motion
-    (`result["D_xy"]`, `result["theta"]`: means over the last window).
+    (`result["D_xy"]`, `result["theta"]`: means over the last window). A case whose
+    accuracy target is measured (`accuracy.method`) runs the ladder of levels and returns
+    the kept level's run, `result.accuracy` its verdict (met or NOT met, the error estimate).
 
     ```python
     result = capsim.run("configs/sphere.yaml", overwrite=True)

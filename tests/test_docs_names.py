@@ -25,7 +25,8 @@ ROOT = Path(__file__).resolve().parents[1]
 PAGES = sorted({*ROOT.glob("docs/*.md"), *ROOT.glob("docs/**/*.md"), ROOT / "README.md", ROOT / "REPRODUCTION.md",
                 ROOT / "capsim" / "api.py"})
 
-SECTIONS = ("shape", "membrane", "flow", "mesh", "quadrature", "time", "guards", "solver", "output", "physical")
+SECTIONS = ("shape", "membrane", "flow", "mesh", "quadrature", "time", "guards", "solver", "output", "physical",
+            "accuracy")
 _DOTTED = re.compile(rf"\b((?:{'|'.join(SECTIONS)})(?:\.[A-Za-z_][A-Za-z0-9_]*)+)\b")
 _SPAN = re.compile(r"`([^`\n]+)`")
 _COMMAND = re.compile(r"(?<![\w.])capsim[ \t]+([a-z][a-z-]*)((?:[^\n`|;&)]*))")
