@@ -25,7 +25,8 @@ each level.
   choice above), ``measure`` (the ladder of :mod:`capsim.ladder`: levels 1, 2, … at one rtol,
   each run's error estimated from the levels below it by :func:`measured_error`, the first that
   meets the target kept), or ``auto``: predict where the model is sure of the case, measure where
-  it is not (outside its range, or its nearest training cases disagree :data:`SPREAD`-fold).
+  it is not (outside its range, or its nearest training cases disagree :data:`SPREAD`-fold) and
+  predicts a level finer than :data:`MEASURE_ABOVE_LEVEL`.
 
 This module reads a JSON file and does arithmetic: no numba, no capsim imports.
 """
@@ -80,6 +81,11 @@ SPREAD = 10.0
 #: an uncertain prediction finer than this level is refused under method predict (method auto
 #: measures instead: the ladder's levels 1-3 cost less than trusting it)
 MEASURE_LEVEL = 3
+#: method auto measures an uncertain prediction finer than this level: there the ladder's coarser
+#: levels add a fraction of the predicted run's cost (levels 1-2 are ~0.3 of a level-3 run) and buy
+#: the check; an uncertain level 1 or 2 is run as predicted, said so (its ladder would cost 1.5-3×
+#: the run: benchmarks/accuracy_target.md)
+MEASURE_ABOVE_LEVEL = 2
 #: how a target is met (accuracy.method): auto picks predict or measure per case (plan)
 METHODS = ("auto", "predict", "measure")
 #: the measured ladder's largest observed order: beyond it two differences say little more
@@ -262,9 +268,9 @@ def plan(quantity: str, target: float, t_end: float, features: dict[str, Any] | 
          method: str = "auto", max_level: int = 4) -> dict[str, Any]:
     """How the target is met: ``{"method": "predict", level, rtol, error, cost_s, why}`` (:func:`choose`)
     or ``{"method": "measure", "level": 1, rtol, why}`` (the ladder of :mod:`capsim.ladder`, up to
-    ``max_level``). ``auto`` predicts where the model is sure of the case and measures where it is not:
-    the prediction is uncertain, or it says no level can (an uncertain model's "impossible" is a guess
-    too). AccuracyError for a target no method can take (an unknown quantity, not a positive number;
+    ``max_level``). ``auto`` predicts where the model is sure of the case and measures where it is not
+    and predicts a level finer than MEASURE_ABOVE_LEVEL, or says no level can (an uncertain model's
+    "impossible" is a guess too). AccuracyError for a target no method can take (an unknown quantity, not a positive number;
     under predict, what :func:`choose` refuses)."""
     if method not in METHODS:
         raise AccuracyError(f"accuracy.method = {method!r}: allowed: {', '.join(METHODS)}")
@@ -283,7 +289,7 @@ def plan(quantity: str, target: float, t_end: float, features: dict[str, Any] | 
                 raise
             best = {"uncertain": uncertainty(e, q, MEASURE_LEVEL)}
             reason = "the error model predicts no level can"
-        if not best["uncertain"]:
+        if not best["uncertain"] or best.get("level", MEASURE_ABOVE_LEVEL + 1) <= MEASURE_ABOVE_LEVEL:
             return {**best, "method": "predict"}
         reason = (f"the error model cannot place this case ({best['uncertain'].split(': ')[0]}"
                   + (f"; it predicts level {best['level']}" if "level" in best else f"; {reason}") + ")")
@@ -295,14 +301,16 @@ def plan(quantity: str, target: float, t_end: float, features: dict[str, Any] | 
 
 def ladder_rtol(quantity: str, target: float, features: dict[str, Any] | None = None) -> float:
     """The measured ladder's one tolerance: the loosest of RTOL_LADDER whose predicted time error
-    (with the safety factor) is at most TIME_FRACTION of the target; never looser than OUTSIDE_RTOL
-    outside the training's range (the time error is predicted too)."""
+    (with the safety factor, from the nearest training cases' largest) is at most TIME_FRACTION of
+    the target. Not capped at OUTSIDE_RTOL outside the training's range, as rtol auto is: the
+    ladder's differences at one rtol would show a time error that large as levels that do not
+    converge, and 1e-4 made its levels cost 3-5× those at 2e-3 (benchmarks/accuracy_target.md)."""
     e, _ = entry(features)
     q = canonical(quantity)
     for rtol in RTOL_LADDER:
         if safety(q) * time_error(e, q, rtol) <= TIME_FRACTION * target:
             break
-    return min(rtol, OUTSIDE_RTOL) if e.get("outside", False) else rtol
+    return rtol
 
 
 def measured_error(values: list[float], relative: bool, period: float | None = None) -> dict[str, Any]:

@@ -119,9 +119,12 @@ def test_an_uncertain_prediction_says_so_and_names_the_check():
     fields = {"name": "a", "flow": {"shear_rate_G": 0.0005}, "membrane": {"bending_modulus": 1e-3}}
     far = case_from_dict({**fields, "accuracy": {"quantity": "theta", "target": 0.5, "method": "predict"}})
     assert "outside the error model's range" in far.accuracy.choice and "capsim study" in far.accuracy.choice
-    # under method auto (the default) such a case is measured, said why
-    measured = case_from_dict({**fields, "accuracy": {"quantity": "theta", "target": 0.5}})
+    # under method auto (the default) such a case is run as predicted at level 1 or 2 (said so), and
+    # measured where the prediction is finer (MEASURE_ABOVE_LEVEL), said why
+    assert case_from_dict({**fields, "accuracy": {"quantity": "theta", "target": 0.5}}).accuracy.method == "predict"
+    measured = case_from_dict({**fields, "accuracy": {"quantity": "theta", "target": 0.05}})
     assert measured.accuracy.method == "measure" and "outside the error model's range" in measured.accuracy.choice
+    assert "it predicts level 3" in measured.accuracy.choice
     auto = case_from_dict({**fields, "mesh": {"level": 2}})
     assert auto.time.rtol <= accuracy.OUTSIDE_RTOL and "outside the training's range" in auto.time.rtol_choice
     near = case_from_dict({"name": "a", "flow": {"shear_rate_G": 0.1}, "accuracy": {"quantity": "D_xy", "target": 2e-2}})
