@@ -245,8 +245,7 @@ def choose(quantity: str, target: float, t_end: float, features: dict[str, Any] 
         finest = factor * mesh_error(e, q, max(levels()))
         raise AccuracyError(f"accuracy.target = {target:g}: finer than the finest level gives for {q} "
                             f"({finest:.2g} at level {max(levels())}; error model of {label}); ask for at least that, "
-                            f"or measure this case's own errors: capsim study CASE.yaml --levels 1,2,3 --rtols "
-                            f"{auto_rtol(3, features)[0]:g} --reference richardson")
+                            "or measure this case's own errors: give accuracy.method measure")
     best["why"] = (f"accuracy {q} {target:g}: level {best['level']}, rtol {best['rtol']:g}; predicted error "
                    f"{best['error']:.2g} (safety factor {factor:.2g} included), predicted cost {best['cost_s']:.3g} s "
                    f"on one core (error model of {label})")
@@ -255,12 +254,12 @@ def choose(quantity: str, target: float, t_end: float, features: dict[str, Any] 
     if caveat and best["level"] > MEASURE_LEVEL and not quiet_uncertain:
         # an uncertain prediction of a fine level: measuring the case's own errors (levels 1-3) costs
         # less than trusting it (the oblate 0.7 of benchmarks/accuracy_target.md: level 6 predicted, level 2 enough)
-        raise AccuracyError(f"accuracy.target = {target:g}: the error model cannot place this case ({caveat.split(': ')[0]}; "
+        raise AccuracyError(f"accuracy.target = {target:g}: the error model cannot place this case ({caveat}; "
                             f"it predicts level {best['level']}, {best['cost_s']:.2g} s); measuring is cheaper: "
                             "give accuracy.method measure (or auto), which runs levels 1, 2, ... until the case's own "
                             "error estimate meets the target")
     if caveat:
-        best["why"] += "; " + caveat
+        best["why"] += f"; {caveat}: {CHECK}"
     return best
 
 
@@ -291,7 +290,7 @@ def plan(quantity: str, target: float, t_end: float, features: dict[str, Any] | 
             reason = "the error model predicts no level can"
         if not best["uncertain"] or best.get("level", MEASURE_ABOVE_LEVEL + 1) <= MEASURE_ABOVE_LEVEL:
             return {**best, "method": "predict"}
-        reason = (f"the error model cannot place this case ({best['uncertain'].split(': ')[0]}"
+        reason = (f"the error model cannot place this case ({best['uncertain']}"
                   + (f"; it predicts level {best['level']}" if "level" in best else f"; {reason}") + ")")
     rtol = ladder_rtol(q, target, features)
     why = (f"accuracy {q} {target:g}: measured, {reason}: levels 1, 2, ... up to {max_level} at rtol {rtol:g}, "
@@ -347,14 +346,17 @@ def measured_error(values: list[float], relative: bool, period: float | None = N
 
 
 def uncertainty(e: dict[str, Any], quantity: str, level: int) -> str:
-    """What makes a prediction uncertain, said with the check to run ('' when nothing does): the
-    case is outside the training's range, or its nearest training cases disagree SPREAD-fold."""
+    """What makes a prediction uncertain ('' when nothing does): the case is outside the training's
+    range, or its nearest training cases disagree SPREAD-fold (the reason alone; :data:`CHECK` is
+    the check to run)."""
     members = e.get("members", [])
     errors = [float(c["mesh"][quantity][str(level)]) for c in members]
-    check = "check it with capsim run --verify or capsim study"
     if e.get("outside", False):
-        return f"outside the error model's range: {check}"
+        return "outside the error model's range"
     if len(errors) > 1 and max(errors) > SPREAD * max(min(errors), 1e-300):
-        return (f"the nearest training cases disagree {max(errors) / max(min(errors), 1e-300):.0f}-fold at level "
-                f"{level}: {check}")
+        return f"the nearest training cases disagree {max(errors) / max(min(errors), 1e-300):.0f}-fold at level {level}"
     return ""
+
+
+#: what an uncertain prediction that is run as predicted says to do
+CHECK = "check it with capsim run --verify, or give accuracy.method measure"

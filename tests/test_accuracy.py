@@ -118,7 +118,7 @@ def test_an_uncertain_prediction_says_so_and_names_the_check():
     nothing."""
     fields = {"name": "a", "flow": {"shear_rate_G": 0.0005}, "membrane": {"bending_modulus": 1e-3}}
     far = case_from_dict({**fields, "accuracy": {"quantity": "theta", "target": 0.5, "method": "predict"}})
-    assert "outside the error model's range" in far.accuracy.choice and "capsim study" in far.accuracy.choice
+    assert "outside the error model's range" in far.accuracy.choice and "accuracy.method measure" in far.accuracy.choice
     # under method auto (the default) such a case is run as predicted at level 1 or 2 (said so), and
     # measured where the prediction is finer (MEASURE_ABOVE_LEVEL), said why
     assert case_from_dict({**fields, "accuracy": {"quantity": "theta", "target": 0.5}}).accuracy.method == "predict"
