@@ -229,8 +229,9 @@ def warm_up(cases: Sequence) -> None:
 
     with tempfile.TemporaryDirectory(prefix="capsim-warm-") as tmp:
         for case in todo:
+            # a plain level-0 run: without the accuracy target, which would choose the level (or run its ladder)
             tiny = apply_overrides(case, **{
-                "mesh.level": 0, "time.t_end": 2.0 * case.time.dt_initial, "time.max_steps": 2,
+                "accuracy": None, "mesh.level": 0, "time.t_end": 2.0 * case.time.dt_initial, "time.max_steps": 2,
                 "time.stop_when_steady": False, "time.stop_when_settled": False,
                 "output.path": os.path.join(tmp, "warm.h5"),
             })

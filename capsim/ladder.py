@@ -83,7 +83,8 @@ def run_measured(case: Case, run_one: Callable, progress=None, overwrite: bool =
         met = not first and estimate["converging"] and estimate["error"] + time_error <= target.target
         # each completed level replaces the one before at the output path, with the ladder so far:
         # a ladder stopped later keeps the finest level it completed
-        move_run(work, out, apply_overrides(run, **{"output.path": str(out)}).to_yaml(), overwrite=overwrite or level > 1)
+        move_run(work, out, apply_overrides(run, **{"output.path": str(out)}).to_yaml(), overwrite=overwrite or level > 1,
+                 requested_case_yaml=case.to_yaml())
         kept = dataclasses.replace(result, path=str(out))
         verdict = _verdict(q, target, case, record, estimate, met)
         if not met and level == target.max_level:

@@ -6,7 +6,8 @@ leaves a readable file.
 Layout::
 
     /                    attrs: config_yaml, capsim_version, status, status_reason,
-                                created, finished, and any run attrs
+                                created, finished, and any run attrs; requested_case_yaml
+                                where a measured accuracy target's ladder kept the run
     /mesh/elements       (Ne, 6) int    6-node triangles (3 vertices, 3 mid-side nodes)
     /mesh/rest_positions (Np, 3)        node positions of the rest shape
     /mesh/positions      (n_snap, Np, 3) snapshots, one per chunk
@@ -341,6 +342,8 @@ class TrajectoryWriter:
         for name in ("summary", "run", "error_estimate", "accuracy"):
             if name in f:
                 del f[name]
+        if REQUESTED_CASE in f.attrs:  # extended, the run is no longer the ladder's answer to that case
+            del f.attrs[REQUESTED_CASE]
         self._n_steps, self._n_snapshots, self._unflushed_steps = n_steps, n_snapshots, 0
         self._pending = []
         if resumed:
@@ -640,12 +643,15 @@ def write_accuracy(path: str | os.PathLike, record: dict[str, Any]) -> None:
     _write_group(path, "accuracy", tuple(record), fill)
 
 
-def move_run(source: str | os.PathLike, target: str | os.PathLike, config_yaml: str, overwrite: bool = True) -> None:
+def move_run(source: str | os.PathLike, target: str | os.PathLike, config_yaml: str, overwrite: bool = True,
+             requested_case_yaml: str | None = None) -> None:
     """Move a completed run file to `target` (same file system), its stored case rewritten to
     `config_yaml` (the case with its new output.path, so that ``capsim run TARGET --resume``
     reads the path it is at); an existing target is replaced only with `overwrite`
     (:class:`capsim.files.OutputError` otherwise). The ladder of a measured accuracy target keeps
-    each completed level this way (capsim.ladder)."""
+    each completed level this way (capsim.ladder), with the case that asked for it as the root
+    attribute ``requested_case_yaml``: the run is that request's result (a campaign's run of
+    that case finds it its own, :func:`read_run_identity`)."""
     from capsim.files import OutputError
 
     with FileLock(target):
@@ -653,7 +659,13 @@ def move_run(source: str | os.PathLike, target: str | os.PathLike, config_yaml: 
             raise OutputError(f"{target} exists; use --overwrite to replace it")
         with h5py.File(source, "a") as f:
             f.attrs["config_yaml"] = config_yaml
+            if requested_case_yaml is not None:
+                f.attrs[REQUESTED_CASE] = requested_case_yaml
         os.replace(source, target)
+
+
+#: the root attribute of a run kept by a measured accuracy target's ladder: the case that asked
+REQUESTED_CASE = "requested_case_yaml"
 
 
 def _write_group(path: str | os.PathLike, name: str, keys: tuple[str, ...], fill) -> None:
@@ -907,13 +919,15 @@ def mark_abandoned(path: str | os.PathLike, reason: str) -> bool:
 
 def read_run_identity(path: str | os.PathLike) -> tuple[str | None, str | None]:
     """(status, :func:`capsim.config.case_digest` of the stored case) of a run file, in one
-    opening; (None, None) when there is no readable file, a None digest when its case is not one."""
+    opening; (None, None) when there is no readable file, a None digest when its case is not one.
+    A run kept by a measured accuracy target's ladder: the digest of the case that asked for it."""
     from capsim.config import case_digest
 
     try:
         with h5py.File(path, "r", locking=False) as f:
             status = str(_scalar(f.attrs.get("status", "")))
-            text = _scalar(f.attrs.get("config_yaml", ""))
+            # a ladder's kept run answers the case that asked for it (move_run)
+            text = _scalar(f.attrs.get(REQUESTED_CASE, f.attrs.get("config_yaml", "")))
     except (OSError, ValueError):
         return None, None
     try:

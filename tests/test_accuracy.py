@@ -287,3 +287,20 @@ def test_a_ladder_stopped_at_a_later_level_keeps_the_finest_level_it_completed(t
         assert f.attrs["status"] == "completed" and list(f["accuracy/level"][()]) == [1]
         assert not bool(f["accuracy/met"][()]) and "stopped" in f["accuracy/verdict"][()].decode()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["k.h5"]
+
+
+def test_a_campaign_of_accuracy_targets_runs_summarizes_and_resumes(tmp_path):
+    """A sweep whose base has an accuracy target (the warm-up's level-0 copy drops the target, as it
+    once did not): a measured run's kept file is the campaign's own (its requested case), summarized
+    'completed' at the level the ladder kept, and skipped by a second sweep."""
+    import capsim
+
+    campaign = tmp_path / "c.yaml"
+    campaign.write_text(f"name: c\nbase:\n  time: {{t_end: 0.5}}\n  accuracy: {{quantity: D_xy, target: 0.05, "
+                        f"method: measure}}\nsweep:\n  flow.shear_rate_G: [0.1]\noutput: {{dir: {tmp_path / 'out'}}}\n")
+    first = capsim.sweep(campaign, workers=1)
+    assert first["completed"] == 1, first
+    ds = capsim.summarize(tmp_path / "out")
+    assert list(ds["status"].values.ravel()) == ["completed"] and int(ds["level"].values.ravel()[0]) >= 2
+    again = capsim.sweep(campaign, workers=1)
+    assert again["completed"] == 0 and again["skipped"] == 1, again
