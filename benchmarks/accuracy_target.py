@@ -142,9 +142,9 @@ def measure(label: str, fields: dict, tmp: Path) -> dict:
             return abs(v - reference) / scale
 
         def cheapest(rtol_at_most: float = math.inf) -> dict | None:
-            meeting = [(run["evaluations"] * seconds[str(lv)], lv, r) for (lv, r), run in grid.items()
+            meeting = [(run["evaluations"] * seconds[str(lv)], lv, r, error(run[q])) for (lv, r), run in grid.items()
                        if r <= rtol_at_most and error(run[q]) <= target]
-            return None if not meeting else dict(zip(("cost_s", "level", "rtol"), min(meeting)))
+            return None if not meeting else dict(zip(("cost_s", "level", "rtol", "error"), min(meeting)))
 
         row = {"quantity": q, "target": target, "reference": float(reference),
                "cheapest": cheapest(), "cheapest_chooseable": cheapest(max(accuracy.RTOL_LADDER))}
