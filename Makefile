@@ -121,7 +121,7 @@ bench-error-model: venv
 	$(BIN)/python benchmarks/error_model.py --workers=2
 
 .PHONY: bench-accuracy-target
-# the accuracy target on eight cases the model was not built from (about 10 min on 2 cores)
+# the accuracy target on eight cases the model was not built from (about half an hour on 2 cores, most of it level-4 runs)
 bench-accuracy-target: venv
 	$(BIN)/python benchmarks/accuracy_target.py --workers=2
 

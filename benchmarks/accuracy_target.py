@@ -10,7 +10,7 @@ For each case (kt 4): the reference is the Richardson extrapolation of levels 1,
 for θ) is at most the target; cost is velocity evaluations × the median seconds of one evaluation
 at the level (the error model's, so that the comparison does not move with the machine's load).
 
-    python benchmarks/accuracy_target.py [--workers=2]   # ~15 min on one core (make bench-accuracy-target)
+    python benchmarks/accuracy_target.py [--workers=2] [--case=LABEL ...]   # ~30 min on 2 cores (make bench-accuracy-target)
 
 writes benchmarks/accuracy_target.md (included by docs/benchmarks.md) and .json.
 """
