@@ -10,7 +10,7 @@ For each case (kt 4): the reference is the Richardson extrapolation of levels 1,
 for θ) is at most the target; cost is velocity evaluations × the median seconds of one evaluation
 at the level (the error model's, so that the comparison does not move with the machine's load).
 
-    python benchmarks/accuracy_target.py [--workers=2] [--case=LABEL ...]   # ~30 min on 2 cores (make bench-accuracy-target)
+    python benchmarks/accuracy_target.py [--workers=2] [--case=LABEL ...] [--table]   # ~30 min on 2 cores (make bench-accuracy-target)
 
 writes benchmarks/accuracy_target.md (included by docs/benchmarks.md) and .json.
 """
@@ -152,7 +152,7 @@ def measure(label: str, fields: dict, tmp: Path) -> dict:
         if isinstance(c, str):
             row["chosen"] = {"refused": c[:200]}
         elif c["level"] > max(finest):
-            row["chosen"] = {"refused": f"level {c['level']}: beyond the benchmark's level {max(finest)}, unchecked"}
+            row["chosen"] = {"unchecked": f"level {c['level']} (predicted): beyond the benchmark's level {max(finest)}"}
         else:
             cost = float(sum(n * seconds[str(lv)] for lv, n in zip(c["levels"], c["evaluations"])))
             row["chosen"] = {"method": c["method"], "level": c["level"], "rtol": c["rtol"], "levels": c["levels"],
@@ -178,7 +178,9 @@ def main() -> None:
     unknown = [label for label in only if label not in CASES]
     if unknown:
         sys.exit(f"--case: {unknown}: not a case of this benchmark ({'; '.join(CASES)})")
-    kept = {r["label"]: r for r in json.loads(JSON.read_text())} if only and JSON.exists() else {}
+    kept = {r["label"]: r for r in json.loads(JSON.read_text())} if (only or "--table" in sys.argv) and JSON.exists() else {}
+    if "--table" in sys.argv:  # the table again from the JSON, nothing run
+        only = []
     rows = {label: kept[label] for label in CASES if label in kept and label not in only}
     with ProcessPoolExecutor(max_workers=workers) as pool:
         for row in pool.map(_measure_alone, [label for label in CASES if label not in rows]):
@@ -199,8 +201,9 @@ def main() -> None:
     for r in rows:
         for t in r["targets"]:
             c = t["chosen"]
-            if "refused" in c:
-                chosen, own, achieved, met = f"refused: {c['refused']}", "", "", ""
+            if "refused" in c or "unchecked" in c:
+                chosen = f"refused: {c['refused']}" if "refused" in c else c["unchecked"]
+                own, achieved, met = "", "", "unchecked" if "unchecked" in c else ""
             else:
                 chosen = f"{c['level']}, {c['rtol']:g}"
                 if c["method"] == "measure":
