@@ -1,8 +1,15 @@
 # The thread policy of the CLI, applied before anything imports numba: on a
 # shared machine numba's spinning default makes a parallel kernel wait out the
 # time slice of a descheduled thread (docs/performance.md, "Threads").
-from capsim.threads import apply_policy
+import os
 
+from capsim.threads import ENV_BLAS_TIMEOUT, ENV_LAYER, ENV_THREADS, ENV_WAIT, apply_policy
+
+# The tests run under capsim's own policy, as CI does, however they are started: a thread
+# variable of the user's environment makes every CLI say so on stderr first (one line more
+# before each one-line error the tests read); tests of those variables pass their own.
+for _name in (ENV_THREADS, ENV_LAYER, ENV_WAIT, ENV_BLAS_TIMEOUT, "CAPSIM_THREAD_POLICY"):
+    os.environ.pop(_name, None)
 apply_policy()
 
 import numpy as np  # noqa: E402

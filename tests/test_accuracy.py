@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 
@@ -14,10 +13,6 @@ import pytest
 from capsim import accuracy
 from capsim.config import ConfigError, apply_overrides, case_from_dict
 from capsim.runner import run_case
-
-#: the CLI's environment without the user's thread settings (capsim says those on stderr first)
-_ENV = {k: v for k, v in os.environ.items()
-        if k not in ("NUMBA_NUM_THREADS", "NUMBA_THREADING_LAYER", "OMP_WAIT_POLICY")}
 
 
 def test_rtol_auto_keeps_the_time_error_below_a_tenth_of_the_mesh_error():
@@ -179,13 +174,13 @@ def test_verify_says_whether_the_target_was_met(tmp_path):
     path = tmp_path / "c.yaml"
     path.write_text(f"name: c\nflow: {{shear_rate_G: 0.1}}\ntime: {{t_end: 2}}\noutput: {{path: {tmp_path / 'c.h5'}}}\n")
     out = subprocess.run([sys.executable, "-m", "capsim.cli", "run", str(path), "--accuracy", "D_xy=1e-2", "--verify",
-                          "-q"], capture_output=True, text=True, env=_ENV)
+                          "-q"], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stderr.startswith("accuracy D_xy 0.01: level 2")  # the prediction, before the run
     last = out.stdout.strip().splitlines()[-1]
     assert last.startswith("verify: D_xy error") and "target met" in last
     bad = subprocess.run([sys.executable, "-m", "capsim.cli", "run", str(path), "--accuracy", "D_xy"],
-                         capture_output=True, text=True, env=_ENV)
+                         capture_output=True, text=True)
     assert bad.returncode == 2 and "--accuracy" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
 
 
@@ -256,7 +251,7 @@ def test_the_cli_prints_the_plan_before_and_the_verdict_after_a_measured_target(
     path = tmp_path / "c.yaml"
     path.write_text(f"name: c\nflow: {{shear_rate_G: 0.1}}\ntime: {{t_end: 1}}\noutput: {{path: {tmp_path / 'c.h5'}}}\n")
     out = subprocess.run([sys.executable, "-m", "capsim.cli", "run", str(path), "--accuracy", "D_xy=5e-2", "--set",
-                          "accuracy.method=measure", "--verify", "-q"], capture_output=True, text=True, env=_ENV)
+                          "accuracy.method=measure", "--verify", "-q"], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stderr.startswith("accuracy D_xy 0.05: measured, asked for")  # the plan, before the runs
     last = out.stdout.strip().splitlines()[-1]
