@@ -34,7 +34,7 @@ for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np
 
-from capsim.accuracy import SAFETY_QUANTILE
+from capsim.accuracy import SAFETY_QUANTILE, observed_order
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = ROOT / "capsim" / "error_model.json"
@@ -124,7 +124,8 @@ def richardson3(values: np.ndarray) -> tuple[float, float]:
     """(the Richardson extrapolation, the order) of a value at three consecutive levels: the
     observed order, clipped to [1.5, 4] (2 where the differences change sign): the model's recipe."""
     d1, d2 = values[1] - values[0], values[2] - values[1]
-    order = float(np.clip(math.log2(d1 / d2) if d1 and d2 and d1 / d2 > 0 else 2.0, 1.5, 4.0))
+    observed = observed_order(d1, d2)
+    order = float(np.clip(2.0 if observed is None else observed, 1.5, 4.0))
     return float(values[2] + d2 / (2.0**order - 1.0)), order
 
 

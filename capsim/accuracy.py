@@ -228,8 +228,7 @@ def choose(quantity: str, target: float, t_end: float, features: dict[str, Any] 
     prediction uncertain, '' when nothing does). AccuracyError when no level of the model can, and
     for an uncertain prediction finer than MEASURE_LEVEL unless ``quiet_uncertain``."""
     q = canonical(quantity)
-    if not (isinstance(target, (int, float)) and math.isfinite(target) and target > 0):
-        raise AccuracyError(f"accuracy.target = {target!r}: a positive number is expected")
+    _check_target(target)
     e, label = entry(features)
     factor = safety(q)
     best = None
@@ -274,8 +273,7 @@ def plan(quantity: str, target: float, t_end: float, features: dict[str, Any] | 
     if method not in METHODS:
         raise AccuracyError(f"accuracy.method = {method!r}: allowed: {', '.join(METHODS)}")
     q = canonical(quantity)
-    if not (isinstance(target, (int, float)) and math.isfinite(target) and target > 0):
-        raise AccuracyError(f"accuracy.target = {target!r}: a positive number is expected")
+    _check_target(target)
     if method == "predict":
         return {**choose(q, target, t_end, features), "method": "predict"}
     reason = "asked for (accuracy.method measure)"
@@ -283,15 +281,14 @@ def plan(quantity: str, target: float, t_end: float, features: dict[str, Any] | 
         try:
             best = choose(q, target, t_end, features, quiet_uncertain=True)
         except AccuracyError:
-            e, _ = entry(features)
-            if not uncertainty(e, q, MEASURE_LEVEL):
-                raise
-            best = {"uncertain": uncertainty(e, q, MEASURE_LEVEL)}
-            reason = "the error model predicts no level can"
-        if not best["uncertain"] or best.get("level", MEASURE_ABOVE_LEVEL + 1) <= MEASURE_ABOVE_LEVEL:
-            return {**best, "method": "predict"}
-        reason = (f"the error model cannot place this case ({best['uncertain']}"
-                  + (f"; it predicts level {best['level']}" if "level" in best else f"; {reason}") + ")")
+            caveat = uncertainty(entry(features)[0], q, MEASURE_LEVEL)
+            if not caveat:
+                raise  # a model sure of the case says no level can: the target is refused
+            reason = f"the error model cannot place this case ({caveat}; it predicts no level can)"
+        else:
+            if not best["uncertain"] or best["level"] <= MEASURE_ABOVE_LEVEL:
+                return {**best, "method": "predict"}
+            reason = f"the error model cannot place this case ({best['uncertain']}; it predicts level {best['level']})"
     rtol = ladder_rtol(q, target, features)
     why = (f"accuracy {q} {target:g}: measured, {reason}: levels 1, 2, ... up to {max_level} at rtol {rtol:g}, "
            "each run's error estimated from the levels below it (Richardson), the first that meets the target kept")
@@ -310,6 +307,22 @@ def ladder_rtol(quantity: str, target: float, features: dict[str, Any] | None = 
         if safety(q) * time_error(e, q, rtol) <= TIME_FRACTION * target:
             break
     return rtol
+
+
+def _check_target(target: Any) -> None:
+    if not (isinstance(target, (int, float)) and math.isfinite(target) and target > 0):
+        raise AccuracyError(f"accuracy.target = {target!r}: a positive number is expected")
+
+
+def observed_order(d_coarse: float, d_fine: float) -> float | None:
+    """The order log2(d_coarse / d_fine) that two successive differences of a quantity over mesh
+    levels show (f_(L−1) − f_(L−2), then f_L − f_(L−1)); None where they differ in sign or one is
+    zero: levels that overshoot and come back show no order, however their sizes compare. The one
+    rule of the ladder (:func:`measured_error`), ``capsim study --reference richardson`` and the
+    error model's training (benchmarks/error_model.py)."""
+    if not d_coarse * d_fine > 0:
+        return None
+    return math.log2(d_coarse / d_fine)
 
 
 def measured_error(values: list[float], relative: bool, period: float | None = None) -> dict[str, Any]:
@@ -338,8 +351,9 @@ def measured_error(values: list[float], relative: bool, period: float | None = N
     d_prev = diff(values[-2], values[-3])
     if d == 0.0:
         return {"error": 0.0, "order": math.inf, "converging": True, "order_from_levels": True}
-    if d * d_prev > 0 and abs(d) < abs(d_prev):
-        p = min(math.log2(abs(d_prev) / abs(d)), LADDER_MAX_ORDER)
+    p = observed_order(d_prev, d)
+    if p is not None and p > 0:  # one sign, and the last difference the smaller: converging
+        p = min(p, LADDER_MAX_ORDER)
         return {"error": abs(d) / (2.0**p - 1.0) / scale, "order": p, "converging": True, "order_from_levels": True}
     return {"error": max(abs(d), abs(d_prev)) / scale, "order": math.nan, "converging": False,
             "order_from_levels": True}

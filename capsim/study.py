@@ -43,6 +43,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from capsim.accuracy import observed_order
 from capsim.config import Case, apply_overrides
 from capsim.quantities import attrs_for, global_attrs
 
@@ -240,13 +241,10 @@ def richardson(f: np.ndarray, levels: np.ndarray) -> tuple[float, float]:
         return float(f[-1]), float("nan")
     p = 2.0
     if f.size >= 3:
-        d1, d2 = f[-2] - f[-3], f[-1] - f[-2]
-        # an order only from differences of one sign: levels that overshoot and come back (the
-        # biconcave cell of benchmarks/accuracy_target.md) show none, however their sizes compare
-        if d1 * d2 > 0:
-            p_obs = math.log2(d1 / d2)
-            if 0.5 <= p_obs <= 8.0:
-                p = p_obs
+        # levels that overshoot and come back show no order (the biconcave cell of benchmarks/accuracy_target.md)
+        p_obs = observed_order(f[-2] - f[-3], f[-1] - f[-2])
+        if p_obs is not None and 0.5 <= p_obs <= 8.0:
+            p = p_obs
     return float(f[-1] + (f[-1] - f[-2]) / (2.0**p - 1.0)), p
 
 
