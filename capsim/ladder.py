@@ -31,20 +31,13 @@ from capsim.config import Case, apply_overrides
 PERIODS = {"theta": math.pi}
 
 
-def _value_at_t_end(path: str, quantity: str) -> float:
-    import h5py
-
-    with h5py.File(path, "r") as f:
-        return float(f["timeseries"][quantity][-1])
-
-
 def run_measured(case: Case, run_one: Callable, progress=None, overwrite: bool = True):
     """Run the ladder for the case's accuracy target, each level by ``run_one(case, progress=…,
     overwrite=…)`` (:func:`capsim.runner.run_case`, which calls this: passed in, not imported);
     returns the kept run's :class:`capsim.runner.RunResult` with ``accuracy`` the verdict (one line)."""
     from capsim import accuracy as error_model
     from capsim.checkpoint import checkpoint_path
-    from capsim.store import move_run, write_accuracy
+    from capsim.store import move_run, read_run_record, write_accuracy
 
     target = case.accuracy
     q = target.quantity
@@ -58,13 +51,13 @@ def run_measured(case: Case, run_one: Callable, progress=None, overwrite: bool =
                               "wall_time_s": []}
     kept, verdict, met = None, "", False
     for level in range(1, target.max_level + 1):
-        run = apply_overrides(case, **{"accuracy": None, "mesh.level": level, "time.rtol": case.time.rtol,
-                                       "output.path": str(work)})
-        result = run_one(run, progress=progress, overwrite=True)
+        # the level's plain case as the output will hold it; it runs into the hidden file beside
+        plain = apply_overrides(case, **{"accuracy": None, "mesh.level": level, "time.rtol": case.time.rtol})
+        result = run_one(apply_overrides(plain, **{"output.path": str(work)}), progress=progress, overwrite=True)
         if result.status != "completed":  # stopped, failed or unstable: the ladder ends with it, said so
             stopped = f"the level-{level} run {result.status}: {result.status_reason}"
             if kept is None:  # nothing kept yet: the run's own file, where the output was to be, says why
-                move_run(work, out, apply_overrides(run, **{"output.path": str(out)}).to_yaml(), overwrite=overwrite)
+                move_run(work, out, plain.to_yaml(), overwrite=overwrite)
                 return dataclasses.replace(result, path=str(out),
                                            accuracy=f"accuracy {q} {target.target:g}: {stopped}; target unchecked")
             for leftover in (work, checkpoint_path(work)):
@@ -73,18 +66,17 @@ def run_measured(case: Case, run_one: Callable, progress=None, overwrite: bool =
             write_accuracy(out, {**_scalars(q, target, case, met, verdict, label), **record})
             return dataclasses.replace(kept, accuracy=verdict)
         record["level"].append(level)
-        record["values"].append(_value_at_t_end(str(work), q))
+        record["values"].append(read_run_record(work)["last"][q])
         record["evaluations"].append(int(result.velocity_evaluations or 0))
         record["wall_time_s"].append(float(result.wall_time_s or 0.0))
         estimate = error_model.measured_error(record["values"], relative, PERIODS.get(q))
-        first = len(record["values"]) == 1
-        record["errors"].append(math.nan if first else float(estimate["error"] + time_error))
+        error = estimate["error"] + time_error  # inf at the first level: no estimate
+        record["errors"].append(float(error) if math.isfinite(error) else math.nan)
         record["orders"].append(float(estimate["order"]))
-        met = not first and estimate["converging"] and estimate["error"] + time_error <= target.target
+        met = estimate["converging"] and error <= target.target
         # each completed level replaces the one before at the output path, with the ladder so far:
         # a ladder stopped later keeps the finest level it completed
-        move_run(work, out, apply_overrides(run, **{"output.path": str(out)}).to_yaml(), overwrite=overwrite or level > 1,
-                 requested_case_yaml=case.to_yaml())
+        move_run(work, out, plain.to_yaml(), overwrite=overwrite or level > 1, requested_case_yaml=case.to_yaml())
         kept = dataclasses.replace(result, path=str(out))
         verdict = _verdict(q, target, case, record, estimate, met)
         if not met and level == target.max_level:

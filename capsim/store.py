@@ -64,6 +64,8 @@ __all__ = [
 ]
 
 STATUSES = frozenset({"completed", "unstable", "interrupted", "failed"})
+#: the root attribute of a run kept by a measured accuracy target's ladder: the case that asked
+REQUESTED_CASE = "requested_case_yaml"
 #: the root dataset holding a completed run's end state (what ``--resume --t-end`` extends)
 END_STATE = "end_state"
 
@@ -662,10 +664,6 @@ def move_run(source: str | os.PathLike, target: str | os.PathLike, config_yaml: 
             if requested_case_yaml is not None:
                 f.attrs[REQUESTED_CASE] = requested_case_yaml
         os.replace(source, target)
-
-
-#: the root attribute of a run kept by a measured accuracy target's ladder: the case that asked
-REQUESTED_CASE = "requested_case_yaml"
 
 
 def _write_group(path: str | os.PathLike, name: str, keys: tuple[str, ...], fill) -> None:
