@@ -29,7 +29,7 @@ for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
 import numpy as np
-from error_model import richardson3
+from error_model import richardson3, run_values
 
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -73,26 +73,6 @@ def _fields(fields: dict, **extra) -> dict:
     return d
 
 
-def _run(d: dict, path: Path) -> dict:
-    import h5py
-
-    from capsim.config import case_from_dict
-    from capsim.runner import run_case
-
-    d = {**d, "output": {"path": str(path)}}
-    case = case_from_dict(d)
-    try:
-        result = run_case(case, overwrite=True)
-    except Exception as exc:  # noqa: BLE001 - a grid point that fails (the λ solve at a loose rtol): no value
-        return {"D_xy": math.nan, "theta": math.nan, "Sxy_star": math.nan, "status": f"failed: {exc}"[:200],
-                "evaluations": 0, "wall_s": math.nan, "level": case.mesh.level, "rtol": case.time.rtol}
-    with h5py.File(path, "r") as f:
-        values = {q: float(f["timeseries"][q][-1]) if result.status == "completed" else math.nan
-                  for q in ("D_xy", "theta", "Sxy_star")}
-    return {**values, "status": result.status, "evaluations": result.velocity_evaluations, "wall_s": result.wall_time_s,
-            "level": case.mesh.level, "rtol": case.time.rtol}
-
-
 def _chosen(fields: dict, q: str, target: float, path: Path) -> dict | str:
     """capsim's own answer to the target (accuracy.method auto): the predicted run, or the measured
     ladder (capsim.ladder) with every level it ran; a refusal's one line."""
@@ -129,7 +109,7 @@ def measure(label: str, fields: dict, tmp: Path) -> dict:
     # capsim's runs first: a run of level 4 brings level 4 into the grid and the reference
     choices = {(q, target): _chosen(fields, q, target, tmp / f"c-{q}-{target:g}.h5") for q, target in TARGETS}
     levels = sorted({*LEVELS, *(c["level"] for c in choices.values() if isinstance(c, dict) and c["level"] <= 4)})
-    grid = {(lv, r): _run(_fields(fields, mesh={"level": lv}, time={"rtol": r}), tmp / f"g{lv}-{r:g}.h5")
+    grid = {(lv, r): run_values(_fields(fields, mesh={"level": lv}, time={"rtol": r}), tmp / f"g{lv}-{r:g}.h5")
             for lv in levels for r in (RTOLS if lv <= 3 else LEVEL4_RTOLS)}
     finest = levels[-3:]  # the reference: Richardson of the three finest levels, each at its tightest rtol
     out: dict = {"label": label, "targets": [], "reference_levels": finest}
