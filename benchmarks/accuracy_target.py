@@ -10,7 +10,7 @@ For each case (kt 4): the reference is the Richardson extrapolation of levels 1,
 for θ) is at most the target; cost is velocity evaluations × the median seconds of one evaluation
 at the level (the error model's, so that the comparison does not move with the machine's load).
 
-    python benchmarks/accuracy_target.py [--workers=2] [--case=LABEL ...] [--table]   # ~30 min on 2 cores (make bench-accuracy-target)
+    python benchmarks/accuracy_target.py [--workers=2] [--case=LABEL ...] [--reuse-grid] [--table]   # ~30 min on 2 cores (make bench-accuracy-target)
 
 writes benchmarks/accuracy_target.md (included by docs/benchmarks.md) and .json.
 """
@@ -96,23 +96,32 @@ def _chosen(fields: dict, q: str, target: float, path: Path) -> dict | str:
             levels = [int(v) for v in f["accuracy/level"][()]]
             evaluations = [int(v) for v in f["accuracy/evaluations"][()]]
             own, met = float(f["accuracy/errors"][-1]), bool(f["accuracy/met"][()])
+            rtol = float(f["accuracy/rtol"][()])  # the ladder's own, where it measured its time error
+            # the level-1 runs that measured the time error and were not kept as level 1
+            pilot = int(f["accuracy/pilot_evaluations"][()]) if "pilot_evaluations" in f["accuracy"] else 0
         else:
             levels, evaluations, own, met = [case.mesh.level], [result.velocity_evaluations], math.nan, None
-    return {"method": case.accuracy.method, "level": levels[-1], "rtol": float(case.time.rtol), "value": value,
-            "levels": levels, "evaluations": evaluations, "own_error": own, "own_met": met, "status": result.status}
+            rtol, pilot = float(case.time.rtol), 0
+    return {"method": case.accuracy.method, "level": levels[-1], "rtol": rtol, "value": value,
+            "levels": levels, "evaluations": evaluations, "pilot_evaluations": pilot, "own_error": own,
+            "own_met": met, "status": result.status}
 
 
-def measure(label: str, fields: dict, tmp: Path) -> dict:
+def measure(label: str, fields: dict, tmp: Path, kept_grid: list | None = None) -> dict:
     from capsim import accuracy
 
     seconds = accuracy.model()["seconds_per_evaluation"]
     # capsim's runs first: a run of level 4 brings level 4 into the grid and the reference
     choices = {(q, target): _chosen(fields, q, target, tmp / f"c-{q}-{target:g}.h5") for q, target in TARGETS}
     levels = sorted({*LEVELS, *(c["level"] for c in choices.values() if isinstance(c, dict) and c["level"] <= 4)})
-    grid = {(lv, r): run_values(_fields(fields, mesh={"level": lv}, time={"rtol": r}), tmp / f"g{lv}-{r:g}.h5")
+    # the grid does not depend on the error model: a row measured before gives its points again (--reuse-grid)
+    stored = {(int(g["level"]), float(g["rtol"])): g for g in (kept_grid or [])}
+    grid = {(lv, r): stored.get((lv, r)) or run_values(_fields(fields, mesh={"level": lv}, time={"rtol": r}),
+                                                       tmp / f"g{lv}-{r:g}.h5")
             for lv in levels for r in (RTOLS if lv <= 3 else LEVEL4_RTOLS)}
     finest = levels[-3:]  # the reference: Richardson of the three finest levels, each at its tightest rtol
-    out: dict = {"label": label, "targets": [], "reference_levels": finest}
+    out: dict = {"label": label, "targets": [], "reference_levels": finest,
+                 "grid": [{**{k: v for k, v in run.items()}, "level": lv, "rtol": r} for (lv, r), run in grid.items()]}
     for q, target in TARGETS:
         values = np.array([grid[(lv, min(r for (l2, r) in grid if l2 == lv))][q] for lv in finest])
         reference, _ = richardson3(values)  # the error model's own recipe
@@ -134,7 +143,8 @@ def measure(label: str, fields: dict, tmp: Path) -> dict:
         elif c["level"] > max(finest):
             row["chosen"] = {"unchecked": f"level {c['level']} (predicted): beyond the benchmark's level {max(finest)}"}
         else:
-            cost = float(sum(n * seconds[str(lv)] for lv, n in zip(c["levels"], c["evaluations"])))
+            cost = float(sum(n * seconds[str(lv)] for lv, n in zip(c["levels"], c["evaluations"]))
+                         + c["pilot_evaluations"] * seconds["1"])
             row["chosen"] = {"method": c["method"], "level": c["level"], "rtol": c["rtol"], "levels": c["levels"],
                              "error": float(error(c["value"])), "own_error": c["own_error"], "own_met": c["own_met"],
                              "cost_s": cost, "met": bool(error(c["value"]) <= target)}
@@ -145,25 +155,33 @@ def measure(label: str, fields: dict, tmp: Path) -> dict:
     return out
 
 
-def _measure_alone(label: str) -> dict:
+def _measure_alone(label: str, kept_grid: list | None = None) -> dict:
     """measure() in a worker process, in its own temporary folder."""
     with tempfile.TemporaryDirectory() as tmp:
-        return measure(label, CASES[label], Path(tmp))
+        return measure(label, CASES[label], Path(tmp), kept_grid)
 
 
 def main() -> None:
-    """--workers=N; --case=LABEL (repeatable): measure those cases again, keep the others' rows."""
+    """--workers=N; --case=LABEL (repeatable): measure those cases again, keep the others' rows;
+    --reuse-grid: capsim's choices run again, the grid's points taken from the JSON where it has them
+    (after a change of the error model or the ladder: the grid does not depend on them)."""
     workers = int(next((a.split("=", 1)[1] for a in sys.argv if a.startswith("--workers=")), "1"))
     only = [a.split("=", 1)[1] for a in sys.argv if a.startswith("--case=")]
     unknown = [label for label in only if label not in CASES]
     if unknown:
         sys.exit(f"--case: {unknown}: not a case of this benchmark ({'; '.join(CASES)})")
-    kept = {r["label"]: r for r in json.loads(JSON.read_text())} if (only or "--table" in sys.argv) and JSON.exists() else {}
+    reuse = "--reuse-grid" in sys.argv
+    kept = ({r["label"]: r for r in json.loads(JSON.read_text())}
+            if (only or reuse or "--table" in sys.argv) and JSON.exists() else {})
+    grids = {label: kept.get(label, {}).get("grid") for label in CASES} if reuse else {label: None for label in CASES}
+    if reuse and not only:
+        only = list(CASES)
     if "--table" in sys.argv:  # the table again from the JSON, nothing run
         only = []
     rows = {label: kept[label] for label in CASES if label in kept and label not in only}
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        for row in pool.map(_measure_alone, [label for label in CASES if label not in rows]):
+        todo = [label for label in CASES if label not in rows]
+        for row in pool.map(_measure_alone, todo, [grids[label] for label in todo]):
             print(row["label"], flush=True)
             rows[row["label"]] = row
             JSON.write_text(json.dumps([rows[k] for k in CASES if k in rows], indent=1) + "\n")  # kept as it goes
@@ -172,7 +190,8 @@ def main() -> None:
              "run where the model is sure of the case, the measured ladder where it is not; error against the "
              "Richardson extrapolation of the three finest levels of the grid (1-3 at rtol 1e-5; 2-4 where capsim "
              "kept level 4, level 4 at rtol 1e-4); cost in the error model's seconds of an evaluation times the "
-             "evaluations, a ladder's every level counted). The grid is levels 1-3 × rtol 1e-2, 2e-3, 1e-3, 1e-4, "
+             "evaluations, a ladder's every level counted, and its level-1 runs that measured its time error). "
+             "The grid is levels 1-3 × rtol 1e-2, 2e-3, 1e-3, 1e-4, "
              "1e-5; its cheapest point that meets the target, and the cheapest at the tolerances capsim chooses "
              "(never looser than 2e-3: the volume guard, capsim.accuracy.RTOL_LADDER):", "",
              "| case | target | capsim's run: level, rtol | own estimate | achieved error | met | "
