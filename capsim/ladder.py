@@ -1,11 +1,14 @@
 """An accuracy target met by measuring (``accuracy.method: measure``, or ``auto`` where the error
 model cannot place the case; issue 44).
 
-The ladder runs the case at mesh levels 1, 2, … at one tolerance (``capsim.accuracy.ladder_rtol``:
-its time error a tenth of the target) and, after each, estimates that run's error from the levels
+The ladder runs the case at mesh levels 1, 2, … at one tolerance, its time error a tenth of the
+target: predicted (``capsim.accuracy.ladder_rtol``) where the error model allows the loosest, else
+measured on the case itself (level 1 at the two ``capsim.accuracy.PILOT_RTOLS``,
+``capsim.accuracy.ladder_rtol_measured``) rather than paid at every level on the nearest training
+cases' word; and, after each, estimates that run's error from the levels
 below it (``capsim.accuracy.measured_error``: Richardson with the observed order of the last two
 differences, or the training's smallest order from two levels). The first run whose estimate
-(plus its predicted time error) meets the target is kept; levels whose differences change sign or
+(plus its time error) meets the target is kept; levels whose differences change sign or
 grow are not yet converging and are never accepted. Past ``accuracy.max_level`` the finest run is
 kept and the target is said NOT met, with the estimate.
 
