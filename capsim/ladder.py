@@ -61,8 +61,12 @@ def run_measured(case: Case, run_one: Callable, progress=None, overwrite: bool =
         pilots = _pilots(case, run_one, work, progress)
         if isinstance(pilots, tuple):  # a pilot run did not complete: the ladder ends with it
             plain, result = pilots
-            move_run(result.path, out, plain.to_yaml(), overwrite=overwrite)
-            _remove(work, error_model.PILOT_RTOLS)
+            failed = _pilot_path(work, float(plain.time.rtol))
+            if failed.exists():  # its file (status and reason) where the output was to be
+                move_run(failed, out, plain.to_yaml(), overwrite=overwrite)
+            _remove(work, error_model.PILOT_RTOLS)  # and the checkpoints: a ladder is not resumed
+            if isinstance(result, Exception):  # it raised: so does the ladder, as a plain run would
+                raise result
             return dataclasses.replace(result, path=str(out), accuracy=(
                 f"accuracy {q} {target.target:g}: the level-1 run at rtol {plain.time.rtol:g} (the time error's "
                 f"measure) {result.status}: {result.status_reason}; target unchecked"))
@@ -82,7 +86,18 @@ def run_measured(case: Case, run_one: Callable, progress=None, overwrite: bool =
             os.replace(pilots[rtol][1].path, work)
             result = dataclasses.replace(pilots[rtol][1], path=str(work))
         else:
-            result = run_one(apply_overrides(plain, **{"output.path": str(work)}), progress=progress, overwrite=True)
+            try:
+                result = run_one(apply_overrides(plain, **{"output.path": str(work)}), progress=progress,
+                                 overwrite=True)
+            except Exception as exc:  # a solve that diverges: the run file says 'failed' and the run raises
+                if kept is None:  # as a plain run: its failed file at the output path, and the error
+                    _remove(work, error_model.PILOT_RTOLS)
+                    if work.exists():
+                        move_run(work, out, plain.to_yaml(), overwrite=overwrite)
+                    checkpoint_path(work).unlink(missing_ok=True)  # a ladder is not resumed
+                    raise
+                # the finest completed level stays the output, said so (the status line below)
+                result = dataclasses.replace(kept, status="failed", status_reason=_first_line(exc))
         if level == 1:  # the pilots not kept as level 1 go; their cost is the time error's
             _remove(work, error_model.PILOT_RTOLS)
             record["time_error_how"] = how
@@ -92,6 +107,7 @@ def run_measured(case: Case, run_one: Callable, progress=None, overwrite: bool =
             stopped = f"the level-{level} run {result.status}: {result.status_reason}"
             if kept is None:  # nothing kept yet: the run's own file, where the output was to be, says why
                 move_run(work, out, plain.to_yaml(), overwrite=overwrite)
+                checkpoint_path(work).unlink(missing_ok=True)  # a ladder is not resumed
                 return dataclasses.replace(result, path=str(out),
                                            accuracy=f"accuracy {q} {target.target:g}: {stopped}; target unchecked")
             for leftover in (work, checkpoint_path(work)):
@@ -124,16 +140,24 @@ def run_measured(case: Case, run_one: Callable, progress=None, overwrite: bool =
     return dataclasses.replace(kept, accuracy=verdict)
 
 
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0] if text else ''}"
+
+
 def _pilots(case: Case, run_one: Callable, work: Path, progress) -> dict[float, Any] | tuple:
     """Level 1 at each of PILOT_RTOLS into its own hidden file: {rtol: (plain case, result)}; the
-    (plain case, result) of the first that did not complete."""
+    (plain case, result) of the first that did not complete, or (plain case, exception) of one that raised."""
     from capsim.accuracy import PILOT_RTOLS
 
     runs = {}
     for r in PILOT_RTOLS:
         plain = apply_overrides(case, **{"accuracy": None, "mesh.level": 1, "time.rtol": r})
-        result = run_one(apply_overrides(plain, **{"output.path": str(_pilot_path(work, r))}), progress=progress,
-                         overwrite=True)
+        try:
+            result = run_one(apply_overrides(plain, **{"output.path": str(_pilot_path(work, r))}),
+                             progress=progress, overwrite=True)
+        except Exception as exc:  # noqa: BLE001 - the caller keeps its file and raises it
+            return plain, exc
         if result.status != "completed":
             return plain, result
         runs[r] = (plain, result)

@@ -329,6 +329,44 @@ def test_a_ladder_stopped_at_a_later_level_keeps_the_finest_level_it_completed(t
     assert sorted(p.name for p in tmp_path.iterdir()) == ["k.h5"]
 
 
+def test_a_ladder_level_that_raises_keeps_the_finest_completed_level_and_leaves_nothing_beside_it(tmp_path):
+    """A level whose solve diverges (SolverDivergence raised from the progress callback: the run marks
+    its file 'failed' and raises) ends the ladder as a stopped level does: level 1 kept, the verdict
+    says which level failed and why, no hidden file left. At level 1, with nothing kept, the error is
+    raised as a plain run's would be, its 'failed' file at the output path."""
+    import h5py
+
+    from capsim.ladder import run_measured
+    from capsim.solver import SolverDivergence
+
+    def diverge_at(level):
+        def run_one(case, progress=None, overwrite=True):
+            def diverge(state):
+                if case.mesh.level == level and state["step"] >= 3:
+                    raise SolverDivergence("velocity solve did not converge: residual 1e-2")
+            return run_case(case, progress=diverge, overwrite=overwrite)
+        return run_one
+
+    target = {"quantity": "D_xy", "target": 0.05, "method": "measure"}
+    case = case_from_dict({"name": "d", "time": {"t_end": 1.0}, "output": {"path": str(tmp_path / "d.h5")},
+                           "accuracy": target})
+    result = run_measured(case, diverge_at(2))
+    assert result.status == "completed" and "level 1" in result.accuracy
+    assert "the level-2 run failed: SolverDivergence: velocity solve did not converge" in result.accuracy
+    with h5py.File(tmp_path / "d.h5") as f:
+        assert f.attrs["status"] == "completed" and list(f["accuracy/level"][()]) == [1]
+        assert "SolverDivergence" in f["accuracy/verdict"][()].decode()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.h5"]
+    first = case_from_dict({"name": "e", "time": {"t_end": 1.0}, "output": {"path": str(tmp_path / "e" / "e.h5")},
+                            "accuracy": target})
+    (tmp_path / "e").mkdir()
+    with pytest.raises(SolverDivergence):
+        run_measured(first, diverge_at(1))
+    with h5py.File(tmp_path / "e" / "e.h5") as f:
+        assert f.attrs["status"] == "failed" and "SolverDivergence" in f.attrs["status_reason"]
+    assert [p.name for p in (tmp_path / "e").iterdir() if p.name.startswith(".")] == []
+
+
 def test_a_campaign_of_accuracy_targets_runs_summarizes_and_resumes(tmp_path):
     """A sweep whose base has an accuracy target (the warm-up's level-0 copy drops the target, as it
     once did not): a measured run's kept file is the campaign's own (its requested case), summarized
