@@ -125,6 +125,12 @@ bench-error-model: venv
 bench-accuracy-target: venv
 	$(BIN)/python benchmarks/accuracy_target.py --workers=2
 
+# does a short run tell the mesh error at t_end? (issue 44) levels 1-3 of the eleven training cases beside the
+# error model's grid, D_xy and θ at kt 1, 2, 4 (about 5 min on 2 cores): writes benchmarks/early_error.md and .json
+.PHONY: bench-early-error
+bench-early-error: venv
+	$(BIN)/python benchmarks/early_error.py --workers=2
+
 # time.rtol auto against rtol 1e-4 (issue 44): evaluations saved and D_xy, θ moved against each case's
 # own mesh error (one level coarser), the stepping cases at levels <= 3, one run each (about a minute;
 # CASES=a e to run some): writes benchmarks/rtol_auto.md and benchmarks/rtol_auto.json
