@@ -290,7 +290,7 @@ def plan(quantity: str, target: float, t_end: float, features: dict[str, Any] | 
                 return {**best, "method": "predict"}
             reason = f"the error model cannot place this case ({best['uncertain']}; it predicts level {best['level']})"
     rtol = ladder_rtol(q, target, features)
-    at = (f"rtol {rtol:g}" if rtol >= PILOT_RTOLS[0] else
+    at = (f"rtol {rtol:g}" if not measures_time_error(rtol, features) else
           f"the rtol its own time error allows (measured at level 1, rtol {PILOT_RTOLS[0]:g} and {PILOT_RTOLS[1]:g}; "
           f"the error model's nearest cases would ask {rtol:g})")
     why = (f"accuracy {q} {target:g}: measured, {reason}: levels 1, 2, ... up to {max_level} at {at}, "
@@ -302,6 +302,18 @@ def plan(quantity: str, target: float, t_end: float, features: dict[str, Any] | 
 #: tolerance is chosen: their difference is the time error (:func:`time_error_from_pair`); the loose
 #: one is RTOL_LADDER's loosest, so a case whose time error allows it pays one extra level-1 run
 PILOT_RTOLS = (2e-3, 5e-4)
+#: ...and only where the predicted tolerance makes every level cost at least this factor more
+#: evaluations than the loosest would (the model's cost law, rtol^(−b)): below it the extra level-1
+#: run costs more than it can save (an oblate 0.7 at D_xy 2 %, predicted 1e-3: 1.7× the grid's
+#: cheapest without the measure, 2.1× with it; benchmarks/accuracy_target.md)
+PILOT_SAVING = 1.5
+
+
+def measures_time_error(rtol: float, features: dict[str, Any] | None = None) -> bool:
+    """Whether the ladder measures its own time error rather than take the predicted ``rtol``
+    (:data:`PILOT_SAVING`)."""
+    b = float(entry(features)[0]["evaluations_per_kt"]["b"])
+    return rtol < PILOT_RTOLS[0] and (PILOT_RTOLS[0] / rtol) ** b >= PILOT_SAVING
 
 
 def time_error_from_pair(loose: float, tight: float, rtols: tuple[float, float] = PILOT_RTOLS,

@@ -54,10 +54,10 @@ def run_measured(case: Case, run_one: Callable, progress=None, overwrite: bool =
     rtol = float(case.time.rtol)
     time_error = error_model.safety(q) * error_model.time_error(entry, q, rtol)  # the model's
     pilots: dict[float, Any] = {}
-    if rtol < error_model.PILOT_RTOLS[0]:
-        # the model's nearest cases ask for a tolerance tighter than the loosest: measure this case's
-        # own time error at level 1 (two tolerances) rather than pay theirs at every level (an oblate
-        # 0.4 at λ 0.5 took 5e-5 from its oblate 0.5 neighbours and cost 29× what 2e-3 did)
+    if error_model.measures_time_error(rtol, case.error_model_features()):
+        # the model's nearest cases ask for a tolerance far tighter than the loosest: measure this
+        # case's own time error at level 1 (two tolerances) rather than pay theirs at every level (an
+        # oblate 0.4 at λ 0.5 took 5e-5 from its oblate 0.5 neighbours and cost 29× what 2e-3 did)
         pilots = _pilots(case, run_one, work, progress)
         if isinstance(pilots, tuple):  # a pilot run did not complete: the ladder ends with it
             plain, result = pilots

@@ -489,7 +489,8 @@ _add("accuracy/target", "accuracy target", "1", "the largest error asked for: re
      "in rad for theta")
 _add("accuracy/rtol", "time tolerance of the ladder's runs", "1", "its time error at most a tenth of the target: "
      "measured at level 1 (capsim.accuracy.ladder_rtol_measured) where the error model's prediction "
-     "(capsim.accuracy.ladder_rtol) is tighter than 2e-3, else predicted")
+     "(capsim.accuracy.ladder_rtol) would cost 1.5× the evaluations of 2e-3 or more "
+     "(capsim.accuracy.measures_time_error), else predicted")
 _add("accuracy/time_error", "time error added to each level's estimate", "1", "at accuracy/rtol: relative for D_xy "
      "and Sxy_star, in rad for theta")
 _add("accuracy/time_error_how", "how the time error was had", "", "measured (level 1 at two tolerances, their "

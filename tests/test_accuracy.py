@@ -230,22 +230,28 @@ def test_the_ladder_time_error_from_two_tolerances_is_exact_where_it_is_proporti
 
 
 def test_a_ladder_measures_its_own_time_error_where_the_model_asks_a_tight_tolerance(tmp_path):
-    """The demo's sphere at a target (D_xy 1e-3) whose predicted ladder tolerance is tighter than the
-    loosest: level 1 runs at both pilot tolerances, the ladder's rtol follows from their difference
+    """The demo's sphere at a target (D_xy 2e-4) whose predicted ladder tolerance (2e-4) would cost
+    more than 1.5× the loosest's evaluations at every level: level 1 runs at both pilot tolerances,
+    the ladder's rtol follows from their difference
     (two plain runs give the same values: the runs are deterministic), the pilot kept as level 1 is
     not run again, and no pilot file is left beside the output."""
     from capsim.store import read_case
 
     base = {"name": "p", "flow": {"shear_rate_G": 0.1}, "time": {"t_end": 1.0}}
-    case = case_from_dict({**base, "accuracy": {"quantity": "D_xy", "target": 1e-3, "method": "measure",
+    case = case_from_dict({**base, "accuracy": {"quantity": "D_xy", "target": 2e-4, "method": "measure",
                                                 "max_level": 2}, "output": {"path": str(tmp_path / "p.h5")}})
-    assert case.time.rtol < accuracy.PILOT_RTOLS[0] and "measured at level 1" in case.accuracy.choice
+    assert accuracy.measures_time_error(case.time.rtol, case.error_model_features())
+    assert "measured at level 1" in case.accuracy.choice
+    # a predicted tolerance one step below the loosest saves less than the extra level-1 run costs
+    near = case_from_dict({**base, "accuracy": {"quantity": "D_xy", "target": 1e-3, "method": "measure"}})
+    assert near.time.rtol == 1e-3 and not accuracy.measures_time_error(1e-3, near.error_model_features())
+    assert "measured at level 1" not in near.accuracy.choice
     result = run_case(case)
     plain = [run_case(case_from_dict({**base, "mesh": {"level": 1}, "time": {**base["time"], "rtol": r},
                                       "output": {"path": str(tmp_path / f"plain-{r:g}.h5")}}))
              for r in accuracy.PILOT_RTOLS]
     measured = accuracy.time_error_from_pair(plain[0].final_D_xy, plain[1].final_D_xy)
-    rtol = accuracy.ladder_rtol_measured(measured, 1e-3)
+    rtol = accuracy.ladder_rtol_measured(measured, 2e-4)
     assert read_case(result.path).time.rtol == rtol
     with h5py.File(result.path) as f:
         g = f["accuracy"]
