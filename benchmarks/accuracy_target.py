@@ -96,15 +96,10 @@ def _chosen(fields: dict, q: str, target: float, path: Path) -> dict | str:
             levels = [int(v) for v in f["accuracy/level"][()]]
             evaluations = [int(v) for v in f["accuracy/evaluations"][()]]
             own, met = float(f["accuracy/errors"][-1]), bool(f["accuracy/met"][()])
-            rtol = float(f["accuracy/rtol"][()])  # the ladder's own, where it measured its time error
-            # the level-1 runs that measured the time error and were not kept as level 1
-            pilot = int(f["accuracy/pilot_evaluations"][()]) if "pilot_evaluations" in f["accuracy"] else 0
         else:
             levels, evaluations, own, met = [case.mesh.level], [result.velocity_evaluations], math.nan, None
-            rtol, pilot = float(case.time.rtol), 0
-    return {"method": case.accuracy.method, "level": levels[-1], "rtol": rtol, "value": value,
-            "levels": levels, "evaluations": evaluations, "pilot_evaluations": pilot, "own_error": own,
-            "own_met": met, "status": result.status}
+    return {"method": case.accuracy.method, "level": levels[-1], "rtol": float(case.time.rtol), "value": value,
+            "levels": levels, "evaluations": evaluations, "own_error": own, "own_met": met, "status": result.status}
 
 
 def measure(label: str, fields: dict, tmp: Path, kept_grid: list | None = None) -> dict:
@@ -121,7 +116,7 @@ def measure(label: str, fields: dict, tmp: Path, kept_grid: list | None = None) 
             for lv in levels for r in (RTOLS if lv <= 3 else LEVEL4_RTOLS)}
     finest = levels[-3:]  # the reference: Richardson of the three finest levels, each at its tightest rtol
     out: dict = {"label": label, "targets": [], "reference_levels": finest,
-                 "grid": [{**{k: v for k, v in run.items()}, "level": lv, "rtol": r} for (lv, r), run in grid.items()]}
+                 "grid": [{**run, "level": lv, "rtol": r} for (lv, r), run in grid.items()]}
     for q, target in TARGETS:
         values = np.array([grid[(lv, min(r for (l2, r) in grid if l2 == lv))][q] for lv in finest])
         reference, _ = richardson3(values)  # the error model's own recipe
@@ -143,8 +138,7 @@ def measure(label: str, fields: dict, tmp: Path, kept_grid: list | None = None) 
         elif c["level"] > max(finest):
             row["chosen"] = {"unchecked": f"level {c['level']} (predicted): beyond the benchmark's level {max(finest)}"}
         else:
-            cost = float(sum(n * seconds[str(lv)] for lv, n in zip(c["levels"], c["evaluations"]))
-                         + c["pilot_evaluations"] * seconds["1"])
+            cost = float(sum(n * seconds[str(lv)] for lv, n in zip(c["levels"], c["evaluations"])))
             row["chosen"] = {"method": c["method"], "level": c["level"], "rtol": c["rtol"], "levels": c["levels"],
                              "error": float(error(c["value"])), "own_error": c["own_error"], "own_met": c["own_met"],
                              "cost_s": cost, "met": bool(error(c["value"]) <= target)}
@@ -190,8 +184,7 @@ def main() -> None:
              "run where the model is sure of the case, the measured ladder where it is not; error against the "
              "Richardson extrapolation of the three finest levels of the grid (1-3 at rtol 1e-5; 2-4 where capsim "
              "kept level 4, level 4 at rtol 1e-4); cost in the error model's seconds of an evaluation times the "
-             "evaluations, a ladder's every level counted, and its level-1 runs that measured its time error). "
-             "The grid is levels 1-3 × rtol 1e-2, 2e-3, 1e-3, 1e-4, "
+             "evaluations, a ladder's every level counted). The grid is levels 1-3 × rtol 1e-2, 2e-3, 1e-3, 1e-4, "
              "1e-5; its cheapest point that meets the target, and the cheapest at the tolerances capsim chooses "
              "(never looser than 2e-3: the volume guard, capsim.accuracy.RTOL_LADDER):", "",
              "| case | target | capsim's run: level, rtol | own estimate | achieved error | met | "

@@ -290,52 +290,9 @@ def plan(quantity: str, target: float, t_end: float, features: dict[str, Any] | 
                 return {**best, "method": "predict"}
             reason = f"the error model cannot place this case ({best['uncertain']}; it predicts level {best['level']})"
     rtol = ladder_rtol(q, target, features)
-    at = (f"rtol {rtol:g}" if not measures_time_error(rtol, features) else
-          f"the rtol its own time error allows (measured at level 1, rtol {PILOT_RTOLS[0]:g} and {PILOT_RTOLS[1]:g}; "
-          f"the error model's nearest cases would ask {rtol:g})")
-    why = (f"accuracy {q} {target:g}: measured, {reason}: levels 1, 2, ... up to {max_level} at {at}, "
+    why = (f"accuracy {q} {target:g}: measured, {reason}: levels 1, 2, ... up to {max_level} at rtol {rtol:g}, "
            "each run's error estimated from the levels below it (Richardson), the first that meets the target kept")
     return {"method": "measure", "quantity": q, "level": 1, "rtol": rtol, "why": why}
-
-
-#: the measured ladder's level 1 runs at these two tolerances (loose, tight) before the ladder's own
-#: tolerance is chosen: their difference is the time error (:func:`time_error_from_pair`); the loose
-#: one is RTOL_LADDER's loosest, so a case whose time error allows it pays one extra level-1 run
-PILOT_RTOLS = (2e-3, 5e-4)
-#: ...and only where the predicted tolerance makes every level cost at least this factor more
-#: evaluations than the loosest would (the model's cost law, rtol^(−b)): below it the extra level-1
-#: run costs more than it can save (an oblate 0.7 at D_xy 2 %, predicted 1e-3: 1.7× the grid's
-#: cheapest without the measure, 2.1× with it; benchmarks/accuracy_target.md)
-PILOT_SAVING = 1.5
-
-
-def measures_time_error(rtol: float, features: dict[str, Any] | None = None) -> bool:
-    """Whether the ladder measures its own time error rather than take the predicted ``rtol``
-    (:data:`PILOT_SAVING`)."""
-    b = float(entry(features)[0]["evaluations_per_kt"]["b"])
-    return rtol < PILOT_RTOLS[0] and (PILOT_RTOLS[0] / rtol) ** b >= PILOT_SAVING
-
-
-def time_error_from_pair(loose: float, tight: float, rtols: tuple[float, float] = PILOT_RTOLS,
-                         relative: bool = True, period: float | None = None) -> float:
-    """The time error at ``rtols[0]`` of a quantity from its values at the two tolerances (one mesh):
-    with the time error proportional to rtol (docs/time_stepping.md's promise, order 1 its
-    least), f(r) − f(r') = e(r)·(1 − r'/r); relative to |f(r')| when ``relative``, modulo ``period``."""
-    d = loose - tight
-    if period:
-        d = (d + period / 2) % period - period / 2
-    scale = max(abs(tight), 1e-300) if relative else 1.0
-    return abs(d) / (1.0 - rtols[1] / rtols[0]) / scale
-
-
-def ladder_rtol_measured(error_at_loose: float, target: float, loose: float = PILOT_RTOLS[0]) -> float:
-    """The ladder's one tolerance from its own measured time error ``error_at_loose`` (at ``loose``,
-    time error ∝ rtol): the loosest of RTOL_LADDER, no looser than ``loose``, whose time error is at
-    most TIME_FRACTION of the target; the tightest where none is."""
-    for rtol in RTOL_LADDER:
-        if rtol <= loose and error_at_loose * rtol / loose <= TIME_FRACTION * target:
-            return rtol
-    return RTOL_LADDER[-1]
 
 
 def ladder_rtol(quantity: str, target: float, features: dict[str, Any] | None = None) -> float:

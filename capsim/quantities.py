@@ -487,16 +487,8 @@ for _name in _STUDIED:
 _add("accuracy/quantity", "quantity of the accuracy target", "", "D_xy, theta or Sxy_star at t_end")
 _add("accuracy/target", "accuracy target", "1", "the largest error asked for: relative for D_xy and Sxy_star, "
      "in rad for theta")
-_add("accuracy/rtol", "time tolerance of the ladder's runs", "1", "its time error at most a tenth of the target: "
-     "measured at level 1 (capsim.accuracy.ladder_rtol_measured) where the error model's prediction "
-     "(capsim.accuracy.ladder_rtol) would cost 1.5× the evaluations of 2e-3 or more "
-     "(capsim.accuracy.measures_time_error), else predicted")
-_add("accuracy/time_error", "time error added to each level's estimate", "1", "at accuracy/rtol: relative for D_xy "
-     "and Sxy_star, in rad for theta")
-_add("accuracy/time_error_how", "how the time error was had", "", "measured (level 1 at two tolerances, their "
-     "values) or predicted (the error model, its safety factor included)")
-_add("accuracy/pilot_evaluations", "velocity evaluations of the level-1 runs that measured the time error", "1",
-     "those not kept as the ladder's level 1; 0 where the time error was predicted")
+_add("accuracy/rtol", "time tolerance of the ladder's runs", "1", "capsim.accuracy.ladder_rtol: its predicted time "
+     "error a tenth of the target")
 _add("accuracy/met", "whether the kept run's error estimate meets the target", "1", "1: met, 0: not met")
 _add("accuracy/verdict", "the ladder's verdict", "", "the level kept, its error estimate and how it was had, "
      "met or NOT met (the line capsim run prints)")
@@ -507,7 +499,7 @@ _add("accuracy/values", "the target's quantity at t_end at each level", "1", "re
      "theta in rad")
 _add("accuracy/errors", "error estimate of each level's run", "1", "|f_L − f_(L−1)| / (2^p − 1) (relative for D_xy, "
      "Sxy_star), p the observed order of the last two differences (at most 4; 1.5 from two levels), plus the "
-     "time error (accuracy/time_error); where the levels do not converge, the larger difference; NaN at the first level")
+     "predicted time error; where the levels do not converge, the larger difference; NaN at the first level")
 _add("accuracy/orders", "order used for each level's estimate", "1", "log2(|d_(L−1)| / |d_L|) of the last two "
      "differences; 1.5 from two levels; NaN where not converging")
 _add("accuracy/evaluations", "velocity evaluations of each level's run", "1", "its run's velocity_evaluations")

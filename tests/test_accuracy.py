@@ -212,57 +212,6 @@ def test_the_ladder_estimate_is_richardson_with_the_observed_order():
     assert e["converging"] and e["error"] < 1e-3
 
 
-def test_the_ladder_time_error_from_two_tolerances_is_exact_where_it_is_proportional_to_rtol():
-    """f(r) = f* + c·r: the pair's time error at the loose rtol is c·r exactly (relative to f at the
-    tight one); θ's difference is taken modulo π; the ladder's rtol is the loosest whose time error
-    (∝ rtol) is at most a tenth of the target, never looser than the loose one measured."""
-    f_star, c = 0.3, 2.0
-    loose, tight = accuracy.PILOT_RTOLS
-    e = accuracy.time_error_from_pair(f_star + c * loose, f_star + c * tight)
-    assert e == pytest.approx(c * loose / (f_star + c * tight), rel=1e-12)
-    assert accuracy.time_error_from_pair(3.14159 - 1e-4, 1e-4, relative=False, period=3.141592653589793) \
-        == pytest.approx((3.141592653589793 - 3.14159 + 2e-4) / (1 - tight / loose), rel=1e-6)
-    assert accuracy.ladder_rtol_measured(0.0, 1e-2) == loose  # no time error seen: the loosest
-    assert accuracy.ladder_rtol_measured(1e-3, 2e-2) == loose  # 1e-3 <= 0.1 × 2e-2
-    # 4e-3 at 2e-3 is 1e-3 at 5e-4: a tenth of 1e-2; 1e-3 (2e-3 at 1e-3) is not
-    assert accuracy.ladder_rtol_measured(4e-3, 1e-2) == 5e-4
-    assert accuracy.ladder_rtol_measured(1.0, 1e-3) == accuracy.RTOL_LADDER[-1]  # none: the tightest
-
-
-def test_a_ladder_measures_its_own_time_error_where_the_model_asks_a_tight_tolerance(tmp_path):
-    """The demo's sphere at a target (D_xy 2e-4) whose predicted ladder tolerance (2e-4) would cost
-    more than 1.5× the loosest's evaluations at every level: level 1 runs at both pilot tolerances,
-    the ladder's rtol follows from their difference
-    (two plain runs give the same values: the runs are deterministic), the pilot kept as level 1 is
-    not run again, and no pilot file is left beside the output."""
-    from capsim.store import read_case
-
-    base = {"name": "p", "flow": {"shear_rate_G": 0.1}, "time": {"t_end": 1.0}}
-    case = case_from_dict({**base, "accuracy": {"quantity": "D_xy", "target": 2e-4, "method": "measure",
-                                                "max_level": 2}, "output": {"path": str(tmp_path / "p.h5")}})
-    assert accuracy.measures_time_error(case.time.rtol, case.error_model_features())
-    assert "measured at level 1" in case.accuracy.choice
-    # a predicted tolerance one step below the loosest saves less than the extra level-1 run costs
-    near = case_from_dict({**base, "accuracy": {"quantity": "D_xy", "target": 1e-3, "method": "measure"}})
-    assert near.time.rtol == 1e-3 and not accuracy.measures_time_error(1e-3, near.error_model_features())
-    assert "measured at level 1" not in near.accuracy.choice
-    result = run_case(case)
-    plain = [run_case(case_from_dict({**base, "mesh": {"level": 1}, "time": {**base["time"], "rtol": r},
-                                      "output": {"path": str(tmp_path / f"plain-{r:g}.h5")}}))
-             for r in accuracy.PILOT_RTOLS]
-    measured = accuracy.time_error_from_pair(plain[0].final_D_xy, plain[1].final_D_xy)
-    rtol = accuracy.ladder_rtol_measured(measured, 2e-4)
-    assert read_case(result.path).time.rtol == rtol
-    with h5py.File(result.path) as f:
-        g = f["accuracy"]
-        assert g["rtol"][()] == rtol and g["time_error"][()] == pytest.approx(measured * rtol / accuracy.PILOT_RTOLS[0])
-        assert g["time_error_how"][()].decode().startswith("measured") and list(g["level"][()]) == [1, 2]
-        reused = rtol in accuracy.PILOT_RTOLS
-        assert g["pilot_evaluations"][()] == sum(p.velocity_evaluations for r, p in zip(accuracy.PILOT_RTOLS, plain)
-                                                 if not (reused and r == rtol))
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.h5", "plain-0.0005.h5", "plain-0.002.h5"]
-
-
 def test_a_measured_target_keeps_the_first_level_whose_own_estimate_meets_it(tmp_path):
     """The ladder on the demo's sphere (kt 2): D_xy to 5 % is met at level 2 by its estimate from
     levels 1-2, and a level-3 run confirms it (|D2 − D3| / D3 below the target); the kept file is

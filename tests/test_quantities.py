@@ -168,7 +168,7 @@ def test_entries_are_well_formed():
     # string-valued entries are the categorical ones
     assert {k for k, q in TABLE.items() if q.units == ""} == {
         "status", "status_reason", "motion", "law", "membrane_law/name", "run_id", "accuracy/quantity",
-        "accuracy/verdict", "accuracy/error_model", "accuracy/time_error_how"}
+        "accuracy/verdict", "accuracy/error_model"}
     # one name, one meaning: the long_name of D_xy is the same in the run file, summary and study
     assert attrs_for("D_xy")["long_name"] == attrs_for("D_xy", "campaign")["long_name"]
     assert attrs_for("D_xy", "study")["long_name"].startswith(attrs_for("D_xy")["long_name"])
