@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from capsim.config import Case, apply_overrides
+from capsim.errors import first_line
 
 #: θ's differences between levels are taken modulo π (the orientation of the shear plane's ellipse)
 PERIODS = {"theta": math.pi}
@@ -57,17 +58,15 @@ def run_measured(case: Case, run_one: Callable, progress=None, overwrite: bool =
             result = run_one(apply_overrides(plain, **{"output.path": str(work)}), progress=progress, overwrite=True)
         except Exception as exc:  # a solve that diverges: the run file says 'failed' and the run raises
             if kept is None:  # as a plain run: its failed file at the output path, and the error
-                if work.exists():
-                    move_run(work, out, plain.to_yaml(), overwrite=overwrite)
-                checkpoint_path(work).unlink(missing_ok=True)  # a ladder is not resumed
+                _give_output(work, out, plain, overwrite)
                 raise
-            # the finest completed level stays the output, said so (the status line below)
-            result = dataclasses.replace(kept, status="failed", status_reason=_first_line(exc))
-        if result.status != "completed":  # stopped, failed or unstable: the ladder ends with it, said so
-            stopped = f"the level-{level} run {result.status}: {result.status_reason}"
+            result, stopped = None, f"the level-{level} run failed: {type(exc).__name__}: {first_line(exc, '')}"
+        else:  # stopped, failed or unstable: the ladder ends with it, said so
+            stopped = (None if result.status == "completed"
+                       else f"the level-{level} run {result.status}: {result.status_reason}")
+        if stopped:
             if kept is None:  # nothing kept yet: the run's own file, where the output was to be, says why
-                move_run(work, out, plain.to_yaml(), overwrite=overwrite)
-                checkpoint_path(work).unlink(missing_ok=True)  # a ladder is not resumed
+                _give_output(work, out, plain, overwrite)
                 return dataclasses.replace(result, path=str(out),
                                            accuracy=f"accuracy {q} {target.target:g}: {stopped}; target unchecked")
             for leftover in (work, checkpoint_path(work)):
@@ -100,9 +99,15 @@ def run_measured(case: Case, run_one: Callable, progress=None, overwrite: bool =
     return dataclasses.replace(kept, accuracy=verdict)
 
 
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return f"{type(exc).__name__}: {text[0] if text else ''}"
+def _give_output(work: Path, out: Path, plain: Case, overwrite: bool) -> None:
+    """The first level's run that did not complete takes the output path, as a plain run's file would
+    be there; its checkpoint goes (a ladder is not resumed)."""
+    from capsim.checkpoint import checkpoint_path
+    from capsim.store import move_run
+
+    if work.exists():
+        move_run(work, out, plain.to_yaml(), overwrite=overwrite)
+    checkpoint_path(work).unlink(missing_ok=True)
 
 
 def _scalars(q: str, target, case: Case, met: bool, verdict: str, label: str) -> dict[str, Any]:
