@@ -27,13 +27,14 @@ for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
 import numpy as np
-from error_model import TRAINING, richardson3
+from error_model import T_END, TRAINING, case_dict, richardson3
+
+from capsim.accuracy import LADDER_TWO_LEVEL_ORDER as TWO_LEVEL_ORDER  # the ladder's order from two levels
 
 ROOT = Path(__file__).resolve().parents[1]
 MD, JSON = ROOT / "benchmarks" / "early_error.md", ROOT / "benchmarks" / "early_error.json"
-TIMES, T_END, RTOL, LEVELS = (1.0, 2.0, 4.0), 4.0, 1e-4, (1, 2, 3)
+TIMES, RTOL, LEVELS = (1.0, 2.0, T_END), 1e-4, (1, 2, 3)  # T_END: the error model's kt 4
 LABELS = [label for label in TRAINING if ":" not in label]  # not the "grid:" or "edge:" ones
-TWO_LEVEL_ORDER = 1.5  # capsim.accuracy.LADDER_TWO_LEVEL_ORDER
 
 
 def measure(label: str) -> tuple[str, dict]:
@@ -46,10 +47,7 @@ def measure(label: str) -> tuple[str, dict]:
     out: dict = {}
     with tempfile.TemporaryDirectory() as tmp:
         for level in LEVELS:
-            d = {"name": "early", "mesh": {"level": level}, "time": {"t_end": T_END, "rtol": RTOL}}
-            for key, value in TRAINING[label].items():
-                d[key] = {**d.get(key, {}), **value}
-            d["output"] = {"path": f"{tmp}/r{level}.h5"}
+            d = {**case_dict(TRAINING[label], level, RTOL), "output": {"path": f"{tmp}/r{level}.h5"}}
             result = run_case(case_from_dict(d))
             with h5py.File(f"{tmp}/r{level}.h5") as f:
                 t = f["timeseries/t"][()]

@@ -121,11 +121,17 @@ def run_values(d: dict, path: str | Path) -> dict:
             "wall": wall, "level": case.mesh.level, "rtol": case.time.rtol}
 
 
-def _run(fields: dict, level: int, rtol: float, tmp: str) -> dict:
-    """One training run's values at t_end, its velocity evaluations and wall time (it must complete)."""
+def case_dict(fields: dict, level: int, rtol: float) -> dict:
+    """A training case's dict at this level and rtol, to T_END (its fields merged per section)."""
     d = {"name": "train", "mesh": {"level": level}, "time": {"t_end": T_END, "rtol": rtol}}
     for key, value in fields.items():
         d[key] = {**d.get(key, {}), **value}
+    return d
+
+
+def _run(fields: dict, level: int, rtol: float, tmp: str) -> dict:
+    """One training run's values at t_end, its velocity evaluations and wall time (it must complete)."""
+    d = case_dict(fields, level, rtol)
     values = run_values(d, Path(tmp) / f"run-{level}-{rtol:g}.h5")
     if values["status"] != "completed":
         raise RuntimeError(f"{d}: {values['status']}")
@@ -163,10 +169,7 @@ def features(label: str) -> dict:
     """The case's features as capsim computes them (Case.error_model_features)."""
     from capsim.config import case_from_dict
 
-    d = {"name": "train", "mesh": {"level": 2}, "time": {"t_end": T_END, "rtol": 1e-4}}
-    for key, value in TRAINING[label].items():
-        d[key] = {**d.get(key, {}), **value}
-    return case_from_dict(d).error_model_features()
+    return case_from_dict(case_dict(TRAINING[label], 2, 1e-4)).error_model_features()
 
 
 def _entry(row: dict) -> dict:
@@ -259,12 +262,13 @@ def decisions(model: dict) -> dict:
     from capsim import accuracy
 
     cases, out = model["cases"], {}
+    # each case predicted from the others once (the quantities and factors below read the same prediction)
+    predictions = [accuracy.nearest(case["features"], cases[:k] + cases[k + 1:])[0] for k, case in enumerate(cases)]
     for q in QUANTITIES:
         # the model's factor, none, and factors below 1 (a prediction taken as an overestimate)
         for label, factor in (("with", model["safety"][q]), ("none", 1.0), ("0.5", 0.5), ("0.33", 1 / 3)):
             n = same = finer = coarser = missed = 0
-            for k, case in enumerate(cases):
-                predicted, _ = accuracy.nearest(case["features"], cases[:k] + cases[k + 1:])
+            for case, predicted in zip(cases, predictions):
                 actual = [case["mesh"][q][str(lv)] for lv in MESH_LEVELS]
                 for target in DECISION_TARGETS[q]:
                     cheapest = next((lv for lv, e in zip(MESH_LEVELS, actual) if e <= target), None)
