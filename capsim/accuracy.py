@@ -26,7 +26,10 @@ each level.
   each run's error estimated from the levels below it by :func:`measured_error`, the first that
   meets the target kept), or ``auto``: predict where the model is sure of the case, measure where
   it is not (outside its range, or its nearest training cases disagree :data:`SPREAD`-fold) and
-  predicts a level finer than :data:`MEASURE_ABOVE_LEVEL`.
+  predicts a level finer than :data:`MEASURE_ABOVE_LEVEL`. A scene the model was not trained on
+  (:data:`TRAINED_SCENE`: another flow or history, a wall, several capsules) is never predicted:
+  ``auto`` measures it, ``predict`` is refused; a quantity the scene's symmetry fixes
+  (:data:`FIXED_BY_SYMMETRY`) takes no target by any method.
 
 This module reads a JSON file and does arithmetic: no numba, no capsim imports.
 """
@@ -150,6 +153,50 @@ DEFAULT_FEATURES = {"shape": "sphere", "aspect_ratio": 1.0, "law": "thin_shell",
                     "viscosity_ratio": 1.0, "bending": False}
 
 
+#: the scene every training case ran in (benchmarks/error_model.py): one capsule in steady, unbounded
+#: simple shear. Case.error_model_features gives a case's own; a scene that differs in any of these is
+#: one the model has never seen (issue 51: its shear-only errors were 3.5-180x off in planar extension,
+#: on the Poiseuille axis and after the flow stops), so nothing is predicted for it: method auto
+#: measures it (the ladder), method predict is refused (:func:`scene_outside`)
+TRAINED_SCENE = {"flow": "simple_shear", "history": "steady", "wall": False, "capsules": 1}
+#: how each scene feature that differs from the training's is named (to the user: the field that sets it)
+SCENE_NAMES = {"flow": "flow.kind {v}", "history": "flow.history.kind {v} (the rate changes before t_end)",
+               "wall": "a wall", "capsules": "{v} capsules"}
+
+
+def scene_outside(features: dict[str, Any] | None) -> str:
+    """What in a case's scene the error model was not trained on ('' where nothing: a case without
+    scene features is the training's scene)."""
+    features = features or {}
+    return ", ".join(SCENE_NAMES[k].format(v=features[k]) for k, trained in TRAINED_SCENE.items()
+                     if k in features and features[k] != trained)
+
+
+def _axisymmetric(f: dict[str, Any]) -> bool:
+    """Uniaxial extension, or a capsule on the Poiseuille axis: the flow is axisymmetric about x."""
+    return f.get("flow") == "uniaxial_extension" or (f.get("flow") == "poiseuille" and f.get("axis_offset") == 0.0)
+
+
+#: a quantity the scene's symmetry fixes, whatever the mesh: a target on it measures nothing (zero or a
+#: constant at every level: the ladder's differences vanish and it would report any target met; a relative
+#: error of zero is not defined), refused with the reason, by method (registry: (applies, quantity, why))
+FIXED_BY_SYMMETRY = (
+    (lambda f: f.get("flow") in ("planar_extension", "uniaxial_extension") or _axisymmetric(f), "Sxy_star",
+     "the shear stress S*_xy vanishes by the flow's symmetry (a relative error of zero is not defined)"),
+    (lambda f: f.get("flow") == "planar_extension", "theta",
+     "θ is 0 by the flow's symmetry (the long axis lies along the stretching direction x at every level)"),
+    (_axisymmetric, "theta",
+     "θ is 0 or π/2 by the flow's axial symmetry (whichever of the x and y axes is longer: a jump, not a "
+     "converging value)"),
+)
+
+
+def fixed_by_symmetry(quantity: str, features: dict[str, Any] | None) -> str:
+    """Why the scene fixes this quantity whatever the mesh ('' where it does not): no target can be met on it."""
+    f = features or {}
+    return next((why for applies, q, why in FIXED_BY_SYMMETRY if q == quantity and applies(f)), "")
+
+
 def entry(features: dict[str, Any] | None = None) -> tuple[dict[str, Any], str]:
     """(the model's entry, its label) for a case of these features (nearest)."""
     return nearest(features or DEFAULT_FEATURES)
@@ -229,6 +276,13 @@ def choose(quantity: str, target: float, t_end: float, features: dict[str, Any] 
     for an uncertain prediction finer than MEASURE_LEVEL unless ``quiet_uncertain``."""
     q = canonical(quantity)
     _check_target(target)
+    _refuse_void(q, features)
+    scene = scene_outside(features)
+    if scene:  # never predicted silently from cases of another scene
+        raise AccuracyError(f"accuracy.method = 'predict': the error model was trained on one capsule in steady, "
+                            f"unbounded simple shear only, not on this scene ({scene}); give accuracy.method "
+                            "measure or auto (both run levels 1, 2, ... until the case's own error estimate meets "
+                            "the target)")
     e, label = entry(features)
     factor = safety(q)
     best = None
@@ -274,10 +328,14 @@ def plan(quantity: str, target: float, t_end: float, features: dict[str, Any] | 
         raise AccuracyError(f"accuracy.method = {method!r}: allowed: {', '.join(METHODS)}")
     q = canonical(quantity)
     _check_target(target)
+    _refuse_void(q, features)
     if method == "predict":
         return {**choose(q, target, t_end, features), "method": "predict"}
     reason = "asked for (accuracy.method measure)"
-    if method == "auto":
+    scene = scene_outside(features)
+    if method == "auto" and scene:
+        reason = f"the error model was not trained on this scene ({scene})"
+    elif method == "auto":
         try:
             best = choose(q, target, t_end, features, quiet_uncertain=True)
         except AccuracyError:
@@ -307,6 +365,13 @@ def ladder_rtol(quantity: str, target: float, features: dict[str, Any] | None = 
         if safety(q) * time_error(e, q, rtol) <= TIME_FRACTION * target:
             break
     return rtol
+
+
+def _refuse_void(quantity: str, features: dict[str, Any] | None) -> None:
+    why = fixed_by_symmetry(quantity, features)
+    if why:
+        raise AccuracyError(f"accuracy.quantity = {quantity!r}: {why}; no target on it can be predicted or measured "
+                            "in this scene: give a target on another quantity, or mesh.level and time.rtol")
 
 
 def _check_target(target: Any) -> None:

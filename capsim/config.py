@@ -973,17 +973,29 @@ class Case(_Model):
         resolved case (a run file's) holds the choice and is taken as it is."""
         from capsim import accuracy as error_model
 
-        if self.accuracy is not None and self.accuracy.choice is None:
+        stale = self.accuracy is not None and self.accuracy.choice is not None and not self._choice_holds()
+        if stale:
+            # a resolved case whose target (or method, or level, or rtol) was edited, or a hand-written
+            # choice: kept, it would run a level chosen for another target beside this one (or none, the
+            # target then ignored); the target chooses again, its level and rtol replacing the case's
+            _case_warning(f"accuracy.choice ({self.accuracy.choice[:60]}...) was not made for accuracy "
+                          f"{self.accuracy.quantity} {self.accuracy.target:g} at mesh.level {self.mesh.level}, "
+                          f"time.rtol {self.time.rtol}: the target chooses the level and rtol again")
+        if self.accuracy is not None and (self.accuracy.choice is None or stale):
             for field, given in (("mesh.level", "level" in self.mesh.model_fields_set),
                                  ("time.rtol", self.time.rtol != "auto")):
-                if given:
+                if given and not stale:
                     raise _FieldProblem("accuracy", self.accuracy.quantity,
                                         f"give accuracy or {field}, not both: the target chooses it; remove one")
             try:
                 best = error_model.plan(self.accuracy.quantity, self.accuracy.target, self.time.t_end,
                                         self.error_model_features(), self.accuracy.method, self.accuracy.max_level)
-            except error_model.AccuracyError as exc:
-                raise _FieldProblem("accuracy.target", self.accuracy.target, str(exc).split(": ", 1)[1]) from None
+            except error_model.AccuracyError as exc:  # "accuracy.<field> = <value>: why": the field it names
+                field = str(exc).split(" = ", 1)[0]
+                name = field.removeprefix("accuracy.")
+                value = getattr(self.accuracy, name) if name in Accuracy.model_fields else self.accuracy.target
+                raise _FieldProblem(field if name in Accuracy.model_fields else "accuracy.target", value,
+                                    str(exc).split(": ", 1)[1]) from None
             self._set_derived("accuracy", "method", best["method"], chosen=True)
             self._set_derived("mesh", "level", best["level"], chosen=True)
             self._set_derived("time", "rtol", best["rtol"], chosen=True)
@@ -995,20 +1007,46 @@ class Case(_Model):
             self._set_derived("time", "rtol_choice", why, chosen=True)
         return self
 
+    def _choice_holds(self) -> bool:
+        """Whether accuracy.choice is the one capsim made for this target, method and max_level at this
+        case's mesh.level and time.rtol (its text, capsim.accuracy.choose and plan, names them)."""
+        a, rtol = self.accuracy, self.time.rtol
+        head = f"accuracy {a.quantity} {a.target:g}: "
+        if not a.choice.startswith(head) or rtol == "auto":
+            return False
+        rest = a.choice[len(head):]
+        if a.method == "predict":
+            return rest.startswith(f"level {self.mesh.level}, rtol {rtol:g};")
+        return (a.method == "measure" and self.mesh.level == 1 and rest.startswith("measured, ")
+                and f" up to {a.max_level} at rtol {rtol:g}, " in rest)
+
     def error_model_features(self) -> dict[str, Any]:
         """What selects the case's training cases in the error model (capsim.accuracy.nearest): rest
         shape and aspect ratio, law and its parameter, G, λ, bending (several capsules: the first
-        one's shape and membrane, the λ farthest from 1)."""
+        one's shape and membrane, the λ farthest from 1); and its scene, which the training cases
+        share (capsim.accuracy.TRAINED_SCENE: another is measured, never predicted): flow.kind, the
+        history as it acts before t_end, the wall, the number of capsules, and in Poiseuille flow
+        the first capsule's distance from the axis (capsim.accuracy.FIXED_BY_SYMMETRY)."""
         from capsim.bodies import body_specs  # numpy only
 
         first = body_specs(self)[0]
         membrane = first.membrane or self.membrane
         parameter = {"skalak": "skalak_c", "mooney_rivlin": "psi"}.get(membrane.law)
-        return {"shape": first.shape.kind, "aspect_ratio": float(first.shape.aspect_ratio), "law": membrane.law,
-                "law_parameter": float(getattr(membrane, parameter)) if parameter else 0.0,
-                "G": float(self.flow.shear_rate_G),
-                "viscosity_ratio": float(max(self.viscosity_ratios, key=lambda v: abs(math.log(v)))),
-                "bending": membrane.bending_modulus > 0}
+        history = self.flow.history
+        # a stop or a step at or after t_end never acts in the run: the steady scene
+        changes_at = None if history is None else (history.stop_time if history.kind == "stop" else
+                                                   history.step_time if history.kind == "step" else 0.0)
+        acting = history is not None and history.kind != "steady" and changes_at < self.time.t_end
+        features = {"shape": first.shape.kind, "aspect_ratio": float(first.shape.aspect_ratio), "law": membrane.law,
+                    "law_parameter": float(getattr(membrane, parameter)) if parameter else 0.0,
+                    "G": float(self.flow.shear_rate_G),
+                    "viscosity_ratio": float(max(self.viscosity_ratios, key=lambda v: abs(math.log(v)))),
+                    "bending": membrane.bending_modulus > 0,
+                    "flow": self.flow.kind, "history": history.kind if acting else "steady",
+                    "wall": self.wall is not None, "capsules": len(self.capsules) if self.capsules else 1}
+        if self.flow.kind == "poiseuille":  # the axis is x: the distance in y and z
+            features["axis_offset"] = float(math.hypot(self.center[1], self.center[2]))
+        return features
 
     @model_validator(mode="after")
     def _a_wall_this_case_can_take(self) -> Case:

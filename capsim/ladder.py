@@ -38,7 +38,8 @@ def run_measured(case: Case, run_one: Callable, progress=None, overwrite: bool =
     returns the kept run's :class:`capsim.runner.RunResult` with ``accuracy`` the verdict (one line)."""
     from capsim import accuracy as error_model
     from capsim.checkpoint import checkpoint_path
-    from capsim.store import move_run, read_run_record, write_accuracy
+    from capsim.store import move_run, write_accuracy
+    from capsim.study import run_final_values
 
     target = case.accuracy
     q = target.quantity
@@ -75,7 +76,7 @@ def run_measured(case: Case, run_one: Callable, progress=None, overwrite: bool =
             write_accuracy(out, {**_scalars(q, target, case, met, verdict, label), **record})
             return dataclasses.replace(kept, accuracy=verdict)
         record["level"].append(level)
-        record["values"].append(read_run_record(work)["last"][q])
+        record["values"].append(run_final_values(work)[q])  # several capsules: their mean
         record["evaluations"].append(int(result.velocity_evaluations or 0))
         record["wall_time_s"].append(float(result.wall_time_s or 0.0))
         estimate = error_model.measured_error(record["values"], relative, PERIODS.get(q))

@@ -99,7 +99,9 @@ def _window_mean(t: np.ndarray, s: np.ndarray, t0: float, t1: float) -> float:
 
 def final_values(ts: dict[str, np.ndarray], window: tuple[float, float] | None = None) -> dict[str, float]:
     """Each of QUANTITIES at the last row of a time series (θ unwrapped modulo π)
-    and, with `window` = (t0, t1), its time mean over the window as ``<q>_mean``."""
+    and, with `window` = (t0, t1), its time mean over the window as ``<q>_mean``. A run of
+    several capsules (columns (t, capsule)): the mean over the capsules, as the run's summary
+    gives beside each capsule's own (each capsule's θ unwrapped first)."""
     t = np.asarray(ts["t"], float)
     out: dict[str, float] = {}
     for q in QUANTITIES:
@@ -107,11 +109,23 @@ def final_values(ts: dict[str, np.ndarray], window: tuple[float, float] | None =
         if q == "theta":  # NaN where the shape has no long axis (kt = 0 of a sphere): skipped
             from capsim.observables import unwrap_defined
 
-            s = unwrap_defined(s)
+            s = unwrap_defined(s) if s.ndim == 1 else np.stack([unwrap_defined(c) for c in s.T], axis=1)
+        if s.ndim == 2:
+            s = s.mean(axis=1)
         out[q] = float(s[-1])
         if window is not None:
             out[f"{q}_mean"] = _window_mean(t, s, *window)
     return out
+
+
+def run_final_values(path: str | os.PathLike) -> dict[str, float]:
+    """:func:`final_values` of a run file's time series (its columns of QUANTITIES only): what the
+    accuracy ladder compares between levels, for one capsule or several (their mean)."""
+    import h5py
+
+    with h5py.File(path, "r", locking=False) as f:
+        ts = {k: f["timeseries"][k][()] for k in ("t", *QUANTITIES)}
+    return final_values(ts)
 
 
 def _failed_record(reason: str) -> dict[str, Any]:
