@@ -170,7 +170,9 @@ def run(
 
         kept = read_case(case.output.path) if measured else case  # the level the ladder kept
         typer.echo(_files_call(run_error_estimate, kept, summary, verify=verify and not measured))
-    raise typer.Exit(code=0 if summary.get("status") == "completed" else 1)
+    # a measured target's ladder (docs/data_safety.md, its exit codes): completed but NOT met is 3
+    completed = summary.get("status") == "completed"
+    raise typer.Exit(code=(3 if summary.get("accuracy_met") is False else 0) if completed else 1)
 
 
 @app.command()

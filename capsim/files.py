@@ -34,7 +34,8 @@ from capsim.errors import first_line
 __all__ = [
     "FileIdentity", "FileLock", "LockedError", "OutputError", "StorageError",
     "check_writable", "copy_and_replace", "free_bytes", "guard_output", "lock_path", "mb",
-    "replace_atomically", "room_bytes", "same_file", "tmp_name", "write_durably", "write_failure",
+    "ladder_work_path", "remove_stale_ladder_files", "replace_atomically", "room_bytes", "same_file", "tmp_name",
+    "write_durably", "write_failure",
 ]
 
 
@@ -75,6 +76,76 @@ def lock_path(path: str | os.PathLike) -> Path:
     """The lock of a file, ``.<name>.capsim-lock`` beside it; of a directory, ``<dir>/.capsim.lock``."""
     path = Path(path)
     return path / ".capsim.lock" if path.is_dir() else path.with_name(f".{path.name}{LOCK_SUFFIX}")
+
+
+#: a measured accuracy target's level file beside its output, ``.<run>.h5.ladder-<pid>.h5`` (capsim.ladder)
+LADDER_INFIX = ".ladder-"
+
+
+def ladder_work_path(out: str | os.PathLike) -> Path:
+    """Where this process's ladder runs its levels for output `out`: hidden, beside it (one file
+    system: a completed level is renamed over the output), named with this process's id."""
+    out = Path(out)
+    return out.with_name(f".{out.name}{LADDER_INFIX}{os.getpid()}.h5")
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether a process of this id exists on this host (one of another user's counts)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    except (OverflowError, ValueError, OSError):
+        return False
+    return True
+
+
+def remove_stale_ladder_files(out: str | os.PathLike) -> list[Path]:
+    """Remove what a ladder killed outright (``kill -9``, the out-of-memory killer) left beside
+    `out`: its level file, that file's checkpoint, lock and temporary copies, all named
+    ``.<run>.h5.ladder-<pid>…`` or ``..<run>.h5.ladder-<pid>…``. Only of a process that no longer
+    exists, only regular files, and only once that level file's own lock could be taken (a live
+    writer, even one this host cannot see, holds it). The caller holds `out`'s lock, which every
+    ladder on `out` holds from start to end: no live ladder on `out` can be writing these.
+    Returns the paths removed."""
+    out = Path(out)
+    prefix = f".{out.name}{LADDER_INFIX}"
+    try:
+        names = os.listdir(out.parent)
+    except OSError:
+        return []
+    by_pid: dict[int, list[Path]] = {}
+    for name in names:
+        rest = name[len(prefix):] if name.startswith(prefix) else name[len(prefix) + 1:] \
+            if name.startswith("." + prefix) else None
+        digits = rest.split(".", 1)[0] if rest else ""
+        if digits.isdigit() and len(digits) < 12:
+            by_pid.setdefault(int(digits), []).append(out.with_name(name))
+    removed: list[Path] = []
+    for pid, paths in sorted(by_pid.items()):
+        if pid == os.getpid() or pid_alive(pid):
+            continue
+        work = out.with_name(f"{prefix}{pid}.h5")
+        try:
+            lock = FileLock(work, what="ladder level file").acquire()
+        except (LockedError, StorageError):
+            continue  # held: a writer lives, wherever it runs
+        try:
+            for path in paths:
+                if path == lock.path:
+                    continue  # removed by the release, as the file this process locked
+                try:
+                    if stat.S_ISREG(os.lstat(path).st_mode):
+                        path.unlink()
+                        removed.append(path)
+                except OSError:
+                    pass
+        finally:
+            lock.release()
+        removed.extend(p for p in paths if p == lock.path and not os.path.lexists(p))
+    return removed
 
 
 # ---------------------------------------------------------------- room

@@ -415,6 +415,9 @@ _add("mesh_base", "base polyhedron of the mesh", "1",
 _add("time_scheme", "time-stepping scheme", "1",
      "flag: 0 rkf23 (Runge-Kutta-Fehlberg 2(3)), 1 rkc (Runge-Kutta-Chebyshev), 2 linearly_implicit "
      "(Rosenbrock-W) (flag_values, flag_meanings)")
+_add("accuracy_target_met", "whether the run's measured accuracy target was met", "1",
+     "1: the ladder's kept level meets the target (accuracy/met), 0: not met (max_level reached, or the ladder "
+     "stopped: interrupted, failed, a full disk; accuracy/verdict says which), NaN: no measured target")
 _add("steady_average", "whether the values are averages over a settled motion", "1",
      "flag: 1 when the run completed and its motion has settled (the run's `settled`; a run file written "
      "before issue 39 has none, and its class alone decides: steady, rolling, kayaking, oscillating or tumbling), "

@@ -144,6 +144,7 @@ class RunResult(Mapping):
     rtol: float | None = None
     rtol_choice: str | None = None  # time.rtol auto or the accuracy target: what it chose and why
     accuracy: str | None = None  # a measured accuracy target (capsim.ladder): the level kept, its error, met or not
+    accuracy_met: bool | None = None  # that target met (capsim.ladder; the CLI's exit code 3 when not)
     velocity_evaluations: int | None = None
     layer_applications: int | None = None
     linear_iterations: int | None = None
@@ -210,8 +211,9 @@ def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool 
     """
     if case.accuracy is not None and case.accuracy.method == "measure":
         if resume:
-            raise ResumeError("a measured accuracy target runs its ladder of levels again from level 1; run it "
-                              "without --resume (or resume the kept run's file itself: capsim run RUN.h5 --resume)")
+            raise ResumeError("a measured accuracy target's ladder is not resumed: run the case again (--overwrite) "
+                              "to measure from level 1; a ladder stopped during level 1 left that level's plain run "
+                              "at the output, which capsim run RUN.h5 --resume finishes (without the ladder)")
         from capsim.ladder import run_measured
 
         return run_measured(case, run_case, progress, overwrite=overwrite)

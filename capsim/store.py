@@ -30,6 +30,7 @@ Every dataset takes units, long_name and definition from the one table
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 from datetime import datetime, timezone
@@ -626,11 +627,12 @@ def write_error_estimate(path: str | os.PathLike, estimate: dict[str, Any]) -> N
     _write_group(path, "error_estimate", tuple(estimate), lambda group: _write_dict(group, estimate, "error_estimate"))
 
 
-def write_accuracy(path: str | os.PathLike, record: dict[str, Any]) -> None:
+def write_accuracy(path: str | os.PathLike, record: dict[str, Any], held: FileLock | None = None) -> None:
     """Store a measured accuracy target's ladder (:func:`capsim.ladder.run_measured`) as the kept
     run file's ``accuracy`` group, replacing any, as :func:`write_error_estimate` does: the
     per-level lists (values, error estimates, orders, costs) over the coordinate ``level``, the
-    rest (target, rtol, verdict) as scalars."""
+    rest (target, rtol, verdict) as scalars. `held`: the caller's lock of `path` (the ladder holds
+    its output's from start to end), else taken here."""
     per_level = {k: v for k, v in record.items() if isinstance(v, (list, tuple)) and k != "level"}
 
     def fill(group: h5py.Group) -> None:
@@ -642,31 +644,45 @@ def write_accuracy(path: str | os.PathLike, record: dict[str, Any]) -> None:
             _label(ds := group.create_dataset(key, data=np.asarray(values)), key, "accuracy")
             _attach(ds, level)
 
-    _write_group(path, "accuracy", tuple(record), fill)
+    _write_group(path, "accuracy", tuple(record), fill, held)
 
 
 def move_run(source: str | os.PathLike, target: str | os.PathLike, config_yaml: str, overwrite: bool = True,
-             requested_case_yaml: str | None = None) -> None:
+             requested_case_yaml: str | None = None, held: FileLock | None = None) -> None:
     """Move a completed run file to `target` (same file system), its stored case rewritten to
     `config_yaml` (the case with its new output.path, so that ``capsim run TARGET --resume``
     reads the path it is at); an existing target is replaced only with `overwrite`
     (:class:`capsim.files.OutputError` otherwise). The ladder of a measured accuracy target keeps
     each completed level this way (capsim.ladder), with the case that asked for it as the root
     attribute ``requested_case_yaml``: the run is that request's result (a campaign's run of
-    that case finds it its own, :func:`read_run_identity`)."""
+    that case finds it its own, :func:`read_run_identity`). `held`: the caller's lock of `target`
+    (the ladder holds it across its levels), else taken here. A checkpoint beside `source` (an
+    interrupted run's) moves with it, beside `target`, so that ``--resume`` finds it there."""
     from capsim.files import OutputError
 
-    with FileLock(target):
+    with _holding(target, held):
         if not overwrite and os.path.exists(target):
             raise OutputError(f"{target} exists; use --overwrite to replace it")
         with h5py.File(source, "a") as f:
             f.attrs["config_yaml"] = config_yaml
             if requested_case_yaml is not None:
                 f.attrs[REQUESTED_CASE] = requested_case_yaml
+        checkpoint_path(target).unlink(missing_ok=True)  # an older run's: not of the file that comes
         os.replace(source, target)
+        if checkpoint_path(source).exists():
+            os.replace(checkpoint_path(source), checkpoint_path(target))
 
 
-def _write_group(path: str | os.PathLike, name: str, keys: tuple[str, ...], fill) -> None:
+def _holding(path: str | os.PathLike, held: FileLock | None):
+    """`path`'s lock: the caller's `held` one (checked to be of `path`), else a new one taken here."""
+    if held is None:
+        return FileLock(path)
+    if held.path != lock_path(path):
+        raise ValueError(f"the lock held is of {held.target}, not of {path}")
+    return contextlib.nullcontext(held)
+
+
+def _write_group(path: str | os.PathLike, name: str, keys: tuple[str, ...], fill, held: FileLock | None = None) -> None:
     """Group `name` (replacing any) filled by ``fill(group)``, written into a copy renamed over the run file."""
     def change(copy: Path) -> None:
         with h5py.File(copy, "a") as f:
@@ -676,7 +692,7 @@ def _write_group(path: str | os.PathLike, name: str, keys: tuple[str, ...], fill
             _describe(group, name)
             fill(group)
 
-    with FileLock(path):
+    with _holding(path, held):
         copy_and_replace(path, change, headroom=_needed_bytes(0, keys))
 
 
@@ -943,8 +959,8 @@ def read_run_digest(path: str | os.PathLike) -> str | None:
 
 def read_run_record(path: str | os.PathLike) -> dict[str, Any] | None:
     """The scalars of a run file, without its arrays: ``{"attrs", "summary", "run",
-    "error_estimate", "first", "last", "n_steps"}`` (root attributes, the scalar datasets of the
-    ``summary``, ``run`` and ``error_estimate`` groups, the first and last rows of the time series and
+    "error_estimate", "accuracy", "first", "last", "n_steps"}`` (root attributes, the scalar datasets
+    of the ``summary``, ``run``, ``error_estimate`` and ``accuracy`` groups, the first and last rows of the time series and
     their number). None when there is no readable file. Cheap on a large file,
     and safe on one a running or killed writer holds (no lock)."""
     try:
@@ -952,6 +968,7 @@ def read_run_record(path: str | os.PathLike) -> dict[str, Any] | None:
             attrs = {k: _scalar(v) for k, v in f.attrs.items()}
             summary, run = _scalars(f, "summary"), _scalars(f, "run")
             estimate = _scalars(f, "error_estimate")
+            accuracy = _scalars(f, "accuracy")  # a measured accuracy target's verdict (capsim.ladder)
             # the scene's columns (a scene of several capsules has (t, capsule) ones too: not scalars)
             ts = {k: ds for k, ds in f["timeseries"].items() if ds.ndim == 1 and k != CAPSULE_DIM} \
                 if "timeseries" in f else {}
@@ -960,8 +977,8 @@ def read_run_record(path: str | os.PathLike) -> dict[str, Any] | None:
             last = {k: float(ds[n - 1]) for k, ds in ts.items()} if n else {}
     except (OSError, ValueError, KeyError):
         return None
-    return {"attrs": attrs, "summary": summary, "run": run, "error_estimate": estimate, "first": first, "last": last,
-            "n_steps": n}
+    return {"attrs": attrs, "summary": summary, "run": run, "error_estimate": estimate, "accuracy": accuracy,
+            "first": first, "last": last, "n_steps": n}
 
 
 #: HDF5 bookkeeping attributes of dimension scales, not metadata a reader wants

@@ -54,7 +54,9 @@ _FLOATS = ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star",
            "dissipation_ratio", "dissipation_ratio_std",
            # several capsules (issue 43): the closest approach and a pair's relative trajectory (_SCENE_FLOATS)
            "min_capsule_gap", "separation_y_initial", "separation_y_peak", "separation_y_final", "separation_x_final",
-           "D_xy_error_estimate", "theta_error_estimate", "ttf_ratio_error_estimate", "Sxy_star_error_estimate")
+           "D_xy_error_estimate", "theta_error_estimate", "ttf_ratio_error_estimate", "Sxy_star_error_estimate",
+           # a measured accuracy target (capsim.ladder): met 1, not met 0, none NaN
+           "accuracy_target_met")
 _STRINGS = ("status", "status_reason", "motion")
 #: the numbers only a scene of several capsules has: left out of a campaign none of whose runs has them
 _SCENE_FLOATS = frozenset({"min_capsule_gap", "separation_y_initial", "separation_y_peak", "separation_y_final",
@@ -112,6 +114,8 @@ def read_run(path: str | os.PathLike) -> dict[str, Any] | None:
         else:
             value = summary.get(name, run.get(name, last.get(name, np.nan)))
         record[name] = float(value) if isinstance(value, (int, float)) else np.nan
+    met = found.get("accuracy", {}).get("met")
+    record["accuracy_target_met"] = float(bool(met)) if met is not None else np.nan
     if np.isnan(record["volume_drift"]) and "volume" in last:
         record["volume_drift"] = last["volume"] / found["first"]["volume"] - 1.0
     # [μ] = (5/2) S*_xy: μ_eff = μ (1 + φ [μ]) for a dilute suspension of volume fraction φ
