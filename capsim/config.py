@@ -96,6 +96,14 @@ VALIDATED_RANGES = {
     "membrane.viscosity.shear": (0.0, 30.0),
     "membrane.viscosity.dilatational": (0.0, 30.0),
 }
+#: the farthest a capsule may start from the origin in any coordinate, in units of a: positions are
+#: doubles and every shape value is measured about the capsule's own centroid (a linear flow's
+#: uniform part carried exactly: capsim.solver.Model.carried_velocity), so round-off is |x| 1e-16,
+#: 1e-10 a here; a capsule 1e6 a out gives the origin's D_xy to 1e-6
+MAX_COORDINATE = 1e6
+#: with a wall, the farthest a capsule may start from it (wall.distance's bound): the shear of the
+#: wall's flow is not translation-invariant across it, so nothing is carried
+WALL_REACH = 1e3
 #: the G a `physical:` block may give: outside it the values are refused as a slip of units
 #: (a radius of 2.8 m for 2.8 um gives G = 4e4; a capsule at G > 100 is torn apart at once and
 #: one below 1e-6 is a rigid particle whose explicit time step is ~G times the flow's)
@@ -129,6 +137,10 @@ def _strict_scalar(v: Any, annotation: Any) -> Any:
             annotation, "one of " + ", ".join(map(str, choices)) if choices else "a value of the field's kind"
         )
         raise ValueError(f"must be {kind}, not {str(v).lower()} (YAML reads yes/no/on/off as booleans)")
+    if isinstance(v, (list, tuple)) and _holds_bool(v):
+        # a list of numbers (a history table, a centre, a gradient): pydantic's lax float takes a
+        # boolean inside it as 1.0 or 0.0, and a table of true/false ran as a rate of 1 and 0
+        raise ValueError("must hold numbers, not true/false (YAML reads yes/no/on/off as booleans)")
     if annotation is float and isinstance(v, str):
         # PyYAML (YAML 1.1) reads `1e-4` (no dot) as the string "1e-4": a string that
         # is a plain decimal number is taken; 'nan', 'inf', '0x10', '1_0' are not.
@@ -142,6 +154,11 @@ def _strict_scalar(v: Any, annotation: Any) -> Any:
             raise ValueError("must be a number")
         return number
     return v
+
+
+def _holds_bool(v: Any) -> bool:
+    """Whether a (nested) list of scalars holds a boolean (mappings in it are their own sections)."""
+    return any(isinstance(item, bool) or (isinstance(item, (list, tuple)) and _holds_bool(item)) for item in v)
 
 
 class _Model(BaseModel):
@@ -666,6 +683,20 @@ class _TimeCommon(_Model):
                                         f"applies only to scheme: {scheme}, not to scheme: {self.scheme}; remove it")
         return self
 
+    @field_validator("rtol", mode="before")
+    @classmethod
+    def _rtol_auto_or_number(cls, v):
+        # AUTO, Auto: the word auto in any case (a number stays a number); anything else one line,
+        # not pydantic's two (one per member of the union)
+        if isinstance(v, str) and v.strip().lower() == "auto":
+            return "auto"
+        if isinstance(v, str):
+            try:
+                return _strict_scalar(v, float)
+            except ValueError:
+                raise ValueError("must be a number in [1e-10, 1) or auto") from None
+        return v
+
     @field_validator("rtol")
     @classmethod
     def _rtol_above_round_off(cls, v):
@@ -1048,6 +1079,63 @@ class Case(_Model):
             features["axis_offset"] = float(math.hypot(self.center[1], self.center[2]))
         return features
 
+    def _placed(self) -> list[tuple[str, tuple[float, float, float]]]:
+        """(field, centre) of every capsule the case places (none: one at the origin)."""
+        if self.capsules:
+            return [(f"capsules[{i}].center", tuple(c.center)) for i, c in enumerate(self.capsules)]
+        return [("initial_center", tuple(self.initial_center))] if self.initial_center is not None else []
+
+    @model_validator(mode="after")
+    def _a_scene_capsim_can_place(self) -> Case:
+        """Where capsules may start, and what a scene of them may hold: near the origin (round-off),
+        inside a Poiseuille flow's radius, within the wall's reach; no inflation of a drop; each
+        capsule's own G (flow.shear_rate_G / modulus_ratio) and λ plausible (validate refuses
+        what run would)."""
+        for field, center in self._placed():
+            if not max(abs(v) for v in center) <= MAX_COORDINATE:
+                raise _FieldProblem(field, list(center), f"must lie within {MAX_COORDINATE:g} a of the origin in "
+                                    "every coordinate: positions are doubles, whose round-off (1e-16 |x|) beyond "
+                                    "that exceeds 1e-10 a; place the scene near the origin")
+            if self.wall is not None and abs(center[1] - self.wall_y) > WALL_REACH:
+                raise _FieldProblem(field, list(center), f"lies {abs(center[1] - self.wall_y):.4g} a from the wall: "
+                                    f"at most {WALL_REACH:g} (wall.distance's bound), where the shear of the wall's "
+                                    "flow carries a capsule at that speed")
+            if self.flow.kind == "poiseuille":
+                R, r = self.flow.poiseuille_radius, math.hypot(center[1], center[2])
+                if not r < R:
+                    raise _FieldProblem(field, list(center), f"lies {r:.4g} a from the axis, outside "
+                                        f"flow.poiseuille_radius R = {R:g} (where the flow vanishes; beyond it runs "
+                                        "backwards): place the capsule inside R")
+                if r + 1.0 > R:
+                    _case_warning(f"{field} = {list(center)}: the capsule (radius ~1 a) reaches beyond "
+                                  f"flow.poiseuille_radius R = {R:g} ({r:.4g} a from the axis), where the unbounded "
+                                  "Poiseuille flow runs backwards: the run goes ahead in that flow, which is no tube's")
+        if self.membrane.law == "surface_tension":  # a drop: no membrane whose rest shape could be shrunk
+            shapes = [("shape", self.shape)] + [(f"capsules[{i}].shape", c.shape)
+                                                for i, c in enumerate(self.capsules or ()) if c.shape is not None]
+            for field, shape in shapes:
+                if shape.inflation:
+                    raise _FieldProblem(f"{field}.inflation", shape.inflation,
+                                        "pre-inflates a membrane, and membrane.law surface_tension (a drop) has "
+                                        "none; remove it")
+        G, (glo, ghi), (llo, lhi) = (self.flow.shear_rate_G, VALIDATED_RANGES["flow.shear_rate_G"],
+                                     VALIDATED_RANGES["flow.viscosity_ratio"])
+        for i, capsule in enumerate(self.capsules or ()):
+            own = G / capsule.modulus_ratio
+            if not own <= PHYSICAL_G_RANGE[1]:
+                raise _FieldProblem(f"capsules[{i}].modulus_ratio", capsule.modulus_ratio,
+                                    f"gives the capsule its own G = flow.shear_rate_G / modulus_ratio = {own:.3g}, "
+                                    f"above {PHYSICAL_G_RANGE[1]:g}: a membrane that soft is torn apart at once")
+            if not glo <= own <= ghi:
+                _case_warning(f"capsules[{i}].modulus_ratio = {capsule.modulus_ratio:g} gives the capsule its own G "
+                              f"= {own:.3g}, outside [{glo:g}, {ghi:g}], the range capsim is validated in "
+                              "(docs/validation.md): the run goes ahead, its accuracy is untested")
+            lam = capsule.viscosity_ratio
+            if lam is not None and not llo <= lam <= lhi:
+                _case_warning(f"capsules[{i}].viscosity_ratio = {lam:g} is outside [{llo:g}, {lhi:g}], the range "
+                              "capsim is validated in (docs/validation.md): the run goes ahead, its accuracy is untested")
+        return self
+
     @model_validator(mode="after")
     def _a_wall_this_case_can_take(self) -> Case:
         if self.wall is None:
@@ -1338,9 +1426,10 @@ class Case(_Model):
                 scene = f"flow.kind {self.flow.kind}" + (" above a wall" if self.wall is not None else "")
                 raise _FieldProblem("mesh.symmetry", self.mesh.symmetry,
                                     f"{scene} does not keep it ({group}); use auto or none")
-            if self.initial_center is not None and any(self.initial_center):
+            if any(self.center):  # initial_center, or the one capsule of a capsules list
+                where = "capsules[0].center" if self.capsules else "initial_center"
                 raise _FieldProblem("mesh.symmetry", self.mesh.symmetry,
-                                    "a capsule placed away from the origin (initial_center) does not keep it; "
+                                    f"a capsule placed away from the origin ({where}) does not keep it; "
                                     "use auto (it finds the symmetries left) or none")
         return self
 
@@ -1824,12 +1913,22 @@ def section_model(annotation: Any) -> type[BaseModel] | None:
     return ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
 
 
+def _item_model(annotation: Any) -> type[BaseModel] | None:
+    """The model of a list-of-sections field's items (Optional[list[Capsule]]: Capsule)."""
+    for a in get_args(annotation):
+        if get_origin(a) is list:
+            return section_model(get_args(a)[0])
+    return None
+
+
 def _model_at(loc: tuple, root: type[BaseModel] | None = None) -> type[BaseModel] | None:
     """The model class that owns the field at `loc` (loc of its parent), from `root` (a Case)."""
     model: type[BaseModel] | None = Case if root is None else root
     for part in loc:
+        if isinstance(part, int):  # an item of a list of sections (capsules): the list's item model
+            continue
         field = model.model_fields.get(part) if isinstance(part, str) else None
-        model = section_model(field.annotation) if field is not None else None
+        model = (section_model(field.annotation) or _item_model(field.annotation)) if field is not None else None
         if model is None:
             return None
     return model

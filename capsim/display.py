@@ -484,10 +484,25 @@ def summary_rows(summary: dict[str, Any], factors: Mapping[str, float] | None = 
         ("layer matrices", fmt(summary.get("layer_matrices"), "d") if summary.get("layer_matrices") else None),
         ("wall time (s)", fmt(summary.get("wall_time_s"), ".1f")),
         ("volume drift", fmt(summary.get("volume_drift"), ".3e")),
+        ("centroid travelled (a)", _travel(summary)),
         ("compressed vertices", _compression(summary, factors)),
         ("output", summary.get("path")),
     ]
     return [(key, str(value)) for key, value in rows if value is not None]
+
+
+#: the closing table names the centroid's travel beyond this many a: a capsule carried far (the
+#: outflow of an extension, a far-off start in shear) is measured about its own centroid, and the
+#: reader of a D_xy should know it was not where it started
+FAR_TRAVEL = 10.0
+
+
+def _travel(summary: dict[str, Any]) -> str | None:
+    """The centroid's travel, where it went beyond FAR_TRAVEL a (an extension's outflow)."""
+    d = summary.get("centroid_travel")
+    if not isinstance(d, float) or not d > FAR_TRAVEL:
+        return None
+    return f"{d:.4g} (carried far from its start; the shape's values are measured about its centroid)"
 
 
 def _scene_rows(summary: dict[str, Any]) -> list[tuple[str, str | None]]:

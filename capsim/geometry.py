@@ -78,16 +78,29 @@ def _rule_tables(n_points: int):
     return phi, dxi, deta, w
 
 
+def reference_point(geo: ElementGeometry) -> np.ndarray:
+    """The surface's mean point rounded to whole units of a: what the integrals below measure
+    from. ⅓ ∫ x·n dS and ½ ∫ |x|² n dS are the same about any point (∫ n dS = 0 on a closed
+    surface), but about the origin their terms grow with the distance while their sums do
+    not: at 1e6 a the centroid from |x|² ~ 1e12 lost every digit, and D_xy read 0.57 ± 0.39
+    where the shape had 0.26. A whole number keeps x − p exact and a capsule at the origin
+    measured as before, to the bit."""
+    return np.round(geo.points.reshape(-1, 3).mean(axis=0))
+
+
 def volume_area(geo: ElementGeometry) -> tuple[float, float]:
-    """V = ⅓ ∫ x·n dS and S = ∫ dS."""
-    volume = np.einsum("eqd,eqd,eq->", geo.points, geo.normals, geo.weights) / 3.0
+    """V = ⅓ ∫ (x − p)·n dS (p: ``reference_point``) and S = ∫ dS."""
+    y = geo.points - reference_point(geo)
+    volume = np.einsum("eqd,eqd,eq->", y, geo.normals, geo.weights) / 3.0
     return float(volume), float(geo.weights.sum())
 
 
 def centroid(geo: ElementGeometry, volume: float) -> np.ndarray:
-    """Volume centroid, ∫_V x dV = ½ ∫_S |x|² n dS."""
-    r2 = np.einsum("eqd,eqd->eq", geo.points, geo.points)
-    return 0.5 * np.einsum("eq,eqd,eq->d", r2, geo.normals, geo.weights) / volume
+    """Volume centroid, p + ∫_V (x − p) dV / V = p + ½ ∫_S |x − p|² n dS / V."""
+    p = reference_point(geo)
+    y = geo.points - p
+    r2 = np.einsum("eqd,eqd->eq", y, y)
+    return p + 0.5 * np.einsum("eq,eqd,eq->d", r2, geo.normals, geo.weights) / volume
 
 
 def second_moment(geo: ElementGeometry, center: np.ndarray) -> np.ndarray:

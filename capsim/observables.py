@@ -234,10 +234,12 @@ def centroid_velocity(geo: ElementGeometry, u: np.ndarray, elements: np.ndarray,
     """dc/dt of the volume centroid c = ∫_V x dV / V by Reynolds' transport theorem on the membrane's
     velocity: d/dt ∫_V x dV = ∮ x (u·n) dS, so dc/dt = (∮ x (u·n) dS − c ∮ u·n dS)/V, u interpolated
     to the regular points with the elements' shape functions ``phi`` (Q, 6)."""
-    uq = np.einsum("qk,ekc->eqc", phi, u[elements])
+    # about the centre and less the mean velocity U (∮ (x − c) (U·n) dS = V U): far from the
+    # origin x and U are large and their round-off swamped the slip (capsim.geometry.reference_point)
+    U = u.mean(axis=0)
+    uq = np.einsum("qk,ekc->eqc", phi, u[elements] - U)
     flux = np.einsum("eqc,eqc->eq", uq, geo.normals) * geo.weights
-    moment = np.einsum("eq,eqc->c", flux, geo.points)
-    v = (moment - center * flux.sum()) / volume
+    v = U + np.einsum("eq,eqc->c", flux, geo.points - center) / volume
     return {"centroid_velocity_x": float(v[0]), "centroid_velocity_y": float(v[1]), "centroid_velocity_z": float(v[2])}
 
 
@@ -275,7 +277,8 @@ def particle_stresslet(
     elastic = (df * weights[..., None]).reshape(-1, 3).T @ x.reshape(-1, 3)
     S = 0.5 * (elastic + elastic.T) / shear_rate_G
     if viscosity_ratio != 1.0:
-        u = interpolate(phi, velocity[elements])
+        # less the mean velocity (∫ n dS = 0): a capsule carried fast has no round-off of it here
+        u = interpolate(phi, velocity[elements] - velocity.mean(axis=0))
         un = (u * geo.weights[..., None]).reshape(-1, 3).T @ geo.normals.reshape(-1, 3)
         S -= (1.0 - viscosity_ratio) * (un + un.T)
     return S / (2.5 * volume)
@@ -1098,6 +1101,16 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
         if not motion.get("turning"):
             out["orbit_period"] = float("nan")  # passages of a swinging or still axis are no orbit
     return out
+
+
+def centroid_travel(first: dict | None, last: dict | None) -> float:
+    """How far the centroid went from the first row to the last, in units of a (several
+    capsules: the farthest); NaN without both rows."""
+    if not first or not last or any(f"centroid_{c}" not in row for row in (first, last) for c in "xyz"):
+        return float("nan")
+    d = np.stack([np.asarray(last[f"centroid_{c}"], float) - np.asarray(first[f"centroid_{c}"], float)
+                  for c in "xyz"], axis=-1)
+    return float(np.max(np.linalg.norm(np.atleast_2d(d), axis=-1)))
 
 
 def scene_summary(observer) -> dict:

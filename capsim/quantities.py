@@ -127,6 +127,9 @@ _add("dissipation_ratio", "extra dissipation over a rigid sphere's", "1",
      "the particle's extra viscous dissipation S:E (Batchelor 1970; E the undisturbed flow's rate of strain at "
      "the centroid) over a rigid sphere's 5μV E:E, i.e. S*:E/(2 E:E): 1 for a rigid sphere in any linear flow, "
      "S*_xy in simple shear; NaN where E vanishes (the axis of Poiseuille flow); in a summary: its window mean")
+_add("centroid_travel", "distance the centroid travelled", "1",
+     "distance from the volume centroid at the run's first row to its last, in units of a (several capsules: "
+     "the largest); every shape value is measured about the centroid, wherever it went", "a")
 _add("wall_gap", "gap between membrane and wall", "1",
      "smallest distance of a membrane node from the wall (runs with a wall only), in units of a", "a")
 # several capsules (capsules:, issue 43): the scene's columns beside every capsule's own

@@ -27,7 +27,7 @@ from capsim.flows import FLOWS
 from capsim.membrane import law_attributes
 from capsim.mesh import SurfaceMesh, rest_shape_attributes
 from capsim.bodies import body_axis, body_specs
-from capsim.observables import StepObserver, relaxation_summary, run_summary, scene_summary
+from capsim.observables import StepObserver, centroid_travel, relaxation_summary, run_summary, scene_summary
 from capsim.schedules import CheckpointSchedule, SnapshotSchedule
 from capsim.solver import build_model
 from capsim.threads import set_run_threads
@@ -526,6 +526,7 @@ class _Run:
             motion = scene_summary(self.observer)
         else:
             motion = run_summary(series, aspect_ratio=self.observer.aspect_ratio)
+        motion["centroid_travel"] = centroid_travel(self.observer.first, self.observer.last)
         if self.model.flow_stopped and self.model.flow_step_factor == 0.0:  # stopped: it relaxes at rest
             motion.update(relaxation_summary(series, self.model.flow_stop_time))
         if status == "unstable":

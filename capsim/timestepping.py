@@ -568,7 +568,9 @@ class RungeKuttaChebyshev(Integrator):
         the last vector; each iteration costs one velocity evaluation."""
         y, u0 = self.y, self.u
         self.stage_t = self.t  # u0 is the velocity at this time
-        delta = self.probe_scale * max(1.0, float(np.linalg.norm(y)))
+        # the probe's size from the shape about its (whole-unit) mean, not the origin: 1e6 a away
+        # |y| made the "small" perturbation 1.5 a, a nonlinear probe (the origin's to the bit)
+        delta = self.probe_scale * max(1.0, float(np.linalg.norm(y - np.round(y.mean(axis=0)))))
         v = self.rho_vector if self.rho_vector is not None else u0
         norm = float(np.linalg.norm(v))
         if not norm > 0.0:
