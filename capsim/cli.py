@@ -164,15 +164,21 @@ def run(
     measured = summary.get("accuracy")  # a measured target's ladder: its verdict is the verification
     if measured:
         typer.echo(measured)
+    verified = None
     if (error_estimate or (verify and not measured)) and summary.get("status") == "completed":
         from capsim.store import read_case
-        from capsim.study import run_error_estimate
+        from capsim.study import run_error_estimate, run_verification
 
         kept = read_case(case.output.path) if measured else case  # the level the ladder kept
-        typer.echo(_files_call(run_error_estimate, kept, summary, verify=verify and not measured))
-    # a measured target's ladder (docs/data_safety.md, its exit codes): completed but NOT met is 3
+        if verify and not measured:
+            text, verified = _files_call(run_verification, kept, summary)
+        else:
+            text = _files_call(run_error_estimate, kept, summary)
+        typer.echo(text)
+    # a measured target's ladder (docs/data_safety.md, its exit codes), or --verify: completed but NOT met is 3
     completed = summary.get("status") == "completed"
-    raise typer.Exit(code=(3 if summary.get("accuracy_met") is False else 0) if completed else 1)
+    not_met = summary.get("accuracy_met") is False or verified is False
+    raise typer.Exit(code=(3 if not_met else 0) if completed else 1)
 
 
 @app.command()

@@ -56,6 +56,7 @@ __all__ = [
     "format_study_table",
     "plot_pareto",
     "run_error_estimate",
+    "run_verification",
     "run_study",
     "write_error_estimate",
     "write_study",
@@ -658,18 +659,31 @@ def run_error_estimate(case: Case, summary: dict[str, Any], workers: int = 2, ve
     return text + "\n" + verification(case, estimate) if verify else text
 
 
+def run_verification(case: Case, summary: dict[str, Any], workers: int = 2) -> tuple[str, bool | None]:
+    """`capsim run --verify`: :func:`run_error_estimate`'s lines with the verdict, and whether the
+    target was met (None: unchecked); a target NOT met exits 3, as a ladder's does."""
+    estimate = error_estimate(case, summary, workers=workers)
+    write_error_estimate(case.output.path, estimate)
+    line, met = _verified(case, estimate)
+    return format_error_estimate(summary, estimate) + "\n" + line, met
+
+
 def verification(case: Case, estimate: dict[str, Any]) -> str:
     """Whether the run met its accuracy target: the error estimate of the target's quantity at
     t_end (relative for D_xy and S*_xy, rad for θ) against the target and the prediction."""
+    return _verified(case, estimate)[0]
+
+
+def _verified(case: Case, estimate: dict[str, Any]) -> tuple[str, bool | None]:
     target = case.accuracy
     if target is None:
-        return "verify: the case has no accuracy target (give accuracy: {quantity, target} or --accuracy)"
+        return "verify: the case has no accuracy target (give accuracy: {quantity, target} or --accuracy)", None
     from capsim import accuracy as error_model
 
     q = target.quantity
     value, d_mesh, d_time = (estimate.get(f"{q}{k}") for k in ("_value", "_mesh", "_time"))
     if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in (value, d_mesh, d_time)):
-        return f"verify: no error estimate of {q} (level 0 has no coarser mesh): the target is unchecked"
+        return f"verify: no error estimate of {q} (level 0 has no coarser mesh): the target is unchecked", None
     # the run's own error by Richardson: the coarser level's difference over 2^p − 1 (p the order
     # of the error model's entry), the 10× looser tolerance's over 9 (time error ∝ rtol)
     entry, _ = error_model.entry(case.error_model_features())
@@ -678,7 +692,8 @@ def verification(case: Case, estimate: dict[str, Any]) -> str:
     achieved = error if q == "theta" else error / max(abs(float(value)), 1e-300)
     met = achieved <= target.target
     return (f"verify: {q} error {achieved:.2g} (Richardson from the reruns, order {order:.2g}) "
-            f"{'<=' if met else '>'} target {target.target:g}: target {'met' if met else 'NOT met'} ({target.choice})")
+            f"{'<=' if met else '>'} target {target.target:g}: target {'met' if met else 'NOT met'} ({target.choice})",
+            met)
 
 
 PathLike = str | os.PathLike

@@ -154,3 +154,23 @@ def test_a_measured_target_on_a_pair_runs_and_a_study_of_a_pair_has_values(tmp_p
                levels=(0, 1), rtols=(1e-3,), output=tmp_path / "study.nc")
     assert list(ds["status"].values.ravel()) == ["completed", "completed"]
     assert all(math.isfinite(v) and v > 0 for v in ds["D_xy"].values.ravel())
+
+
+def test_verify_that_finds_the_target_not_met_exits_3(tmp_path, monkeypatch):
+    """Before: --verify printed 'target NOT met' and exited 0 (finding 5's runs). The reruns are
+    replaced by an estimate whose mesh difference is half the value (level 1, kt 0.5 runs)."""
+    import capsim.study as study_module
+
+    def estimate(case, summary, workers=2):
+        return {"coarse_level": 0, "loose_rtol": 0.02, "wall_time_s": 0.0,
+                "D_xy_value": 0.1, "D_xy_mesh": 0.05, "D_xy_time": 0.0, "D_xy": 0.05}
+
+    monkeypatch.setattr(study_module, "error_estimate", estimate)
+    case = tmp_path / "c.yaml"
+    case.write_text(f"name: c\ntime: {{t_end: 0.5}}\noutput: {{path: {tmp_path / 'c.h5'}}}\n")
+    result = CliRunner().invoke(app, ["run", str(case), "--accuracy", "D_xy=0.05", "--verify", "-q"])
+    assert "target NOT met" in result.stdout and result.exit_code == 3, (result.exit_code, result.output)
+    monkeypatch.setattr(study_module, "error_estimate",
+                        lambda *a, **k: {**estimate(*a, **k), "D_xy_mesh": 1e-4, "D_xy": 1e-4})
+    result = CliRunner().invoke(app, ["run", str(case), "--accuracy", "D_xy=0.05", "--verify", "-q", "--overwrite"])
+    assert "target met" in result.stdout and result.exit_code == 0, (result.exit_code, result.output)
