@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 from pathlib import Path
 from typing import Any, Callable
 
@@ -66,13 +65,13 @@ def run_measured(case: Case, run_one: Callable, progress=None, overwrite: bool =
         remove_stale_ladder_files(out)
         work = ladder_work_path(out)  # beside it: one file system, one rename
         try:
-            return _climb(case, run_one, progress, overwrite, out, work, lock, stop, RunResult)
+            return _climb(case, run_one, progress, out, work, lock, stop, RunResult)
         finally:  # whatever way it ends (a second Ctrl-C, a refusal, an error): nothing hidden stays
             for leftover in (work, checkpoint_path(work)):
                 leftover.unlink(missing_ok=True)
 
 
-def _climb(case: Case, run_one: Callable, progress, overwrite: bool, out: Path, work: Path, lock, stop, RunResult):
+def _climb(case: Case, run_one: Callable, progress, out: Path, work: Path, lock, stop, RunResult):
     from capsim import accuracy as error_model
     from capsim.files import StorageError
     from capsim.store import write_accuracy
