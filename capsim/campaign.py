@@ -120,6 +120,11 @@ class Campaign(_Model):
         both = sorted(set(self.sweep) & set(self.zip))
         if both:
             raise ValueError(f"{', '.join(both)} cannot be in both sweep and zip")
+        named: dict[str, str] = {}
+        for key in [*self.sweep, *self.zip]:  # flow.G and flow.shear_rate_G are one field
+            other = named.setdefault(canonical_field(key), key)
+            if other != key:
+                raise ValueError(f"{other} and {key} name one field ({canonical_field(key)}); vary it once")
         output = self.base.get("output")
         if "name" in self.base or (isinstance(output, dict) and "path" in output):
             raise ValueError("base: name and output.path are set per run by the campaign; remove them")
@@ -182,8 +187,10 @@ def load_campaign_with(path: str | os.PathLike, sets: list[str] | None = None, *
         data = dict(data)
         base = json.loads(json.dumps(data.get("base") or {}, default=str)) if isinstance(
             data.get("base") or {}, dict) else data.get("base")
+        varied = {canonical_field(k) for k in [*(data.get("sweep") or {}), *(data.get("zip") or {})]
+                  if isinstance(k, str)}
         for key, value in dotted.items():
-            if key in (data.get("sweep") or {}) or key in (data.get("zip") or {}):
+            if canonical_field(key) in varied:
                 raise ConfigError(f"--set {key}: the campaign sweeps this field; change its sweep instead")
             node = base
             parts = key.split(".")
@@ -276,11 +283,26 @@ def _show_value(value: Any, position: int = 0) -> str:
     return re.sub(r"[^A-Za-z0-9._-]", "_", text)
 
 
+def canonical_field(key: str) -> str:
+    """A dotted case field by its full name (``flow.G`` is ``flow.shear_rate_G``)."""
+    from capsim.config import _ALIASES
+
+    return _ALIASES.get(key, key)
+
+
 def _set_dotted(data: dict, key: str, value: Any) -> None:
+    """Set a dotted field, under its full name; a short name of the same field that the base
+    writes (a sweep of flow.G over a base with flow.shear_rate_G, or the reverse) gives way."""
+    from capsim.config import _ALIASES
+
+    full = canonical_field(key)
     node = data
-    *sections, leaf = key.split(".")
+    *sections, leaf = full.split(".")
     for part in sections:
         node = node.setdefault(part, {})
+    for other in (name for name, target in _ALIASES.items() if target == full):
+        if isinstance(node, dict):
+            node.pop(other.rsplit(".", 1)[-1], None)
     node[leaf] = value
 
 
@@ -415,29 +437,81 @@ def _file_status(spec: RunSpec) -> str | None:
         return None
     if digest == spec.digest():
         return status
-    return EXTENDABLE if status == "completed" and _extends(spec) else FOREIGN
+    held = _held_t_end(spec)
+    if held is None:
+        return FOREIGN
+    t_end, measured = held
+    ours = spec.case().time.t_end
+    if t_end > ours:
+        return SHORTENED
+    if measured:
+        return MEASURED
+    if status != "completed":  # an unfinished run of this case: resumed or redone, to the new t_end
+        return status
+    return EXTENDABLE if _has_end_state(spec) else FOREIGN
 
 
 #: a completed run file of this run's case to an earlier t_end, with the end state that
 #: ``--resume`` extends (the campaign's base time.t_end raised: ``sweep --set time.t_end=...``)
 EXTENDABLE = "extendable"
+#: a run file of this run's case to a later t_end: the campaign's t_end was lowered, which is
+#: not an extension (the sweep is refused before anything is written; --overwrite redoes the runs)
+SHORTENED = "shortened"
+#: the kept run of a measured accuracy target (its ladder's verdict holds at the t_end it
+#: measured) asked for at a later t_end: refused like SHORTENED (an extension would keep a run
+#: whose error nobody measured at the new t_end, and it drops the ladder from the file)
+MEASURED = "measured"
+#: the statuses that refuse the whole sweep unless --overwrite (then they are redone)
+_REFUSING = (SHORTENED, MEASURED)
 
 
-def _extends(spec: RunSpec) -> bool:
-    """Whether the file at the run's path holds this run's case run to an earlier t_end and
-    can be extended to the run's t_end (it kept its end state: it reached its t_end)."""
-    from capsim.config import case_digest
-    from capsim.store import read_case, read_end_state
+def _held_t_end(spec: RunSpec) -> tuple[float, bool] | None:
+    """(t_end, measured) of the case the file at the run's path holds, when that case is this
+    run's but for its t_end (and the texts that explain its choices, which name a cost that grows
+    with t_end); measured: the file is a measured target's kept run. None otherwise."""
+    from capsim.checkpoint import without_t_end
+    from capsim.config import step_defining
+    from capsim.store import REQUESTED_CASE, read_run_record
 
     try:
-        stored = read_case(spec.path)
-        ours = spec.case()
-        if not stored.time.t_end < ours.time.t_end:
-            return False
-        same_end = stored.model_copy(update={"time": stored.time.model_copy(update={"t_end": ours.time.t_end})})
-        return case_digest(same_end) == case_digest(ours) and read_end_state(spec.path) is not None
+        attrs = (read_run_record(spec.path) or {}).get("attrs", {})
+        text = attrs.get(REQUESTED_CASE) or attrs.get("config_yaml")
+        stored = case_from_dict(yaml.safe_load(text), source=spec.path).model_dump(mode="json")
+        ours = spec.case().model_dump(mode="json")
+        if without_t_end(step_defining(stored)) != without_t_end(step_defining(ours)):
+            return None
+        return float(stored["time"]["t_end"]), REQUESTED_CASE in attrs
+    except Exception:  # noqa: BLE001 - an unreadable file is not this run's
+        return None
+
+
+def _has_end_state(spec: RunSpec) -> bool:
+    """Whether the completed file at the run's path kept the end state an extension continues from."""
+    from capsim.store import read_end_state
+
+    try:
+        return read_end_state(spec.path) is not None
     except Exception:  # noqa: BLE001 - an unreadable file is not this run's to extend
         return False
+
+
+def _refusal(campaign: Campaign, specs: list[RunSpec], statuses: list[str | None]) -> str | None:
+    """Why the campaign's t_end cannot be applied to the runs already in its directory (one line),
+    or None. Checked before anything is written: campaign.yaml and runs.json stay as they were."""
+    t_end = specs[0].case().time.t_end if specs else math.nan
+    where = bounded_repr(campaign.output.dir)
+    for status, why in (
+        (SHORTENED, "already run to kt {held:g}; shortening a campaign is not an extension"),
+        (MEASURED, "are kept runs of a measured accuracy target, whose ladder measured the error at kt "
+                   "{held:g}; extending them would keep runs whose error nobody measured at the new t_end"),
+    ):
+        hit = [spec for spec, s in zip(specs, statuses) if s == status]
+        if hit:
+            held = max((_held_t_end(spec) or (math.nan,))[0] for spec in hit)
+            return (f"time.t_end = {t_end:g}: {len(hit)} of the {len(specs)} runs in {where} "
+                    f"({hit[0].run_id}{', ...' if len(hit) > 1 else ''}) {why.format(held=held)}; nothing was "
+                    f"changed: use another output.dir, or --overwrite to redo them to kt {t_end:g}")
+    return None
 
 
 def campaign_digest(campaign: Campaign) -> str:
@@ -606,14 +680,25 @@ def plan_lines(campaign: Campaign, source: str = "<campaign>") -> list[str]:
     a sweep would do (run, or skip a completed file that holds this run's case), its
     path and swept values."""
     specs = expand_campaign(campaign, source=source)
-    actions = [{"completed": "skip (completed)", EXTENDABLE: "extend"}.get(_file_status(spec), "run")
-               for spec in specs]
-    lines = [f"{campaign.name}: {len(specs)} runs, {actions.count('run')} to run -> {campaign.output.dir}"]
+    statuses = [_file_status(spec) for spec in specs]
+    refusal = _refusal(campaign, specs, statuses)
+    actions = [_PLAN_ACTIONS.get(status, "run") for status in statuses]
+    if refusal is not None:  # the sweep refuses every run (without --overwrite)
+        actions = ["refused"] * len(specs)
+    extend = f", {actions.count('extend')} to extend" if "extend" in actions else ""
+    lines = [f"{campaign.name}: {len(specs)} runs, {actions.count('run')} to run{extend} -> {campaign.output.dir}"]
     width = max(len(spec.run_id) for spec in specs)
     for spec, action in zip(specs, actions):
         swept = ", ".join(f"{k}={v}" for k, v in spec.params.items())
         lines.append(f"{spec.run_id:<{width}}  {action:<16}  {spec.path}" + (f"  {swept}" if swept else ""))
+    if refusal is not None:
+        lines.append(f"refused: {refusal}")
     return lines
+
+
+#: what a sweep does with a run whose file has this status (validate's dry run); any other: run it
+_PLAN_ACTIONS = {"completed": "skip (completed)", EXTENDABLE: "extend", FOREIGN: "refused (foreign)",
+                 SHORTENED: "refused", MEASURED: "refused"}
 
 
 def _owner(out_dir: Path) -> tuple[str | None, str]:
@@ -660,6 +745,10 @@ def _claim(campaign: Campaign, out_dir: Path, overwrite: bool) -> str:
 
 
 def _run_locked(campaign, specs, out_dir, *, workers, scheduler, resume, progress, overwrite) -> dict[str, Any]:
+    if not overwrite:  # before campaign.yaml or runs.json is touched
+        refusal = _refusal(campaign, specs, [_file_status(spec) for spec in specs])
+        if refusal is not None:
+            raise ConfigError(refusal)
     digest = _claim(campaign, out_dir, overwrite)
     index = _Index(out_dir, specs, digest)
     todo, refused = [], []

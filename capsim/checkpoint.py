@@ -130,13 +130,26 @@ def step_defining_of(case: dict) -> dict:
 
 def first_difference(a: dict, b: dict, prefix: str = "", where: str = "the checkpoint") -> str | None:
     for key in sorted(set(a) | set(b), key=str):
-        va, vb = a.get(key), b.get(key)
-        if isinstance(va, dict) and isinstance(vb, dict):
-            found = first_difference(va, vb, f"{prefix}{key}.", where)
+        found = _value_difference(a.get(key), b.get(key), f"{prefix}{key}", where)
+        if found:
+            return found
+    return None
+
+
+def _value_difference(va: Any, vb: Any, name: str, where: str) -> str | None:
+    """The first place two values differ, as first_difference says it: into mappings and lists
+    item by item (a capsules list cut to its first characters read the same in both)."""
+    if isinstance(va, dict) and isinstance(vb, dict):
+        return first_difference(va, vb, f"{name}.", where)
+    if isinstance(va, list) and isinstance(vb, list) and va != vb:
+        if len(va) != len(vb):
+            return f"{name} has {len(vb)} items in {where}, {len(va)} now"
+        for i, (xa, xb) in enumerate(zip(va, vb)):
+            found = _value_difference(xa, xb, f"{name}[{i}]", where)
             if found:
                 return found
-        elif va != vb:
-            return f"{prefix}{key} = {bounded_repr(vb)} in {where}, {bounded_repr(va)} now"
+    if va != vb:
+        return f"{name} = {bounded_repr(vb)} in {where}, {bounded_repr(va)} now"
     return None
 
 
@@ -216,9 +229,20 @@ def load_end_state(blob: bytes, path: Path, case: Case) -> tuple[dict[str, dict[
     return parts, wall
 
 
+#: what an extension may change besides t_end: the texts that explain a resolved choice of level
+#: and tolerance (an accuracy target's names the predicted cost, which grows with t_end); the
+#: level and tolerance themselves must agree
+_EXPLANATIONS = {"time": ("t_end", "rtol_choice"), "accuracy": ("choice",)}
+
+
 def without_t_end(case: dict) -> dict:
-    """A resolved case with its time.t_end dropped: what an extended run must share with its start."""
-    return {**case, "time": {k: v for k, v in (case.get("time") or {}).items() if k != "t_end"}}
+    """A resolved case with its time.t_end (and the texts explaining its choices) dropped: what an
+    extended run must share with its start."""
+    out = dict(case)
+    for section, keys in _EXPLANATIONS.items():
+        if isinstance(out.get(section), dict):
+            out[section] = {k: v for k, v in out[section].items() if k not in keys}
+    return out
 
 
 def _validated(saved: dict[str, Any], path: Path, case: Case, *, extending: bool) -> tuple[dict[str, dict[str, Any]], float]:

