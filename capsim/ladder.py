@@ -26,7 +26,7 @@ of its own. A level-1 run stopped by a signal or a full disk takes the output pa
 checkpoint: ``capsim run OUT --resume`` finishes it as the plain level-1 run it is (the ladder
 itself is never resumed).
 
-How it ends (docs/data_safety.md has the table; ``capsim run``'s exit code): the target met
+How it ends (docs/data_safety.md, "How a ladder ends"; ``capsim run``'s exit code): the target met
 (status ``completed``, ``accuracy_met`` True, exit 0); not met by ``accuracy.max_level``
 (``completed``, ``accuracy_met`` False, exit 3); a level interrupted (``interrupted``, exit 1);
 a level failed, unstable or raising (its status, exit 1; raised at level 1, as a plain run's
