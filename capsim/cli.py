@@ -144,8 +144,8 @@ def run(
     case = _load(case_path, sets, **{"output.path": str(output) if output is not None else None,
                                      "time.t_end": t_end, "mesh.level": level, "accuracy.quantity": quantity,
                                      "accuracy.target": target})
-    if case.accuracy is not None:  # the prediction, before the run
-        typer.echo(case.accuracy.choice, err=True)
+    if case.accuracy is not None and not (resume and t_end is not None):  # the prediction, before the run
+        typer.echo(case.accuracy.choice, err=True)  # (an extension's was for the t_end the run had then)
     factors = _factors(case, str(case_path)) if units.value == "physical" else None  # refused before the run
     try:
         summary = api.run(case, inputs=[] if is_hdf5(case_path) else [case_path], overwrite=overwrite, resume=resume, progress=not quiet)

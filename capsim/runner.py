@@ -286,6 +286,16 @@ class _Run:
         return (f"{self.path}: the run ended '{status}' and left no checkpoint to continue from; "
                 "run it again with --overwrite")
 
+    def _rtol_choice(self) -> str | None:
+        """Why time.rtol is what it is, for the closing table. An extension of an accuracy target's
+        run keeps the level and rtol chosen at its start, and drops the prediction: that error and
+        cost were for the t_end the run had then (issue 51: an extension to kt 2 showed kt 1's)."""
+        choice = self.case.time.rtol_choice
+        if not (self.extending and self.case.accuracy is not None and choice):
+            return choice
+        return (f"{choice.split(';')[0]}; kept from the run's start: its predicted error was for the t_end the "
+                f"run had then, not for this extension to kt {self.case.time.t_end:g} (measure it: capsim run --verify)")
+
     def _wall(self) -> float:
         """Wall time the run has spent, its earlier parts (before a resume) included."""
         return self.wall_before + time.perf_counter() - self.wall0
@@ -508,7 +518,7 @@ class _Run:
             status=status, status_reason=reason, path=str(self.path), t=ig.t, steps=ig.steps,
             rejected_steps=ig.rejected, wall_time_s=self._wall(),
             scheme=ig.name, scheme_choice=ig.choice or None, rtol=float(self.case.time.rtol),
-            rtol_choice=self.case.time.rtol_choice, velocity_evaluations=int(work["velocity_evaluations"]),
+            rtol_choice=self._rtol_choice(), velocity_evaluations=int(work["velocity_evaluations"]),
             layer_applications=int(work["layer_applications"]),
             linear_iterations=int(work["linear_iterations"]),
             layer_matrices=int(work["layer_matrices"]),

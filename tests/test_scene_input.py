@@ -148,3 +148,36 @@ def test_booleans_in_any_list_of_numbers_are_refused():
                                                               [[0, True, 0], [0, 0, 0], [0, 0, 0]]}}):
         with pytest.raises(ConfigError, match="not true/false"):
             case_from_dict({"name": "x", **data})
+
+
+# ---------------------------------------------------------------- finding 14: the resume refusal, an extension's rtol row
+
+def test_a_changed_capsule_list_is_named_down_to_the_item_that_differs():
+    """Two capsule lists that differ in their third capsule's z read the same when the whole
+    list was cut to 60 characters; now the item and the coordinate are named."""
+    from capsim.checkpoint import first_difference
+
+    capsule = {"center": [-3.0, 0.0, 0.0], "initial_axis": None, "initial_tilt_deg": None, "membrane": None}
+    then = {"capsules": [capsule, {**capsule, "center": [3.0, 0.0, 0.0]}, {**capsule, "center": [0.0, 0.0, 4.0]}]}
+    now = {"capsules": [capsule, {**capsule, "center": [3.0, 0.0, 0.0]}, {**capsule, "center": [0.0, 0.0, 5.0]}]}
+    assert first_difference(now, then) == "capsules[2].center[2] = 4.0 in the checkpoint, 5.0 now"
+    assert first_difference({"capsules": now["capsules"][:2]}, then) == \
+        "capsules has 3 items in the checkpoint, 2 now"
+
+
+def test_an_extension_does_not_show_the_prediction_made_for_the_old_t_end(tmp_path):
+    """An accuracy target's run extended with --resume --t-end keeps its level and rtol; its
+    closing table said 'predicted error 0.035' — kt 1's prediction — for the extension to kt 2."""
+    path = tmp_path / "acc.yaml"
+    path.write_text(yaml.safe_dump({
+        "name": "acc", "membrane": {"law": "neo_hookean"}, "flow": {"shear_rate_G": 0.05},
+        "accuracy": {"quantity": "D_xy", "target": 0.05, "method": "predict", "max_level": 2},
+        "time": {"t_end": 0.1}, "output": {"path": str(tmp_path / "acc.h5")}}))
+    first = runner.invoke(app, ["run", str(path)])
+    assert first.exit_code == 0, first.output
+    assert "predicted error" in first.output
+    extended = runner.invoke(app, ["run", str(tmp_path / "acc.h5"), "--resume", "--t-end", "0.2"])
+    assert extended.exit_code == 0, extended.output
+    text = " ".join(extended.output.split())
+    assert "predicted error 0." not in text
+    assert "kept from the run's start: its predicted error was for the t_end the run had then" in text
