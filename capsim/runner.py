@@ -34,6 +34,7 @@ from capsim.threads import set_run_threads
 from capsim.stopping import LoopState, Stop, end_tolerance, stop_reason
 from capsim import checkpoint
 from capsim.checkpoint import ResumeError, checkpoint_path, remove_checkpoint
+from capsim.files import remove_stale_ladder_files
 from capsim.store import FileLock, StorageError, TrajectoryError, TrajectoryWriter, read_end_state, read_run_status
 from capsim.timestepping import Integrator, build_integrator
 
@@ -218,6 +219,7 @@ def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool 
 
         return run_measured(case, run_case, progress, overwrite=overwrite)
     with _StopSignals() as stop, FileLock(case.output.path):
+        remove_stale_ladder_files(case.output.path)  # a killed ladder's hidden files (capsim.ladder holds this lock)
         if not overwrite and not resume and Path(case.output.path).exists():
             # checked again under the lock: another run may have written this path since the
             # caller's check (the first run after an install compiles its kernels in between)

@@ -168,3 +168,15 @@ def test_a_target_not_met_exits_3_and_the_summary_says_whether_it_was_met(tmp_pa
     plain = run_case(case_from_dict({"name": "p", "time": {"t_end": 0.1}, "mesh": {"level": 0},
                                      "output": {"path": str(tmp_path / "p.h5")}}))
     assert plain.status == "completed" and np.isnan(read_run(tmp_path / "p.h5")["accuracy_target_met"])
+
+
+def test_a_plain_run_on_the_output_also_removes_a_killed_ladders_files(tmp_path):
+    """Finding 9, the other way in: ``capsim run X -o lad.h5 --overwrite`` after a ladder on lad.h5
+    was killed with -9 removes its hidden files of the dead process (before, they stayed for ever)."""
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True).stdout.strip()
+    for name in (f".lad.h5.ladder-{dead}.h5", f".lad.h5.ladder-{dead}.h5.ckpt.npz"):
+        (tmp_path / name).write_bytes(b"x" * 1000)
+    run_case(case_from_dict({"name": "p", "time": {"t_end": 0.05}, "mesh": {"level": 0},
+                             "output": {"path": str(tmp_path / "lad.h5")}}))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["lad.h5"]
