@@ -161,21 +161,14 @@ def run(
     from capsim.display import print_summary
 
     print_summary({**summary, "shear_rate_G": case.flow.shear_rate_G}, title=case.name, factors=factors)
-    measured = summary.get("accuracy")  # a measured target's ladder: its verdict is the verification
-    if measured:
-        typer.echo(measured)
-    verified = None
-    if (error_estimate or (verify and not measured)) and summary.get("status") == "completed":
-        from capsim.store import read_case
-        from capsim.study import run_error_estimate, run_verification
+    from capsim.study import check_run
 
-        kept = read_case(case.output.path) if measured else case  # the level the ladder kept
-        if verify and not measured:
-            text, verified = _files_call(run_verification, kept, summary)
-        else:
-            text = _files_call(run_error_estimate, kept, summary)
+    if summary.get("accuracy"):  # a measured target's ladder: its verdict is the verification
+        typer.echo(summary["accuracy"])
+    text, verified = _files_call(check_run, case, summary, error_estimate=error_estimate, verify=verify)
+    if text:
         typer.echo(text)
-    # a measured target's ladder (docs/data_safety.md, its exit codes), or --verify: completed but NOT met is 3
+    # NOT met, by a ladder or by --verify (docs/data_safety.md, "How a ladder ends"): 3
     completed = summary.get("status") == "completed"
     not_met = summary.get("accuracy_met") is False or verified is False
     raise typer.Exit(code=(3 if not_met else 0) if completed else 1)

@@ -57,6 +57,7 @@ __all__ = [
     "plot_pareto",
     "run_error_estimate",
     "run_verification",
+    "check_run",
     "run_study",
     "write_error_estimate",
     "write_study",
@@ -105,28 +106,15 @@ def final_values(ts: dict[str, np.ndarray], window: tuple[float, float] | None =
     gives beside each capsule's own (each capsule's θ unwrapped first)."""
     t = np.asarray(ts["t"], float)
     out: dict[str, float] = {}
-    for q in QUANTITIES:
-        s = np.asarray(ts[q], float)
-        if q == "theta":  # NaN where the shape has no long axis (kt = 0 of a sphere): skipped
-            from capsim.observables import unwrap_defined
+    from capsim.observables import last_value
 
-            s = unwrap_defined(s) if s.ndim == 1 else np.stack([unwrap_defined(c) for c in s.T], axis=1)
-        if s.ndim == 2:
-            s = s.mean(axis=1)
+    for q in QUANTITIES:
+        # θ: NaN where the shape has no long axis (kt = 0 of a sphere), skipped by the unwrapping
+        s = last_value(ts[q], angle=q == "theta")
         out[q] = float(s[-1])
         if window is not None:
             out[f"{q}_mean"] = _window_mean(t, s, *window)
     return out
-
-
-def run_final_values(path: str | os.PathLike) -> dict[str, float]:
-    """:func:`final_values` of a run file's time series (its columns of QUANTITIES only): what the
-    accuracy ladder compares between levels, for one capsule or several (their mean)."""
-    import h5py
-
-    with h5py.File(path, "r", locking=False) as f:
-        ts = {k: f["timeseries"][k][()] for k in ("t", *QUANTITIES)}
-    return final_values(ts)
 
 
 def _failed_record(reason: str) -> dict[str, Any]:
@@ -657,6 +645,22 @@ def run_error_estimate(case: Case, summary: dict[str, Any], workers: int = 2, ve
     write_error_estimate(case.output.path, estimate)  # the run's result itself is read-only (RunResult)
     text = format_error_estimate(summary, estimate)
     return text + "\n" + verification(case, estimate) if verify else text
+
+
+def check_run(case: Case, summary: dict[str, Any], error_estimate: bool = False,
+              verify: bool = False) -> tuple[str, bool | None]:
+    """What `capsim run` prints after a completed run, and whether its target was verified met
+    (None: not verified): ``--verify`` (:func:`run_verification`) or ``--error-estimate``
+    (:func:`run_error_estimate`, of the level kept); a measured target's ladder is its own check."""
+    measured = bool(summary.get("accuracy"))
+    if not (error_estimate or (verify and not measured)) or summary.get("status") != "completed":
+        return "", None
+    from capsim.store import read_case
+
+    kept = read_case(case.output.path) if measured else case  # the level the ladder kept
+    if verify and not measured:
+        return run_verification(kept, summary)
+    return run_error_estimate(kept, summary), None
 
 
 def run_verification(case: Case, summary: dict[str, Any], workers: int = 2) -> tuple[str, bool | None]:

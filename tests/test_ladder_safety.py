@@ -81,9 +81,10 @@ def test_sigterm_during_level_1_leaves_a_resumable_run_and_during_level_2_says_i
 
     out = tmp_path / "one.h5"
     first = run_measured(_case(out), _at_level(1, term))
-    assert first.status == "interrupted" and "SIGTERM" in first.status_reason and first.accuracy_met is False
+    assert first.status == "interrupted" and "SIGTERM" in first.status_reason
+    assert checkpoint_path(out).exists() and _hidden(tmp_path) == []  # before: the checkpoint was deleted
     assert f"capsim run {out} --resume" in first.status_reason and "target unchecked" in first.accuracy
-    assert checkpoint_path(out).exists() and _hidden(tmp_path) == []
+    assert first.accuracy_met is False
     resumed = run_case(read_case(out), resume=True)
     assert resumed.status == "completed" and resumed.t == pytest.approx(0.5)
 
