@@ -205,6 +205,16 @@ def _final_value(path: Path, q: str) -> float:
         return float(last_value(f["timeseries"][q][()], angle=q in PERIODS)[-1])
 
 
+def _final_value(path: Path, q: str) -> float:
+    """The quantity at t_end of a level's run file: several capsules, their mean (θ each unwrapped)."""
+    import h5py
+
+    from capsim.observables import capsule_mean
+
+    with h5py.File(path, "r", locking=False) as f:
+        return float(capsule_mean(f["timeseries"][q][()], angle=q in PERIODS)[-1])
+
+
 def _scalars(q: str, target, case: Case, met: bool, verdict: str, label: str) -> dict[str, Any]:
     return {"quantity": q, "target": float(target.target), "rtol": float(case.time.rtol), "met": bool(met),
             "verdict": verdict, "error_model": label}

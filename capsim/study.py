@@ -106,11 +106,11 @@ def final_values(ts: dict[str, np.ndarray], window: tuple[float, float] | None =
     gives beside each capsule's own (each capsule's θ unwrapped first)."""
     t = np.asarray(ts["t"], float)
     out: dict[str, float] = {}
-    from capsim.observables import last_value
+    from capsim.observables import capsule_mean
 
     for q in QUANTITIES:
         # θ: NaN where the shape has no long axis (kt = 0 of a sphere), skipped by the unwrapping
-        s = last_value(ts[q], angle=q == "theta")
+        s = capsule_mean(ts[q], angle=q == "theta")
         out[q] = float(s[-1])
         if window is not None:
             out[f"{q}_mean"] = _window_mean(t, s, *window)

@@ -181,3 +181,26 @@ def test_a_plain_run_on_the_output_also_removes_a_killed_ladders_files(tmp_path)
     run_case(case_from_dict({"name": "p", "time": {"t_end": 0.05}, "mesh": {"level": 0},
                              "output": {"path": str(tmp_path / "lad.h5")}}))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["lad.h5"]
+
+
+def test_a_signal_between_two_levels_stops_the_ladder_before_the_next(tmp_path):
+    """SIGTERM after level 1 completed and before level 2 starts (the ladder's own handler, not a
+    level's): level 2 is not started, status 'interrupted', level 1 kept (before, SIGTERM there
+    killed the process outright, leaving its hidden files)."""
+    def then_term(case, progress=None, overwrite=True):
+        ran = run_case(case, overwrite=overwrite)
+        if case.mesh.level == 1:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return ran
+
+    def unhandled(signum, frame):  # what the test sees where no ladder handles it (the old tree: the process died)
+        raise RuntimeError("SIGTERM reached the default handler")
+
+    out = tmp_path / "b.h5"
+    before = signal.signal(signal.SIGTERM, unhandled)
+    try:
+        result = run_measured(_case(out), then_term)
+    finally:
+        signal.signal(signal.SIGTERM, before)
+    assert result.status == "interrupted" and "before level 2 started" in result.accuracy
+    assert read_case(out).mesh.level == 1 and _hidden(tmp_path) == []
