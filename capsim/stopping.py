@@ -47,6 +47,13 @@ def step_collapse(dts: Sequence[float], min_fraction: float, window: int = 200, 
     return None
 
 
+#: a centroid carried farther than this from the origin (an extension's outflow: 2 e^kt) stops the
+#: run: every shape value is measured about the centroid and a linear flow's uniform part is carried
+#: exactly (capsim.solver), but the positions' own round-off, 1e-16 |x|, is 1e-7 a here, 1e-6 of a
+#: level-3 element, and grows with |x| (config.MAX_COORDINATE bounds the start 1000 times nearer)
+MAX_CENTROID_COORDINATE = 1e9
+
+
 def guard_violation(row: dict, row0: dict, guards: Guards) -> str | None:
     """The first stability guard an accepted step crosses, as 'guard NAME: value', or None."""
     # a column the observer may leave undefined (NaN: observables.MAY_BE_UNDEFINED) is a property of
@@ -77,6 +84,11 @@ def guard_violation(row: dict, row0: dict, guards: Guards) -> str | None:
                           if (float(text) < limit if op == "<" else float(text) > limit)), repr(value))
             return f"guard {name}: {label} = {shown} {op} {limit:g}" if float(f"{limit:g}") == limit else \
                 f"guard {name}: {label} = {shown} {op} {limit!r}"
+    far = max((float(np.max(np.abs(row[f"centroid_{c}"]))) for c in "xyz" if f"centroid_{c}" in row), default=0.0)
+    if far > MAX_CENTROID_COORDINATE:
+        return (f"guard max_centroid_coordinate: a centroid coordinate = {far:.4g} a > {MAX_CENTROID_COORDINATE:g} "
+                "(carried out by the flow): the positions' round-off, 1e-16 |x|, would pass 1e-7 a; the rows "
+                "so far stand (start nearer the origin, or end the run earlier)")
     return None
 
 

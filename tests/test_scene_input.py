@@ -181,3 +181,21 @@ def test_an_extension_does_not_show_the_prediction_made_for_the_old_t_end(tmp_pa
     text = " ".join(extended.output.split())
     assert "predicted error 0." not in text
     assert "kept from the run's start: its predicted error was for the t_end the run had then" in text
+
+
+def test_a_centroid_carried_past_1e9_a_stops_the_run_with_the_reason():
+    """An extension carries an off-axis capsule out like e^kt: past 1e9 a the positions'
+    round-off (1e-16 |x|) passes 1e-7 a, and the run stops 'unstable' saying so, where it went
+    on silently while its positions lost digits."""
+    from capsim.config import Guards
+    from capsim.stopping import MAX_CENTROID_COORDINATE, guard_violation
+
+    row = {"D_xy": 0.4, "theta": 0.0, "min_element_quality": 0.9, "volume": 4.18, "area": 12.6,
+           "max_principal_stretch": 1.2, "centroid_x": 1.0, "centroid_y": 0.0, "centroid_z": 0.0}
+    assert guard_violation(row, row, Guards()) is None
+    far = {**row, "centroid_x": 2.0 * MAX_CENTROID_COORDINATE}
+    reason = guard_violation(far, row, Guards())
+    assert reason.startswith("guard max_centroid_coordinate: a centroid coordinate = 2e+09 a > 1e+09")
+    scene = {**row, "centroid_x": np.array([0.0, -2.0 * MAX_CENTROID_COORDINATE]),
+             "D_xy": np.array([0.4, 0.4])}
+    assert "max_centroid_coordinate" in guard_violation(scene, row, Guards())
