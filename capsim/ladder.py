@@ -199,16 +199,6 @@ def _final_value(path: Path, q: str) -> float:
     """The quantity at t_end of a level's run file: several capsules, their mean (θ each unwrapped)."""
     import h5py
 
-    from capsim.observables import last_value
-
-    with h5py.File(path, "r", locking=False) as f:
-        return float(last_value(f["timeseries"][q][()], angle=q in PERIODS)[-1])
-
-
-def _final_value(path: Path, q: str) -> float:
-    """The quantity at t_end of a level's run file: several capsules, their mean (θ each unwrapped)."""
-    import h5py
-
     from capsim.observables import capsule_mean
 
     with h5py.File(path, "r", locking=False) as f:

@@ -53,17 +53,6 @@ def capsule_mean(series: np.ndarray, angle: bool = False) -> np.ndarray:
     return s.mean(axis=1) if s.ndim == 2 else s
 
 
-def last_value(series: np.ndarray, angle: bool = False) -> np.ndarray:
-    """A time series' values along its rows, as one number per row: a column of several capsules
-    (t, capsule) is their mean, the summary's (each capsule's θ unwrapped first when ``angle``:
-    capsules at π/2 − ε and −π/2 + ε are at one orientation). The accuracy ladder and capsim study
-    compare its last row between levels."""
-    s = np.asarray(series, float)
-    if angle:
-        s = unwrap_defined(s) if s.ndim == 1 else np.stack([unwrap_defined(c) for c in s.T], axis=1)
-    return s.mean(axis=1) if s.ndim == 2 else s
-
-
 #: eigenvalues of the second moment closer than this (relative to the largest) are one
 #: eigenvalue split by round-off (a shape of revolution at rest: ~1e-15); their eigenvectors
 #: are then arbitrary, and :func:`principal_frame` chooses them by the shear instead
