@@ -64,6 +64,9 @@ def test_a_capsule_carried_far_by_planar_extension_is_measured_and_says_so(tmp_p
     far = _run(tmp_path, "ext", initial_center=[1e5, 0.0, 0.0], **common)
     assert far["series"]["D_xy"][-1] == pytest.approx(near["series"]["D_xy"][-1], rel=1e-5)
     assert far["summary"]["motion"] == near["summary"]["motion"]
+    # its translation's error is rtol of its distance, not of a (timestepping.scene_error):
+    # 65 steps against the origin's 58 (2684 when held to rtol in units of a)
+    assert far["result"].steps <= 1.5 * near["result"].steps
     travel = float(far["summary"]["centroid_travel"])
     assert travel == pytest.approx(1e5 * (np.exp(2.5) - 1.0), rel=1e-2)
     rows = dict(summary_rows({**far["summary"], "motion": "steady", "centroid_travel": travel}))
@@ -199,3 +202,23 @@ def test_a_centroid_carried_past_1e9_a_stops_the_run_with_the_reason():
     scene = {**row, "centroid_x": np.array([0.0, -2.0 * MAX_CENTROID_COORDINATE]),
              "D_xy": np.array([0.4, 0.4])}
     assert "max_centroid_coordinate" in guard_violation(scene, row, Guards())
+
+
+def test_the_error_norm_holds_a_far_capsules_shape_to_its_size_and_its_place_to_its_distance():
+    """scene_error: at the origin the plain max norm over rtol · size, to the bit; one capsule
+    1e6 a out (carried) has its translation's error relative to 1e6, its shape's to its size."""
+    from capsim.timestepping import scene_error, scene_size
+
+    rng = np.random.default_rng(1)
+    y = rng.standard_normal((18, 3))
+    y -= y.mean(axis=0)
+    size = scene_size(None)
+    plain, carried = scene_error(size), scene_error(size, carried=True)
+    shape_error = 1e-6 * rng.standard_normal((18, 3))
+    est = shape_error + np.array([3e-4, 0.0, 0.0])  # a translation error of 3e-4 a
+    assert carried(est, y, 1e-4) == plain(est, y, 1e-4) == float(np.abs(est).max()) / (1e-4 * size(y))
+    far = y + np.array([1e6, 0.0, 0.0])
+    assert plain(est, far, 1e-4) > 1.0  # rejected: 3e-4 a of a position 1e6 a out
+    expected = max(float(np.abs(shape_error - shape_error.mean(axis=0)).max()) / (1e-4 * size(far)),
+                   float(np.abs(est.mean(axis=0)).max()) / (1e-4 * float(np.abs(far.mean(axis=0)).max())))
+    assert carried(est, far, 1e-4) == pytest.approx(expected, rel=1e-12) and expected < 1.0
