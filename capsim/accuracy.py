@@ -230,13 +230,26 @@ def time_error(e: dict[str, Any], quantity: str, rtol: float) -> float:
 def auto_rtol(level: int, features: dict[str, Any] | None = None) -> tuple[float, str]:
     """(rtol, why) for time.rtol auto: the largest of RTOL_LADDER whose time error stays below
     TIME_FRACTION of the level's mesh error for every quantity (the model's best estimate,
-    without the safety factor of a target: this rule is a ratio of two estimates)."""
+    without the safety factor of a target: this rule is a ratio of two estimates). In a scene the
+    model was not trained on (:func:`scene_outside`: another flow, a history, a wall, several
+    capsules) it estimates no time error: the rule's rtol, never looser than OUTSIDE_RTOL, and the
+    reason says so (and how the steps follow the flow's history: capsim.flows.History.steps)."""
     e, label = entry(features)
     names = model()["quantities"]
     level = max(level, min(levels()))  # level 0: its mesh error is above level 1's, as is its tolerance
     for rtol in RTOL_LADDER:
         if all(time_error(e, q, rtol) <= TIME_FRACTION * mesh_error(e, q, level) for q in names):
             break
+    scene = scene_outside(features)
+    if scene:
+        from capsim.flows import FLOW_HISTORIES  # numpy only
+
+        rtol = min(rtol, OUTSIDE_RTOL)
+        why = (f"auto: rtol {rtol:g}, not a predicted error: the error model was not trained on this scene "
+               f"({scene}) and estimates no time error for it; auto takes no looser than {OUTSIDE_RTOL:g} there "
+               "(the validation tables' tolerance): check with a tighter time.rtol")
+        steps = FLOW_HISTORIES[features["history"]].steps if features.get("history") in FLOW_HISTORIES else ""
+        return rtol, why + (f"; {steps}" if steps else "")
     outside = e.get("outside", False)
     if outside and rtol > OUTSIDE_RTOL:  # the model does not know this case: the tolerance validated without it
         rtol = OUTSIDE_RTOL

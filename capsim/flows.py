@@ -326,7 +326,15 @@ class History(Kind):
     ``jump``: (time, factor after it) of a jump in the rate, which the steps land on (the runner
     scales the far field there, and the checkpoint records that it has; None: none);
     ``factor(history)``: a(t) for a rate that varies smoothly (evaluated at every stage's time;
-    None: constant between jumps)."""
+    None: constant between jumps);
+    ``breakpoints(history)``: every kt at which a(t) or its slope changes abruptly (a jump, a
+    table's corners), sorted: the runner ends a step on each, so that no stage straddles one
+    (a pulse shorter than a step was stepped over: the stages never saw it);
+    ``max_step(history)``: the longest step that resolves a(t) (inf: no bound; the error
+    estimate alone cannot be trusted with a forcing it may alias, docs/time_stepping.md)."""
+
+    #: how the steps follow the history (time.rtol auto's reason says it)
+    steps: ClassVar[str] = ""
 
     @classmethod
     def jump(cls, history: Any) -> tuple[float, float] | None:
@@ -335,6 +343,15 @@ class History(Kind):
     @classmethod
     def factor(cls, history: Any) -> Any:
         return None
+
+    @classmethod
+    def breakpoints(cls, history: Any) -> tuple[float, ...]:
+        jump = cls.jump(history)
+        return () if jump is None else (jump[0],)
+
+    @classmethod
+    def max_step(cls, history: Any) -> float:
+        return float("inf")
 
 
 @register_history
@@ -346,6 +363,7 @@ class Steady(History):
 @register_history
 class Stop(History):
     name = "stop"
+    steps = "a step ends on stop_time"
     description = "the rate until kt = stop_time, then no flow (the capsule relaxes at rest)"
     uses = ("stop_time",)
 
@@ -357,6 +375,7 @@ class Stop(History):
 @register_history
 class Step(History):
     name = "step"
+    steps = "a step ends on step_time"
     description = "the rate until kt = step_time, then step_factor times it (a step in shear rate)"
     uses = ("step_time", "step_factor")
 
@@ -372,15 +391,27 @@ class Oscillating(History):
                    "the strain amplitude is 1/ω)")
     uses = ("omega",)
 
+    #: the steps per period of sin(ω t) the step is bounded by (max_step): docs/time_stepping.md,
+    #: "Flows that change in time". Measured at ω 10000 (level 0, kt 1, rtol 1e-4): without a bound
+    #: D_xy(kt 1) was 8× its converged value (the error estimate aliased the forcing, 3 steps a
+    #: period); 5 steps a period left 1.3e-3 of it, 10 left 6.5e-5
+    STEPS_PER_PERIOD = 10
+    steps = f"each step at most 1/{STEPS_PER_PERIOD} of the oscillation's period"
+
     @classmethod
     def factor(cls, history: Any) -> Any:
         omega = float(history.omega)
         return lambda t: float(np.sin(omega * t))
 
+    @classmethod
+    def max_step(cls, history: Any) -> float:
+        return 2.0 * np.pi / (float(history.omega) * cls.STEPS_PER_PERIOD)
+
 
 @register_history
 class Table(History):
     name = "table"
+    steps = "a step ends on each of the table's times"
     description = ("a piecewise-linear factor of the rate: table [[t0, a0], [t1, a1], ...] (times increasing; "
                    "a0 before t0, the last factor after the last time)")
     uses = ("table",)
@@ -389,6 +420,10 @@ class Table(History):
     def factor(cls, history: Any) -> Any:
         t, a = np.asarray(history.table, dtype=float).T
         return lambda s: float(np.interp(s, t, a))
+
+    @classmethod
+    def breakpoints(cls, history: Any) -> tuple[float, ...]:
+        return tuple(sorted(float(row[0]) for row in history.table))
 
     @classmethod
     def problem(cls, history: Any) -> tuple[str, Any, str] | None:
@@ -404,6 +439,16 @@ class Table(History):
         if np.abs(arr[:, 1]).max() > 100:
             return ("table", rows, "has a factor beyond ±100: write the rate's scale into G")
         return None
+
+
+def history_breakpoints(history: Any) -> tuple[float, ...]:
+    """The kt at which a flow.history (None: steady) changes abruptly, sorted (History.breakpoints)."""
+    return () if history is None else FLOW_HISTORIES[history.kind].breakpoints(history)
+
+
+def history_max_step(history: Any) -> float:
+    """The longest step that resolves a flow.history (None: steady; inf: no bound)."""
+    return float("inf") if history is None else float(FLOW_HISTORIES[history.kind].max_step(history))
 
 
 #: the optional fields of ``flow.history`` that some kind reads

@@ -23,7 +23,7 @@ import numpy as np
 from capsim._version import __version__
 from capsim.config import Case
 from capsim.errors import first_line
-from capsim.flows import FLOWS
+from capsim.flows import FLOWS, history_breakpoints
 from capsim.membrane import law_attributes
 from capsim.mesh import SurfaceMesh, rest_shape_attributes
 from capsim.bodies import body_axis, body_specs
@@ -260,6 +260,7 @@ class _Run:
         self.snapshots = SnapshotSchedule(case.output.snapshot_every)
         self.checkpoints = CheckpointSchedule(case.output.checkpoint_every_steps, case.output.checkpoint_every_s)
         self.committed: dict[str, dict[str, Any]] | None = None
+        self.breakpoints = history_breakpoints(case.flow.history)  # the times the steps land on
         if saved is not None:
             self._reopen(saved)
         else:
@@ -420,11 +421,15 @@ class _Run:
 
     # -- flows that change in time (flow.history) -----------------------------------
     def _next_flow_change(self) -> float:
-        """The kt at which the flow changes next (the steps land on it), inf when none."""
-        model = self.model
-        if model.flow_stop_time is None or model.flow_stopped:
-            return float("inf")
-        return model.flow_stop_time
+        """The kt at which the flow changes next (the steps land on it), inf when none: the
+        history's next breakpoint after the run's t (its jump, a table's corners;
+        capsim.flows.History.breakpoints). Read from t alone, so a resumed run lands on the
+        same ones as the uninterrupted run."""
+        t = self.integrator.t
+        for point in self.breakpoints:
+            if point > t + end_tolerance(point):
+                return point
+        return float("inf")
 
     def _follow_flow_history(self) -> None:
         """Stop the flow once the run has reached flow.history.stop_time, and evaluate the

@@ -309,7 +309,7 @@ class Integrator:
         """The constructor's options for a run of `case` on `model` (common: tolerance and step bounds)."""
         tc = case.time
         size_of = scene_size(getattr(model, "bodies", None))
-        return {"rtol": tc.rtol, "dt_initial": tc.dt_initial, "dt_min": tc.dt_min, "dt_max": tc.dt_max,
+        return {"rtol": tc.rtol, "dt_initial": tc.dt_initial, "dt_min": tc.dt_min, "dt_max": max_step(case),
                 "size_of": size_of, "error_of": scene_error(size_of, carried=_carried_scene(model))}
 
     @classmethod
@@ -356,7 +356,7 @@ class Integrator:
         self.y = np.array(y0, dtype=float)
         self.u: np.ndarray | None = None
         self.t = 0.0
-        self.dt = dt_initial
+        self.dt = min(dt_initial, dt_max)  # a history's bound (max_step) may be below time.dt_initial
         self.steps = 0
         self.rejected = 0
         self.evaluations = 0  # every velocity evaluation: stages, rejected attempts, probes
@@ -1069,6 +1069,9 @@ class Automatic(Integrator):
             steps = t_end / h
             return {"step": steps, "evaluation": steps * per_step, "layer": steps * per_step * extra}
 
+        # time.dt_max, not a history's bound (max_step): the accuracy steps below are the steady
+        # flow's; under an oscillation bounded to 1/20 of its period rkc, predicted cheaper per
+        # capped step, took 9231 steps at ω 1000 (rtol 2e-3) where rkf23 took the bound's 3184
         for label, sub in cls.candidates(case).items():
             if label == "rkf23":
                 h = min(tc.dt_max, slow * cls.RKF23_H_ACC * (tc.rtol / 1e-3) ** (1.0 / 3.0),
