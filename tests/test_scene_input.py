@@ -74,6 +74,18 @@ def test_a_capsule_carried_far_by_planar_extension_is_measured_and_says_so(tmp_p
     assert "centroid travelled (a)" not in dict(summary_rows({"centroid_travel": 0.5}))
 
 
+def test_a_pair_with_one_capsule_1e6_a_away_measures_both_as_isolated_capsules(tmp_path):
+    """One capsule at the origin, one at y = 1e6 a: they do not feel each other ((a/r)² ~ 1e-12),
+    so each is the isolated capsule. Before: the far one's centroid and its flux (carried at
+    1e6 ka, the scene's uniform part only half taken) lost every digit (issue 51: 0.94 for 0.20)."""
+    pair = _run(tmp_path, "pair", capsules=[{"center": [0.0, 0.0, 0.0]}, {"center": [0.0, 1e6, 0.0]}],
+                time={"t_end": 1.0})["series"]
+    assert pair["D_xy"][-1, 1] == pytest.approx(pair["D_xy"][-1, 0], rel=1e-6)
+    assert pair["Sxy_star"][-1, 1] == pytest.approx(pair["Sxy_star"][-1, 0], rel=1e-5)
+    drift = (pair["volume"][-1] - pair["volume"][0]) / pair["volume"][0]
+    assert abs(drift[1] - drift[0]) < 1e-7
+
+
 # ---------------------------------------------------------------- finding 12: validate refuses what run would
 
 def _refused(tmp_path: Path, data: dict, *words: str) -> str:
