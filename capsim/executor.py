@@ -17,10 +17,15 @@ used them kills the child), or in this process for a study with one worker:
   wall time measures the run, not the JIT.
 - **failures as records**: a task that raises, or a worker that dies, gives a
   record built by the caller's ``failure(index, status, reason)``; the batch goes on.
-- **signals**: Ctrl-C or SIGTERM (a batch system) in the parent cancels the
+- **signals**: Ctrl-C, SIGTERM (a batch system) or SIGHUP in the parent cancels the
   pending items and sends SIGTERM to the running ones, whose runs close their
   files as ``interrupted``; idle workers ignore SIGTERM (they wait for work
   holding the task queue's lock; dying there would hang the pool's shutdown).
+  The parent's handler only records the signal (:class:`_StopRequests`); the batch's
+  loop acts on it at its next check, so no KeyboardInterrupt lands inside a lock or
+  inside the stop itself, and a second Ctrl-C changes nothing. Workers are spawned with
+  the stop signals blocked, unblocked once their initializer has set what they do.
+  A stop that the parent's warm-up run took as its own stops the batch too.
   A worker whose parent was killed stops its run and exits.
 - **the main script**: the workers run capsim's own task on capsim's own items and need
   nothing of the program that started the batch, so they are started without importing its
@@ -219,11 +224,14 @@ def distinct_kinds(cases: Sequence) -> list:
 _WARMED: set[tuple] = set()
 
 
-def warm_up(cases: Sequence) -> None:
-    """Compile/load every kernel the cases use, once per process: a level-0, two-step copy of each kind."""
+def warm_up(cases: Sequence) -> str | None:
+    """Compile/load every kernel the cases use, once per process: a level-0, two-step copy of each kind.
+
+    Returns the reason of a warm-up run that a signal stopped (run_case takes SIGINT and SIGTERM
+    while it runs and returns 'interrupted': the caller must hear of that stop), else None."""
     todo = [c for c in distinct_kinds(cases) if kernel_kind(c) not in _WARMED]
     if not todo:
-        return
+        return None
     from capsim.config import apply_overrides
     from capsim.runner import run_case
 
@@ -232,14 +240,20 @@ def warm_up(cases: Sequence) -> None:
             # a plain level-0 run: without the accuracy target, which would choose the level (or run its ladder)
             tiny = apply_overrides(case, **{
                 "accuracy": None, "mesh.level": 0, "time.t_end": 2.0 * case.time.dt_initial, "time.max_steps": 2,
-                "time.stop_when_steady": False, "time.stop_when_settled": False,
+                "time.stop_when_steady": False, "time.stop_when_settled": False, "time.max_wall_s": None,
                 "output.path": os.path.join(tmp, "warm.h5"),
             })
             try:
-                run_case(tiny)
+                result = run_case(tiny)
             except Exception:  # the real run reports its own failure
-                pass
+                result = None
+            except KeyboardInterrupt:  # a second Ctrl-C while the tiny run closed its file
+                return "interrupted by SIGINT during the kernels' warm-up"
+            reason = result["status_reason"] if result is not None and result["status"] == "interrupted" else ""
+            if any(sig.name in reason for sig in _STOP_SIGNALS):  # a signal, not a limit of the case
+                return reason
             _WARMED.add(kernel_kind(case))
+    return None
 
 
 # ---------------------------------------------------------------- signals
@@ -265,9 +279,75 @@ class SigtermAsInterrupt:
         return False
 
 
+#: the signals that stop a batch (SIGHUP: its terminal closed)
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+class _StopRequests:
+    """SIGINT, SIGTERM and SIGHUP while a batch runs, as a request that the batch's own loop takes
+    up at its next check (:meth:`check` raises KeyboardInterrupt there, at a point of its choosing).
+
+    The handler never raises. A KeyboardInterrupt raised by a handler lands wherever the main
+    thread happens to be: inside concurrent.futures' locks ("RuntimeError: release unlocked
+    lock"), or inside the stop path itself when a second Ctrl-C follows the first by
+    milliseconds, which left the pool's shutdown half done and the process waiting on its
+    workers for ever. A second signal while stopping changes nothing: the stop is under way. A
+    signal the process inherited as ignored (a background job's SIGINT) stays ignored. Main
+    thread only (elsewhere Python cannot set handlers, and signals reach the main thread)."""
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self._old: dict[int, Any] = {}
+
+    def __enter__(self) -> _StopRequests:
+        if threading.current_thread() is threading.main_thread():
+            for sig in _STOP_SIGNALS:
+                if signal.getsignal(sig) is not signal.SIG_IGN:
+                    self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum, frame) -> None:
+        if self.signum is None:
+            self.signum = signum
+
+    def request(self, signum: int) -> None:
+        """A stop that reached this process another way (a warm-up run that a signal stopped)."""
+        self._handle(signum, None)
+
+    def check(self) -> None:
+        if self.signum is not None:
+            raise KeyboardInterrupt(f"signal {int(self.signum)}")
+
+    def __exit__(self, *exc) -> bool:
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+        return False
+
+
+@contextlib.contextmanager
+def _signals_blocked():
+    """While worker processes are spawned: the stop signals blocked in this thread, so that the
+    workers start with them blocked (a spawned process inherits the signal mask) and unblock
+    them in their initializer, once SIGINT is ignored and SIGTERM handled there. A Ctrl-C to
+    the process group while a worker imports capsim killed it with a traceback and broke the
+    pool; now it waits, pending, and is ignored (the parent decides what stops). The parent's own
+    signals wait here too and are then taken by its :class:`_StopRequests`."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
 def _stopping_signal(exc: BaseException) -> int:
-    """The signal behind a KeyboardInterrupt: SIGTERM when SigtermAsInterrupt raised it, else SIGINT."""
-    return signal.SIGTERM if str(exc) == f"signal {int(signal.SIGTERM)}" else signal.SIGINT
+    """The signal behind a KeyboardInterrupt: the one SigtermAsInterrupt or _StopRequests named, else SIGINT."""
+    for sig in _STOP_SIGNALS:
+        if str(exc) == f"signal {int(sig)}":
+            return sig
+    return signal.SIGINT
 
 
 # ---------------------------------------------------------------- worker side
@@ -313,6 +393,9 @@ def _init_worker(numba_threads: int, progress_queue: Any, stop: Any, warm: list,
     # worker, and the pool's shutdown, waiting for that lock for ever. A running case
     # replaces this handler with run_case's, which closes the run as 'interrupted'.
     signal.signal(signal.SIGTERM, _ignore_while_idle)
+    signal.signal(signal.SIGHUP, _ignore_while_idle)  # a closed terminal: the parent stops the batch
+    if hasattr(signal, "pthread_sigmask"):  # blocked while the parent spawned this worker (_signals_blocked)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
     global _WORKER_QUEUE, _WORKER_STOP, _WORKER_WARM, _WORKER_PARENT, _WORKER_STOP_SIGNAL
     _WORKER_QUEUE, _WORKER_STOP, _WORKER_WARM = progress_queue, stop, warm
     _WORKER_STOP_SIGNAL = stop_signal
@@ -421,19 +504,31 @@ def run_batch(
         if on_done is not None:
             on_done(i, record)
 
-    with SigtermAsInterrupt():
+    with _StopRequests() as stop:
         if in_process:
-            _run_here(items, task, order, warm, failure, done, stop_on_interrupted, outcome)
+            _run_here(items, task, order, warm, failure, done, stop_on_interrupted, outcome, stop)
         elif items:
             _run_pool(items, task, keys, order, warm, failure, done, on_progress, workers,
-                      stop_on_interrupted, name, outcome)
+                      stop_on_interrupted, name, outcome, stop)
     return outcome
 
 
-def _run_here(items, task, order, warm, failure, done, stop_on_interrupted, outcome) -> None:
+def _warm_or_stop(cases: Sequence, stop: _StopRequests) -> None:
+    """warm_up, a stop that its runs swallowed passed on to `stop`; then stop.check()."""
     try:
-        warm_up(warm)
+        reason = warm_up(cases)
+    except KeyboardInterrupt:
+        reason = "SIGINT"
+    if reason is not None:
+        stop.request(next((s for s in _STOP_SIGNALS if s.name in reason), signal.SIGINT))  # the one it names
+    stop.check()
+
+
+def _run_here(items, task, order, warm, failure, done, stop_on_interrupted, outcome, stop) -> None:
+    try:
+        _warm_or_stop(warm, stop)
         for i in order:
+            stop.check()  # a signal between two items (run_case takes them during its run)
             try:
                 record = task(items[i], None)
             except Exception as exc:  # one bad item must not sink the batch
@@ -493,15 +588,21 @@ def _ensure_open_files(n_workers: int) -> None:
 
 
 def _run_pool(items, task, keys, order, warm, failure, done, on_progress, workers,
-              stop_on_interrupted, name, outcome) -> None:
+              stop_on_interrupted, name, outcome, stop) -> None:
     cores = threads.usable_cores()
     n = max(1, min(workers or cores, len(items)))
     _ensure_open_files(n)
     n_threads = threads.threads_per_worker(n, cores)
     kinds = distinct_kinds(list(warm))
-    warm_up(kinds)  # compile into the on-disk cache once, before n workers would each compile
+    try:
+        _warm_or_stop(kinds, stop)  # compile into the on-disk cache once, before n workers would each compile
+    except KeyboardInterrupt:  # stopped before any worker started: no run began
+        outcome.interrupted = True
+        for i in order:
+            done(i, failure(i, "interrupted", f"{name} stopped before this run started"))
+        return
     ctx = multiprocessing.get_context("spawn")
-    kt_queue, stop, stop_signal = ctx.Queue(), ctx.Event(), ctx.Value("i", 0)
+    kt_queue, stop_event, stop_signal = ctx.Queue(), ctx.Event(), ctx.Value("i", 0)
     finished: set[str] = set()
     todo = list(order)
     try:
@@ -510,8 +611,8 @@ def _run_pool(items, task, keys, order, warm, failure, done, on_progress, worker
         # SIGTERM resumes from its checkpoint). Each round finishes at least one item.
         for _ in range(len(items) + 1):
             todo = _pool_round(items, task, keys, todo, kinds, failure, done, on_progress, n, n_threads, ctx,
-                               kt_queue, stop, stop_signal, finished, stop_on_interrupted, name, outcome)
-            if not todo:
+                               kt_queue, stop_event, stop_signal, finished, stop_on_interrupted, name, outcome, stop)
+            if not todo or outcome.interrupted:
                 break
         # pools that broke again and again with none of these items started (workers that die
         # as they start): each item gets its record, none is dropped from the counts
@@ -524,10 +625,12 @@ def _run_pool(items, task, keys, order, warm, failure, done, on_progress, worker
 
 
 def _pool_round(items, task, keys, order, kinds, failure, done, on_progress, n, n_threads, ctx, kt_queue, stop,
-                stop_signal, finished, stop_on_interrupted, name, outcome) -> list[int]:
-    """One pool over `order`; returns the items to run again after a worker died ([] when done)."""
-    # the workers start in the submits (spawn starts them as work arrives, up to n)
-    with _without_main_script():
+                stop_signal, finished, stop_on_interrupted, name, outcome, requests) -> list[int]:
+    """One pool over `order`; returns the items to run again after a worker died ([] when done).
+    `stop`: the workers' event; `requests`: this process's signals (:class:`_StopRequests`)."""
+    # the workers start in the submits (spawn starts them as work arrives, up to n), with the
+    # stop signals blocked until their initializer has set what they do there
+    with _without_main_script(), _signals_blocked():
         pool = cf.ProcessPoolExecutor(min(n, len(order)), mp_context=ctx, initializer=_init_worker,
                                       initargs=(n_threads, kt_queue, stop, kinds, stop_signal))
         futures = {pool.submit(_pool_task, task, keys[i], items[i]): i for i in order}
@@ -552,8 +655,9 @@ def _pool_round(items, task, keys, order, kinds, failure, done, on_progress, n, 
 
     try:
         while pending:
+            requests.check()  # a signal, taken up here and nowhere else
             procs.update(getattr(pool, "_processes", None) or {})
-            ready, pending = cf.wait(pending, timeout=0.5, return_when=cf.FIRST_COMPLETED)
+            ready, pending = cf.wait(pending, timeout=0.2, return_when=cf.FIRST_COMPLETED)
             _drain(kt_queue, running, finished, started)
             broken = False
             for fut in ready:

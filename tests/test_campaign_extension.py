@@ -133,3 +133,124 @@ def test_one_field_by_two_names_is_refused(tmp_path):
     path.write_text(yaml.safe_dump(d))
     with pytest.raises(ConfigError, match="--set flow.G: the campaign sweeps this field"):
         load_campaign_with(path, ["flow.G=0.3"])
+
+
+# ---------------------------------------------------------------- finding 11: signals on a running sweep
+
+
+def _long_campaign(tmp_path, t_end=50.0) -> Path:
+    d = tiny(tmp_path / "c", t_end=t_end)
+    d["base"]["time"]["rtol"] = 1e-5  # long enough to be stopped
+    d["sweep"] = {"flow.viscosity_ratio": [1.0, 2.0, 3.0]}
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump(d))
+    return path
+
+
+def _start_sweep(path: Path, *extra: str, env: dict | None = None) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "capsim.cli", "sweep", str(path), "--workers", "2", "-q", *extra],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT, env=env,
+        start_new_session=True,  # its own process group: what Ctrl-C in a terminal signals
+        # Ctrl-C's disposition, however the tests were started (a background job inherits SIGINT ignored)
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+
+
+def _children(pid: int) -> list[str]:
+    """Command lines of the processes whose parent is `pid` (Linux /proc)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            if ppid == pid:
+                found.append((entry / "cmdline").read_bytes().replace(b"\0", b" ").decode())
+        except (OSError, IndexError, ValueError):
+            continue
+    return found
+
+
+def _wait_for(condition, proc: subprocess.Popen, seconds: float = 240.0) -> None:
+    deadline = time.monotonic() + seconds
+    while not condition():
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "the sweep never got there"
+        time.sleep(0.005)
+
+
+def _ends_promptly(proc: subprocess.Popen, seconds: float = 30.0) -> str:
+    """The sweep's stderr, once it and every process of its group (workers, resource tracker)
+    ended within `seconds` of the signal; killed and failed otherwise."""
+    try:
+        _, err = proc.communicate(timeout=seconds)
+        deadline = time.monotonic() + 5.0
+        while True:  # the workers and the resource tracker too
+            try:
+                os.killpg(proc.pid, 0)
+            except ProcessLookupError:
+                break
+            assert time.monotonic() < deadline, "processes of the sweep outlived it"
+            time.sleep(0.05)
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    assert "Traceback" not in err and "RuntimeError" not in err, err
+    return err
+
+
+pytestmark_linux = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+
+
+@pytestmark_linux
+def test_ctrl_c_twice_10_ms_apart_stops_a_running_sweep_at_once(tmp_path):
+    path = _long_campaign(tmp_path)
+    out = tmp_path / "c"
+    proc = _start_sweep(path)
+    _wait_for(lambda: len(list(out.glob("*.h5"))) >= 2, proc)  # two runs under way
+    os.killpg(proc.pid, signal.SIGINT)
+    time.sleep(0.01)
+    os.killpg(proc.pid, signal.SIGINT)
+    _ends_promptly(proc)
+    assert proc.returncode == 1
+    statuses = []
+    for run in out.glob("*.h5"):
+        with h5py.File(run, "r") as f:
+            statuses.append((str(f.attrs["status"]), str(f.attrs["status_reason"])))
+    assert len(statuses) >= 2 and all(s == "interrupted" and "SIGINT" in r for s, r in statuses), statuses
+
+
+@pytest.mark.slow
+@pytestmark_linux
+def test_ctrl_c_while_the_worker_pool_starts_stops_the_sweep(tmp_path):
+    path = _long_campaign(tmp_path)
+    proc = _start_sweep(path)
+    # the first worker process exists: it is starting (importing capsim) now
+    _wait_for(lambda: any("spawn_main" in c for c in _children(proc.pid)), proc)
+    os.killpg(proc.pid, signal.SIGINT)
+    _ends_promptly(proc)
+    assert proc.returncode == 1
+
+
+@pytest.mark.slow
+@pytestmark_linux
+def test_sigint_to_the_sweep_alone_during_its_warm_up_stops_an_extension(tmp_path):
+    """What `timeout -s INT` does: the signal reaches the sweep's process alone. Here it lands
+    while the sweep warms its kernels up (a tiny run in a capsim-warm-* directory), whose
+    run took the signal as its own and the sweep then ran on for the whole extension."""
+    path = _long_campaign(tmp_path, t_end=0.02)
+    out = tmp_path / "c"
+    first = _start_sweep(path)
+    assert first.wait(timeout=300) == 0, first.communicate()
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    proc = _start_sweep(path, "--set", "time.t_end=50", env={**os.environ, "TMPDIR": str(tmp)})
+    _wait_for(lambda: any(p.name.startswith("capsim-warm-") for p in tmp.iterdir()), proc)
+    os.kill(proc.pid, signal.SIGINT)
+    _ends_promptly(proc)
+    assert proc.returncode == 1
+    for run in out.glob("*.h5"):  # each still the completed run it was, or stopped in its extension
+        with h5py.File(run, "r") as f:
+            assert str(f.attrs["status"]) in ("completed", "interrupted")
