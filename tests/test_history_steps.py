@@ -73,12 +73,13 @@ def test_a_resumed_run_lands_on_the_breakpoints_after_its_checkpoint(tmp_path):
     np.testing.assert_array_equal(a["D_xy"], b["D_xy"])
 
 
-def test_an_oscillation_is_resolved_by_every_step(tmp_path):
+@pytest.mark.parametrize("scheme", ["auto", "rkc"])
+def test_an_oscillation_is_resolved_by_every_step(tmp_path, scheme):
     """ω 10000 (the schema's bound), rtol auto. Old tree: steps of ~4 periods each, D_xy at kt 1
     96× its converged value (6.0e-3 against 6.29e-5). Now each step is at most 1/10 of a
     period, and the rtol auto reason says the error model does not cover the history."""
     omega = 1e4
-    case = _case(tmp_path, "osc", {"kind": "oscillating", "omega": omega}, 0.005)
+    case = _case(tmp_path, "osc", {"kind": "oscillating", "omega": omega}, 0.005, scheme=scheme)
     result = run_case(case)
     assert result.status == "completed"
     assert "keeps the time error below" not in case.time.rtol_choice
@@ -98,11 +99,11 @@ def test_rtol_auto_still_predicts_in_the_training_scene(tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("omega", [1000.0, 10000.0])
 def test_oscillating_shear_at_default_rtol_matches_a_tight_run(tmp_path, omega):
-    """Level 0, kt 1: D_xy at t_end at rtol auto within 1 % of rtol 1e-6's (docs/time_stepping.md:
-    before, 11 % off at ω 1000 and 100× off at ω 10000)."""
+    """Level 0, kt 1: D_xy at t_end at rtol auto within 1 % of rtol 1e-5's (docs/time_stepping.md:
+    before, 11 % off at ω 1000 and 96× off at ω 10000; now 6.5e-5 off rtol 1e-6's)."""
     ends = {}
-    for rtol in ("auto", 1e-6):
+    for rtol in ("auto", 1e-5):
         case = _case(tmp_path, f"osc{omega:g}_{rtol}", {"kind": "oscillating", "omega": omega}, 1.0, rtol=rtol)
         assert run_case(case).status == "completed"
         ends[rtol] = float(_series(case)["D_xy"][-1])
-    assert abs(ends["auto"] - ends[1e-6]) <= 0.01 * abs(ends[1e-6]), ends
+    assert abs(ends["auto"] - ends[1e-5]) <= 0.01 * abs(ends[1e-5]), ends
