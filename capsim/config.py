@@ -98,7 +98,7 @@ VALIDATED_RANGES = {
 }
 #: the farthest a capsule may start from the origin in any coordinate, in units of a: positions are
 #: doubles and every shape value is measured about the capsule's own centroid (a linear flow's
-#: uniform part carried exactly: capsim.solver.Model.carried_velocity), so round-off is |x| 1e-16,
+#: uniform part carried exactly: capsim.solver.CapsuleModel.carried_velocity), so round-off is |x| 1e-16,
 #: 1e-10 a here; a capsule 1e6 a out gives the origin's D_xy to 1e-6
 MAX_COORDINATE = 1e6
 #: with a wall, the farthest a capsule may start from it (wall.distance's bound): the shear of the
