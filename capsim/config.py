@@ -894,7 +894,8 @@ class Capsule(_Model):
     the top-level sections, which every field it leaves out takes (capsim.bodies)."""
 
     center: tuple[float, float, float] = Field(
-        ..., description="the capsule's centroid [x, y, z] at t = 0 in units of a")
+        ..., description="the capsule's centroid [x, y, z] at t = 0 in units of a, within 1e6 a of the origin "
+        "in every coordinate (with a wall: within 1e3 a of it; inside flow.poiseuille_radius of the Poiseuille axis)")
     shape: Optional[Shape] = Field(None, description="its rest shape (default: the top-level shape)")
     initial_axis: Optional[tuple[float, float, float]] = Field(
         None, description="direction of its rest shape's symmetry axis at t = 0 (default: the top-level "
@@ -969,7 +970,8 @@ class Case(_Model):
         "initial_tilt_deg",
     )
     initial_center: Optional[tuple[float, float, float]] = Field(
-        None, description="the rest shape's centroid [x, y, z] at t = 0 in units of a (default: the origin); "
+        None, description="the rest shape's centroid [x, y, z] at t = 0 in units of a (default: the origin), "
+        "within 1e6 a of it in every coordinate (inside flow.poiseuille_radius of the Poiseuille axis); "
         "e.g. off the axis of flow.kind poiseuille. Away from the origin the mesh keeps fewer symmetries "
         "(mesh.symmetry auto finds which)",
     )
