@@ -645,7 +645,9 @@ class _TimeCommon(_Model):
         "and |theta error| <= 6 rtol rad (docs/time_stepping.md); at least 1e-10: the velocities it "
         "compares are accurate to ~1e-12 (quadrature round-off, solver.tol), so a smaller one chases noise. "
         "auto (the default): the largest tolerance whose time error stays below a tenth of the mesh level's "
-        "own error (capsim.accuracy, from the error model: docs/benchmarks.md, \"Error model\"); rtol_choice "
+        "own error (capsim.accuracy, from the error model: docs/benchmarks.md, \"Error model\"); in a scene the "
+        "model was not trained on (a flow.history, another flow.kind, a wall, several capsules) no looser than 1e-4, "
+        "predicting nothing (docs/time_stepping.md, \"Flows that change in time\"); rtol_choice "
         "then says what it chose and why",
     )
     rtol_choice: Optional[str] = Field(

@@ -10,6 +10,7 @@ them; a resumed run repeats the uninterrupted one step for step.
 
 from __future__ import annotations
 
+import bisect
 import signal
 import threading
 import time
@@ -426,7 +427,7 @@ class _Run:
         capsim.flows.History.breakpoints). Read from t alone, so a resumed run lands on the
         same ones as the uninterrupted run."""
         t = self.integrator.t
-        for point in self.breakpoints:
+        for point in self.breakpoints[bisect.bisect_right(self.breakpoints, t):]:  # a long table: from t on
             if point > t + end_tolerance(point):
                 return point
         return float("inf")
