@@ -41,6 +41,9 @@ system. On Dask there is no per-run kt in the progress line, and Ctrl-C drops
 the pending runs but lets the running ones finish (unrecorded: redone next time).
 
 Resume: a run whose file says ``completed`` is skipped; any other is redone.
+Extension: a raised base t_end (``sweep --set time.t_end=...``) extends each completed run
+in place from its end state; a lowered one, or extending a measured accuracy target's
+kept runs, is refused before anything in the directory is written (``--overwrite`` redoes them).
 One run that raises is recorded as ``failed`` with its reason; the others go
 on. Ctrl-C cancels the pending runs and stops the running ones, whose files
 are closed with status ``interrupted`` (redone on the next sweep).

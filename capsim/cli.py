@@ -406,8 +406,8 @@ def sweep(
                            overwrite=overwrite, progress=not quiet)
     except (ConfigError, LockedError, StorageError) as exc:
         raise _user_error(str(exc)) from None
-    except KeyboardInterrupt:  # before the runs started (once they run, a stop is the batch's own)
-        typer.echo("\ninterrupted before any run started", err=True)
+    except KeyboardInterrupt:  # outside the batch (its stop is its own): before the runs, or as the index is written
+        typer.echo("\ninterrupted: the run files keep each run's status; capsim sweep again resumes", err=True)
         raise typer.Exit(code=1) from None
     from capsim.display import print_sweep_result  # it names every run that did not complete, once
 
