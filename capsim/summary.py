@@ -29,7 +29,7 @@ import numpy as np
 import xarray as xr
 
 from capsim._version import __version__
-from capsim.campaign import CAMPAIGN_FILE, INDEX_FILE, expand_campaign, load_campaign, load_index
+from capsim.campaign import CAMPAIGN_FILE, INDEX_FILE, canonical_field, expand_campaign, load_campaign, load_index
 from capsim.config import Case, ConfigError
 from capsim.errors import bounded_repr
 from capsim.quantities import (FLAGS, SETTLED_MOTIONS, TABLE, TURNING_MOTIONS, UNIT_SYSTEMS, attrs_for, case_field_attrs,
@@ -171,16 +171,18 @@ def _context(case: Case) -> dict[str, Any]:
 
 
 def _dim_names(keys: list[str]) -> dict[str, str]:
-    """Last dotted component (`shear_rate_G`), or the whole path with '_' when two clash."""
-    short = [key.rsplit(".", 1)[-1] for key in keys]
-    return {key: key.replace(".", "_") if short.count(s) > 1 else s for key, s in zip(keys, short)}
+    """Last dotted component (`shear_rate_G`), or the whole path with '_' when two clash; of the
+    field's full name (a sweep of flow.G is a shear_rate_G dimension, as its runs are)."""
+    full = [canonical_field(key) for key in keys]
+    short = [key.rsplit(".", 1)[-1] for key in full]
+    return {key: f.replace(".", "_") if short.count(s) > 1 else s for key, f, s in zip(keys, full, short)}
 
 
 def _attrs_for(name: str, dotted: str | None = None) -> dict[str, Any]:
     """Attributes of a variable (`name`) or of the coordinate of case field `dotted`;
     a categorical one also gets CF's flag_values and flag_meanings."""
     if dotted is not None:
-        return case_field_attrs(dotted)
+        return dict(case_field_attrs(canonical_field(dotted)), case_field=dotted)  # the name the campaign sweeps
     attrs: dict[str, Any] = attrs_for(name, _WHERE)
     if name in FLAGS:
         attrs["flag_values"] = np.arange(len(FLAGS[name]), dtype=np.int8)

@@ -121,6 +121,16 @@ def test_a_sweep_over_a_short_name_replaces_the_bases_long_one(tmp_path, swept, 
     other = dict(d, sweep={"flow.shear_rate_G" if swept == "flow.G" else "flow.G": [0.05, 0.2]})
     # one field by either name: the same cases, the same digests
     assert [s.digest() for s in expand_campaign(campaign_from_dict(other))] == [s.digest() for s in specs]
+    # and the same summary dimension (what plot --kind steady takes as G), before any run
+    from capsim.campaign import _Index, campaign_digest
+
+    campaign = campaign_from_dict(d)
+    tmp_path.mkdir(exist_ok=True)
+    (tmp_path / "campaign.yaml").write_text(campaign.to_yaml())
+    _Index(tmp_path, expand_campaign(campaign), campaign_digest(campaign)).write()
+    ds = summarize_campaign(tmp_path)
+    assert list(ds.sizes) == ["shear_rate_G"] and list(ds["shear_rate_G"].values) == [0.05, 0.2]
+    assert ds["shear_rate_G"].attrs["case_field"] == swept and ds["shear_rate_G"].attrs["units"] == "1"
 
 
 def test_one_field_by_two_names_is_refused(tmp_path):
