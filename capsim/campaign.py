@@ -447,6 +447,8 @@ def _file_status(spec: RunSpec) -> str | None:
     ours = spec.case().time.t_end
     if t_end > ours:
         return SHORTENED
+    if t_end == ours:  # another explanation of the same choice (a newer capsim's text): not this run's file
+        return FOREIGN
     if measured:
         return MEASURED
     if status != "completed":  # an unfinished run of this case: resumed or redone, to the new t_end

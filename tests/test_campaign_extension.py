@@ -92,6 +92,14 @@ def test_a_predicted_accuracy_target_campaign_extends_in_place(tmp_path):
     assert stored["accuracy"]["choice"] == spec.case().accuracy.choice  # the prediction to the new t_end
     assert run_campaign(longer, workers=1)["skipped"] == 1
     assert str(summarize_campaign(out)["status"].values.ravel()[0]) == "completed"
+    # the same t_end with another explanation of the choice (say a newer capsim's) is no extension:
+    # foreign, never resumed or replaced unasked
+    from capsim.campaign import FOREIGN, _file_status
+
+    stored["accuracy"]["choice"] += " (reworded)"
+    with h5py.File(spec.path, "r+") as f:
+        f.attrs["config_yaml"] = yaml.safe_dump(stored)
+    assert _file_status(spec) == FOREIGN
 
 
 def test_a_measured_accuracy_target_campaign_is_refused_with_the_reason(tmp_path):
