@@ -48,24 +48,27 @@ from capsim.errors import first_line
 PERIODS = {"theta": math.pi}
 
 
-def run_measured(case: Case, run_one: Callable, progress=None, overwrite: bool = True):
+def run_measured(case: Case, run_one: Callable, progress=None, overwrite: bool = True, *,
+                 stop_signals: Callable, result_type: type):
     """Run the ladder for the case's accuracy target, each level by ``run_one(case, progress=…,
     overwrite=…)`` (:func:`capsim.runner.run_case`, which calls this: passed in, not imported);
     returns the kept run's :class:`capsim.runner.RunResult` with ``accuracy`` the verdict (one line),
-    ``accuracy_met`` whether it meets the target, and the status of how the ladder ended."""
+    ``accuracy_met`` whether it meets the target, and the status of how the ladder ended.
+    ``stop_signals`` (the runner's signal guard) and ``result_type`` (``RunResult``) come from the
+    runner too: the ladder stops on the same signals and returns the same result, without an
+    import of the runner (which imports this module)."""
     from capsim.checkpoint import checkpoint_path
     from capsim.files import FileLock, OutputError, ladder_work_path, remove_stale_ladder_files
-    from capsim.runner import RunResult, _StopSignals
 
     out = Path(case.output.path)
-    with _StopSignals() as stop, FileLock(out) as lock:
+    with stop_signals() as stop, FileLock(out) as lock:
         if not overwrite and out.exists():  # checked again under the lock, as a plain run does
             raise OutputError(f"{out} exists (written by another run since this one was started); "
                               "use --overwrite to replace it")
         remove_stale_ladder_files(out)
         work = ladder_work_path(out)  # beside it: one file system, one rename
         try:
-            return _climb(case, run_one, progress, out, work, lock, stop, RunResult)
+            return _climb(case, run_one, progress, out, work, lock, stop, result_type)
         finally:  # whatever way it ends (a second Ctrl-C, a refusal, an error): nothing hidden stays
             for leftover in (work, checkpoint_path(work)):
                 leftover.unlink(missing_ok=True)

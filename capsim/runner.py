@@ -188,6 +188,16 @@ class RunResult(Mapping):
         return len(self.as_dict())
 
 
+def run_ladder(case: Case, run_one: Callable | None = None, progress: ProgressCallback | None = None,
+               overwrite: bool = True) -> RunResult:
+    """The ladder of a measured accuracy target (:func:`capsim.ladder.run_measured`), each level
+    run by ``run_one`` (default :func:`run_case`), under this module's signal guard and result."""
+    from capsim.ladder import run_measured
+
+    return run_measured(case, run_one or run_case, progress, overwrite=overwrite, stop_signals=_StopSignals,
+                        result_type=RunResult)
+
+
 def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool = False,
              overwrite: bool = True) -> RunResult:
     """Run one case and write its trajectory; returns the run's result.
@@ -216,9 +226,7 @@ def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool 
             raise ResumeError("a measured accuracy target's ladder is not resumed: run the case again (--overwrite) "
                               "to measure from level 1; a ladder stopped during level 1 left that level's plain run "
                               "at the output, which capsim run RUN.h5 --resume finishes (without the ladder)")
-        from capsim.ladder import run_measured
-
-        return run_measured(case, run_case, progress, overwrite=overwrite)
+        return run_ladder(case, run_case, progress, overwrite=overwrite)
     with _StopSignals() as stop, FileLock(case.output.path):
         remove_stale_ladder_files(case.output.path)  # a killed ladder's hidden files (capsim.ladder holds this lock)
         if not overwrite and not resume and Path(case.output.path).exists():

@@ -264,7 +264,7 @@ def test_a_ladder_stopped_at_a_later_level_keeps_the_finest_level_it_completed(t
     it stopped; no hidden level file or checkpoint is left beside it."""
     import h5py
 
-    from capsim.ladder import run_measured
+    from capsim.runner import run_ladder as run_measured
     from capsim.store import read_case
 
     def stop_at_level_2(case, progress=None, overwrite=True):
@@ -292,7 +292,7 @@ def test_a_ladder_level_that_raises_keeps_the_finest_completed_level_and_leaves_
     raised as a plain run's would be, its 'failed' file at the output path."""
     import h5py
 
-    from capsim.ladder import run_measured
+    from capsim.runner import run_ladder as run_measured
     from capsim.solver import SolverDivergence
 
     def diverge_at(level):

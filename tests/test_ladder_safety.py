@@ -17,7 +17,7 @@ import pytest
 from capsim.checkpoint import checkpoint_path
 from capsim.config import apply_overrides, case_from_dict
 from capsim.files import FileLock, LockedError, StorageError
-from capsim.ladder import run_measured
+from capsim.runner import run_ladder as run_measured
 from capsim.runner import run_case
 from capsim.store import read_case
 
