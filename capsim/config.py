@@ -1147,12 +1147,14 @@ class Case(_Model):
         if self.flow.kind not in WALL_FLOWS:
             raise _FieldProblem("flow.kind", self.flow.kind, f"cannot be bounded by a wall (it does not vanish on a "
                                 f"plane y = const); with wall: {', '.join(WALL_FLOWS)}")
-        from capsim.bodies import body_mesh, body_specs  # numpy only
+        from capsim.bodies import body_mesh, body_specs
+        from capsim.geometry import numpy_quadrature  # a check need not import numba
 
         # each capsule's own mesh (up to level 3, accurate to 2e-5 a there; level 0's nodes lie 5 % out)
         gap = self.guards.min_wall_gap
         for j, spec in enumerate(body_specs(self)):
-            lowest = float(body_mesh(spec, self.mesh.base, min(self.mesh.level, 3))[0][:, 1].min())
+            with numpy_quadrature():
+                lowest = float(body_mesh(spec, self.mesh.base, min(self.mesh.level, 3))[0][:, 1].min())
             if lowest - self.wall_y >= gap:
                 continue
             if self.capsules:
@@ -1205,7 +1207,10 @@ class Case(_Model):
                 raise _FieldProblem("mesh.symmetry", self.mesh.symmetry,
                                     "with several capsules use auto (it finds the symmetries the scene keeps) or none")
         specs = body_specs(self)
-        problem = start_problem(specs, self.mesh.base, min(self.mesh.level, 3), self.guards.min_capsule_gap)
+        from capsim.geometry import numpy_quadrature  # a check need not import numba
+
+        with numpy_quadrature():
+            problem = start_problem(specs, self.mesh.base, min(self.mesh.level, 3), self.guards.min_capsule_gap)
         if problem is not None:
             raise _FieldProblem(*problem)
         return self

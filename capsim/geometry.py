@@ -7,6 +7,8 @@ nodes and elements live in ``kernels.py``.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -63,11 +65,34 @@ class ElementGeometry:
         return self.weights.sum(axis=1)
 
 
+#: element_geometry in plain numpy, not the numba kernel: a case's start checks (a wall's
+#: clearance, capsules apart) measure rest meshes, and `capsim validate` should not import numba
+#: (~0.3 s) for that. The kernel (fastmath) and numpy differ in round-off, so a run's own meshes
+#: keep the kernel: their numbers stay the same to the bit.
+_NUMPY_QUADRATURE: ContextVar[bool] = ContextVar("numpy_quadrature", default=False)
+
+
+@contextmanager
+def numpy_quadrature():
+    """Within it, :func:`element_geometry` uses numpy (the same values to round-off)."""
+    token = _NUMPY_QUADRATURE.set(True)
+    try:
+        yield
+    finally:
+        _NUMPY_QUADRATURE.reset(token)
+
+
 def element_geometry(x: np.ndarray, elements: np.ndarray, n_points: int = 6) -> ElementGeometry:
     """Positions, unit normals and area weights at the regular Gauss points."""
+    phi, dxi, deta, w = _rule_tables(n_points)
+    if _NUMPY_QUADRATURE.get():
+        nodal = np.asarray(x, dtype=np.float64)[elements]  # (N_e, 6, 3)
+        points, a, b = (interpolate(table, nodal) for table in (phi, dxi, deta))
+        normals = np.cross(a, b)
+        jac = np.linalg.norm(normals, axis=-1)
+        return ElementGeometry(points, normals / jac[..., None], w * jac)
     from capsim.kernels import element_quadrature
 
-    phi, dxi, deta, w = _rule_tables(n_points)
     return ElementGeometry(*element_quadrature(np.ascontiguousarray(x), elements, phi, dxi, deta, w))
 
 

@@ -69,3 +69,63 @@ def test_the_cli_leaves_its_heap_to_the_os_at_exit():
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip() == "frozen"
+
+
+#: one case of every scene kind (issue 52): each flow kind, each flow history, a wall, several
+#: capsules; test_every_scene_kind_is_sampled keeps it in step with the registries
+SCENES = {
+    "simple_shear": {"flow": {"kind": "simple_shear", "G": 0.05}},
+    "planar_extension": {"flow": {"kind": "planar_extension", "G": 0.05}},
+    "uniaxial_extension": {"flow": {"kind": "uniaxial_extension", "G": 0.05}},
+    "linear": {"flow": {"kind": "linear", "G": 0.05, "velocity_gradient": [[0, 1, 0], [0, 0, 0], [0, 0, 0]]}},
+    "poiseuille": {"flow": {"kind": "poiseuille", "G": 0.05, "poiseuille_radius": 5.0}},
+    "history steady": {"flow": {"G": 0.05, "history": {"kind": "steady"}}},
+    "history stop": {"flow": {"G": 0.05, "history": {"kind": "stop", "stop_time": 0.5}}},
+    "history step": {"flow": {"G": 0.05, "history": {"kind": "step", "step_time": 0.5, "step_factor": 2.0}}},
+    "history oscillating": {"flow": {"G": 0.05, "history": {"kind": "oscillating", "omega": 1.0}}},
+    "history table": {"flow": {"G": 0.05, "history": {"kind": "table", "table": [[0.0, 1.0], [1.0, 2.0]]}}},
+    "wall": {"flow": {"G": 0.05}, "wall": {"distance": 2.0}},
+    "capsules": {"flow": {"G": 0.05}, "capsules": [{"center": [4.0, -0.5, 0.0]}, {"center": [-4.0, 0.5, 0.0]}]},
+    "capsules above a wall": {"flow": {"G": 0.05}, "wall": {"distance": 2.0},
+                              "capsules": [{"center": [4.0, 0.0, 0.0]}, {"center": [-4.0, 0.5, 0.0]}]},
+}
+
+
+def test_every_scene_kind_is_sampled():
+    from capsim.flows import FLOW_HISTORIES, FLOWS
+
+    assert set(FLOWS) <= set(SCENES) and {f"history {k}" for k in FLOW_HISTORIES} <= set(SCENES)
+
+
+def test_validating_every_scene_kind_loads_no_numerics(tmp_path):
+    """`capsim validate` of each scene kind imports neither numba nor scipy nor HDF5 (issue 52:
+    a wall's or several capsules' start check measured their rest meshes through a numba kernel,
+    ~0.3 s of imports for a command that reads a file). One interpreter validates them in turn
+    and reports, after each, what it has loaded."""
+    import yaml
+
+    paths = {}
+    for i, (scene, part) in enumerate(SCENES.items()):
+        paths[scene] = tmp_path / f"scene{i}.yaml"
+        paths[scene].write_text(yaml.safe_dump({"name": f"scene{i}", "mesh": {"level": 1}, "time": {"t_end": 1.0},
+                                                **part}))
+    watch = ("scipy", "numba", "h5py", *NOT_FOR_A_RUN)
+    code = ("import contextlib, io, json\n"
+            "from capsim.cli import app\n"
+            "report = {}\n"
+            f"for scene, path in {({k: str(v) for k, v in paths.items()})!r}.items():\n"
+            "    out = io.StringIO()\n"
+            "    with contextlib.redirect_stdout(out):\n"
+            "        try:\n            app(['validate', path])\n"
+            "        except SystemExit as exc:\n            assert not exc.code, (scene, exc.code)\n"
+            "    assert 'flow:' in out.getvalue(), scene\n"
+            f"    report[scene] = sorted(m for m in {list(watch)!r} if m in sys.modules)\n"
+            "print(json.dumps(report))\n")
+    probe = f"import sys\n{code}"
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_", "CAPSIM_"))}
+    env["PYTHONPATH"] = str(ROOT)
+    out = subprocess.run([sys.executable, "-c", probe], cwd=tmp_path, env=env, capture_output=True, text=True,
+                         timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    report = json.loads(out.stdout.strip().splitlines()[-1])
+    assert report == {scene: [] for scene in SCENES}
