@@ -318,7 +318,7 @@ def crossover(fmm: dict, level: int, which: str, eps: float) -> str:
 # ------------------------------------------------------------------------ the table
 
 def table(result: dict) -> str:
-    from capsim.bodies import MAX_CAPSULES, MAX_SCENE_NODES
+    from capsim.scene import MAX_CAPSULES, MAX_SCENE_NODES
 
     ev = result["evaluation"]
     lines = [

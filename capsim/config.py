@@ -30,8 +30,8 @@ from pydantic import (
 )
 
 from capsim.errors import bounded_repr, first_line
-from capsim.flows import (FLOW_FIELDS, FLOW_HISTORIES, FLOWS, HISTORY_FIELDS, SYMMETRY_CANDIDATES, WALL_FLOWS,
-                          fields_problem, scene_far_field, symmetries_kept)
+from capsim.flows import (FLOW_FIELDS, FLOW_HISTORIES, FLOWS, HISTORY_FIELDS, SYMMETRY_CANDIDATES,
+                          fields_problem, symmetries_kept)
 from capsim.timestepping import DEFAULT_SCHEME, SCHEMES
 from capsim.viscosity import VISCOSITY_MODELS
 from capsim.viscosity import is_active as is_viscous
@@ -893,7 +893,7 @@ class Wall(_Model):
 
 class Capsule(_Model):
     """One capsule of a scene of several (``capsules:``): where it starts, and what differs from
-    the top-level sections, which every field it leaves out takes (capsim.bodies)."""
+    the top-level sections, which every field it leaves out takes (capsim.scene.bodies)."""
 
     center: tuple[float, float, float] = Field(
         ..., description="the capsule's centroid [x, y, z] at t = 0 in units of a, within 1e6 a of the origin "
@@ -991,7 +991,7 @@ class Case(_Model):
         "predicted cost (give it or those two, not both); capsim run --verify checks it afterwards")
     capsules: Optional[list[Capsule]] = Field(
         None, min_length=1,
-        description="several capsules (capsim.bodies): each with its center and, where it differs from the "
+        description="several capsules (capsim.scene.bodies): each with its center and, where it differs from the "
         "top-level sections, its shape and orientation; every other field comes from the top-level sections. "
         "Left out: one capsule, placed by initial_center",
     )
@@ -1062,7 +1062,7 @@ class Case(_Model):
         share (capsim.accuracy.TRAINED_SCENE: another is measured, never predicted): flow.kind, the
         history as it acts before t_end, the wall, the number of capsules, and in Poiseuille flow
         the first capsule's distance from the axis (capsim.accuracy.FIXED_BY_SYMMETRY)."""
-        from capsim.bodies import body_specs  # numpy only
+        from capsim.scene import body_specs  # numpy only
 
         first = body_specs(self)[0]
         membrane = first.membrane or self.membrane
@@ -1144,10 +1144,12 @@ class Case(_Model):
     def _a_wall_this_case_can_take(self) -> Case:
         if self.wall is None:
             return self
-        if self.flow.kind not in WALL_FLOWS:
+        from capsim.scene import BOUNDARIES, body_mesh, body_specs
+
+        flows = BOUNDARIES["plane_wall"].flows  # the flows the wall admits: those that vanish on it
+        if self.flow.kind not in flows:
             raise _FieldProblem("flow.kind", self.flow.kind, f"cannot be bounded by a wall (it does not vanish on a "
-                                f"plane y = const); with wall: {', '.join(WALL_FLOWS)}")
-        from capsim.bodies import body_mesh, body_specs
+                                f"plane y = const); with wall: {', '.join(flows)}")
         from capsim.geometry import numpy_quadrature  # a check need not import numba
 
         # each capsule's own mesh (up to level 3, accurate to 2e-5 a there; level 0's nodes lie 5 % out)
@@ -1169,11 +1171,11 @@ class Case(_Model):
 
     @model_validator(mode="after")
     def _capsules_this_case_can_take(self) -> Case:
-        """Several capsules (capsim.bodies): placed apart from each other and the wall, their
+        """Several capsules (capsim.scene.bodies): placed apart from each other and the wall, their
         membranes and λ the top-level ones, a scene whose arrays fit."""
         if not self.capsules:
             return self
-        from capsim.bodies import MAX_CAPSULES, MAX_SCENE_NODES, body_specs, start_problem
+        from capsim.scene import MAX_CAPSULES, MAX_SCENE_NODES, body_specs, start_problem
 
         n = len(self.capsules)
         if self.initial_center is not None:
@@ -1187,7 +1189,7 @@ class Case(_Model):
                                 f"{MAX_SCENE_NODES} nodes a scene may hold; use fewer capsules or a lower mesh.level")
         for i, capsule in enumerate(self.capsules):
             own = capsule.membrane
-            for name in ("law", "traction", "viscosity"):  # one membrane model for the scene (capsim.bodies)
+            for name in ("law", "traction", "viscosity"):  # one membrane model for the scene (capsim.scene.bodies)
                 if own is not None and getattr(own, name) != getattr(self.membrane, name):
                     raise _FieldProblem(f"capsules[{i}].membrane.{name}", getattr(own, name) if name != "viscosity"
                                         else "given",
@@ -1429,7 +1431,9 @@ class Case(_Model):
                     f"the {self.mesh.base} mesh of a sphere turned onto initial_axis {shown} does not keep it "
                     "(auto uses half for it); use half, auto or none, or an axis in the shear plane or along z",
                 )
-        kept = symmetries_kept(scene_far_field(self))
+        from capsim.scene import Scene  # numpy only
+
+        kept = symmetries_kept(Scene.of(self).far_field)
         for group in SYMMETRY_CANDIDATES.get(self.mesh.symmetry, ()) if self.mesh.symmetry != "auto" else ():
             if group not in kept:
                 scene = f"flow.kind {self.flow.kind}" + (" above a wall" if self.wall is not None else "")

@@ -68,11 +68,11 @@ def model_for(data: dict[str, Any]):
             f"the stored mesh ({rest.shape[0]} nodes) does not match the mesh rebuilt from the case "
             f"({X.shape[0]} nodes)"
         )
-    from capsim.bodies import body_specs, reference_positions
+    from capsim.scene import reference_positions
 
     # the stored positions are the initial ones: the membrane's reference is each capsule's shrunk
     # by its own shape.inflation about the centre it was placed at (one capsule: about case.center)
-    specs = body_specs(case_of(data))
+    specs = model.scene.specs
     if any(spec.shape.inflation for spec in specs):
         rest = reference_positions(rest, model.bodies, specs)
     model.rest_positions = rest
@@ -88,8 +88,8 @@ SCENE_FIELDS: dict[str, tuple[str, str]] = {
 
 def capsule_fields(data: dict[str, Any]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """(point_data, cell_data) ``capsule`` of a run of several capsules: each node's and each
-    element's capsule index in the union mesh (capsim.bodies layout); ({}, {}) for one capsule."""
-    from capsim.bodies import run_bodies
+    element's capsule index in the union mesh (capsim.scene.bodies layout); ({}, {}) for one capsule."""
+    from capsim.scene import run_bodies
 
     bodies = run_bodies(data)
     if bodies.count < 2:
@@ -278,15 +278,14 @@ def _write_vtu(out_dir: Path, stem: str, elements, rest, snapshots, factors=None
     return [pvd] + written
 
 
-def _write_wall(out_dir: Path, stem: str, wall: tuple, factors=None) -> Path:
-    """The plane wall y = y_w as one quad (``<stem>_wall.vtu``) over the x and z the capsule
-    covers, for ParaView to draw beside the membrane."""
+def _write_boundary(out_dir: Path, stem: str, label: str, corners: np.ndarray, factors=None) -> Path:
+    """A piece of the scene's boundary (its ``patch``: the wall under the capsules' paths) as one
+    quad (``<stem>_<label>.vtu``, ``_wall.vtu`` for the wall), for ParaView to draw beside the membrane."""
     import meshio
 
-    y, x0, x1, z0, z1 = wall
     f = factors["a"] if factors is not None else 1.0
-    corners = f * np.array([[x0, y, z0], [x1, y, z0], [x1, y, z1], [x0, y, z1]], dtype=np.float64)
-    name = out_dir / f"{stem}_wall.vtu"
+    corners = f * np.asarray(corners, dtype=np.float64)
+    name = out_dir / f"{stem}_{label}.vtu"
     meshio.write(name, meshio.Mesh(corners, [("quad", np.array([[0, 1, 2, 3]], dtype=np.int64))]),
                  file_format="vtu", binary=True)
     return name
@@ -342,12 +341,13 @@ def export_run(
                    {**_scaled(cell, factors), **capsule_cell})
 
     writer = _write_xdmf if fmt == "xdmf" else _write_vtu
-    case = case_of(data)
-    wall = None
-    if case.wall is not None:  # the scene's wall: a rectangle under the capsules' whole paths
+    from capsim.scene import Scene
+
+    scene = Scene.of(case_of(data))
+    patches = []
+    if scene.has_boundary:  # the scene's boundaries (a wall): a piece under the capsules' whole paths
         xs = np.concatenate([np.asarray(p, dtype=np.float64) for p in positions])
-        wall = (case.wall_y, xs[:, 0].min() - 2.0, xs[:, 0].max() + 2.0,
-                xs[:, 2].min() - 2.0, xs[:, 2].max() + 2.0)
+        patches = [(b.label, b.patch(xs)) for b in scene.boundaries]
     # Every file is written in a private staging directory inside `out`, then renamed into
     # place: a full disk, a size limit or a kill leaves what was in `out` as it was.
     staging = out / f".capsim-export-{os.getpid()}"
@@ -355,8 +355,8 @@ def export_run(
     try:
         staging.mkdir()
         staged = writer(staging, path.stem, elements, rest, snapshots(), factors, tuple(capsule_point))
-        if wall is not None:
-            staged.append(_write_wall(staging, path.stem, wall, factors))
+        for label, corners in patches:
+            staged.append(_write_boundary(staging, path.stem, label, corners, factors))
         for file in staged:
             os.replace(file, out / file.name)
     except (OSError, RuntimeError) as exc:

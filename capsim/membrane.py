@@ -732,7 +732,7 @@ class MembraneForce:
         self.traction_solve = TRACTION_MEASURES[self.law.measure](self)
         self.rest_positions = rest_positions
         self.law_params = dict(law_params or {})
-        #: several capsules of their own membranes (capsim.bodies.materials): the law's parameters and
+        #: several capsules of their own membranes (capsim.scene.bodies.materials): the law's parameters and
         #: the modulus per element and per vertex, κ per node; None: one membrane everywhere
         self.material = material
         if material is not None and bending is None and float(np.max(material["node_bending"])) > 0.0:

@@ -20,7 +20,7 @@ from capsim.geometry import (
     vertex_triangle_quality,
     volume_area,
 )
-from capsim.bodies import smallest_gap
+from capsim.scene import smallest_gap
 from capsim.membrane import principal_tensions
 from capsim.quantities import MOTIONS as _MOTIONS
 from capsim.quantities import TURNING_MOTIONS
@@ -1209,9 +1209,8 @@ class StepObserver:
 
     def __init__(self, model, rest_positions: np.ndarray, axis=(0.0, 1.0, 0.0), axes=None) -> None:
         self.model = model
-        bodies = getattr(model, "bodies", None)
-        #: several capsules (capsim.bodies): each its own row of every per-capsule column (CAPSULE_COLUMNS)
-        self.bodies = bodies if bodies is not None and bodies.count > 1 else None
+        #: several capsules (capsim.scene.bodies): each its own row of every per-capsule column (CAPSULE_COLUMNS)
+        self.bodies = model.scene.layout if model.scene.several else None
         if self.bodies is None:
             self.tracker = TankTreadingTracker(rest_positions)
             rest_geometry = model.disc.geometry(rest_positions)
@@ -1403,8 +1402,9 @@ def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarr
     u_far = model.undisturbed(center[None])[0]  # the undisturbed flow at the centre, now
     for i, c in enumerate("xyz"):
         row[f"slip_velocity_{c}"] = row[f"centroid_velocity_{c}"] - float(u_far[i])
-    if getattr(model, "wall_y", None) is not None:
-        row["wall_gap"] = float(y[:, 1].min() - model.wall_y)
+    gap = model.scene.boundary_gap(y)  # the scene's boundaries (a wall): the guard min_wall_gap reads it
+    if gap is not None:
+        row["wall_gap"] = gap
     S_star = particle_stresslet(
         geometry, density, u, elements, model.disc.reg_phi, center, row["volume"],
         model.shear_rate_G, lam, weights,

@@ -40,7 +40,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from capsim.mesh import linear_subtriangles  # numba-free: figures need no kernels
-from capsim.bodies import run_bodies, run_capsule_count
+from capsim.scene import run_bodies, run_capsule_count
 from capsim.quantities import PERIODIC_MOTIONS, canonical_motion
 
 __all__ = [
@@ -98,6 +98,9 @@ def _case_info(data: dict[str, Any]) -> dict[str, Any]:
         case = case_of(data)
     except Exception:  # noqa: BLE001 - a figure without theory is still a figure
         return {}
+    from capsim.scene import Scene
+
+    scene = Scene.of(case)
     info = {
         "G": float(case.flow.shear_rate_G),
         "lam": float(case.flow.viscosity_ratio),
@@ -108,13 +111,11 @@ def _case_info(data: dict[str, Any]) -> dict[str, Any]:
         "name": str(case.name),
         "mesh": f"{case.mesh.base} level {case.mesh.level} ({np.asarray(data['rest_positions']).shape[0]} nodes)",
         "bending": float(getattr(case.membrane, "bending_modulus", 0.0) or 0.0),
-        # the scene's wall, y = y_w (None: unbounded)
-        "wall_y": case.wall_y,
+        # the scene's boundaries (capsim.scene: a wall; none: unbounded), drawn by _draw_wall
+        "boundaries": scene.boundaries,
     }
-    if len(getattr(case, "capsules", None) or ()) > 1:  # several capsules (issue 43): the scene's
-        from capsim.bodies import body_specs
-
-        shapes = [spec.shape for spec in body_specs(case)]
+    if scene.several:  # several capsules (issue 43): the scene's
+        shapes = [spec.shape for spec in scene.specs]
         n = np.asarray(data["rest_positions"]).shape[0]
         info["capsules"] = len(shapes)
         info["mesh"] = f"{case.mesh.base} level {case.mesh.level} ({n // len(shapes)} nodes a capsule)"
@@ -128,14 +129,14 @@ def _case_info(data: dict[str, Any]) -> dict[str, Any]:
 
 
 def _draw_wall(ax, info: dict[str, Any]) -> None:
-    """The wall of a run near one (issue 42) as a hatched band below y = y_w, in the xy-plane figures."""
-    y = info.get("wall_y")
-    if y is None:
-        return
-    lo, hi = ax.get_xlim()
-    ax.axhline(y, color="0.2", lw=1.2, label="wall")
-    ax.fill_between([lo, hi], y - 0.15, y, color="0.85", hatch="////", edgecolor="0.5", lw=0)
-    ax.set_xlim(lo, hi)
+    """The scene's boundaries (a wall, issue 42) as a line with a hatched band on the solid side,
+    in the xy-plane figures: each boundary says where (capsim.scene.Boundary.outline_xy)."""
+    for boundary in info.get("boundaries", ()):
+        lo, hi = ax.get_xlim()
+        line, band = boundary.outline_xy(lo, hi)
+        ax.plot(line[:, 0], line[:, 1], color="0.2", lw=1.2, label=boundary.label)
+        ax.fill(band[:, 0], band[:, 1], color="0.85", hatch="////", edgecolor="0.5", lw=0)
+        ax.set_xlim(lo, hi)
 
 
 def _shape_text(info: dict[str, Any]) -> str:
@@ -287,7 +288,7 @@ CAPSULE_LEGEND_MAX = 10
 _CAPSULE_STYLES = ("-", "--", ":", "-.")
 
 
-# the layout of a run file's capsules (capsim.bodies owns it; export reads it there too)
+# the layout of a run file's capsules (capsim.scene.bodies owns it; export reads it there too)
 capsule_count, scene_bodies = run_capsule_count, run_bodies
 
 

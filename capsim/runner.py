@@ -27,7 +27,7 @@ from capsim.errors import first_line
 from capsim.flows import FLOWS, history_breakpoints
 from capsim.membrane import law_attributes
 from capsim.mesh import SurfaceMesh, rest_shape_attributes
-from capsim.bodies import body_axis, body_specs
+from capsim.scene import body_axis, body_specs
 from capsim.observables import StepObserver, centroid_travel, relaxation_summary, run_summary, scene_summary
 from capsim.schedules import CheckpointSchedule, SnapshotSchedule
 from capsim.solver import build_model
@@ -350,7 +350,7 @@ class _Run:
                    "symmetry": model.disc.symmetry,
                    # the tolerance the run steps with, and why (time.rtol auto, the accuracy target; else given)
                    "time_rtol": float(case.time.rtol), "time_rtol_choice": case.time.rtol_choice or "given",
-                   # several capsules: their layout in the mesh (capsim.bodies.Bodies.from_attrs)
+                   # several capsules: their layout in the mesh (capsim.scene.bodies.Bodies.from_attrs)
                    **({"n_capsules": model.bodies.count} if model.several else {})},
         )
         # only now that the new file is in place: a stale one belongs to the run this one replaced

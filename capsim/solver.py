@@ -23,12 +23,11 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from capsim import kernels
-from capsim.bodies import (Bodies, body_specs, groups_keeping_materials, materials, reference_positions,
-                           scene_mesh)
+from capsim.scene import Bodies, Scene, groups_keeping_materials, materials, reference_positions
 # the far field and the scene's symmetries live in capsim.flows (re-exported here)
 from capsim.flows import (  # noqa: F401
     INVERSION, MIRROR_Z, ROTATION_Z, SIMPLE_SHEAR, SYMMETRY_CANDIDATES, SYMMETRY_GROUPS, FarField, far_field_of, scaled,
-    scene_far_field, symmetries_kept,
+    symmetries_kept,
 )
 from capsim.geometry import ElementGeometry, element_geometry, interpolate, shape_functions
 from capsim.krylov import gmres
@@ -343,34 +342,36 @@ class Discretization:
         fine = weights(self.fine_phi, self.fine_dxi, self.fine_deta, self.fine_w)
         return RestMeasure(np.ascontiguousarray(self.geometry(X).weights), np.ascontiguousarray(duffy), fine)
 
-    #: the wall's image integrals switch to the subdivided rule (every element split into
-    #: 4^near_field_levels) once the membrane comes within this many element sizes of the wall
-    WALL_REFINE_SIZES = 2.0
+    #: a boundary's regular part (the wall's image) is integrated on the subdivided rule (every
+    #: element split into 4^near_field_levels) once the membrane comes within this many element
+    #: sizes of it: its integrand varies on the scale of the gap there, finer than an element
+    BOUNDARY_REFINE_SIZES = 2.0
 
-    def wall_fine_rule(self, x: np.ndarray, geo: ElementGeometry, y_wall: float):
+    def boundary_fine_rule(self, x: np.ndarray, geo: ElementGeometry, boundary: Any):
         """(points, normals, weights) of the subdivided rule at configuration x when the surface is
-        within WALL_REFINE_SIZES element sizes of the wall y = y_wall (the image integrand varies on
-        the scale of the gap there, finer than an element), else None; cached per geometry."""
-        cached = getattr(self, "_wall_fine", None)
-        if cached is not None and cached[0] is geo and cached[1] == y_wall:
+        within BOUNDARY_REFINE_SIZES element sizes of ``boundary`` (capsim.scene.Boundary: its
+        ``gap``), else None; cached per geometry and boundary."""
+        cached = getattr(self, "_boundary_fine", None)
+        if cached is not None and cached[0] is geo and cached[1] == boundary:
             return cached[2]
         size = float(np.sqrt(2.0 * geo.weights.sum(axis=1).mean()))
         rule = None
-        if float(x[:, 1].min()) - y_wall < self.WALL_REFINE_SIZES * size:
+        if boundary.gap(x) < self.BOUNDARY_REFINE_SIZES * size:
             rule = kernels.element_quadrature(np.ascontiguousarray(x), self.elements, self.fine_phi, self.fine_dxi,
                                               self.fine_deta, self.fine_w)
-        self._wall_fine = (geo, y_wall, rule)
+        self._boundary_fine = (geo, boundary, rule)
         return rule
 
     def single_layer(self, x: np.ndarray, geo: ElementGeometry, density: np.ndarray,
-                     measure: RestMeasure | None = None, y_wall: float | None = None) -> np.ndarray:
+                     measure: RestMeasure | None = None, boundaries: tuple = ()) -> np.ndarray:
         """∫ G·f dS at every node for a density given per element.
 
         density: (N_e, 3) element-constant (seed 3.7) or (N_e, 6, 3) element
         nodal values interpolated quadratically; per unit area of the surface x, or per
-        unit area of the rest shape with its ``measure`` (∫ G·F dA0). ``y_wall``: a no-slip
-        plane wall there (the scene's wall): G is Blake's, its image part integrated with the
-        regular rule (it is regular while the surface stays above the wall).
+        unit area of the rest shape with its ``measure`` (∫ G·F dA0). ``boundaries``: the
+        scene's (capsim.scene.Boundary): G is the free-space Green's function plus each one's
+        regular part (the wall's image: Blake's), integrated with the regular rule, or the
+        subdivided one near the boundary (it is regular while the surface stays off it).
         """
         clock = self.clock
         clock.start()
@@ -387,15 +388,15 @@ class Discretization:
         clock.lap("interpolation")
         u = kernels.stokeslet_sum(x[self.targets], geo.points.reshape(-1, 3), strengths)
         clock.lap("stokeslet_sum")
-        if y_wall is not None:
-            fine = self.wall_fine_rule(x, geo, y_wall)
+        for boundary in boundaries:
+            fine = self.boundary_fine_rule(x, geo, boundary)
             if fine is None:
-                u += kernels.wall_image_sum(x[self.targets], geo.points.reshape(-1, 3), strengths, y_wall)
-            else:  # close to the wall: the image integrals on the subdivided rule
+                u += boundary.single_layer(x[self.targets], geo.points.reshape(-1, 3), strengths)
+            else:  # close to the boundary: its integrals on the subdivided rule
                 fine_w = fine[2] if measure.fine_weights.shape[0] == 0 else measure.fine_weights
                 _, fine_strengths = kernels.point_strengths(self.fine_phi, nodal, np.ascontiguousarray(fine_w))
-                u += kernels.wall_image_sum(x[self.targets], fine[0].reshape(-1, 3), fine_strengths, y_wall)
-            clock.lap("wall_image_sum")
+                u += boundary.single_layer(x[self.targets], fine[0].reshape(-1, 3), fine_strengths)
+            clock.lap(f"{boundary.label}_image_sum")
         u += kernels.single_layer_singular_correction(
             x, self.elements, self.inc_offsets, self.inc_elem, self.inc_local,
             nodal, geo.points, weights, point_density, *self.duffy_by_node, self.sing_w, measure.duffy_weights,
@@ -447,12 +448,12 @@ class Discretization:
                                           np.ascontiguousarray(u, dtype=np.float64)))
 
     def double_layer(self, x: np.ndarray, geo: ElementGeometry, u: np.ndarray, u_target: np.ndarray | None = None,
-                     y_wall: float | None = None) -> np.ndarray:
+                     boundaries: tuple = ()) -> np.ndarray:
         """D[u](x0) = ∫ (u − u0)·T·n dS at every node, u quadratic over elements.
 
         With n outward, PV∫ u·Tn dS = D[u] − 4π u0 (docs/conventions.md), so rigid-body
-        motions give D = 0 and u = n on the unit sphere gives D = 8π n0. ``y_wall``: a no-slip
-        wall there; the image part of Blake's stress tensor is regular and is added as it is.
+        motions give D = 0 and u = n on the unit sphere gives D = 8π n0. ``boundaries``: the
+        scene's; each one's regular part of the stress tensor (the wall's image: Blake's) is added.
         """
         if u_target is None:
             u_target = u
@@ -466,16 +467,15 @@ class Discretization:
             x, u, u_target, self.elements, self.inc_offsets, self.inc_elem, self.inc_local,
             geo.points, nw, u_pts, *self.duffy_by_node, self.sing_w, t,
         )
-        if y_wall is not None:
-            fine = self.wall_fine_rule(x, geo, y_wall)
+        for boundary in boundaries:
+            fine = self.boundary_fine_rule(x, geo, boundary)
             if fine is None:
-                out += kernels.wall_image_double_layer(x[t], geo.points.reshape(-1, 3), nw.reshape(-1, 3),
-                                                       u_pts.reshape(-1, 3), y_wall)
-            else:  # close to the wall: the image integrals on the subdivided rule
+                out += boundary.double_layer(x[t], geo.points.reshape(-1, 3), nw.reshape(-1, 3), u_pts.reshape(-1, 3))
+            else:  # close to the boundary: its integrals on the subdivided rule
                 fine_u = interpolate(self.fine_phi, u[self.elements])
                 fine_nw = fine[1] * fine[2][..., None]
-                out += kernels.wall_image_double_layer(x[t], fine[0].reshape(-1, 3), fine_nw.reshape(-1, 3),
-                                                       fine_u.reshape(-1, 3), y_wall)
+                out += boundary.double_layer(x[t], fine[0].reshape(-1, 3), fine_nw.reshape(-1, 3),
+                                             fine_u.reshape(-1, 3))
         near = self.near_pairs(x, geo)
         if near is not None:
             out += kernels.double_layer_near_correction(
@@ -558,10 +558,10 @@ class CapsuleModel:
     # whether it has (state: "flow_stopped")
     flow_stop_time: float | None = None
     flow_step_factor: float = 0.0
-    # the scene's no-slip plane wall y = wall_y (None: unbounded): Blake's Green's function
-    wall_y: float | None = None
-    # the scene's capsules (capsim.bodies): their node and element ranges; each keeps its own volume
-    bodies: Bodies | None = None
+    # the scene (capsim.scene): its boundaries (their regular part of the Green's function: the
+    # wall's image), its capsules' layout (each keeps its own volume) and its features; None: one
+    # capsule in ``far_field`` without boundaries (a model built by hand)
+    scene: Scene | None = None
     # capsules of different λ: λ at every node (None: viscosity_ratio everywhere). The double layer
     # then acts on (1 − λ) u, each capsule's term with its own λ (``double_layer_operator``)
     node_lambda: np.ndarray | None = None
@@ -582,6 +582,8 @@ class CapsuleModel:
     _last_rhs: np.ndarray | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self):
+        if self.scene is None:
+            self.scene = Scene(base_field=self.far_field)
         if self.solver_method not in SOLVER_METHODS:
             raise ValueError(f"unknown solver method {self.solver_method!r} (allowed: {SOLVER_METHODS})")
         if self.membrane.disc is not self.disc:
@@ -740,7 +742,7 @@ class CapsuleModel:
         lam = self.viscosity_ratio
         viscous_interior = self.solves_double_layer
         t0 = time.perf_counter()
-        sl = self.disc.single_layer(x, state.geometry, state.density, state.measure, y_wall=self.wall_y)
+        sl = self.disc.single_layer(x, state.geometry, state.density, state.measure, boundaries=self.scene.boundaries)
         self.counts["single_layer_applications"] += 1
         t1 = time.perf_counter()
         self.solver_times["single_layer"] += t1 - t0
@@ -795,7 +797,7 @@ class CapsuleModel:
         that velocity's round-off in the volume correction's flux (U·n, its normals accurate to
         round-off of positions ~1e6) moved its membrane: volume drift 9.5e-4 against 3.3e-5 at
         the origin (level 1, kt 6). A whole-number c keeps a scene at the origin to the bit."""
-        if self.wall_y is not None or not isinstance(self.far_field, FarField):
+        if not self.scene.translation_invariant:
             return None
         c = np.round(x.mean(axis=0))
         if not c.any():
@@ -829,9 +831,14 @@ class CapsuleModel:
         return self.viscosity_ratio != 1.0 or self.node_lambda is not None
 
     @property
+    def bodies(self) -> Bodies | None:
+        """The scene's capsules' layout in the mesh (None for a model built by hand: one)."""
+        return self.scene.layout
+
+    @property
     def several(self) -> bool:
         """Whether the scene holds more than one capsule."""
-        return self.bodies is not None and self.bodies.count > 1
+        return self.scene.several
 
     def body_flux(self, geo: ElementGeometry, u: np.ndarray) -> np.ndarray:
         """∫ u·n dS over each capsule (count,): the volume correction's and the λ ≠ 1 deflation's."""
@@ -848,18 +855,18 @@ class CapsuleModel:
         (1 − λ) u (D[w](x0) = ∫ (w − w0)·T·n dS; on another capsule's surface ∫ T·n dS = 0 at x0,
         so each capsule's term carries its own 1 − λ), and each deflation its own 1 − λ."""
         lam = self.viscosity_ratio
-        disc, counts, wall = self.disc, self.counts, self.wall_y
+        disc, counts, boundaries = self.disc, self.counts, self.scene.boundaries
         if self.node_lambda is None:
             w = 1.0 - lam
             c = w / (8.0 * np.pi)
 
             def layer(u):
-                return c * disc.double_layer(x, geo, u, y_wall=wall)
+                return c * disc.double_layer(x, geo, u, boundaries=boundaries)
         else:
             w = (1.0 - self.node_lambda)[:, None]
 
             def layer(u):
-                return disc.double_layer(x, geo, w * u, y_wall=wall) / (8.0 * np.pi)
+                return disc.double_layer(x, geo, w * u, boundaries=boundaries) / (8.0 * np.pi)
         if self.several:  # the areas once per configuration, the fluxes at every application
             body = self.bodies.node_body
             areas = np.array([geo.weights[elems].sum() for elems in self.bodies.element_index])
@@ -953,8 +960,9 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
     mode = case.mesh.symmetry if symmetry is None else symmetry
     if mode not in SYMMETRY_CANDIDATES:
         raise ValueError(f"symmetry = {mode!r}: must be one of {', '.join(SYMMETRY_CANDIDATES)}")
-    specs = body_specs(case)  # the scene's capsules: one, or the capsules list (capsim.bodies)
-    positions, elements, n_vertices, bodies = scene_mesh(specs, case.mesh.base, case.mesh.level)
+    # the scene (capsim.scene): far field, boundaries, capsules; their meshes laid into one surface
+    positions, elements, n_vertices, scene = Scene.of(case).meshed(case.mesh.base, case.mesh.level)
+    specs, bodies = list(scene.specs), scene.layout
     disc = Discretization(
         elements, n_vertices,
         regular_order=case.quadrature.regular_order,
@@ -965,7 +973,7 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
         node_body=bodies.node_body if bodies.count > 1 else None,
     )
     # a body placed away from the origin keeps fewer symmetries: mesh.symmetry auto finds which
-    far_field = scene_far_field(case)  # the flow, vanishing on the wall when there is one
+    far_field = scene.far_field  # the flow, vanishing on the wall when there is one
     if mode != "none":
         allowed = set(symmetries_kept(far_field))
         if bodies.count > 1:  # a symmetry maps a capsule onto one of the same membrane and λ
@@ -1005,8 +1013,7 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
         flow_stop_time=None if case.flow.jump is None else case.flow.jump[0],
         flow_step_factor=0.0 if case.flow.jump is None else case.flow.jump[1],
         rate_factor=case.flow.rate_factor,
-        wall_y=case.wall_y,
-        bodies=bodies,
+        scene=scene,
         node_lambda=None if material is None else material["node_lambda"],
     )
     return model, rest

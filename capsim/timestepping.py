@@ -156,13 +156,9 @@ def max_step(case: Any) -> float:
     return min(float(case.time.dt_max), history_max_step(case.flow.history))
 
 
-def _carried_scene(model: Any) -> bool:
-    """One capsule in a linear flow without a wall (scene_error's ``carried``)."""
-    from capsim.flows import FarField
-
-    bodies = getattr(model, "bodies", None)
-    return (getattr(model, "wall_y", None) is None and isinstance(getattr(model, "far_field", None), FarField)
-            and (bodies is None or bodies.count == 1))
+def _carried_scene(scene: Any) -> bool:
+    """One capsule in a linear flow without a boundary (scene_error's ``carried``)."""
+    return scene.translation_invariant and scene.body_count == 1
 
 
 # ---------------------------------------------------------------- embedded Runge–Kutta pairs
@@ -308,9 +304,10 @@ class Integrator:
     def settings(cls, case: Any, model: Any) -> dict[str, Any]:
         """The constructor's options for a run of `case` on `model` (common: tolerance and step bounds)."""
         tc = case.time
-        size_of = scene_size(getattr(model, "bodies", None))
+        scene = model.scene  # capsim.scene.Scene: the capsules' layout, whether one is carried
+        size_of = scene_size(scene.layout)
         return {"rtol": tc.rtol, "dt_initial": tc.dt_initial, "dt_min": tc.dt_min, "dt_max": max_step(case),
-                "size_of": size_of, "error_of": scene_error(size_of, carried=_carried_scene(model))}
+                "size_of": size_of, "error_of": scene_error(size_of, carried=_carried_scene(scene))}
 
     @classmethod
     def case_problem(cls, case: Any) -> tuple[str, Any, str] | None:
@@ -853,16 +850,20 @@ class LinearlyImplicit(Integrator):
             return ("time.scheme", cls.name,
                     f"cannot run flow.history kind {case.flow.history.kind} (a rate that varies in time: its stages "
                     "take no time derivative); use scheme rkf23, rkc or auto")
-        if len(getattr(case, "capsules", None) or ()) > 1:  # its deflation and volume correction are one capsule's
+        from capsim.scene import Scene  # numpy only: the schema's validation asks this
+
+        # what it cannot run is asked of the scene's features, not of a flow's or a section's name
+        scene = Scene.of(case)
+        if scene.several:  # its deflation and volume correction are one capsule's
             return ("time.scheme", cls.name, "cannot run several capsules yet (its stage Jacobian deflates one "
                     "capsule's volume mode); use scheme rkf23, rkc or auto")
-        if getattr(case, "wall", None) is not None:  # its frozen-layer Jacobian has no wall image
-            return ("time.scheme", cls.name, "cannot run a case with a wall yet (its stage Jacobian has no wall "
-                    "image); use scheme rkf23, rkc or auto")
-        kind = getattr(case.flow, "kind", "simple_shear")
-        if kind == "poiseuille":  # its velocity gradient varies in space; the stage Jacobian takes a constant one
+        if scene.has_boundary:  # its frozen-layer Jacobian has no boundary's regular part (the wall's image)
+            labels = " and ".join(b.label for b in scene.boundaries)
+            return ("time.scheme", cls.name, f"cannot run a case with a {labels} yet (its stage Jacobian has no "
+                    f"{labels} image); use scheme rkf23, rkc or auto")
+        if not scene.uniform_gradient:  # its stage Jacobian takes one constant far-field gradient
             return ("time.scheme", cls.name,
-                    "cannot run flow.kind poiseuille (its stage Jacobian takes a constant far-field gradient); "
+                    f"cannot run flow.kind {scene.flow_kind} (its stage Jacobian takes a constant far-field gradient); "
                     "use scheme rkf23, rkc or auto")
         pre = case.time.preconditioner
         if pre in ("local", "dense") and case.membrane.traction != "galerkin":

@@ -313,7 +313,7 @@ class KelvinVoigtMembrane:
             u = red.full(w)
             density = viscous_density((K @ u.ravel()).reshape(-1, 3))
             sl = disc.single_layer(x, geo, np.ascontiguousarray(density[elements]), measure,
-                                   y_wall=getattr(model, "wall_y", None))  # the scene's wall: Blake's image too
+                                   boundaries=model.scene.boundaries)  # the scene's wall: Blake's image too
             counts["single_layer_applications"] += 1
             base = u if double is None else double(u)
             return red.restrict(base + sl / (8.0 * np.pi))

@@ -12,7 +12,13 @@ PACKAGE = Path(__file__).resolve().parents[1] / "capsim"
 
 
 def _module_name(path: Path) -> str:
-    return "capsim" if path.stem == "__init__" else f"capsim.{path.stem}"
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _sources() -> list[Path]:
+    """Every module of the package, its sub-packages' included (capsim/scene/...)."""
+    return sorted(PACKAGE.rglob("*.py"))
 
 
 def _imports(path: Path, modules: set[str]) -> set[str]:
@@ -22,8 +28,11 @@ def _imports(path: Path, modules: set[str]) -> set[str]:
         if isinstance(node, ast.Import):
             names = [alias.name for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
-            if node.level:  # relative: from . import x / from .x import y
-                base = "capsim" + (f".{node.module}" if node.module else "")
+            if node.level:  # relative: from . import x / from .x import y, from the module's package
+                package = _module_name(path).split(".")
+                package = package if path.stem == "__init__" else package[:-1]
+                package = package[:len(package) - node.level + 1]
+                base = ".".join(package) + (f".{node.module}" if node.module else "")
             else:
                 base = node.module or ""
             # `from capsim import store` imports the module capsim.store
@@ -38,7 +47,7 @@ def _imports(path: Path, modules: set[str]) -> set[str]:
 
 
 def import_graph() -> dict[str, set[str]]:
-    paths = sorted(PACKAGE.glob("*.py"))
+    paths = _sources()
     modules = {_module_name(p) for p in paths}
     return {_module_name(p): _imports(p, modules) for p in paths}
 
@@ -120,7 +129,7 @@ def test_only_the_checkpoint_module_knows_the_checkpoint_format():
     """Its format (the constant, the npz writer) in capsim/checkpoint.py; its name in capsim/files.py."""
     import re
 
-    for path in PACKAGE.glob("*.py"):
+    for path in _sources():
         text = path.read_text()
         if path.name != "checkpoint.py":
             assert not re.search(r"CHECKPOINT_FORMAT|^FORMAT =|np\.savez", text, re.M), path.name
@@ -132,7 +141,7 @@ def test_every_writer_uses_the_one_temporary_name():
     """Temporary files are named by capsim.files.tmp_name alone: no module builds its own."""
     import re
 
-    for path in PACKAGE.glob("*.py"):
+    for path in _sources():
         if path.name == "files.py":
             continue
         assert not re.search(r"\.tmp-|\+ \"\.tmp\"|\.tmp\"\)", path.read_text()), path.name
@@ -143,7 +152,7 @@ def test_one_formatter_for_every_schema_error():
     (issue 27): no other module walks a ValidationError's list of problems."""
     import re
 
-    for path in PACKAGE.glob("*.py"):
+    for path in _sources():
         if path.name != "config.py":
             assert not re.search(r"\.errors\(", path.read_text()), path.name
     # the campaign's base model is the case schema's strict base
@@ -151,3 +160,68 @@ def test_one_formatter_for_every_schema_error():
     from capsim.config import StrictModel
 
     assert issubclass(Campaign, StrictModel)
+
+
+# ---------------------------------------------------------------- the scene (capsim/scene/, issue 52)
+
+#: what the scene may import of capsim: the flows, the meshes and the kernels under it (a
+#: boundary kind's regular part is a kernel), the membrane laws (the capsules' own materials);
+#: nothing of the solve, the time stepping, the files, the campaigns or the face
+SCENE_MAY_IMPORT = {"capsim.flows", "capsim.mesh", "capsim.geometry", "capsim.quadrature", "capsim.kernels",
+                    "capsim.membrane", "capsim.errors"}
+
+
+def test_the_scene_imports_nothing_above_it():
+    graph = import_graph()
+    scene = {m for m in graph if m == "capsim.scene" or m.startswith("capsim.scene.")}
+    assert {"capsim.scene", "capsim.scene.scene", "capsim.scene.bodies", "capsim.scene.boundaries",
+            "capsim.scene.plane_wall"} <= scene
+    for module in sorted(scene):
+        above = graph[module] - scene - SCENE_MAY_IMPORT
+        assert not above, f"{module} imports {sorted(above)}"
+    assert not (PACKAGE / "bodies.py").exists()  # moved into the scene, no shim left
+
+
+def test_a_boundary_kind_is_one_module_of_the_scene():
+    """Every registered boundary kind is defined in a module of its own in capsim/scene/, and no
+    module outside it names the kind's class or calls its kernels: a new kind (a tube, a periodic
+    box) is one module there."""
+    import re
+
+    from capsim.scene import BOUNDARIES
+
+    assert "plane_wall" in BOUNDARIES
+    homes = {}
+    for name, kind in BOUNDARIES.items():
+        assert kind.__module__.startswith("capsim.scene."), (name, kind.__module__)
+        assert kind.__module__ not in homes.values(), f"two boundary kinds in {kind.__module__}"
+        homes[name] = kind.__module__
+        home = PACKAGE.parent / (kind.__module__.replace(".", "/") + ".py")
+        for path in _sources():
+            if path != home:
+                assert not re.search(rf"\b{kind.__name__}\b", path.read_text()), (kind.__name__, path.name)
+    # the wall's kernels are called from its module alone
+    for path in _sources():
+        if path.name not in ("kernels.py", "plane_wall.py"):
+            assert not re.search(r"wall_image_(sum|double_layer)\(", path.read_text()), path.name
+
+
+def test_the_walls_position_is_read_in_three_modules():
+    """The wall's distance and position (wall.distance, the case's wall_y, the kernels' y_wall) are
+    read in the wall's module, the schema's validation and the kernels alone (docs/developer.md,
+    "The scene"); everyone else asks the scene."""
+    import re
+
+    readers = {_module_name(path) for path in _sources()
+               if re.search(r"\bwall_y\b|\by_wall\b|wall\.distance", path.read_text())}
+    assert readers <= {"capsim.scene.plane_wall", "capsim.config", "capsim.kernels"}, readers
+
+
+def test_no_module_fishes_a_scene_part_off_the_model_or_the_case():
+    """No getattr(model, "wall_y" | "bodies" | "far_field" ...) or getattr(case, "wall" | "capsules"):
+    the scene's parts are asked of the scene (model.scene, Scene.of(case))."""
+    import re
+
+    pattern = re.compile(r"getattr\((model|self\.model|case), \"(wall|wall_y|bodies|far_field|capsules|scene)\"")
+    for path in _sources():
+        assert not pattern.search(path.read_text()), path.name

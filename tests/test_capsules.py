@@ -1,4 +1,4 @@
-"""Several capsules in one scene (issue 43: ``capsules:``, capsim.bodies) and the known answers
+"""Several capsules in one scene (issue 43: ``capsules:``, capsim.scene.bodies) and the known answers
 of docs/known_answers.md, "Two capsules": one capsule in the list is today's run to the bit;
 swapping the capsules' order gives the same run; two capsules far apart are two isolated ones;
 two stiff capsules (rigid spheres) approach along the extensional axis as Batchelor & Green
@@ -14,7 +14,7 @@ import h5py
 import numpy as np
 import pytest
 
-from capsim.bodies import Bodies, body_specs, scene_mesh, winding_numbers
+from capsim.scene import Bodies, body_specs, scene_mesh, winding_numbers
 from capsim.config import ConfigError, case_from_dict
 from capsim.runner import run_case
 from capsim.solver import build_model
@@ -273,7 +273,7 @@ def test_far_apart_capsules_are_isolated_ones_with_a_viscous_membrane_and_above_
     ({"membrane": {"law": "skalak", "skalak_c": 50.0}}, {"membrane": {"law": "skalak", "skalak_c": 50.0}}),
 ])
 def test_a_capsule_of_its_own_membrane_or_viscosity_is_the_isolated_capsule_of_them(tmp_path, own, single):
-    """Capsules of different membranes and λ (capsim.bodies.materials): far apart, each is the
+    """Capsules of different membranes and λ (capsim.scene.bodies.materials): far apart, each is the
     isolated capsule of its own: twice the modulus is the capsule at half the G (its tensions in
     the flow's μka the same), λ = 3 the λ = 3 capsule, its own bending or Skalak C its own run
     (D_xy, θ, S*_xy to 1e-4, measured 5e-6; the smallest tension, an extreme over the vertices,

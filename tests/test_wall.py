@@ -288,20 +288,22 @@ def test_near_the_wall_the_image_integrals_take_the_subdivided_rule():
     """Within two element sizes of the wall the image sums use the subdivided rule: it is used
     there (not far away), and the regular rule it replaces was already close (the image integrand
     is smooth on the membrane while the gap exceeds ~ an element: 1e-3 here)."""
+    from capsim.scene.plane_wall import PlaneWall
     from capsim.solver import build_model
 
     model, X = build_model(case_from_dict({"name": "s", "mesh": {"level": 2}}))
     disc = model.disc
     x = X.copy()
     geo = disc.geometry(x)
-    assert disc.wall_fine_rule(x, geo, -5.0) is None
-    fine = disc.wall_fine_rule(x, geo, -1.3)
+    assert disc.boundary_fine_rule(x, geo, PlaneWall(-5.0)) is None
+    wall = PlaneWall(-1.3)
+    fine = disc.boundary_fine_rule(x, geo, wall)
     assert fine is not None and fine[0].shape[1] == 4 * geo.points.shape[1]
     density = np.zeros((disc.elements.shape[0], 6, 3))
     density[..., 0] = 1.0 + x[disc.elements][..., 1]  # a smooth tangential-ish traction
-    refined = disc.single_layer(x, geo, density, y_wall=-1.3)
-    disc._wall_fine = (geo, -1.3, None)  # the regular rule, as far from the wall
-    regular = disc.single_layer(x, geo, density, y_wall=-1.3)
+    refined = disc.single_layer(x, geo, density, boundaries=(wall,))
+    disc._boundary_fine = (geo, wall, None)  # the regular rule, as far from the wall
+    regular = disc.single_layer(x, geo, density, boundaries=(wall,))
     assert np.abs(refined - regular).max() < 1e-3 * np.abs(refined).max()
     assert np.abs(refined - regular).max() > 0  # the rule did change
 

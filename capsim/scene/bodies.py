@@ -1,4 +1,4 @@
-"""The scene's bodies: one capsule or several (``capsules:``, issue 43).
+"""The scene's bodies: one capsule or several (``capsules:``, issue 43), in capsim.scene.
 
 Several capsules are one surface of disjoint closed parts: every capsule's mesh (its own rest
 shape, orientation and centre, the case's mesh base and level) is laid one after another into
@@ -115,7 +115,7 @@ class Bodies:
 def body_specs(case: Any) -> list[BodySpec]:
     """The case's capsules: its ``capsules`` list (each field it leaves out taken from the
     top-level sections), else the one capsule of the top-level sections."""
-    if not getattr(case, "capsules", None):
+    if not case.capsules:
         return [BodySpec(tuple(case.center), case.shape, case.initial_axis, case.initial_tilt_deg)]
     out = []
     for capsule in case.capsules:
@@ -339,6 +339,6 @@ def run_bodies(data: dict[str, Any]) -> Bodies:
         body = bodies.node_body
         for i in range(k):
             if np.any(body[elements[bodies.elements(i)]] != i):
-                raise ValueError(f"the run's mesh is not {k} capsules laid one after another (capsim.bodies)")
+                raise ValueError(f"the run's mesh is not {k} capsules laid one after another (capsim.scene.bodies)")
     return bodies
 

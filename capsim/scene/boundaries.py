@@ -1,0 +1,84 @@
+"""The scene's boundaries: the registry of boundary kinds and the one interface each kind meets.
+
+A boundary is what bounds the fluid besides the capsules (a plane wall today; a tube or a
+periodic box are new modules here, issue 53). Its kind is one class registered in
+:data:`BOUNDARIES` on the flow registry's pattern (capsim.flows.Kind: ``name``,
+``description``, ``uses``, ``problem``), plus ``section``, the case's field that places it, and
+:meth:`Boundary.from_case`, which builds the boundary of a case (None when the case has none).
+
+The boundary-integral equation with a boundary keeps its free-space sums and adds, per
+boundary, a regular part (an image system, a periodic lattice sum): the Green's function is
+G = G_free + G_boundary, G_boundary regular while the membrane stays off the boundary. So a
+boundary contributes through these methods alone, and the solver, guards, observables, plots
+and export ask them — never where the boundary lies:
+
+- :meth:`Boundary.far_field`: the undisturbed flow the boundary admits (a no-slip wall: the flow
+  shifted to vanish on it);
+- :meth:`Boundary.gap`: the smallest distance of the membrane's nodes from it (units of a): the
+  guard's (guards.min_wall_gap), the run's ``wall_gap`` column, and where the quadrature of its
+  regular part switches to the subdivided rule;
+- :meth:`Boundary.single_layer` and :meth:`Boundary.double_layer`: its regular part of the two
+  layers at the targets, from the quadrature points' strengths (the kernels take arrays);
+- :meth:`Boundary.outline_xy` and :meth:`Boundary.patch`: what the plots and the ParaView export
+  draw of it.
+
+This module is plain numpy (the case schema's validation reaches it).
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+
+from capsim.flows import Kind, _registrar
+
+#: boundary kind → its class (the scene's boundaries are built from the case by these)
+BOUNDARIES: dict[str, type["Boundary"]] = {}
+register_boundary = _registrar(BOUNDARIES)
+
+
+class Boundary(Kind):
+    """A kind of boundary of the fluid, and (an instance) one boundary of a scene."""
+
+    #: the case's field whose section places a boundary of this kind
+    section: ClassVar[str]
+    #: the flow kinds (capsim.flows.FLOWS) whose far field this boundary admits
+    flows: ClassVar[tuple[str, ...]] = ()
+    #: the name its drawing carries in plots and in the export's file name
+    label: ClassVar[str] = "boundary"
+
+    @classmethod
+    def from_case(cls, case: Any) -> "Boundary | None":
+        """The boundary of this kind a case places (None: none)."""
+        raise NotImplementedError
+
+    def far_field(self, field: Any) -> Any:
+        """The undisturbed flow of the scene bounded by this boundary, from the flow's own."""
+        raise NotImplementedError
+
+    def gap(self, x: np.ndarray) -> float:
+        """The smallest distance of the nodes x (N, 3) from the boundary (units of a)."""
+        raise NotImplementedError
+
+    def single_layer(self, targets: np.ndarray, points: np.ndarray, strengths: np.ndarray) -> np.ndarray:
+        """Σ_m G_boundary(target, point_m)·strength_m at every target (T, 3)."""
+        raise NotImplementedError
+
+    def double_layer(self, targets: np.ndarray, points: np.ndarray, normals_w: np.ndarray,
+                     u_points: np.ndarray) -> np.ndarray:
+        """Σ_m u_m·T_boundary(point_m, target)·(n w)_m at every target (T, 3)."""
+        raise NotImplementedError
+
+    def outline_xy(self, lo: float, hi: float) -> tuple[np.ndarray, np.ndarray]:
+        """(its trace in the xy-plane between x = lo and hi (k, 2), the solid side's band (m, 2))."""
+        raise NotImplementedError
+
+    def patch(self, x: np.ndarray, margin: float = 2.0) -> np.ndarray:
+        """Corners (4, 3) of a piece of the boundary under positions x (any (..., 3)), margin a beyond."""
+        raise NotImplementedError
+
+
+def boundaries_of(case: Any) -> tuple[Boundary, ...]:
+    """Every boundary a case places, in the registry's order."""
+    return tuple(b for b in (kind.from_case(case) for kind in BOUNDARIES.values()) if b is not None)

@@ -1,0 +1,111 @@
+"""The Scene: what a run's capsules are put in and with, built once from the case.
+
+A scene is its far field (the undisturbed flow, capsim.flows, shifted by its boundaries where
+they need it), its boundaries (capsim.scene.boundaries: a plane wall today) and its bodies
+(capsim.scene.bodies: the capsules' placement, then their layout in the union mesh). The
+solver, the time schemes, the guards, the observables, the plots, the export and the accuracy
+knob ask the scene's features (``has_boundary``, ``body_count``, ``flow_kind``,
+``translation_invariant``, ...) instead of checking the case's fields or a flow by name.
+
+Building a scene reads the case only (no mesh, no numba: ``capsim validate`` builds it);
+:meth:`Scene.meshed` lays the bodies' meshes into one surface and returns the scene with
+their layout.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+
+from capsim.flows import FLOWS, FarField, far_field_of
+from capsim.scene.bodies import Bodies, BodySpec, body_specs, scene_mesh
+from capsim.scene.boundaries import Boundary, boundaries_of
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """A run's far field, boundaries and bodies. ``layout`` (the bodies in the union mesh) is
+    None until :meth:`meshed`; a scene made without a case (a model built by hand) is one
+    capsule in its ``base_field`` without boundaries."""
+
+    #: the flow's own undisturbed velocity (capsim.flows), before any boundary shifts it
+    base_field: Any = field(default_factory=FarField)
+    boundaries: tuple[Boundary, ...] = ()
+    specs: tuple[BodySpec, ...] = ()
+    #: the case's flow.kind (None: a far field given as data)
+    flow_kind: str | None = None
+    layout: Bodies | None = None
+
+    @classmethod
+    def of(cls, case: Any) -> "Scene":
+        """The scene of a case (its flow section, its boundary sections, its capsules)."""
+        return cls(far_field_of(case.flow), boundaries_of(case), tuple(body_specs(case)), case.flow.kind)
+
+    @cached_property
+    def far_field(self) -> Any:
+        """The undisturbed flow of the scene: the flow's, as each boundary admits it."""
+        out = self.base_field
+        for boundary in self.boundaries:
+            out = boundary.far_field(out)
+        return out
+
+    # ---- features: what the scene has, for those that cannot take everything
+    @property
+    def has_boundary(self) -> bool:
+        return bool(self.boundaries)
+
+    @property
+    def body_count(self) -> int:
+        if self.layout is not None:
+            return self.layout.count
+        return max(1, len(self.specs))
+
+    @property
+    def several(self) -> bool:
+        return self.body_count > 1
+
+    @property
+    def uniform_gradient(self) -> bool:
+        """Whether the far field's velocity gradient is one constant matrix (not Poiseuille's)."""
+        return bool(self.far_field.linear)
+
+    @property
+    def translation_invariant(self) -> bool:
+        """Whether the scene looks the same about any point up to a uniform velocity: a linear
+        far field L·x in free space (no boundary). A capsule in it may be carried (its uniform
+        part taken out of the solve: CapsuleModel.carried_velocity) and its translation's error
+        held relative to its distance (capsim.timestepping.scene_error)."""
+        return not self.boundaries and isinstance(self.far_field, FarField)
+
+    @property
+    def elongates_without_bound(self) -> bool:
+        """Whether the flow has no steady shape above a critical rate (the extensions)."""
+        return self.flow_kind is not None and FLOWS[self.flow_kind].elongates_without_bound
+
+    def features(self) -> dict[str, Any]:
+        """The scene's features as the accuracy knob's error model takes them."""
+        return {"flow_kind": self.flow_kind, "boundaries": tuple(b.name for b in self.boundaries),
+                "capsules": self.body_count}
+
+    # ---- the boundaries' part, as the guards and observables read it
+    def boundary_gap(self, x: np.ndarray) -> float | None:
+        """The smallest distance of the nodes x from any boundary (units of a); None without one."""
+        if not self.boundaries:
+            return None
+        return min(b.gap(x) for b in self.boundaries)
+
+    # ---- the bodies
+    def meshed(self, base: str, level: int) -> tuple[np.ndarray, np.ndarray, int, "Scene"]:
+        """(positions, elements, vertex nodes, the scene with its bodies' layout): the capsules'
+        meshes laid into one surface (capsim.scene.bodies.scene_mesh)."""
+        positions, elements, n_vertices, layout = scene_mesh(list(self.specs), base, level)
+        return positions, elements, n_vertices, dataclasses.replace(self, layout=layout)
+
+
+def scene_of(case: Any) -> Scene:
+    """The scene of a case (:meth:`Scene.of`)."""
+    return Scene.of(case)
