@@ -1062,9 +1062,10 @@ class Case(_Model):
         share (capsim.accuracy.TRAINED_SCENE: another is measured, never predicted): flow.kind, the
         history as it acts before t_end, the wall, the number of capsules, and in Poiseuille flow
         the first capsule's distance from the axis (capsim.accuracy.FIXED_BY_SYMMETRY)."""
-        from capsim.scene import body_specs  # numpy only
+        from capsim.scene import Scene  # numpy only
 
-        first = body_specs(self)[0]
+        scene = Scene.of(self)  # the scene's features: its flow, its boundaries, its capsules
+        first = scene.specs[0]
         membrane = first.membrane or self.membrane
         parameter = {"skalak": "skalak_c", "mooney_rivlin": "psi"}.get(membrane.law)
         history = self.flow.history
@@ -1077,8 +1078,8 @@ class Case(_Model):
                     "G": float(self.flow.shear_rate_G),
                     "viscosity_ratio": float(max(self.viscosity_ratios, key=lambda v: abs(math.log(v)))),
                     "bending": membrane.bending_modulus > 0,
-                    "flow": self.flow.kind, "history": history.kind if acting else "steady",
-                    "wall": self.wall is not None, "capsules": len(self.capsules) if self.capsules else 1}
+                    "flow": scene.flow_kind, "history": history.kind if acting else "steady",
+                    "wall": scene.has_boundary, "capsules": scene.body_count}
         if self.flow.kind == "poiseuille":  # the axis is x: the distance in y and z
             features["axis_offset"] = float(math.hypot(self.center[1], self.center[2]))
         return features
