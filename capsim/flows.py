@@ -24,6 +24,7 @@ decides which of them it has. This module is plain numpy: the case schema import
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -179,9 +180,33 @@ class Flow(Kind):
     #: no rotation relieves the stretch); a run it ends is said so (motion "elongating")
     elongates_without_bound: ClassVar[bool] = False
 
+    #: where this kind's first-order (small-deformation) steady shape is derived and checked
+    #: (docs/known_answers.md); None: none is, and the figures draw no theory line
+    first_order_source: ClassVar[str | None] = None
+    #: the first-order θ, S*_xy and N1*/G where derived (simple shear's), and whether the shear's
+    #: impulsive-start transient applies
+    first_order_extras: ClassVar[dict[str, Any]] = {}
+    #: the steady summary's quantities this kind defines (the others are fixed by its symmetry or
+    #: have no meaning in it: θ in extension is 0, S*_xy vanishes, there is no tank-treading
+    #: frequency of a sphere in shear to compare with); the steady figure draws a panel for each
+    steady_quantities: ClassVar[tuple[str, ...]] = ("D_xy", "theta", "Sxy_star", "N1_star", "N2_star")
+
     @classmethod
     def far_field(cls, flow: Any) -> Any:
         raise NotImplementedError
+
+    @classmethod
+    def first_order(cls, flow: Any) -> Any:
+        """The first-order theory of an initially spherical, stress-free ν_s = 1/2 capsule in this
+        flow (capsim.small_deformation.FirstOrder: D_xy = α G (e1 − e2)/2 of the strain rate's xy
+        block), or None where none is derived. capsim.small_deformation.first_order_theory says
+        whether a whole scene meets its assumptions."""
+        if cls.first_order_source is None:
+            return None
+        from capsim.small_deformation import FirstOrder, first_order_D_xy
+
+        return FirstOrder(first_order_D_xy(cls.far_field(flow).matrix, 1.0), cls.first_order_source,
+                          **cls.first_order_extras)
 
 
 @register_flow
@@ -189,6 +214,11 @@ class SimpleShear(Flow):
     name = "simple_shear"
     description = "u∞ = k (y, 0, 0): x the flow, y the gradient, z the vorticity direction"
     rate = "k, the shear rate"
+    first_order_source = "Barthès-Biesel & Rallison 1981"
+    # θ = π/4, S*_xy = 1 and N1* = 19G: docs/known_answers.md, "Capsule: first-order small-deformation theory"
+    first_order_extras = {"theta": math.pi / 4, "Sxy_star": 1.0, "N1_over_G": 19.0, "ttf_ratio": 1.0,
+                          "transient": True}
+    steady_quantities = ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star")
 
     @classmethod
     def far_field(cls, flow: Any) -> FarField:
@@ -201,6 +231,10 @@ class PlanarExtension(Flow):
     elongates_without_bound = True
     description = "u∞ = ε (x, −y, 0): stretching along x, compression along y (a four-roll mill, a cross-slot)"
     rate = "ε, the extension rate"
+    # twice the shear's 25G/4 (docs/known_answers.md, "Flows beyond simple shear"; tests/test_flows.py)
+    first_order_source = "Barthès-Biesel & Rallison 1981, pure strain"
+    # θ is 0 and S*_xy vanishes by the flow's symmetry; nothing tank-treads as in shear
+    steady_quantities = ("D_xy", "N1_star", "N2_star")
 
     @classmethod
     def far_field(cls, flow: Any) -> FarField:
@@ -213,6 +247,9 @@ class UniaxialExtension(Flow):
     elongates_without_bound = True
     description = "u∞ = ε (x, −y/2, −z/2): axisymmetric stretching along x"
     rate = "ε, the extension rate"
+    # 3/4 of planar's (E's xy eigenvalues 1, −1/2): docs/known_answers.md, "Flows beyond simple shear"
+    first_order_source = "Barthès-Biesel & Rallison 1981, pure strain"
+    steady_quantities = ("D_xy", "N1_star", "N2_star")
 
     @classmethod
     def far_field(cls, flow: Any) -> FarField:
@@ -258,6 +295,9 @@ class Poiseuille(Flow):
                    "flow.poiseuille_radius (units of a); the capsule placed with initial_center")
     rate = "U/R, the centreline speed over the radius (the wall shear rate is 2U/R)"
     uses = ("poiseuille_radius",)
+    # no first-order theory is derived here (the strain rate varies over the capsule); the
+    # stresslet is not a rheology of the suspension in a flow that is not linear
+    steady_quantities = ("D_xy", "theta")
 
     @classmethod
     def far_field(cls, flow: Any) -> PoiseuilleFarField:

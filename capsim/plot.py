@@ -22,12 +22,17 @@ relative trajectory (``separation_y`` against ``separation_x``: capsule 1 less c
 for more capsules, each one's centroid path in the xy-plane. ``orbit`` draws one capsule and
 refuses a scene of several, in one line; a one-capsule run's figures are as they were.
 
-First-order small-deformation theory (docs/known_answers.md), drawn only where it
-applies: initially spherical capsules with a ν_s = 1/2 law at G ≤
-:data:`FIRST_ORDER_G_MAX`: D_xy → D∞ = (25/4) G (ν_s = 1/2: thin shell and
-neo-Hookean), D(t) ≈ D∞ (1 − e^{−t/τ}) with kτ = τ̂(λ)·3G, τ̂ = 4.03 (λ = 1),
-2.63 (λ = 0.2), 11.0 (λ = 5) (interpolated in log λ between these, not drawn
-outside); θ = π/4; S*_xy = 1, N1* = 19 G, N2* = −N1*/2.
+First-order small-deformation theory (docs/known_answers.md), drawn only where its
+assumptions hold (:func:`first_order_theory` asks the scene: one initially
+spherical, stress-free capsule with a ν_s = 1/2 law and no bending stiffness, no boundary, a
+steady flow) and its D∞ is small (at most 25/4 :data:`FIRST_ORDER_G_MAX`), each flow kind's
+line with its source in the legend (capsim.flows ``Flow.first_order``): simple shear
+D∞ = (25/4) G, θ = π/4, S*_xy = 1, N1* = 19 G and D(t) ≈ D∞ (1 − e^{−t/τ}) with kτ = τ̂(λ)·3G,
+τ̂ = 4.03 (λ = 1), 2.63 (λ = 0.2), 11.0 (λ = 5) (interpolated in log λ between these, not drawn
+outside); planar extension D∞ = (25/2) G; uniaxial extension (75/8) G; no line where none is
+derived (Poiseuille, a general linear flow, a history, a wall, several capsules, a pre-inflated
+or non-spherical capsule). The steady summary figure draws the panels of the quantities its
+flow kind defines (``Flow.steady_quantities``).
 """
 
 from __future__ import annotations
@@ -42,12 +47,14 @@ import numpy as np
 from capsim.mesh import linear_subtriangles  # numba-free: figures need no kernels
 from capsim.scene import run_bodies, run_capsule_count
 from capsim.quantities import PERIODIC_MOTIONS, canonical_motion
+from capsim.flows import FLOWS
+from capsim.small_deformation import NU_HALF_LAWS
 
 __all__ = [
     "DPI", "FIGSIZE", "FIGURE_FORMATS", "FIRST_ORDER_G_MAX", "KINDS", "contour_figure", "orbit_figure", "orbit_map_figure", "deformation_figure", "inclination_figure",
     "plot", "relaxation_time", "rheology_figure", "steady_figure", "tensions_figure",
     "section_loops", "trajectory_figure", "xy_section", "separation_figure", "capsule_count", "scene_bodies",
-    "capsule_sections",
+    "capsule_sections", "first_order_theory",
 ]
 
 FIGSIZE = (6.4, 4.8)  # inches
@@ -64,7 +71,6 @@ SECTION_SUBDIVISIONS = 6
 
 # τ̂ = kτ / Ca of the impulsive-start relaxation (docs/known_answers.md), Ca = 3G.
 _TAU_HAT = {0.2: 2.63, 1.0: 4.03, 5.0: 11.0}
-_SPHERICAL_LAWS_NU_HALF = {"thin_shell", "neo_hookean", "mooney_rivlin"}
 
 
 def relaxation_time(G: float, viscosity_ratio: float) -> float | None:
@@ -113,6 +119,8 @@ def _case_info(data: dict[str, Any]) -> dict[str, Any]:
         "bending": float(getattr(case.membrane, "bending_modulus", 0.0) or 0.0),
         # the scene's boundaries (capsim.scene: a wall; none: unbounded), drawn by _draw_wall
         "boundaries": scene.boundaries,
+        # the scene's first-order theory where its assumptions hold (None: no theory line)
+        "first_order": first_order_theory(case, scene),
     }
     if scene.several:  # several capsules (issue 43): the scene's
         shapes = [spec.shape for spec in scene.specs]
@@ -266,10 +274,35 @@ def _drawn_paths(ax):
             yield v[np.all(np.isfinite(v), axis=1)]
 
 
+def first_order_theory(case, scene=None) -> Any:
+    """The first-order theory of a case's scene (capsim.scene.Scene, built here if not given),
+    where its assumptions hold: one capsule, spherical and stress-free at rest (no pre-inflation:
+    a pre-stretched membrane is stiffer), a ν_s = 1/2 law without bending stiffness, in an
+    unbounded flow of constant rate (no boundary, no history) whose kind derives one
+    (``Flow.first_order``); else None. How small G must be is the caller's."""
+    if scene is None:
+        from capsim.scene import Scene
+
+        scene = Scene.of(case)
+    if scene.has_boundary or scene.several:
+        return None
+    spec = scene.specs[0] if scene.specs else None
+    shape = spec.shape if spec is not None else case.shape
+    membrane = spec.membrane if spec is not None and spec.membrane is not None else case.membrane
+    if shape.kind != "sphere" or shape.inflation or membrane.law not in NU_HALF_LAWS or membrane.bending_modulus:
+        return None
+    if spec is not None and spec.modulus_ratio != 1.0:
+        return None
+    if case.flow.history is not None and case.flow.history.kind != "steady":
+        return None
+    return FLOWS[scene.flow_kind or case.flow.kind].first_order(case.flow)
+
+
 def _theory_applies(info: dict[str, Any]) -> bool:
-    """First-order small-deformation theory: a sphere, a ν_s = 1/2 law, small G, no bending."""
-    return (bool(info) and info["shape"] == "sphere" and info["law"] in _SPHERICAL_LAWS_NU_HALF
-            and info["G"] <= FIRST_ORDER_G_MAX and not info.get("bending"))
+    """First-order small-deformation theory: the scene meets its assumptions (``first_order``,
+    chosen by its flow kind) and D∞ is small (the shear's at G ≤ FIRST_ORDER_G_MAX)."""
+    first = info.get("first_order") if info else None
+    return first is not None and first.D_over_G * info["G"] <= 25.0 / 4.0 * FIRST_ORDER_G_MAX
 
 
 def _series(data: dict[str, Any], name: str) -> np.ndarray:
@@ -462,9 +495,11 @@ def deformation_figure(source, theory: bool = True, labels: Sequence[str] | None
     for i, (info, t, D, color) in enumerate(drawn):
         if not (theory and _theory_applies(info)):
             continue
-        D_inf = 25.0 / 4.0 * info["G"]
-        ax.axhline(D_inf, color=color, ls=":", lw=1, label=r"$D_\infty = 25G/4$" if i == 0 else None)
-        tau = relaxation_time(info["G"], info["lam"])
+        first = info["first_order"]
+        D_inf = first.D_over_G * info["G"]
+        ax.axhline(D_inf, color=color, ls=":", lw=1,
+                   label=rf"$D_\infty = {first.label}$ ({first.source})" if i == 0 else None)
+        tau = relaxation_time(info["G"], info["lam"]) if first.transient else None
         if tau is not None:
             tt = np.linspace(0.0, max(float(t[-1]), 0.0), 200)
             label = rf"first order, $k\tau$ = {tau:.3g}" if single else ("first order" if i == 0 else None)
@@ -486,9 +521,12 @@ def inclination_figure(source, theory: bool = True, unwrap: bool = False, labels
     fig = _figure()
     ax = fig.add_subplot()
     drawn = _plot_runs(ax, source, "theta", math.pi, unwrap=unwrap, labels=labels)
-    if theory and any(_theory_applies(info) for info, *_ in drawn):
-        ax.axhline(0.25, color=drawn[0][3] if len(drawn) == 1 else "k", ls="--", lw=1,
-                   label=r"first order, $\theta = \pi/4$")
+    angles = {info["first_order"].theta for info, *_ in drawn if _theory_applies(info)} - {None}
+    if theory and len(angles) == 1:  # the flow kind's first-order θ (shear: π/4; extension: none)
+        first = next(info["first_order"] for info, *_ in drawn if _theory_applies(info))
+        ax.axhline(first.theta / math.pi, color=drawn[0][3] if len(drawn) == 1 else "k", ls="--", lw=1,
+                   label=rf"first order, $\theta = \pi/4$ ({first.source})" if first.theta == math.pi / 4
+                   else rf"first order, $\theta/\pi = {first.theta / math.pi:.3g}$ ({first.source})")
     ax.set_xlabel(r"$kt$")
     ax.set_ylabel(r"$\theta/\pi$")
     _tag(ax, x=("t", "$t$"))
@@ -511,7 +549,10 @@ def rheology_figure(source, theory: bool = True):
     first = {}
     if theory and _theory_applies(info):
         # no N2* line: the old derived −N1*/2 was not borne out (REPRODUCTION.md, "N2*"); docs/known_answers.md now gives −(29/7)G
-        first = {"Sxy_star": 1.0, "N1_star": 19.0 * info["G"]}
+        fo = info["first_order"]  # S*_xy and N1* only where the flow kind derives them (shear)
+        first = {k: v for k, v in (("Sxy_star", fo.Sxy_star),
+                                   ("N1_star", None if fo.N1_over_G is None else fo.N1_over_G * info["G"]))
+                 if v is not None}
     labels = {"Sxy_star": r"$S^*_{xy}$", "N1_star": r"$N_1^*$", "N2_star": r"$N_2^*$"}
     k = capsule_count(data)
     for i, (name, label) in enumerate(labels.items()):
@@ -1044,21 +1085,37 @@ def steady_figure(source, theory: bool = True, x: str | None = None):
             raise ValueError(f"the summary sweeps no numeric field to draw against (swept: {', '.join(swept) or 'none'})")
     elif x not in numeric:
         raise ValueError(f"--x {x!r}: not a numeric swept field of the summary (allowed: {', '.join(numeric) or 'none'})")
-    rheology = all(name in ds.variables for name in RHEOLOGY_SUMMARY) and bool(
-        np.isfinite(np.asarray(ds["Sxy_star"].values, dtype=np.float64)).any()
+    # the quantities the campaign's flow kinds define (Flow.steady_quantities: no θ, S*_xy or
+    # tank-treading panel in extension, where symmetry fixes them or they mean nothing)
+    kinds, first = _summary_scene(ds)
+    defined = {q for kind in kinds for q in FLOWS[kind].steady_quantities}
+    stresses = [q for q in ("Sxy_star", "N1_star", "N2_star") if q in defined]
+    rheology = all(name in ds.variables for name in RHEOLOGY_SUMMARY) and bool(stresses) and bool(
+        np.isfinite(np.asarray(ds[stresses[0]].values, dtype=np.float64)).any()
     )
+    has_theta, has_ttf = "theta" in defined, rheology and "ttf_ratio" in defined
     names = ("D_xy", "theta") + (RHEOLOGY_SUMMARY if rheology else ())
     cells = _summary_cells(ds, names, swept)
-    if rheology:
+    # left column D_xy (and θ), right column TTF/f_s (and the stresses); a 2 x 2 grid as before
+    # where all four are drawn, else one column
+    left = ["D_xy"] + (["theta"] if has_theta else [])
+    right = (["ttf_ratio"] if has_ttf else []) + (["stress"] if rheology else [])
+    if len(left) == 2 and len(right) == 2:
         fig = _figure(figsize=(1.8 * FIGSIZE[0], FIGSIZE[1]))
         (ax_d, ax_f), (ax_t, ax_s) = fig.subplots(2, 2, sharex=True)
+        axes = {"D_xy": ax_d, "theta": ax_t, "ttf_ratio": ax_f, "stress": ax_s}
     else:
         fig = _figure(figsize=(FIGSIZE[0], FIGSIZE[1]))
-        ax_d, ax_t = fig.subplots(2, 1, sharex=True)
-    panels = [(ax_d, "D_xy", 1.0, "o-", None), (ax_t, "theta", math.pi, "o-", None)]
+        made = np.atleast_1d(fig.subplots(len(left + right), 1, sharex=True))
+        axes = dict(zip(left + right, made))
+        ax_d = axes["D_xy"]
+    ax_t, ax_f, ax_s = axes.get("theta"), axes.get("ttf_ratio"), axes.get("stress")
+    styles = {"Sxy_star": ("o-", r"$S^*_{xy}$"), "N1_star": ("s--", r"$N_1^*$"), "N2_star": ("^:", r"$N_2^*$")}
+    panels = [(ax_d, "D_xy", 1.0, "o-", None)] + ([(ax_t, "theta", math.pi, "o-", None)] if has_theta else [])
     if rheology:
-        panels += [(ax_f, "ttf_ratio", 1.0, "o-", None), (ax_s, "Sxy_star", 1.0, "o-", r"$S^*_{xy}$"),
-                   (ax_s, "N1_star", 1.0, "s--", r"$N_1^*$"), (ax_s, "N2_star", 1.0, "^:", r"$N_2^*$")]
+        panels += ([(ax_f, "ttf_ratio", 1.0, "o-", None)] if has_ttf else []) + [
+            (ax_s, q, 1.0, *styles[q]) for q in stresses]
+    value_panels = panels[:2] if has_theta else panels[:1]  # where the not-settled runs are drawn
     others = [f for f in swept if f != x]
     groups: dict[tuple, list[dict]] = {}
     for cell in cells:
@@ -1098,36 +1155,44 @@ def steady_figure(source, theory: bool = True, x: str | None = None):
                   label=motion.replace("_", " ") + (" (mean over whole periods)" if periodic else ""))
     if unsettled:
         ux = np.array([float(c["swept"][x]) for c in unsettled])
-        for ax, name, scale, _, _ in panels[:2]:
+        for ax, name, scale, _, _ in value_panels:
             uy = np.array([c["values"][name] for c in unsettled], dtype=np.float64) / scale
             ax.plot(ux, uy, "x", color="0.55", ms=5, label="not settled: not a steady value")
     x_all = np.array([float(c["swept"][x]) for c in cells])
     context = _summary_context(ds)
-    if theory and x == "shear_rate_G" and x_all.size and context.get("shape", "sphere") == "sphere":
+    if theory and x == "shear_rate_G" and x_all.size and first is not None:
         g = np.linspace(0.0, float(np.nanmax(x_all)), 50)
-        small = g[g <= 0.12]  # first order: D_xy ≪ 1; further out it only squashes the data
-        ax_d.plot(small, 25.0 / 4.0 * small, "k--", lw=1, label=r"first order, $25G/4$")
-        ax_t.plot(small, np.full_like(small, 0.25), "k--", lw=1, label=r"first order, $\pi/4$")
-        if rheology:
-            ax_f.plot(small, np.ones_like(small), "k--", lw=1, label="rigid sphere")
-            ax_s.plot(small, np.ones_like(small), "k--", lw=1)
-            ax_s.plot(small, 19.0 * small, "k:", lw=1, label=r"$N_1^* \approx 19G$")
+        # first order: D_xy ≪ 1 (the shear's up to G = 0.12); further out it only squashes the data
+        small = g[first.D_over_G * g <= 25.0 / 4.0 * 0.12]
+        ax_d.plot(small, first.D_over_G * small, "k--", lw=1, label=f"first order, ${first.label}$ ({first.source})")
+        if ax_t is not None and first.theta is not None:
+            ax_t.plot(small, np.full_like(small, first.theta / math.pi), "k--", lw=1,
+                      label=r"first order, $\pi/4$" if first.theta == math.pi / 4
+                      else rf"first order, ${first.theta / math.pi:.3g}\pi$")
+        if ax_f is not None and first.ttf_ratio is not None:
+            ax_f.plot(small, np.full_like(small, first.ttf_ratio), "k--", lw=1, label="rigid sphere")
+        if ax_s is not None and first.Sxy_star is not None and "Sxy_star" in stresses:
+            ax_s.plot(small, np.full_like(small, first.Sxy_star), "k--", lw=1)
+        if ax_s is not None and first.N1_over_G is not None and "N1_star" in stresses:
+            ax_s.plot(small, first.N1_over_G * small, "k:", lw=1, label=rf"$N_1^* \approx {first.N1_over_G:g}G$")
     ax_d.set_ylabel(r"$D_{xy}$")
-    ax_t.set_ylabel(r"$\theta/\pi$")
-    ax_t.set_xlabel(SWEPT_LABELS.get(x, x))
-    if not any(np.isfinite(float(c["values"]["theta"])) for c in cells):
+    if ax_t is not None:
+        ax_t.set_ylabel(r"$\theta/\pi$")
+    for bottom in ((ax_t, ax_s) if len(left) == 2 and len(right) == 2 else (list(axes.values())[-1],)):
+        bottom.set_xlabel(SWEPT_LABELS.get(x, x))
+    if ax_t is not None and not any(np.isfinite(float(c["values"]["theta"])) for c in cells):
         # every run tumbles or has no long axis: say so rather than leave an empty panel
         ax_t.text(0.5, 0.5, "no mean inclination: every run tumbles\n(or has no long axis)",
                   transform=ax_t.transAxes, ha="center", va="center", color="0.35")
         ax_t.set_yticks([])
     _legend(ax_d)
-    if rheology:
+    if ax_f is not None:
         ax_f.set_ylabel(r"TTF $/ f_s$")
-        ax_s.set_ylabel(r"$S^*_{xy}$, $N_1^*$, $N_2^*$")
-        ax_s.set_xlabel(SWEPT_LABELS.get(x, x))
         _legend(ax_f)
+    if ax_s is not None:
+        ax_s.set_ylabel(", ".join(styles[q][1] for q in stresses))
         _legend(ax_s)
-    else:
+    if ax_t is not None and not rheology:
         _legend(ax_t)
     title = str(ds.attrs.get("title", ""))
     parts = [context[k] for k in ("shape", "law", "lam", "mesh") if context.get(k)]
@@ -1242,6 +1307,43 @@ def _summary_context(ds) -> dict[str, str]:
         if levels:
             out["mesh"] = "mesh level " + ", ".join(str(v) for v in levels)
     return out
+
+
+def _summary_scene(ds) -> tuple[set[str], Any]:
+    """(the flow kinds of a campaign summary's runs, the first-order theory they all share or
+    None): from its stored campaign, the base alone and with each swept value and each zipped row
+    in turn (:func:`first_order_theory` asks each case's scene). A summary
+    without its campaign is of the default case (simple shear); a case that cannot be rebuilt
+    leaves the kinds to the rest and draws no theory."""
+    import copy
+
+    import yaml
+
+    from capsim.campaign import _set_dotted
+    from capsim.config import case_from_dict
+
+    try:
+        campaign = yaml.safe_load(str(ds.attrs.get("campaign_yaml", ""))) or {}
+        base = campaign.get("base") or {}
+        sweep, zipped = campaign.get("sweep") or {}, campaign.get("zip") or {}
+    except Exception:  # noqa: BLE001 - a summary without its campaign still plots
+        return {"simple_shear"}, None
+    rows = [dict(zip(zipped, values)) for values in zip(*zipped.values())] or [{}]
+    variants = [rows[0]] + rows[1:] + [{**rows[0], key: v} for key, values in sweep.items() for v in values]
+    kinds, theories = set(), []
+    for params in variants:
+        data = copy.deepcopy(base)
+        for key, value in params.items():
+            _set_dotted(data, key, value)
+        try:
+            case = case_from_dict({**data, "name": "summary"}, source="campaign_yaml")
+        except Exception:  # noqa: BLE001 - e.g. a field of a newer capsim: no theory drawn
+            theories.append(None)
+            continue
+        kinds.add(case.flow.kind)
+        theories.append(first_order_theory(case))
+    shared = theories[0] if theories and all(t == theories[0] for t in theories) else None
+    return kinds or {"simple_shear"}, shared
 
 
 def _short(name: str) -> str:

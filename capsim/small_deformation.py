@@ -28,6 +28,12 @@ Units: lengths a, time 1/k, tensions μka; so G_s/(μka) = 1/Ca and μ_s/(μa) =
 Checks (tests/test_viscous_theory.py): without viscosity the steady deformation is
 D = (5/4)(2 + ν_s)/(1 + ν_s) Ca for every λ and the slow relaxation times are
 2.63, 4.03, 11.0 μa/G_s at λ = 0.2, 1, 5 (docs/known_answers.md).
+
+In a pure strain the steady shape is A = α G E with one constant α for every λ (25/2 for
+K_s/G_s = 3): :func:`first_order_D_xy` gives D_xy of any linear flow to first order in G, each
+flow kind's theory line (capsim.flows ``Flow.first_order``) follows, and the plots
+(capsim.plot.first_order_theory) ask the scene whether the theory's assumptions hold
+(tests/test_theory_lines.py).
 """
 
 from __future__ import annotations
@@ -36,7 +42,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LinearCapsule", "membrane_matrix", "mobility"]
+__all__ = ["FirstOrder", "LinearCapsule", "NU_HALF_LAWS", "first_order_D_xy", "membrane_matrix", "mobility",
+           "strain_coefficient"]
 
 
 def mobility(lam: float) -> tuple[np.ndarray, np.ndarray]:
@@ -142,3 +149,57 @@ class LinearCapsule:
         coef = np.linalg.solve(vecs, x0.astype(complex))
         xs = (vecs[None] * (coef * np.exp(np.multiply.outer(np.asarray(t, float), vals)))[:, None, :]).sum(-1).real
         return np.hypot(xs[:, 0], xs[:, 2])
+
+
+# ------------------------------------------------------------ first order in any linear flow
+
+
+def strain_coefficient(area_over_shear: float = 3.0) -> float:
+    """α of the first-order steady shape A = α G E in a pure strain E (units of the rate), for any
+    λ and membrane viscosity (the steady state of (V11) without spin: (A, B) = −Q⁻¹ c E, Q ∝ 1/Ca,
+    Ca = 3G). 25/2 for K_s/G_s = 3 (ν_s = 1/2): twice the shear's 25/4, E_shear having the
+    in-plane eigenvalues ±1/2."""
+    Q, c = LinearCapsule(Ca=1.0, area_over_shear=area_over_shear)._operators()
+    return float(-np.linalg.solve(Q, c)[0]) * 3.0
+
+
+def first_order_D_xy(velocity_gradient, G: float, area_over_shear: float = 3.0) -> float:
+    """First-order steady D_xy of an initially spherical capsule in u∞ = L·x (L in units of the
+    rate G is made with): the equivalent ellipse in the xy-plane has the semi-axes 1 + the
+    eigenvalues of A's xy block, A = α G E, so D_xy = α G (e1 − e2)/2 with e1 ≥ e2 the eigenvalues
+    of E's xy block. At this order the spin only turns the shape (shear: θ = π/4)."""
+    L = np.asarray(velocity_gradient, dtype=np.float64)
+    E = 0.5 * (L + L.T)
+    e = np.linalg.eigvalsh(E[:2, :2])
+    return strain_coefficient(area_over_shear) * G * float(e[1] - e[0]) / 2.0
+
+
+@dataclass(frozen=True)
+class FirstOrder:
+    """A flow kind's first-order theory of an initially spherical, stress-free capsule (ν_s = 1/2):
+    steady D_xy = ``D_over_G`` G; θ where the theory gives one; S*_xy and N1*/G where derived
+    (docs/known_answers.md); ``source`` names where it comes from (the figures' legends)."""
+
+    D_over_G: float
+    source: str
+    theta: float | None = None
+    Sxy_star: float | None = None
+    N1_over_G: float | None = None
+    #: the tank-treading frequency over a rigid sphere's as G → 0 (shear: 1)
+    ttf_ratio: float | None = None
+    #: the impulsive start's transient D∞(1 − e^{−t/τ}) with the shear's τ (docs/known_answers.md)
+    transient: bool = False
+
+    @property
+    def label(self) -> str:
+        """'25G/4': D∞'s constant as a fraction of G (the legends)."""
+        from fractions import Fraction
+
+        f = Fraction(self.D_over_G).limit_denominator(64)
+        return f"{f.numerator}G" + (f"/{f.denominator}" if f.denominator != 1 else "")
+
+
+
+#: the laws whose small-strain K_s/G_s is 3 (ν_s = 1/2), the theory's lines' constants
+#: (docs/laws.md; a Skalak law's ν_s depends on C: no line)
+NU_HALF_LAWS = ("thin_shell", "neo_hookean", "mooney_rivlin")

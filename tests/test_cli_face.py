@@ -123,7 +123,7 @@ def test_theory_lines_only_where_the_theory_applies(tiny_run):
     from capsim.plot import inclination_figure, rheology_figure
 
     data_labels = {line.get_label() for line in inclination_figure(tiny_run).axes[0].get_lines()}
-    assert r"first order, $\theta = \pi/4$" in data_labels  # a sphere at G = 0.1
+    assert r"first order, $\theta = \pi/4$ (Barthès-Biesel & Rallison 1981)" in data_labels  # a sphere at G = 0.1
     from capsim.store import read_trajectory
 
     data = read_trajectory(tiny_run)

@@ -103,7 +103,7 @@ def test_deformation_overlays_first_order_theory(tiny_run):
     fig = plot(tiny_run, "deformation")
     ax = fig.axes[0]
     lines = {line.get_label(): line for line in ax.get_lines()}
-    assert np.allclose(lines[r"$D_\infty = 25G/4$"].get_ydata(), 25.0 / 4.0 * 0.1)
+    assert np.allclose(lines[r"$D_\infty = 25G/4$ (Barthès-Biesel & Rallison 1981)"].get_ydata(), 25.0 / 4.0 * 0.1)
     theory = next(line for label, line in lines.items() if label.startswith("first order"))
     t, D = theory.get_xdata(), theory.get_ydata()
     tau = 4.03 * 3 * 0.1
@@ -265,7 +265,7 @@ def test_steady_groups_runs_of_a_non_grid_summary():
     )
     fig = plot(ds, "steady")
     lines = {line.get_label(): line for line in fig.axes[0].get_lines()}
-    assert list(lines) == ["λ = 1", "λ = 5", "first order, $25G/4$"]  # as a grid labels them
+    assert list(lines) == ["λ = 1", "λ = 5", "first order, $25G/4$ (Barthès-Biesel & Rallison 1981)"]  # as a grid labels them
     assert list(lines["λ = 1"].get_xdata()) == [0.05, 0.1]
     assert list(lines["λ = 1"].get_ydata()) == [0.1, 0.2]
 

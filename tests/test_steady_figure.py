@@ -145,3 +145,64 @@ def test_settled_points_carry_their_motion_class():
     assert marked[("s", True)] == [0.1] and marked[("D", True)] == [0.1]  # swinging, kayaking: cycles, open
     labels = ax.get_legend_handles_labels()[1]
     assert {"rolling", "swinging (mean over whole periods)", "kayaking (mean over whole periods)"} <= set(labels)
+
+
+# ---------------------------------------------------------------- per flow kind (issue 52)
+
+
+def _campaign_summary(kind_base: dict, sweep: dict) -> xr.Dataset:
+    """A 2-run G sweep summary of the campaign `kind_base` (stored as `capsim summarize` does), with
+    what a run in planar extension measures: θ and S*_xy 0 by symmetry, no tank-treading."""
+    import yaml
+
+    G = np.array([0.005, 0.01])
+    dims = ("shear_rate_G",)
+    ds = xr.Dataset(
+        {"D_xy": (dims, 25 / 2 * G), "theta": (dims, np.zeros(2)), "steady_average": (dims, np.ones(2, np.int8)),
+         "ttf_ratio": (dims, np.full(2, np.nan)), "Sxy_star": (dims, np.zeros(2)),
+         "N1_star": (dims, 30 * G), "N2_star": (dims, -15 * G)},
+        coords={"shear_rate_G": G},
+    )
+    ds.attrs["campaign_yaml"] = yaml.safe_dump({"name": "c", "base": kind_base, "sweep": sweep})
+    return ds
+
+
+def _panels(fig) -> list[str]:
+    return [ax.get_ylabel() for ax in fig.axes]
+
+
+def _theory(ax) -> dict[str, np.ndarray]:
+    return {line.get_label(): np.asarray(line.get_ydata()) for line in ax.get_lines()
+            if line.get_label().startswith("first order")}
+
+
+def test_the_steady_figure_of_planar_extension_has_its_own_panels_and_line():
+    """Planar extension: θ is 0 and S*_xy vanishes by the flow's symmetry and no membrane tank-treads
+    as in shear: no θ panel (the old tree drew a panel of zeros), no TTF panel (an empty frame),
+    S*_xy not drawn; D_xy against G with the first-order 25G/2, not the shear's 25G/4."""
+    ds = _campaign_summary({"flow": {"kind": "planar_extension"}}, {"flow.shear_rate_G": [0.005, 0.01]})
+    fig = plot(ds, "steady")
+    assert _panels(fig) == [r"$D_{xy}$", r"$N_1^*$, $N_2^*$"]
+    lines = _theory(fig.axes[0])
+    assert list(lines) == ["first order, $25G/2$ (Barthès-Biesel & Rallison 1981, pure strain)"]
+    g = np.asarray(next(line for line in fig.axes[0].get_lines() if line.get_label().startswith("first")).get_xdata())
+    assert np.allclose(lines[next(iter(lines))], 12.5 * g)
+    assert not any("S^*_{xy}" in label for label in fig.axes[1].get_legend_handles_labels()[1])
+    assert fig.axes[-1].get_xlabel()  # the bottom panel names the swept field
+
+
+def test_the_steady_figure_draws_no_line_where_no_theory_is_derived():
+    """Pre-inflated capsules in shear (Lac et al.'s 5 %): the panels of shear, no first-order line
+    (25G/4 is ~35 % off a pre-stretched membrane); a Poiseuille flow: D_xy and θ only, no line."""
+    fig = plot(_campaign_summary({"shape": {"inflation": 0.05}}, {"flow.G": [0.005, 0.01]}), "steady")
+    assert len(fig.axes) == 4 and all(_theory(ax) == {} for ax in fig.axes)
+    ds = _campaign_summary({"flow": {"kind": "poiseuille", "poiseuille_radius": 5.0},
+                            "initial_center": [0.0, 1.0, 0.0]}, {"flow.G": [0.005, 0.01]})
+    fig = plot(ds, "steady")
+    assert _panels(fig) == [r"$D_{xy}$", r"$\theta/\pi$"] and all(_theory(ax) == {} for ax in fig.axes)
+
+
+def test_the_steady_figure_of_simple_shear_is_as_it_was():
+    fig = plot(_campaign_summary({}, {"flow.G": [0.005, 0.01]}), "steady")
+    assert _panels(fig) == [r"$D_{xy}$", r"TTF $/ f_s$", r"$\theta/\pi$", r"$S^*_{xy}$, $N_1^*$, $N_2^*$"]
+    assert list(_theory(fig.axes[0])) == ["first order, $25G/4$ (Barthès-Biesel & Rallison 1981)"]
