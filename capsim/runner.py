@@ -24,7 +24,7 @@ import numpy as np
 from capsim._version import __version__
 from capsim.config import Case
 from capsim.errors import first_line
-from capsim.flows import FLOWS, history_breakpoints
+from capsim.flows import history_breakpoints
 from capsim.membrane import law_attributes
 from capsim.mesh import SurfaceMesh, rest_shape_attributes
 from capsim.scene import body_axis, body_specs
@@ -571,7 +571,7 @@ class _Run:
         """Whether D_xy rose steadily over the last half of a run in a flow where a capsule can
         elongate without bound (capsim.flows: elongates_without_bound): ≥ 80 % of its steps up,
         and up by more than 1 % in all."""
-        if not FLOWS[self.case.flow.kind].elongates_without_bound:
+        if not self.model.scene.elongates_without_bound:  # the scene's flow (capsim.scene)
             return False
         t, D = (np.asarray(self.observer.history.get(k, ()), float) for k in ("t", "D_xy"))
         late = D[t >= 0.5 * t[-1]] if t.size else D

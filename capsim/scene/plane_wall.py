@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from capsim.flows import FarField, far_field_of
+from capsim.flows import FarField
 from capsim.scene.boundaries import Boundary, register_boundary
 
 #: the coordinate axis the wall's normal points along (into the fluid): y, the shear's gradient
@@ -110,7 +110,3 @@ class PlaneWall(Boundary):
         y = self.height
         return np.array([[x0, y, z0], [x1, y, z0], [x1, y, z1], [x0, y, z1]], dtype=np.float64)
 
-
-def wall_far_field(flow: Any, height: float) -> AffineFarField:
-    """The far field of a flow section above a wall at ``height`` (a known answer's shortcut)."""
-    return PlaneWall(height).far_field(far_field_of(flow))
