@@ -250,7 +250,7 @@ def validate(
     except ConfigError as exc:
         raise _user_error(str(exc)) from None
     if not _is_campaign(data):
-        typer.echo(_load(case_path, sets).to_yaml(), nl=False)
+        typer.echo(_load(case_path, sets).to_yaml(user_names=True), nl=False)  # flow.G, as a case writes it
         return
     from capsim.campaign import plan_lines
 

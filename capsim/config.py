@@ -4,7 +4,10 @@ Every user mistake (missing file, bad YAML, unknown field, value out of range)
 surfaces as a :class:`ConfigError` whose message is one line naming the file,
 the dotted field, the bad value and what is allowed, e.g.::
 
-    case.yaml: flow.shear_rate_G = -1.0: must be > 0
+    case.yaml: flow.G = -1.0: must be > 0
+
+``flow.G`` is the flow's rate's name (its long name ``shear_rate_G`` is read too, and is what a
+run file's stored case keeps): a problem is named as the case wrote it.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from typing import Any, Literal, Optional, Union, get_args, get_origin
 
 import yaml
 from pydantic import (
+    AliasChoices,
     BaseModel,
     ConfigDict,
     Field,
@@ -450,18 +454,18 @@ class Flow(_Model):
     @model_validator(mode="before")
     @classmethod
     def _G_is_shear_rate_G(cls, data: Any) -> Any:
-        """flow.G: the dimensionless rate of every flow, by its short name (stored as shear_rate_G)."""
-        if isinstance(data, dict) and "G" in data:
+        """flow.G: the dimensionless rate of every flow (stored as shear_rate_G, its long name).
+        G alone is left to the field's alias, so that a problem with it is named flow.G."""
+        if isinstance(data, dict) and "G" in data and "shear_rate_G" in data:
             data = dict(data)
             G = data.pop("G")
-            if "shear_rate_G" in data and data["shear_rate_G"] != G:
+            if data["shear_rate_G"] != G:
                 raise _FieldProblem("G", G, f"and shear_rate_G = {data['shear_rate_G']!r} name one value (G is "
                                     "shear_rate_G's short name); give one of them")
-            data["shear_rate_G"] = G
         return data
 
     shear_rate_G: float = Field(
-        0.1, gt=0,
+        0.1, gt=0, validation_alias=AliasChoices("shear_rate_G", "G"),
         description="G = μ·rate·a/E_s for every flow.kind (rate k, ε or U/R; `flow.G` is its short name); "
         "or give the case's `physical` block (then G is computed from it "
         "and stored here, and must be in [1e-6, 100]: outside, the units have slipped); validated in "
@@ -1513,6 +1517,7 @@ class Case(_Model):
             if not lo <= value <= hi:
                 source = sources.get(field)
                 given = f" (from {source})" if source else ""
+                field = USER_NAMES.get(field, field)
                 _case_warning(f"{field} = {value:.3g}{given} is outside [{lo:g}, {hi:g}], the range capsim is "
                               "validated in (docs/validation.md): the run goes ahead, its accuracy is untested")
         return self
@@ -1548,9 +1553,22 @@ class Case(_Model):
             return v.model_copy(update={"path": v.path.replace("{name}", name)})
         return v
 
-    def to_yaml(self) -> str:
-        """The resolved case (all defaults filled); `load_case` reads it back equal."""
-        return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False)
+    def to_yaml(self, user_names: bool = False) -> str:
+        """The resolved case (all defaults filled); `load_case` reads it back equal. ``user_names``:
+        fields by the names a user writes (flow.G; `capsim validate`), else as a run file stores
+        them (flow.shear_rate_G: the stored format is unchanged)."""
+        data = self.model_dump(mode="json")
+        if user_names:
+            for full, short in USER_NAMES.items():
+                *sections, leaf = full.split(".")
+                node = data
+                for part in sections:
+                    node = node[part]
+                new = short.rsplit(".", 1)[-1]
+                items = [(new if k == leaf else k, v) for k, v in node.items()]  # renamed in place, order kept
+                node.clear()
+                node.update(items)
+        return yaml.safe_dump(data, sort_keys=False)
 
 
 # ---------------------------------------------------------------- loading
@@ -1860,6 +1878,8 @@ def resolve_case(source: Any, sets: list[str] | None = None, **overrides: Any) -
 
 #: dotted names that are another field's short name
 _ALIASES = {"flow.G": "flow.shear_rate_G"}
+#: a field's name as a user writes it and capsim names it back (`capsim validate`, warnings)
+USER_NAMES = {full: short for short, full in _ALIASES.items()}
 
 
 def apply_overrides(case: Case, **dotted: Any) -> Case:
