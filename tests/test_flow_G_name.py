@@ -49,3 +49,19 @@ def test_the_range_warning_names_G(tmp_path):
     proc = _validate(tmp_path, "name: w\nflow: {G: 3}\n")
     assert proc.returncode == 0, proc.stderr
     assert "CaseWarning: flow.G = 3 is outside [0.0005, 1]" in proc.stderr
+
+
+def test_the_package_and_capsim_help_say_what_capsim_does():
+    """pyproject's description and `capsim --help` name the scenes and the machinery capsim has now,
+    not 'simple shear' alone (issue 52, item 4)."""
+    import tomllib
+
+    from typer.testing import CliRunner
+
+    from capsim.cli import app
+
+    description = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["description"]
+    helptext = " ".join(CliRunner().invoke(app, ["--help"]).output.replace("│", " ").split())
+    for text in (description, helptext):
+        for word in ("extension", "Poiseuille", "wall", "several", "accuracy", "campaign"):
+            assert word in text, (word, text)
