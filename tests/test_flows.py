@@ -255,8 +255,10 @@ def test_flow_G_is_the_dimensionless_rate_of_every_flow_by_its_short_name(tmp_pa
                                    "sweep": {"flow.G": [0.01, 0.02]}, "output": {"dir": str(tmp_path / "runs")}})
     assert run_campaign(campaign, workers=1)["completed"] == 2
     ds = summarize_campaign(tmp_path / "runs")
-    assert list(ds["G"].values) == [0.01, 0.02]
-    assert float(ds["D_xy"].sel(G=0.02)) > float(ds["D_xy"].sel(G=0.01)) > 0
+    # the dimension is the field's full name whichever name swept it (the same cases, the same
+    # summary); case_field says which
+    assert list(ds["shear_rate_G"].values) == [0.01, 0.02] and ds["shear_rate_G"].attrs["case_field"] == "flow.G"
+    assert float(ds["D_xy"].sel(shear_rate_G=0.02)) > float(ds["D_xy"].sel(shear_rate_G=0.01)) > 0
 
 
 def test_the_extra_dissipation_of_a_stiff_capsule_is_a_rigid_spheres_in_every_linear_flow(tmp_path):
