@@ -474,7 +474,7 @@ class Flow(_Model):
     capillary_number: Optional[float] = Field(
         None, gt=0,
         description="Ca = μ k a / G_s, as papers that scale by the shear modulus G_s quote it; instead of "
-        "shear_rate_G, which is then computed: G = Ca/3 for the elastic laws (G_s = E_s/3), G = Ca for "
+        "flow.G, which is then computed: G = Ca/3 for the elastic laws (G_s = E_s/3), G = Ca for "
         "surface_tension (a drop: Ca = μka/γ)",
     )
     viscosity_ratio: float = Field(
@@ -492,7 +492,7 @@ class Flow(_Model):
         "simple_shear",
         description="the undisturbed flow (capsim.flows): " + "; ".join(
             f"{name}: {cls.description} (rate: {cls.rate})" for name, cls in FLOWS.items())
-        + ". shear_rate_G is G = μ·rate·a/E_s for every kind, and the time unit is 1/rate",
+        + ". flow.G (long name shear_rate_G) is G = μ·rate·a/E_s for every kind, and the time unit is 1/rate",
     )
     velocity_gradient: Optional[list[list[float]]] = Field(
         None, description="kind: linear only: the velocity gradient L (L_ij = ∂u_i/∂x_j) as 3 rows of 3 numbers, "
@@ -914,7 +914,7 @@ class Capsule(_Model):
     modulus_ratio: float = Field(
         1.0, gt=0, le=1e3,
         description="its membrane's elastic modulus E_s over the top-level one's, the unit of every modulus "
-        "(a stiffer cell: > 1); its own G is flow.shear_rate_G / modulus_ratio")
+        "(a stiffer cell: > 1); its own G is flow.G / modulus_ratio")
     viscosity_ratio: Optional[float] = Field(
         None, gt=0, description="its λ, inner over outer viscosity (default: flow.viscosity_ratio)")
 
@@ -1001,8 +1001,8 @@ class Case(_Model):
     )
     physical: Optional[Physical] = Field(
         None,
-        description="dimensional shear rate, viscosity, radius and modulus instead of flow.shear_rate_G, "
-        "which is then computed and stored (giving both is an error, unless flow.shear_rate_G is the "
+        description="dimensional shear rate, viscosity, radius and modulus instead of flow.G, "
+        "which is then computed and stored (giving both is an error, unless flow.G is the "
         "value they give, as in a resolved case)",
     )
 
@@ -1133,7 +1133,7 @@ class Case(_Model):
             own = G / capsule.modulus_ratio
             if not own <= PHYSICAL_G_RANGE[1]:
                 raise _FieldProblem(f"capsules[{i}].modulus_ratio", capsule.modulus_ratio,
-                                    f"gives the capsule its own G = flow.shear_rate_G / modulus_ratio = {own:.3g}, "
+                                    f"gives the capsule its own G = flow.G / modulus_ratio = {own:.3g}, "
                                     f"above {PHYSICAL_G_RANGE[1]:g}: a membrane that soft is torn apart at once")
             if not glo <= own <= ghi:
                 _case_warning(f"capsules[{i}].modulus_ratio = {capsule.modulus_ratio:g} gives the capsule its own G "
