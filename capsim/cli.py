@@ -26,10 +26,7 @@ atexit.register(gc.freeze)
 
 
 app = typer.Typer(
-    help="Boundary-integral simulation of elastic capsules (and drops) in Stokes flow: simple shear, "
-    "planar and uniaxial extension, Poiseuille or any linear flow, steady or in time, near a plane wall, one "
-    "capsule or several. A run meets an accuracy target (accuracy:) by predicting or measuring its mesh and "
-    "time step; a campaign sweeps cases into run files, a summary and figures.",
+    help="Boundary-integral simulation of elastic capsules in Stokes flow (shear, extension, Poiseuille, any linear flow, in time; near a wall; one capsule or several); runs that meet accuracy targets; campaigns with summaries and figures.",
     no_args_is_help=True,
     add_completion=True,
     pretty_exceptions_show_locals=False,
