@@ -2,9 +2,10 @@
 
 ``membrane.MembraneForce`` gives the traction jump Δf; this module turns it into
 velocities (single layer, the λ ≠ 1 double-layer solve, the volume correction)
-in a far-field flow given as data (capsim.flows: ``flow.kind``, simple shear by
-default), using the mesh's symmetries when it has them. ``build_model(case)``
-builds the complete model. Pure orchestration: the loops are in ``kernels.py``.
+in the scene the model holds (capsim.scene: the far field as data, each boundary's
+regular part of the Green's function added to the free-space layers through the
+boundary interface, the capsules' layout), using the mesh's symmetries when it has
+them. ``build_model(case)`` builds the complete model. Pure orchestration: the loops are in ``kernels.py``.
 In units of a, 1/k, ka and
 E_s the boundary-integral equation (seed 2.11; docs/conventions.md) reads
 
