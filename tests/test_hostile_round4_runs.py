@@ -33,14 +33,19 @@ def test_auto_with_an_infinite_spectral_radius_picks_a_scheme_and_says_why(monke
 
     monkeypatch.setattr(RungeKuttaChebyshev, "spectral_radius", lambda self: math.inf)
 
+    from capsim.scene import Scene
+
+    case = case_from_dict({"name": "x", "mesh": {"level": 0}})
+
     class Model:
+        scene = Scene.of(case)  # what the schemes ask of the run's scene
+
         def state(self):
             return {}
 
         def restore(self, state):
             pass
 
-    case = case_from_dict({"name": "x", "mesh": {"level": 0}})
     y0 = np.ones(6)
     cls, why, _, _ = Automatic.resolve(case, Model(), lambda y: (np.zeros_like(y), None), y0)
     assert cls is EmbeddedRungeKutta
