@@ -116,7 +116,7 @@ bench-scheme-cost: venv
 
 .PHONY: bench-error-model
 # the error model of time.rtol auto and accuracy targets (issue 44): 157 training cases, two workers
-# (about 15 min on 2 cores; rows already in capsim/error_model.json are kept, --all measures again)
+# (about 15 min on 2 cores; rows already in capsim/solve/error_model.json are kept, --all measures again)
 bench-error-model: venv
 	$(BIN)/python benchmarks/error_model.py --workers=2
 

@@ -8,7 +8,7 @@ has applied the thread policy.
 
 from __future__ import annotations
 
-from capsim.runner import run_case
+from capsim.runs.runner import run_case
 
 
 def run_or_stop(case):

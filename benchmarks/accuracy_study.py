@@ -1,6 +1,6 @@
 """Accuracy against cost for the docs/validation.md ("Accuracy and cost").
 
-Runs `capsim.study.run_study` on an initially spherical capsule (thin-shell law,
+Runs `capsim.campaigns.study.run_study` on an initially spherical capsule (thin-shell law,
 G = 0.1) at λ = 1 and λ = 5, mesh levels 2-4 × rtol 1e-3, 1e-4, 1e-5, to
 kt = 4, and writes for each case benchmarks/accuracy_<case>.nc and .png, then
 the markdown section benchmarks/accuracy.md (the measured tables, the cheapest
@@ -30,7 +30,7 @@ sys.path.insert(0, str(HERE.parent))
 
 from capsim import __version__  # noqa: E402
 from capsim.config import case_from_dict  # noqa: E402
-from capsim.study import QUANTITIES, analyse_study, format_study_table, plot_pareto, run_study, write_study  # noqa: E402
+from capsim.campaigns.study import QUANTITIES, analyse_study, format_study_table, plot_pareto, run_study, write_study  # noqa: E402
 
 
 def sphere_case(lam: float, t_end: float):

@@ -1,6 +1,6 @@
 """The accuracy target on cases the error model was not built from (issue 44): for each case and
 target, capsim's answer under accuracy.method auto (the predicted (level, rtol), or the measured
-ladder of capsim.ladder where the error model cannot place the case), the error it achieves
+ladder of capsim.runs.ladder where the error model cannot place the case), the error it achieves
 against a finer reference, and its cost (a ladder's every level counted) against the cheapest
 (level, rtol) of a grid that meets the target.
 
@@ -75,11 +75,11 @@ def _fields(fields: dict, **extra) -> dict:
 
 def _chosen(fields: dict, q: str, target: float, path: Path) -> dict | str:
     """capsim's own answer to the target (accuracy.method auto): the predicted run, or the measured
-    ladder (capsim.ladder) with every level it ran; a refusal's one line."""
+    ladder (capsim.runs.ladder) with every level it ran; a refusal's one line."""
     import h5py
 
     from capsim.config import case_from_dict
-    from capsim.runner import run_case
+    from capsim.runs.runner import run_case
 
     try:
         case = case_from_dict({**_fields(fields, accuracy={"quantity": q, "target": target}),
@@ -103,7 +103,7 @@ def _chosen(fields: dict, q: str, target: float, path: Path) -> dict | str:
 
 
 def measure(label: str, fields: dict, tmp: Path, kept_grid: list | None = None) -> dict:
-    from capsim import accuracy
+    from capsim.solve import accuracy
 
     seconds = accuracy.model()["seconds_per_evaluation"]
     # capsim's runs first: a run of level 4 brings level 4 into the grid and the reference
@@ -186,7 +186,7 @@ def main() -> None:
              "kept level 4, level 4 at rtol 1e-4); cost in the error model's seconds of an evaluation times the "
              "evaluations, a ladder's every level counted). The grid is levels 1-3 × rtol 1e-2, 2e-3, 1e-3, 1e-4, "
              "1e-5; its cheapest point that meets the target, and the cheapest at the tolerances capsim chooses "
-             "(never looser than 2e-3: the volume guard, capsim.accuracy.RTOL_LADDER):", "",
+             "(never looser than 2e-3: the volume guard, capsim.solve.accuracy.RTOL_LADDER):", "",
              "| case | target | capsim's run: level, rtol | own estimate | achieved error | met | "
              "cheapest of the grid | cost / cheapest | cheapest at rtol ≤ 2e-3 | cost / that |",
              "|---|---|---|---|---|---|---|---|---|---|"]

@@ -24,8 +24,8 @@ Writes benchmarks/auto_choice.md and benchmarks/auto_choice.json.
 
 from __future__ import annotations
 
-# the CLI's thread policy, before numpy (OpenBLAS) and numba load: capsim.threads
-from capsim.threads import apply_policy
+# the CLI's thread policy, before numpy (OpenBLAS) and numba load: capsim.numerics.threads
+from capsim.numerics.threads import apply_policy
 
 apply_policy()
 
@@ -40,7 +40,7 @@ from pathlib import Path  # noqa: E402
 
 from capsim import __version__  # noqa: E402
 from capsim.config import ConfigError, case_from_dict  # noqa: E402
-from capsim.runner import run_case  # noqa: E402
+from capsim.runs.runner import run_case  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "auto_choice"
 #: this invocation (a row's entries all ran in one invocation, interleaved)

@@ -12,20 +12,20 @@ measured"): `make bench-capsules`.
    the times: target nodes, source points (the regular rule's points of every element) and the
    Stokeslet pairs of the dense sum, targets × points. The issue's criterion: two capsules at
    level 3 at most 4.5× one capsule with the same symmetry group.
-2. The dense Stokeslet sum (``capsim.kernels.stokeslet_sum``) against fmm3dpy's Stokes FMM
+2. The dense Stokeslet sum (``capsim.numerics.kernels.stokeslet_sum``) against fmm3dpy's Stokes FMM
    (``stfmm3d``) at eps 1e-6 and 1e-9, one thread each, at the sizes of the cases above (and
    32 and 64 capsules at level 2, the sum alone): the same targets, points and strengths (those
    of one evaluation), timed in one process in alternating order, the FMM's error against the
    dense sum. fmm3dpy is no dependency of capsim: it runs in a throwaway virtual environment
    given by ``--fmm-python`` (or ``FMM_PYTHON=...`` for make), which imports this checkout's
-   ``capsim.kernels`` by path (it needs numba and numpy there)::
+   ``capsim.numerics.kernels`` by path (it needs numba and numpy there)::
 
        python3 -m venv /tmp/fmmvenv && /tmp/fmmvenv/bin/pip install fmm3dpy numpy numba scipy
        make bench-capsules FMM_PYTHON=/tmp/fmmvenv/bin/python
 
    Without it the FMM numbers of the previous benchmarks/capsules.json are kept (and said to be).
 3. Threads: the 4-, 8- and 16-capsule scenes at level 2 and both level-3 scenes with 1 and 2
-   numba threads, interleaved, beside what ``capsim.threads.threads_for_work`` gives a run.
+   numba threads, interleaved, beside what ``capsim.numerics.threads.threads_for_work`` gives a run.
 
 Writes benchmarks/capsules.md (the tables the docs include) and benchmarks/capsules.json.
 
@@ -111,7 +111,7 @@ def build(level: int, centers, symmetry: str = "auto"):
     import numpy as np
 
     from capsim.config import case_from_dict
-    from capsim.solver import build_model
+    from capsim.solve.solver import build_model
 
     d = {"name": "capsules", "mesh": {"level": level, "symmetry": symmetry}, "flow": {"shear_rate_G": 0.1}}
     if len(centers) > 1 or any(centers[0]):
@@ -129,7 +129,7 @@ def sum_arrays(model, x):
     Discretization.single_layer forms them)."""
     import numpy as np
 
-    from capsim import kernels
+    from capsim.numerics import kernels
 
     state = model.membrane(x)
     geo, disc = state.geometry, model.disc
@@ -176,7 +176,7 @@ def evaluation_costs(rounds: int, evals: int) -> tuple[dict, dict]:
     import numba
     import numpy as np
 
-    from capsim.threads import threads_for_work
+    from capsim.numerics.threads import threads_for_work
 
     start_load = list(os.getloadavg())
     spec = cases()
@@ -228,7 +228,7 @@ def fmm_worker(path: str, rounds: int) -> None:
     import numba
     import numpy as np
 
-    from capsim.kernels import stokeslet_sum
+    from capsim.numerics.kernels import stokeslet_sum
 
     numba.set_num_threads(1)
     data = np.load(path)
@@ -358,7 +358,7 @@ def table(result: dict) -> str:
         "",
         f"Threads ({result['rounds']} rounds, 1 and 2 numba threads interleaved; the 1-minute load average "
         f"{th['load_average_start'][0]:.1f} before the evaluations and {th['load_average'][0]:.1f} after, on "
-        f"{result['cores']} cores): what `capsim.threads.threads_for_work` gives a run "
+        f"{result['cores']} cores): what `capsim.numerics.threads.threads_for_work` gives a run "
         "(by the full mesh's nodes, 2000 and more: every core).",
         "",
         "| case | nodes | targets | 1 thread (ms) | 2 threads (ms) | 1 / 2 threads | a run's policy |",
@@ -372,7 +372,7 @@ def table(result: dict) -> str:
     fmm = result.get("fmm")
     lines += ["", "The dense Stokeslet sum against fmm3dpy's Stokes FMM (`stfmm3d`), one thread each, the same "
               "targets, points and strengths (one evaluation's); **measured outside the project's environment** "
-              "(fmm3dpy in a throwaway venv importing this checkout's `capsim.kernels`), the dense sum and the FMM "
+              "(fmm3dpy in a throwaway venv importing this checkout's `capsim.numerics.kernels`), the dense sum and the FMM "
               "alternating in one process. Error: ‖u_FMM − u_dense‖/‖u_dense‖ over the targets."]
     if not fmm:
         lines += ["", f"Not measured: {result.get('fmm_reason', 'no FMM environment given (--fmm-python)')}."]
@@ -422,7 +422,7 @@ def main() -> None:
     if args.fmm_worker:
         fmm_worker(args.fmm_worker, args.rounds)  # fmm_costs passes --fmm-rounds as --rounds
         return
-    from capsim.threads import apply_policy
+    from capsim.numerics.threads import apply_policy
 
     apply_policy()
     out = Path(args.out)

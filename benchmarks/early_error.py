@@ -29,7 +29,7 @@ for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np
 from error_model import T_END, TRAINING, case_dict, richardson3
 
-from capsim.accuracy import LADDER_TWO_LEVEL_ORDER as TWO_LEVEL_ORDER  # the ladder's order from two levels
+from capsim.solve.accuracy import LADDER_TWO_LEVEL_ORDER as TWO_LEVEL_ORDER  # the ladder's order from two levels
 
 ROOT = Path(__file__).resolve().parents[1]
 MD, JSON = ROOT / "benchmarks" / "early_error.md", ROOT / "benchmarks" / "early_error.json"
@@ -42,7 +42,7 @@ def measure(label: str) -> tuple[str, dict]:
     import h5py
 
     from capsim.config import case_from_dict
-    from capsim.runner import run_case
+    from capsim.runs.runner import run_case
 
     out: dict = {}
     with tempfile.TemporaryDirectory() as tmp:

@@ -1,7 +1,7 @@
 """Do the reported error bars bound the error? (issue 18, item 3; docs/validation.md "Accuracy and cost")
 
 For each case: the run itself (mesh level L, ``time.rtol`` 1e-4), its reported
-bar (:func:`capsim.study.error_estimate`, what ``capsim run --error-estimate``
+bar (:func:`capsim.campaigns.study.error_estimate`, what ``capsim run --error-estimate``
 prints: reruns at level L − 1 and at 10× the tolerance), and a reference one
 level finer (L + 1) at rtol 1e-5. The true error is value − reference; the
 ratio bar / |true error| should lie in [1, 20]. The reference carries its own
@@ -32,8 +32,8 @@ sys.path.insert(0, str(HERE.parent))
 
 from capsim.config import apply_overrides, case_from_dict  # noqa: E402
 from _common import run_or_stop  # noqa: E402
-from capsim.study import error_estimate, final_values  # noqa: E402
-from capsim.store import read_trajectory  # noqa: E402
+from capsim.campaigns.study import error_estimate, final_values  # noqa: E402
+from capsim.storage.store import read_trajectory  # noqa: E402
 
 
 #: name: (shape, G, λ, t_end)

@@ -9,7 +9,7 @@ For each training case:
 - time: level 2 at rtol 1e-2 … 1e-5 against rtol 1e-6 on the same mesh;
 - cost: the velocity evaluations of each run and the wall time per evaluation at each level.
 
-The model (capsim/error_model.json, read by capsim.accuracy) keeps, for each quantity, the
+The model (capsim/solve/error_model.json, read by capsim.solve.accuracy) keeps, for each quantity, the
 largest error over the training cases: per level for the mesh (levels 4–6 continued with the
 smallest observed order), per unit rtol for time; and the cost as evaluations per unit kt,
 a · rtol^(−b), times the wall time of one evaluation at each level. It writes
@@ -34,7 +34,7 @@ for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np
 
-from capsim.accuracy import SAFETY_QUANTILE, observed_order
+from capsim.solve.accuracy import SAFETY_QUANTILE, observed_order
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = ROOT / "capsim" / "error_model.json"
@@ -106,8 +106,8 @@ def run_values(d: dict, path: str | Path) -> dict:
     that does not converge) is a failed run, said in its status. This benchmark's training and the
     accuracy target's (accuracy_target.py) run through it."""
     from capsim.config import case_from_dict
-    from capsim.runner import run_case
-    from capsim.store import read_run_record
+    from capsim.runs.runner import run_case
+    from capsim.storage.store import read_run_record
 
     case = case_from_dict({**d, "output": {"path": str(path)}})
     try:
@@ -193,9 +193,9 @@ def _entry(row: dict) -> dict:
 
 
 def leave_one_out(cases: list[dict]) -> dict:
-    """Each training case predicted from the others (capsim.accuracy.nearest): the ratios actual /
+    """Each training case predicted from the others (capsim.solve.accuracy.nearest): the ratios actual /
     predicted of the mesh error at levels 1-3, per quantity."""
-    from capsim import accuracy
+    from capsim.solve import accuracy
 
     ratios: dict = {q: [] for q in QUANTITIES}
     for k, case in enumerate(cases):
@@ -211,7 +211,7 @@ def level4_ratio_measured() -> float:
     """The seconds of one evaluation at level 4 over level 3 (median of a sphere at λ 1 and 5, G 0.1,
     rtol 1e-3, to kt 0.5): level 4 is where a target's choice meets the dense sums' N² cost."""
     from capsim.config import case_from_dict
-    from capsim.runner import run_case
+    from capsim.runs.runner import run_case
 
     ratios = []
     for lam in (1.0, 5.0):
@@ -230,7 +230,7 @@ def fit(rows: list[dict], level4_ratio: float) -> dict:
     """The model: one entry per training case, the safety factor of each quantity (the ratio
     actual / predicted that SAFETY_QUANTILE of the left-out cases stay under, at least 1), and
     the seconds of one evaluation at each level (the median over the cases)."""
-    from capsim import accuracy
+    from capsim.solve import accuracy
 
     cases = [_entry(r) for r in rows]
     ratios = leave_one_out(cases)
@@ -255,11 +255,11 @@ DECISION_TARGETS = {"D_xy": (5e-2, 2e-2, 1e-2, 5e-3, 2e-3), "theta": (2e-2, 1e-2
 def decisions(model: dict) -> dict:
     """What the predicted choice of level does on the training cases left out one at a time: for each
     quantity and target that some level 1-3 of the case meets (its mesh error), the level
-    capsim.accuracy.choose's rule picks (the first whose predicted mesh error × the safety factor meets
+    capsim.solve.accuracy.choose's rule picks (the first whose predicted mesh error × the safety factor meets
     the target) against the cheapest that meets it: the same, finer, coarser (and of those, missed),
     with the safety factor, without it, and with factors below 1. A level finer than the cheapest costs 2-2.4× at level 1→2
     and more above (benchmarks/accuracy_target.md): this is how often no predicted choice is within 2×."""
-    from capsim import accuracy
+    from capsim.solve import accuracy
 
     cases, out = model["cases"], {}
     # each case predicted from the others once (the quantities and factors below read the same prediction)
@@ -288,7 +288,7 @@ def decisions(model: dict) -> dict:
 
 def report(model: dict, rows: list[dict]) -> str:
     ratios, safety = model["leave_one_out"], model["safety"]
-    lines = ["Each training case left out and predicted from the others (capsim.accuracy.nearest): the ratio "
+    lines = ["Each training case left out and predicted from the others (capsim.solve.accuracy.nearest): the ratio "
              "actual / predicted of its mesh error at levels 1-3; the safety factor a target's prediction is "
              f"multiplied by covers {100 * SAFETY_QUANTILE:g} % of them:", "",
              "| quantity | ratios: 10 % | median | 90 % | largest | safety factor |", "|---|---|---|---|---|---|"]
@@ -296,7 +296,7 @@ def report(model: dict, rows: list[dict]) -> str:
         r = np.array(ratios[q])
         lines.append(f"| {q} | {np.quantile(r, 0.1):.2g} | {np.median(r):.2g} | {np.quantile(r, 0.9):.2g} | "
                      f"{r.max():.2g} | {safety[q]:.2g} |")
-    lines += ["", "What the predicted level does on the same left-out cases (capsim.accuracy.choose's rule on the mesh "
+    lines += ["", "What the predicted level does on the same left-out cases (capsim.solve.accuracy.choose's rule on the mesh "
               "error, targets " + "; ".join(f"{q} {', '.join(f'{t:g}' for t in ts)}" for q, ts in DECISION_TARGETS.items())
               + ", each that a level 1-3 of the case meets): the level chosen against the cheapest that meets the "
               "target, at the model's safety factor, none, and factors below 1. A level finer than needed costs "

@@ -45,7 +45,7 @@ def worker(level: int, repeat: int) -> None:
     full-size sum before every evaluation, which slows the stages after it)."""
     import time
 
-    from capsim.benchmark import _model, bench_case
+    from capsim.runs.benchmark import _model, bench_case
 
     model, X = _model(bench_case(level, 1.0, "octahedron", "quarter", repeat), "quarter")
     c, s = np.cos(0.6), np.sin(0.6)
@@ -100,7 +100,7 @@ def summarize(rounds: list[dict]) -> dict:
 
 
 def table(result: dict) -> str:
-    from capsim.benchmark import SPLIT_STAGES
+    from capsim.runs.benchmark import SPLIT_STAGES
 
     before, after = result["before"], result["after"]
     stages = [k for k in SPLIT_STAGES if k in before["split_ms"] or k in after["split_ms"]]

@@ -77,7 +77,7 @@ def compare(path: str | Path) -> dict:
 
 def _campaign_points(directory: Path) -> dict[float, list[tuple[float, float]]]:
     """{G: [(initial offset, final offset)]} of the campaign's completed runs."""
-    from capsim.summary import read_run
+    from capsim.campaigns.summary import read_run
 
     out: dict[float, list[tuple[float, float]]] = {}
     for path in sorted(directory.glob("*.h5")):
@@ -96,7 +96,7 @@ def _campaign_points(directory: Path) -> dict[float, list[tuple[float, float]]]:
 
 def main() -> None:
     from capsim.config import case_from_dict
-    from capsim.runner import run_case
+    from capsim.runs.runner import run_case
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -27,8 +27,8 @@ writes benchmarks/rtol_auto.md (included by docs/benchmarks.md) and benchmarks/r
 
 from __future__ import annotations
 
-# the CLI's thread policy, before numpy (OpenBLAS) and numba load: capsim.threads
-from capsim.threads import apply_policy
+# the CLI's thread policy, before numpy (OpenBLAS) and numba load: capsim.numerics.threads
+from capsim.numerics.threads import apply_policy
 
 apply_policy()
 
@@ -44,7 +44,7 @@ import numpy as np  # noqa: E402
 
 from capsim import __version__  # noqa: E402
 from capsim.config import case_from_dict  # noqa: E402
-from capsim.store import read_trajectory  # noqa: E402
+from capsim.storage.store import read_trajectory  # noqa: E402
 from _common import run_or_stop  # noqa: E402
 from stepping import CASES, theta_difference  # noqa: E402
 

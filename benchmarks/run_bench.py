@@ -8,7 +8,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from capsim import __version__
-from capsim.benchmark import bench_velocity
+from capsim.runs.benchmark import bench_velocity
 
 
 def main() -> None:

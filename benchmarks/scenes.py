@@ -28,15 +28,15 @@ import tempfile
 import time
 from pathlib import Path
 
-from capsim.threads import apply_policy
+from capsim.numerics.threads import apply_policy
 
 apply_policy()
 
 import numpy as np  # noqa: E402
 
 from capsim.config import case_from_dict  # noqa: E402
-from capsim.kernels import stokeslet_sum, wall_image_sum  # noqa: E402
-from capsim.solver import build_model  # noqa: E402
+from capsim.numerics.kernels import stokeslet_sum, wall_image_sum  # noqa: E402
+from capsim.solve.solver import build_model  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _common import run_or_stop  # noqa: E402

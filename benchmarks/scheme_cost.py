@@ -1,6 +1,6 @@
-"""The calibration of capsim.scheme_cost.COSTS (issue 44, item 3): short runs of every time scheme
+"""The calibration of capsim.solve.scheme_cost.COSTS (issue 44, item 3): short runs of every time scheme
 at mesh levels 1-3, interleaved, the seconds per operation fitted to their median wall times by
-non-negative least squares (wall = Σ count × cost, the counts of capsim.scheme_cost.run_counts).
+non-negative least squares (wall = Σ count × cost, the counts of capsim.solve.scheme_cost.run_counts).
 
     python benchmarks/scheme_cost.py [rounds]      # prints a new COSTS table (make bench-scheme-cost)
 """
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from capsim.scheme_cost import OPERATIONS, run_counts
+from capsim.solve.scheme_cost import OPERATIONS, run_counts
 
 # ---------------------------------------------------------------- the calibration
 
@@ -38,7 +38,7 @@ def calibrate(levels: tuple[int, ...] = (1, 2, 3), rounds: int = 3, rtol: float 
     from scipy.optimize import nnls
 
     from capsim.config import case_from_dict
-    from capsim.runner import run_case
+    from capsim.runs.runner import run_case
 
     out: dict[int, dict[str, Any]] = {}
     with tempfile.TemporaryDirectory() as d:
@@ -87,7 +87,7 @@ def calibrate(levels: tuple[int, ...] = (1, 2, 3), rounds: int = 3, rtol: float 
 if __name__ == "__main__":  # python benchmarks/scheme_cost.py [rounds]
     import sys
 
-    from capsim.threads import apply_policy
+    from capsim.numerics.threads import apply_policy
 
     apply_policy()
     table = calibrate(rounds=int(sys.argv[1]) if len(sys.argv) > 1 else 3)

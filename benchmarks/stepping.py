@@ -30,8 +30,8 @@ linearly_implicit/dense (the dense stage preconditioner, meshes up to level 3) a
 
 from __future__ import annotations
 
-# the CLI's thread policy, before numpy (OpenBLAS) and numba load: capsim.threads
-from capsim.threads import apply_policy
+# the CLI's thread policy, before numpy (OpenBLAS) and numba load: capsim.numerics.threads
+from capsim.numerics.threads import apply_policy
 
 apply_policy()
 
@@ -47,8 +47,8 @@ import numpy as np  # noqa: E402
 from capsim import __version__  # noqa: E402
 from capsim.config import ConfigError, case_from_dict  # noqa: E402
 from _common import run_or_stop  # noqa: E402
-from capsim.observables import unwrap_defined  # noqa: E402
-from capsim.store import read_trajectory
+from capsim.solve.observables import unwrap_defined  # noqa: E402
+from capsim.storage.store import read_trajectory
 
 D_TOL, THETA_TOL = 1e-4, 1e-3
 REFERENCE_RTOL = 1e-6

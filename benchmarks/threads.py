@@ -15,7 +15,7 @@ Settings:
 - ``omp-passive``: NUMBA_THREADING_LAYER=omp, OMP_WAIT_POLICY=PASSIVE;
 - ``workqueue``: NUMBA_THREADING_LAYER=workqueue;
 - ``tbb``: NUMBA_THREADING_LAYER=tbb (only when the TBB library is installed);
-- ``capsim``: no variable set; the child applies capsim.threads.apply_policy
+- ``capsim``: no variable set; the child applies capsim.numerics.threads.apply_policy
   (what ``capsim run`` does), and records the settings it got.
 
 Usage::
@@ -50,7 +50,7 @@ SPIN_COUNTS = (1000, 10000, 100000)
 
 def _settings() -> dict[str, dict[str, str] | None]:
     sys.path.insert(0, str(ROOT))
-    from capsim.threads import available_layers  # numba-free
+    from capsim.numerics.threads import available_layers  # numba-free
 
     settings: dict[str, dict[str, str] | None] = {
         "default": {},
@@ -76,7 +76,7 @@ def child(spec: dict) -> dict:
     import tempfile
 
     sys.path.insert(0, str(ROOT))
-    from capsim import threads
+    from capsim.numerics import threads
 
     if spec["policy"]:
         threads.apply_policy(spec["threads"])
@@ -210,7 +210,7 @@ def main(argv=None) -> int:
     import numba  # only for the version shown; the children measured
 
     sys.path.insert(0, str(ROOT))
-    from capsim.threads import usable_cores
+    from capsim.numerics.threads import usable_cores
 
     meta = {
         "level": args.level, "t_end": args.t_end, "repeat": args.repeat, "cores": usable_cores(),

@@ -108,8 +108,8 @@ def run_one(case: dict, label: str, level: int | None = None, t_end: float | Non
     import numpy as np
 
     from capsim.config import case_from_dict
-    from capsim.runner import run_case
-    from capsim.store import read_trajectory
+    from capsim.runs.runner import run_case
+    from capsim.storage.store import read_trajectory
 
     case = json.loads(json.dumps(case))
     if level is not None:
@@ -222,7 +222,7 @@ def jobs() -> dict[str, list[tuple[str, dict, dict]]]:
 
 
 def run(groups: list[str]) -> None:
-    from capsim.threads import apply_policy
+    from capsim.numerics.threads import apply_policy
 
     apply_policy(1)
     done = load_rows()

@@ -1,6 +1,6 @@
 """The sphere over Bq_s (issue 28): D_xy, θ and the tank-treading frequency against the
 membrane's Boussinesq number at λ = 1 and 5, capsim beside the first-order theory
-(capsim.small_deformation). The runs are campaigns/viscous-membrane-sphere.yaml at level 2
+(capsim.scene.small_deformation). The runs are campaigns/viscous-membrane-sphere.yaml at level 2
 with a weak bending modulus (κ = 1e-4, against the low-G creep; docs/viscous_membrane.md),
 each ended 8 slow relaxation times after the start.
 
@@ -17,7 +17,7 @@ from pathlib import Path
 for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
-from capsim.threads import apply_policy  # noqa: E402
+from capsim.numerics.threads import apply_policy  # noqa: E402
 
 apply_policy(1)
 
@@ -32,8 +32,8 @@ LAMBDAS = (1.0, 5.0)
 def run(lam: float, bq: float) -> dict:
     from capsim.config import case_from_dict
     from _common import run_or_stop
-    from capsim.small_deformation import LinearCapsule
-    from capsim.store import read_trajectory
+    from capsim.scene.small_deformation import LinearCapsule
+    from capsim.storage.store import read_trajectory
 
     t_end = 8.0 * LinearCapsule.from_G(G, viscosity_ratio=lam, Bq_shear=bq).relaxation_times()[0]
     with tempfile.TemporaryDirectory() as tmp:
@@ -54,7 +54,7 @@ def main() -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from capsim.small_deformation import LinearCapsule
+    from capsim.scene.small_deformation import LinearCapsule
 
     rows = [run(lam, bq) for lam in LAMBDAS for bq in BQ]
     out = ROOT / "docs" / "figures" / "viscous-membrane-sphere"

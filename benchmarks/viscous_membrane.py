@@ -1,11 +1,11 @@
 """Cost of a viscous membrane (issue 28): the sphere at level 3 (kt 0-4) and 4 (kt 0-0.5), G = 0.1, λ = 1,
 elastic against Bq_s = 1 at the same tolerance, per scheme, and the viscous solve's
-preconditioners (capsim.viscosity: frozen, rest, local, none). Counts (velocity evaluations,
+preconditioners (capsim.numerics.viscosity: frozen, rest, local, none). Counts (velocity evaluations,
 layer applications, GMRES iterations) do not drift with the machine's load; wall time does.
 
     python benchmarks/viscous_membrane.py      # writes benchmarks/viscous_membrane.{json,md} (~6 min on an idle machine)
 
-Single-threaded: capsim's thread policy (capsim.threads) with one thread, and one BLAS
+Single-threaded: capsim's thread policy (capsim.numerics.threads) with one thread, and one BLAS
 thread (OPENBLAS/OMP/MKL_NUM_THREADS=1, which that policy does not set): with a
 multi-threaded BLAS on a loaded two-core machine GMRES's short dot products cost more
 than the layer sums (level 4, four viscous solves: 11.7 s against 2.1 s).
@@ -23,7 +23,7 @@ from pathlib import Path
 for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):  # before numpy loads BLAS
     os.environ.setdefault(_name, "1")
 
-from capsim.threads import apply_policy  # noqa: E402 (before numba loads)
+from capsim.numerics.threads import apply_policy  # noqa: E402 (before numba loads)
 
 apply_policy(1)
 
@@ -50,10 +50,10 @@ CASES = [  # (label, scheme, Bq_s, preconditioner of the viscous solve)
 
 
 def run_one(scheme: str, bq: float, preconditioner: str | None, dilatational: float, t_end: float, level: int):
-    import capsim.viscosity as viscosity
+    import capsim.numerics.viscosity as viscosity
     from capsim.config import case_from_dict
     from _common import run_or_stop
-    from capsim.store import read_trajectory
+    from capsim.storage.store import read_trajectory
 
     original = viscosity.KelvinVoigtMembrane.__init__
     made = []

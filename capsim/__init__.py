@@ -9,8 +9,8 @@ numba nor HDF5)::
     tree = capsim.open_run(result.path)                             # an xarray.DataTree
 
 ``sweep``, ``summarize`` and ``study`` do what the CLI commands of the same names do;
-see :mod:`capsim.api`. ``capsim.study`` is also the module of that name: calling it calls
-:func:`capsim.study.study`.
+see :mod:`capsim.api`. ``capsim.campaigns.study`` is also the module of that name: calling it calls
+:func:`capsim.campaigns.study.study`.
 """
 
 from capsim._version import __version__
@@ -25,11 +25,11 @@ _LAZY = {
     "run": "capsim.api",
     "sweep": "capsim.api",
     "summarize": "capsim.api",
-    "study": "capsim.study",  # the module, callable: capsim.study(...) is capsim.study.study(...)
+    "study": "capsim.campaigns.study",  # the module, callable: capsim.campaigns.study(...) is capsim.campaigns.study.study(...)
     "open_run": "capsim.api",
     "warm_up": "capsim.api",
     "Case": "capsim.config",
-    "RunResult": "capsim.runner",
+    "RunResult": "capsim.runs.runner",
 }
 
 
@@ -39,8 +39,8 @@ def __getattr__(name: str):
         raise AttributeError(f"module 'capsim' has no attribute {name!r}")
     import importlib
 
-    if name == "RunResult":  # capsim.runner loads numba: the thread policy first
-        importlib.import_module("capsim.threads").apply_policy()
+    if name == "RunResult":  # capsim.runs.runner loads numba: the thread policy first
+        importlib.import_module("capsim.numerics.threads").apply_policy()
     if name == "study":  # importing the submodule makes it the package's attribute `study`
         return importlib.import_module(module)
     value = getattr(importlib.import_module(module), name)

@@ -6,7 +6,7 @@ one-line errors, but returns Python objects instead of printing:
 | function | CLI command | returns |
 |---|---|---|
 | [`load_case`][capsim.api.load_case] | `capsim validate CASE` | a [`Case`][capsim.config.Case] |
-| [`run`][capsim.api.run] | `capsim run` | a [`RunResult`][capsim.runner.RunResult] |
+| [`run`][capsim.api.run] | `capsim run` | a [`RunResult`][capsim.runs.runner.RunResult] |
 | [`sweep`][capsim.api.sweep] | `capsim sweep` | a dict of counts and one record per run |
 | [`summarize`][capsim.api.summarize] | `capsim summarize` | an `xarray.Dataset` (also written as netCDF) |
 | [`study`][capsim.api.study] | `capsim study` | an `xarray.Dataset` (written when `output` is given) |
@@ -14,7 +14,7 @@ one-line errors, but returns Python objects instead of printing:
 | [`warm_up`][capsim.api.warm_up] | `capsim warm-up [CASE]` | the seconds spent compiling or loading kernels |
 
 Nothing here imports numba at import time: `run`, `sweep` and `study` first apply
-the thread policy (`capsim.threads.apply_policy`, the same one the CLI applies), then
+the thread policy (`capsim.numerics.threads.apply_policy`, the same one the CLI applies), then
 load the kernels.
 
 An argument that takes a list (`sets`, `inputs`, `levels`, `rtols`, `quad`, the cases
@@ -35,11 +35,11 @@ saying so; in a sweep, so does each run that fails.
 | exception | when |
 |---|---|
 | [`capsim.config.ConfigError`][capsim.config.ConfigError] | a bad case, campaign or argument (`workers=0`, `units="bogus"`, `levels=[]`, `overwrite` with `resume`, a directory that holds no campaign) |
-| [`capsim.files.OutputError`][capsim.files.OutputError] | an output that must not be written (an existing run file without `overwrite`) |
-| [`capsim.files.LockedError`][capsim.files.LockedError] | another process writes the same file or directory |
-| [`capsim.files.StorageError`][capsim.files.StorageError] | writing fails (a full disk, a file-size limit) |
-| [`capsim.checkpoint.ResumeError`][capsim.checkpoint.ResumeError] | a run cannot resume or be extended (no or a damaged checkpoint, another case) |
-| [`capsim.store.TrajectoryError`][capsim.store.TrajectoryError] | a run file cannot be read: missing, not a capsim run file, damaged, or being written (`open_run`) |
+| [`capsim.storage.files.OutputError`][capsim.storage.files.OutputError] | an output that must not be written (an existing run file without `overwrite`) |
+| [`capsim.storage.files.LockedError`][capsim.storage.files.LockedError] | another process writes the same file or directory |
+| [`capsim.storage.files.StorageError`][capsim.storage.files.StorageError] | writing fails (a full disk, a file-size limit) |
+| [`capsim.storage.checkpoint.ResumeError`][capsim.storage.checkpoint.ResumeError] | a run cannot resume or be extended (no or a damaged checkpoint, another case) |
+| [`capsim.storage.store.TrajectoryError`][capsim.storage.store.TrajectoryError] | a run file cannot be read: missing, not a capsim run file, damaged, or being written (`open_run`) |
 | [`capsim.units.UnitsError`][capsim.units.UnitsError] | physical units asked of a case or campaign without a `physical:` block |
 """
 
@@ -54,9 +54,9 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:  # pragma: no cover - types only
     import xarray as xr
 
-    from capsim.campaign import Campaign
+    from capsim.campaigns.campaign import Campaign
     from capsim.config import Case
-    from capsim.runner import RunResult
+    from capsim.runs.runner import RunResult
 
 __all__ = ["load_case", "load_campaign", "run", "sweep", "summarize", "study", "open_run", "warm_up"]
 
@@ -85,7 +85,7 @@ def load_case(source: "PathLike | Mapping[str, Any] | Case", sets: "str | Sequen
     ```
     """
     from capsim.config import resolve_case
-    from capsim.executor import text_list
+    from capsim.campaigns.executor import text_list
 
     return resolve_case(dict(source) if isinstance(source, Mapping) else source, text_list(sets, "sets"),
                         **overrides)
@@ -96,8 +96,8 @@ def load_campaign(source: PathLike, sets: "str | Sequence[str] | None" = None, *
     """A campaign file (a `base` case, a `sweep` grid and/or `zip` lists, an `output.dir`),
     with `--set` texts (one text or a list) written into its base; a mistake raises a
     one-line `capsim.config.ConfigError`."""
-    from capsim.campaign import MAX_RUNS, load_campaign_with
-    from capsim.executor import check_workers, path_arg, text_list
+    from capsim.campaigns.campaign import MAX_RUNS, load_campaign_with
+    from capsim.campaigns.executor import check_workers, path_arg, text_list
 
     limit = MAX_RUNS if max_runs is None else check_workers(max_runs, "max_runs", default=None)
     return load_campaign_with(path_arg(source, "campaign"), text_list(sets, "sets"), max_runs=limit)
@@ -105,7 +105,7 @@ def load_campaign(source: PathLike, sets: "str | Sequence[str] | None" = None, *
 
 def _apply_thread_policy(workers: int = 1) -> None:
     """The CLI's thread policy (a no-op after the first call, or once numba is loaded)."""
-    from capsim.threads import apply_policy
+    from capsim.numerics.threads import apply_policy
 
     apply_policy(workers=workers)
 
@@ -137,7 +137,7 @@ def run(case: "PathLike | Mapping[str, Any] | Case", *, output: PathLike | None 
     `case` is a case file, a dict or a [`Case`][capsim.config.Case]; `sets` and
     `overrides` change fields as in [`load_case`][capsim.api.load_case]; `output`
     replaces `output.path`. Before anything is computed the output is checked exactly
-    as the CLI checks it: an existing file is refused (`capsim.files.OutputError`, the
+    as the CLI checks it: an existing file is refused (`capsim.storage.files.OutputError`, the
     CLI's one-line message) unless `overwrite` (start again) or `resume` (continue an
     interrupted run from its checkpoint, or extend a completed one to a later
     `time.t_end`); the two exclude each other (`capsim.config.ConfigError`). The thread
@@ -146,7 +146,7 @@ def run(case: "PathLike | Mapping[str, Any] | Case", *, output: PathLike | None 
     `inputs`: more files the run must never write over (the case file is one when
     `case` is a path).
 
-    Returns a [`RunResult`][capsim.runner.RunResult]: `status` (`"completed"` when the
+    Returns a [`RunResult`][capsim.runs.runner.RunResult]: `status` (`"completed"` when the
     run reached its end), the path, cost, and the summary of the motion
     (`result["D_xy"]`, `result["theta"]`: means over the last window). A case whose
     accuracy target is measured (`accuracy.method`) runs the ladder of levels and returns
@@ -157,7 +157,7 @@ def run(case: "PathLike | Mapping[str, Any] | Case", *, output: PathLike | None 
     result.status, round(result["D_xy"], 4)  # ('completed', 0.3899)
     ```
     """
-    from capsim.executor import path_arg, path_list
+    from capsim.campaigns.executor import path_arg, path_list
 
     if overwrite and resume:
         from capsim.config import ConfigError
@@ -168,7 +168,7 @@ def run(case: "PathLike | Mapping[str, Any] | Case", *, output: PathLike | None 
     if output is not None:
         overrides["output.path"] = os.fspath(path_arg(output, "output"))
     case = load_case(case, sets, **overrides)
-    from capsim.store import guard_run_output
+    from capsim.storage.store import guard_run_output
 
     guard_run_output(case.output.path, inputs, overwrite=overwrite, resume=resume)
     _apply_thread_policy()
@@ -179,8 +179,8 @@ def run(case: "PathLike | Mapping[str, Any] | Case", *, output: PathLike | None 
               "on 2 cores, cached for every later run)", file=sys.stderr, flush=True)
         seconds = warm_up([case])
         print(f"capsim: compiled in {seconds:.0f} s", file=sys.stderr, flush=True)
-    from capsim.display import RunProgress
-    from capsim.runner import run_case
+    from capsim.face.display import RunProgress
+    from capsim.runs.runner import run_case
 
     display = _progress(progress, RunProgress)
     try:
@@ -202,8 +202,8 @@ def sweep(campaign: "PathLike | Campaign", *, workers: int | None = None, schedu
     `run_id`, `status` and `status_reason`); [`summarize`][capsim.api.summarize] then
     collects the directory into one Dataset.
     """
-    from capsim.campaign import Campaign, expand_campaign, run_campaign
-    from capsim.executor import check_workers, refuse_in_spawned_import_of_main
+    from capsim.campaigns.campaign import Campaign, expand_campaign, run_campaign
+    from capsim.campaigns.executor import check_workers, refuse_in_spawned_import_of_main
 
     refuse_in_spawned_import_of_main("capsim.sweep")
     workers = check_workers(workers)
@@ -217,7 +217,7 @@ def sweep(campaign: "PathLike | Campaign", *, workers: int | None = None, schedu
     _apply_thread_policy()
     display = None
     if progress is True:
-        from capsim.display import SweepProgress
+        from capsim.face.display import SweepProgress
 
         display = SweepProgress({spec.run_id: spec.case().time.t_end for spec in expand_campaign(campaign)})
     else:
@@ -248,12 +248,12 @@ def summarize(directory: PathLike, output: PathLike | None = None, *, overwrite:
     is not a full grid), and one variable per quantity of the quantity table (`D_xy`,
     `theta`, ..., with units and meaning in their attributes) plus `status`. An existing
     file that is not a summary is replaced only with `overwrite`
-    (`capsim.files.OutputError`). `units="physical"` (or `"capsim"`, the default): the
+    (`capsim.storage.files.OutputError`). `units="physical"` (or `"capsim"`, the default): the
     variables with a capsim scale in physical units from each run's `physical:` block
     (`capsim.units.UnitsError` for a campaign without one).
     """
-    from capsim.executor import path_arg
-    from capsim.summary import summarize_to_file
+    from capsim.campaigns.executor import path_arg
+    from capsim.campaigns.summary import summarize_to_file
 
     directory, output = path_arg(directory, "directory"), path_arg(output, "output")
     _, ds = summarize_to_file(directory, summary_path(directory, output), overwrite=overwrite, units=units)
@@ -262,9 +262,9 @@ def summarize(directory: PathLike, output: PathLike | None = None, *, overwrite:
 
 def study(case: "PathLike | Mapping[str, Any] | Case", levels: "int | Sequence[int]" = (2, 3, 4),
           rtols: "float | Sequence[float]" = (1e-3, 1e-4, 1e-5), **options: Any) -> "xr.Dataset":
-    """Accuracy against cost; see [`capsim.study.study`][capsim.study.study]
-    (`capsim.study(...)` calls it too)."""
-    from capsim.study import study as _study
+    """Accuracy against cost; see [`capsim.campaigns.study.study`][capsim.campaigns.study.study]
+    (`capsim.campaigns.study(...)` calls it too)."""
+    from capsim.campaigns.study import study as _study
 
     return _study(case, levels, rtols, **options)
 
@@ -280,10 +280,10 @@ def open_run(path: PathLike):
     (`config_yaml`). A path that is not a capsim run file (missing, empty, another
     program's HDF5 file, a summary), a damaged file, or one that a running capsim process
     writes and that cannot be read consistently just then, raises
-    `capsim.store.TrajectoryError` with one line saying which.
+    `capsim.storage.store.TrajectoryError` with one line saying which.
     """
-    from capsim.executor import path_arg
-    from capsim.store import open_run as _open_run  # h5py and xarray only when asked for
+    from capsim.campaigns.executor import path_arg
+    from capsim.storage.store import open_run as _open_run  # h5py and xarray only when asked for
 
     return _open_run(path_arg(path, "path"))
 
@@ -297,7 +297,7 @@ def warm_up(cases: "PathLike | Mapping[str, Any] | Case | Sequence[PathLike | Ma
     `cases`: one case (a file, a dict or a [`Case`][capsim.config.Case]) or a list of
     them; none: the default case's kernels (the demo's). Returns the seconds it took.
     Each kind of case (law, traction, λ ≠ 1, bending, symmetry, scheme, preconditioner,
-    membrane viscosity: `capsim.executor.kernel_kind`) is run once at level 0 for two
+    membrane viscosity: `capsim.campaigns.executor.kernel_kind`) is run once at level 0 for two
     steps.
     """
     import time
@@ -316,7 +316,7 @@ def warm_up(cases: "PathLike | Mapping[str, Any] | Case | Sequence[PathLike | Ma
                           "is expected")
     loaded = [load_case(c) for c in cases] or [load_case({"name": "warm-up"})]
     _apply_thread_policy()
-    from capsim.executor import warm_up as _warm_up
+    from capsim.campaigns.executor import warm_up as _warm_up
 
     t0 = time.perf_counter()
     _warm_up(loaded)
@@ -325,7 +325,7 @@ def warm_up(cases: "PathLike | Mapping[str, Any] | Case | Sequence[PathLike | Ma
 
 def kernels_cached() -> bool:
     """Whether numba's on-disk cache holds capsim's kernels: ``NUMBA_CACHE_DIR`` when set
-    (numba then looks nowhere else), else the ``__pycache__`` beside capsim/kernels.py."""
+    (numba then looks nowhere else), else the ``__pycache__`` beside capsim/numerics/kernels.py."""
     cache_dir = os.environ.get("NUMBA_CACHE_DIR", "").strip()
     where = Path(cache_dir) if cache_dir else Path(__file__).with_name("__pycache__")
     try:

@@ -34,11 +34,11 @@ from pydantic import (
 )
 
 from capsim.errors import bounded_repr, first_line
-from capsim.flows import (FLOW_FIELDS, FLOW_HISTORIES, FLOWS, HISTORY_FIELDS, SYMMETRY_CANDIDATES,
+from capsim.scene.flows import (FLOW_FIELDS, FLOW_HISTORIES, FLOWS, HISTORY_FIELDS, SYMMETRY_CANDIDATES,
                           fields_problem, symmetries_kept)
-from capsim.timestepping import DEFAULT_SCHEME, SCHEMES
-from capsim.viscosity import VISCOSITY_MODELS
-from capsim.viscosity import is_active as is_viscous
+from capsim.solve.timestepping import DEFAULT_SCHEME, SCHEMES
+from capsim.numerics.viscosity import VISCOSITY_MODELS
+from capsim.numerics.viscosity import is_active as is_viscous
 
 __all__ = [
     "load_case_with", "parse_sets",    "case_digest", "step_defining",
@@ -102,7 +102,7 @@ VALIDATED_RANGES = {
 }
 #: the farthest a capsule may start from the origin in any coordinate, in units of a: positions are
 #: doubles and every shape value is measured about the capsule's own centroid (a linear flow's
-#: uniform part carried exactly: capsim.solver.CapsuleModel.carried_velocity), so round-off is |x| 1e-16,
+#: uniform part carried exactly: capsim.solve.solver.CapsuleModel.carried_velocity), so round-off is |x| 1e-16,
 #: 1e-10 a here; a capsule 1e6 a out gives the origin's D_xy to 1e-6
 MAX_COORDINATE = 1e6
 #: with a wall, the farthest a capsule may start from it (wall.distance's bound): the shear of the
@@ -119,7 +119,7 @@ PHYSICAL_BENDING_MAX = 1e3
 BQ_MAX = 1e4
 #: the viscosity ratios flow.viscosity_ratio takes (its bound)
 LAMBDA_RANGE = (1e-3, 1e3)
-#: the membrane-law parameters and their defaults (the law functions of capsim.membrane
+#: the membrane-law parameters and their defaults (the law functions of capsim.numerics.membrane
 #: take the same defaults; tests/test_registries.py checks that they agree)
 LAW_PARAMETER_DEFAULTS = {"mooney_rivlin": {"psi": 0.0}, "skalak": {"skalak_c": 10.0}}
 
@@ -263,7 +263,7 @@ class Shape(_Model):
 
 class MembraneViscosity(_Model):
     """Surface viscosity of the membrane as Boussinesq numbers Bq = μ_s/(μ a), μ the outer
-    viscosity (capsim.viscosity; docs/viscous_membrane.md). All zero: a purely elastic
+    viscosity (capsim.numerics.viscosity; docs/viscous_membrane.md). All zero: a purely elastic
     membrane, computed exactly as without this block."""
 
     model: Literal[tuple(VISCOSITY_MODELS)] = Field(  # type: ignore[valid-type]
@@ -361,7 +361,7 @@ class Physical(_Model):
 
     shear_rate: str = Field(description="the flow's rate, e.g. '100 1/s': the shear rate k of simple shear (and "
                             "above a wall), the extension rate ε of the extensions, U/R of Poiseuille flow, the scale "
-                            "of a linear flow's velocity_gradient (capsim.flows)")
+                            "of a linear flow's velocity_gradient (capsim.scene.flows)")
     viscosity: str = Field(description="viscosity μ of the outer fluid, e.g. '1.2 mPa*s'")
     inner_viscosity: Optional[str] = Field(
         None, description="viscosity of the inner fluid (a cell's cytoplasm), e.g. '6 mPa*s'; gives "
@@ -423,7 +423,7 @@ class Physical(_Model):
 
 
 class FlowHistory(_Model):
-    """How the flow's rate changes in time (capsim.flows.FLOW_HISTORIES; docs/viscous_membrane.md,
+    """How the flow's rate changes in time (capsim.scene.flows.FLOW_HISTORIES; docs/viscous_membrane.md,
     "Flows that change in time"). Times stay in units of 1/rate, the rate before any change."""
 
     kind: Literal[tuple(FLOW_HISTORIES)] = Field(  # type: ignore[valid-type]
@@ -449,7 +449,7 @@ class FlowHistory(_Model):
 
 
 class Flow(_Model):
-    """The undisturbed flow (kind, capsim.flows) and its rate; G = μ·rate·a/E_s, viscosity ratio λ."""
+    """The undisturbed flow (kind, capsim.scene.flows) and its rate; G = μ·rate·a/E_s, viscosity ratio λ."""
 
     @model_validator(mode="before")
     @classmethod
@@ -490,7 +490,7 @@ class Flow(_Model):
 
     kind: Literal[tuple(FLOWS)] = Field(  # type: ignore[valid-type]
         "simple_shear",
-        description="the undisturbed flow (capsim.flows): " + "; ".join(
+        description="the undisturbed flow (capsim.scene.flows): " + "; ".join(
             f"{name}: {cls.description} (rate: {cls.rate})" for name, cls in FLOWS.items())
         + ". flow.G (long name shear_rate_G) is G = μ·rate·a/E_s for every kind, and the time unit is 1/rate",
     )
@@ -550,7 +550,7 @@ def axis_keeps_quarter_symmetry(axis, tol: float = 1e-12) -> bool:
 
 
 def sphere_mesh_keeps_quarter_symmetry(base: str, axis) -> bool:
-    """Whether the mesh of a sphere turned from y onto `axis` (capsim.mesh.rest_shape_mesh) is
+    """Whether the mesh of a sphere turned from y onto `axis` (capsim.numerics.mesh.rest_shape_mesh) is
     mapped onto itself by the mirror z -> -z and the rotation by pi about z: what auto then finds
     and uses. The sphere itself keeps both whatever its axis (which only labels the material
     director); its mesh does when the turn maps the base polyhedron's symmetries onto them (an
@@ -558,7 +558,7 @@ def sphere_mesh_keeps_quarter_symmetry(base: str, axis) -> bool:
     on the level-0 mesh: subdivision maps a symmetry of the base polyhedron to one of every level."""
     import numpy as np
 
-    from capsim.mesh import rotation_onto, unit_sphere_mesh
+    from capsim.numerics.mesh import rotation_onto, unit_sphere_mesh
 
     points = unit_sphere_mesh(base, 0).positions @ rotation_onto(axis).T
     for generator in (np.array([1.0, 1.0, -1.0]), np.array([-1.0, -1.0, 1.0])):
@@ -630,12 +630,12 @@ class Quadrature(_Model):
 
 
 #: the time options that belong to one scheme (set to another value with another scheme: an error),
-#: from the scheme registry: each scheme declares its own (capsim.timestepping.register_scheme)
+#: from the scheme registry: each scheme declares its own (capsim.solve.timestepping.register_scheme)
 SCHEME_OPTIONS = {name: tuple(cls.option_fields) for name, cls in SCHEMES.items() if cls.option_fields}
 
 
 class _TimeCommon(_Model):
-    """Adaptive time stepping (capsim.timestepping); times in units of 1/k.
+    """Adaptive time stepping (capsim.solve.timestepping); times in units of 1/k.
 
     The fields every scheme reads; :data:`Time` adds ``scheme`` and each registered
     scheme's own options."""
@@ -649,7 +649,7 @@ class _TimeCommon(_Model):
         "and |theta error| <= 6 rtol rad (docs/time_stepping.md); at least 1e-10: the velocities it "
         "compares are accurate to ~1e-12 (quadrature round-off, solver.tol), so a smaller one chases noise. "
         "auto (the default): the largest tolerance whose time error stays below a tenth of the mesh level's "
-        "own error (capsim.accuracy, from the error model: docs/benchmarks.md, \"Error model\"); in a scene the "
+        "own error (capsim.solve.accuracy, from the error model: docs/benchmarks.md, \"Error model\"); in a scene the "
         "model was not trained on (a flow.history, another flow.kind, a wall, several capsules) no looser than 1e-4, "
         "predicting nothing (docs/time_stepping.md, \"Flows that change in time\"); rtol_choice "
         "then says what it chose and why",
@@ -668,7 +668,7 @@ class _TimeCommon(_Model):
         description="stop when the motion has settled (checked once per unit of kt), by the same rule as the "
         "summary's own 'settled': a steady shape, the last two whole orbits agreeing within 1 % (period and "
         "orbit constant), or the last two swings within 5 % (docs/method.md, \"Motion classes\"; "
-        "capsim.observables.orbit_settled)",
+        "capsim.solve.observables.orbit_settled)",
     )
     max_wall_s: Optional[float] = Field(
         None, gt=0, le=1e9,
@@ -885,7 +885,7 @@ def _substitution_problem(solver: Solver, lam: float) -> _FieldProblem | None:
 
 class Wall(_Model):
     """The scene's boundary: a no-slip plane wall at rest, its normal along the velocity
-    gradient (y), below the capsule (capsim.flows, Blake's Green's function)."""
+    gradient (y), below the capsule (capsim.scene.flows, Blake's Green's function)."""
 
     distance: float = Field(
         ..., gt=1.0, le=1e3,
@@ -929,9 +929,9 @@ class Capsule(_Model):
 
 
 class Accuracy(_Model):
-    """An accuracy target (capsim.accuracy): the mesh level and time.rtol that meet it, predicted at
+    """An accuracy target (capsim.solve.accuracy): the mesh level and time.rtol that meet it, predicted at
     the least cost from the error model (docs/benchmarks.md, "Error model"), or measured on the
-    case's own levels 1, 2, ... (capsim.ladder)."""
+    case's own levels 1, 2, ... (capsim.runs.ladder)."""
 
     quantity: Literal["D_xy", "theta", "Sxy_star"] = Field(
         ..., description="the value at t_end the target is for: D_xy, theta (θ) or Sxy_star (S*_xy)")
@@ -1008,9 +1008,9 @@ class Case(_Model):
 
     @model_validator(mode="after")
     def _level_and_tolerance_from_the_error_model(self) -> Case:
-        """The accuracy target's level and rtol, else time.rtol auto's rtol (capsim.accuracy); a
+        """The accuracy target's level and rtol, else time.rtol auto's rtol (capsim.solve.accuracy); a
         resolved case (a run file's) holds the choice and is taken as it is."""
-        from capsim import accuracy as error_model
+        from capsim.solve import accuracy as error_model
 
         stale = self.accuracy is not None and self.accuracy.choice is not None and not self._choice_holds()
         if stale:
@@ -1048,7 +1048,7 @@ class Case(_Model):
 
     def _choice_holds(self) -> bool:
         """Whether accuracy.choice is the one capsim made for this target, method and max_level at this
-        case's mesh.level and time.rtol (its text, capsim.accuracy.choose and plan, names them)."""
+        case's mesh.level and time.rtol (its text, capsim.solve.accuracy.choose and plan, names them)."""
         a, rtol = self.accuracy, self.time.rtol
         head = f"accuracy {a.quantity} {a.target:g}: "
         if not a.choice.startswith(head) or rtol == "auto":
@@ -1060,12 +1060,12 @@ class Case(_Model):
                 and f" up to {a.max_level} at rtol {rtol:g}, " in rest)
 
     def error_model_features(self) -> dict[str, Any]:
-        """What selects the case's training cases in the error model (capsim.accuracy.nearest): rest
+        """What selects the case's training cases in the error model (capsim.solve.accuracy.nearest): rest
         shape and aspect ratio, law and its parameter, G, λ, bending (several capsules: the first
         one's shape and membrane, the λ farthest from 1); and its scene, which the training cases
-        share (capsim.accuracy.TRAINED_SCENE: another is measured, never predicted): flow.kind, the
+        share (capsim.solve.accuracy.TRAINED_SCENE: another is measured, never predicted): flow.kind, the
         history as it acts before t_end, the wall, the number of capsules, and in Poiseuille flow
-        the first capsule's distance from the axis (capsim.accuracy.FIXED_BY_SYMMETRY)."""
+        the first capsule's distance from the axis (capsim.solve.accuracy.FIXED_BY_SYMMETRY)."""
         from capsim.scene import Scene  # numpy only
 
         scene = Scene.of(self)  # the scene's features: its flow, its boundaries, its capsules
@@ -1155,7 +1155,7 @@ class Case(_Model):
         if self.flow.kind not in flows:
             raise _FieldProblem("flow.kind", self.flow.kind, f"cannot be bounded by a wall (it does not vanish on a "
                                 f"plane y = const); with wall: {', '.join(flows)}")
-        from capsim.geometry import numpy_quadrature  # a check need not import numba
+        from capsim.numerics.geometry import numpy_quadrature  # a check need not import numba
 
         # each capsule's own mesh (up to level 3, accurate to 2e-5 a there; level 0's nodes lie 5 % out)
         gap = self.guards.min_wall_gap
@@ -1214,7 +1214,7 @@ class Case(_Model):
                 raise _FieldProblem("mesh.symmetry", self.mesh.symmetry,
                                     "with several capsules use auto (it finds the symmetries the scene keeps) or none")
         specs = body_specs(self)
-        from capsim.geometry import numpy_quadrature  # a check need not import numba
+        from capsim.numerics.geometry import numpy_quadrature  # a check need not import numba
 
         with numpy_quadrature():
             problem = start_problem(specs, self.mesh.base, min(self.mesh.level, 3), self.guards.min_capsule_gap)

@@ -2,8 +2,8 @@
 
 Every dataset of a run file (``mesh/``, ``timeseries/`` and the groups
 ``membrane_law``, ``rest_shape``, ``run``, ``summary``, ``error_estimate``),
-every variable and coordinate of a campaign summary (netCDF, :mod:`capsim.summary`)
-and of a study file (:mod:`capsim.study`) takes its attributes from :data:`TABLE`
+every variable and coordinate of a campaign summary (netCDF, :mod:`capsim.campaigns.summary`)
+and of a study file (:mod:`capsim.campaigns.study`) takes its attributes from :data:`TABLE`
 through :func:`attrs_for`. ``tests/test_quantities.py`` checks that everything a
 short run, a summary and a study write has an entry, and that every entry is used
 (or listed in :data:`PLANNED`).
@@ -174,7 +174,7 @@ for _c in "xyz":
          f"{_c} component of the unit vector along the semi-axis ellipsoid_a; a line has no sign: on the first "
          "row its first component that is not ~0 (x, then y, then z) is positive, on every later row the sign "
          "that points it along the row before (a continuous series); of two equal semi-axes (a shape of "
-         "revolution at rest) the one the shear stretches most (capsim.observables.principal_frame)")
+         "revolution at rest) the one the shear stretches most (capsim.solve.observables.principal_frame)")
     _add(f"short_axis_{_c}", f"{_c} component of the shortest axis of the equivalent ellipsoid", "1",
          f"{_c} component of the unit vector along the semi-axis ellipsoid_c: the symmetry axis of a disk "
          "(oblate spheroid, biconcave red cell), which the motion classifier follows for such a rest shape; a "
@@ -182,7 +182,7 @@ for _c in "xyz":
     _add(f"director_{_c}", f"{_c} component of the material director", "1",
          f"{_c} component of the rest shape's symmetry axis carried by the membrane: F a/|F a|, a the axis at "
          "rest (initial_axis), F the rest-area-weighted least-squares affine map of the rest surface onto the "
-         "current one (exactly R a for a rigid rotation R; capsim.observables.MaterialDirector)")
+         "current one (exactly R a for a rigid rotation R; capsim.solve.observables.MaterialDirector)")
 _add("director_polar_angle", "polar angle of the director", "rad",
      "angle from the vorticity axis z to the material director, arccos(director_z) ∈ [0, π] (Jeffery's θ)")
 _add("director_azimuth", "azimuth of the director", "rad",
@@ -261,7 +261,7 @@ _add("n_nodes", "mesh nodes", "1", "number of nodes (vertices and mid-side nodes
 # ---------------------------------------------------------------- summary/ (statistics over the averaging window)
 
 _add("motion", "class of motion", "",
-     "as classified by the run (capsim.observables.classify_orbit; the decision procedure and its thresholds: "
+     "as classified by the run (capsim.solve.observables.classify_orbit; the decision procedure and its thresholds: "
      "docs/method.md, \"Motion classes\"): steady (tank-treading in the shear plane, shape steady), swinging "
      "(tank-treading in the plane, shape and inclination oscillating; `oscillating` in files written before "
      "issue 39), tumbling (the body turning over in the plane), rolling (the body's symmetry axis along z, the "
@@ -445,8 +445,8 @@ for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star"):
 
 # ---------------------------------------------------------------- study file (netCDF)
 
-#: observables of the study and of the error estimate (capsim.study.QUANTITIES), and the orbit's
-#: numbers a study compares with quantity "orbit" (capsim.study.ORBIT_QUANTITIES)
+#: observables of the study and of the error estimate (capsim.campaigns.study.QUANTITIES), and the orbit's
+#: numbers a study compares with quantity "orbit" (capsim.campaigns.study.ORBIT_QUANTITIES)
 _STUDIED = ("D_xy", "theta", "ttf_ratio", "Sxy_star")
 _STUDIED_ORBIT = ("orbit_period", "orbit_constant", "body_rotation_ratio")
 for _name in (*_STUDIED, *_STUDIED_ORBIT):
@@ -488,18 +488,18 @@ for _name in _STUDIED:
         _add(f"error_estimate/{_key}_time", f"time-step part of the error estimate of the {_base.long_name}",
              _base.units, f"{_name} {_of} of the run minus that of the run at loose_rtol", _base.scale)
 
-# ---------------------------------------------------------------- accuracy/ (a measured accuracy target: capsim.ladder)
+# ---------------------------------------------------------------- accuracy/ (a measured accuracy target: capsim.runs.ladder)
 
 _add("accuracy/quantity", "quantity of the accuracy target", "", "D_xy, theta or Sxy_star at t_end")
 _add("accuracy/target", "accuracy target", "1", "the largest error asked for: relative for D_xy and Sxy_star, "
      "in rad for theta")
-_add("accuracy/rtol", "time tolerance of the ladder's runs", "1", "capsim.accuracy.ladder_rtol: its predicted time "
+_add("accuracy/rtol", "time tolerance of the ladder's runs", "1", "capsim.solve.accuracy.ladder_rtol: its predicted time "
      "error a tenth of the target")
 _add("accuracy/met", "whether the kept run's error estimate meets the target", "1", "1: met, 0: not met")
 _add("accuracy/verdict", "the ladder's verdict", "", "the level kept, its error estimate and how it was had, "
      "met or NOT met (the line capsim run prints)")
 _add("accuracy/error_model", "the error model's training cases nearest the case", "",
-     "capsim.accuracy.nearest: the cases whose predicted time error is added")
+     "capsim.solve.accuracy.nearest: the cases whose predicted time error is added")
 _add("accuracy/level", "mesh level of each run", "1", "1, 2, ... up to the level kept (this file's run)")
 _add("accuracy/values", "the target's quantity at t_end at each level", "1", "relative errors are of these; "
      "theta in rad")
@@ -523,7 +523,7 @@ GROUPS: dict[str, str] = {
     "summary": "the motion and, for each observable q, q (time mean) and q_std over the averaging window "
                "[averaging_t_from, averaging_t_to]; several capsules: the mean over the capsules, each capsule's "
                "in the subgroup capsule",
-    "accuracy": "a measured accuracy target (capsim.ladder): the levels run at one rtol, the target's quantity and "
+    "accuracy": "a measured accuracy target (capsim.runs.ladder): the levels run at one rtol, the target's quantity and "
                 "error estimate at each, the level kept (this file's run) and whether it meets the target",
     "error_estimate": "q: |q(run) − q(one level coarser)| + |q(run) − q(rtol × 10)| at t_end; q_mean: the same "
                       "for the time mean over the run's averaging window; q_mesh, q_time: the signed differences",
@@ -587,7 +587,7 @@ EXPORT_FIELDS: dict[str, tuple[str, str]] = {
     "principal_stretch_2": ("smaller principal stretch", ""),
     "traction": ("element average of Δf", "E_s/a"),
 }
-#: The motion classes of a run summary (capsim.observables.classify_orbit; the decision
+#: The motion classes of a run summary (capsim.solve.observables.classify_orbit; the decision
 #: procedure and its thresholds: docs/method.md, "Motion classes"), in the order they are told apart
 MOTIONS = ("unstable", "rolling", "tumbling", "kayaking", "drifting_to_rolling", "drifting_to_plane",
            "steady", "swinging", "off_plane_tank_treading", "transient", "relaxing", "elongating", "mixed")

@@ -32,7 +32,7 @@ from capsim.errors import bounded_repr, first_line
 
 __all__ = ["KINDS", "UnitsError", "conversion", "likeliest_slip", "parse", "physical_factors", "scale_values"]
 
-#: G_s / E_s of every elastic law of capsim (capsim.membrane: the small-strain shear modulus)
+#: G_s / E_s of every elastic law of capsim (capsim.numerics.membrane: the small-strain shear modulus)
 SHEAR_OVER_ELASTIC_MODULUS = 1.0 / 3.0
 
 #: what each physical value is: (SI unit it is converted to, what it must measure, an example)

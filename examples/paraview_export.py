@@ -1,7 +1,7 @@
 """The surface over time for ParaView: XDMF (one .xdmf + .h5) with the membrane's fields."""
 
 import capsim
-from capsim.export import export_to_dir
+from capsim.face.export import export_to_dir
 
 from _common import OUT, ROOT, TINY
 

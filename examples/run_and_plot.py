@@ -1,7 +1,7 @@
 """Run the demo case from Python, read the run back with xarray, and draw its deformation."""
 
 import capsim
-from capsim.plot import write_figure
+from capsim.face.plot import write_figure
 
 from _common import OUT, ROOT, TINY
 

@@ -3,7 +3,7 @@
 # time slice of a descheduled thread (docs/performance.md, "Threads").
 import os
 
-from capsim.threads import ENV_BLAS_TIMEOUT, ENV_LAYER, ENV_THREADS, ENV_WAIT, apply_policy
+from capsim.numerics.threads import ENV_BLAS_TIMEOUT, ENV_LAYER, ENV_THREADS, ENV_WAIT, apply_policy
 
 # The tests run under capsim's own policy, as CI does, however they are started: a thread
 # variable of the user's environment makes every CLI say so on stderr first (one line more
@@ -15,8 +15,8 @@ apply_policy()
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from capsim.mesh import unit_sphere_mesh  # noqa: E402
-from capsim.solver import Discretization  # noqa: E402
+from capsim.numerics.mesh import unit_sphere_mesh  # noqa: E402
+from capsim.solve.solver import Discretization  # noqa: E402
 
 
 @pytest.fixture(scope="session")

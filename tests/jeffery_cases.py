@@ -9,7 +9,7 @@ import math
 import time
 
 from capsim.config import case_from_dict
-from capsim.runner import run_case
+from capsim.runs.runner import run_case
 
 SHAPES = {"prolate": 2.0, "oblate": 0.5}
 POLAR_DEG = (30.0, 60.0, 90.0)

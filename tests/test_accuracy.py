@@ -1,5 +1,5 @@
 """Ask for an accuracy, get the cheapest run (issue 44): time.rtol auto and the accuracy target
-(capsim.accuracy, the error model of benchmarks/error_model.py)."""
+(capsim.solve.accuracy, the error model of benchmarks/error_model.py)."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import sys
 import h5py
 import pytest
 
-from capsim import accuracy
+from capsim.solve import accuracy
 from capsim.config import ConfigError, apply_overrides, case_from_dict
-from capsim.runner import run_case
+from capsim.runs.runner import run_case
 
 
 def test_rtol_auto_keeps_the_time_error_below_a_tenth_of_the_mesh_error():
@@ -173,13 +173,13 @@ def test_an_impossible_target_is_refused_in_one_line(fields, field):
 def test_verify_says_whether_the_target_was_met(tmp_path):
     path = tmp_path / "c.yaml"
     path.write_text(f"name: c\nflow: {{shear_rate_G: 0.1}}\ntime: {{t_end: 2}}\noutput: {{path: {tmp_path / 'c.h5'}}}\n")
-    out = subprocess.run([sys.executable, "-m", "capsim.cli", "run", str(path), "--accuracy", "D_xy=1e-2", "--verify",
+    out = subprocess.run([sys.executable, "-m", "capsim.face.cli", "run", str(path), "--accuracy", "D_xy=1e-2", "--verify",
                           "-q"], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stderr.startswith("accuracy D_xy 0.01: level 2")  # the prediction, before the run
     last = out.stdout.strip().splitlines()[-1]
     assert last.startswith("verify: D_xy error") and "target met" in last
-    bad = subprocess.run([sys.executable, "-m", "capsim.cli", "run", str(path), "--accuracy", "D_xy"],
+    bad = subprocess.run([sys.executable, "-m", "capsim.face.cli", "run", str(path), "--accuracy", "D_xy"],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "--accuracy" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
 
@@ -218,8 +218,8 @@ def test_a_measured_target_keeps_the_first_level_whose_own_estimate_meets_it(tmp
     the plain level-2 run with the ladder's record; a target beyond max_level says NOT met."""
     import h5py
 
-    from capsim.runner import run_case
-    from capsim.store import read_case
+    from capsim.runs.runner import run_case
+    from capsim.storage.store import read_case
 
     base = {"name": "m", "flow": {"shear_rate_G": 0.1}, "time": {"t_end": 2.0}}
     case = case_from_dict({**base, "accuracy": {"quantity": "D_xy", "target": 0.05, "method": "measure"},
@@ -241,7 +241,7 @@ def test_a_measured_target_keeps_the_first_level_whose_own_estimate_meets_it(tmp
     assert "NOT met by accuracy.max_level 2" in short.accuracy
     with h5py.File(short.path) as f:
         assert not bool(f["accuracy/met"][()]) and list(f["accuracy/level"][()]) == [1, 2]
-    from capsim.checkpoint import ResumeError
+    from capsim.storage.checkpoint import ResumeError
 
     with pytest.raises(ResumeError):
         run_case(case, resume=True)
@@ -250,7 +250,7 @@ def test_a_measured_target_keeps_the_first_level_whose_own_estimate_meets_it(tmp
 def test_the_cli_prints_the_plan_before_and_the_verdict_after_a_measured_target(tmp_path):
     path = tmp_path / "c.yaml"
     path.write_text(f"name: c\nflow: {{shear_rate_G: 0.1}}\ntime: {{t_end: 1}}\noutput: {{path: {tmp_path / 'c.h5'}}}\n")
-    out = subprocess.run([sys.executable, "-m", "capsim.cli", "run", str(path), "--accuracy", "D_xy=5e-2", "--set",
+    out = subprocess.run([sys.executable, "-m", "capsim.face.cli", "run", str(path), "--accuracy", "D_xy=5e-2", "--set",
                           "accuracy.method=measure", "--verify", "-q"], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stderr.startswith("accuracy D_xy 0.05: measured, asked for")  # the plan, before the runs
@@ -264,8 +264,8 @@ def test_a_ladder_stopped_at_a_later_level_keeps_the_finest_level_it_completed(t
     it stopped; no hidden level file or checkpoint is left beside it."""
     import h5py
 
-    from capsim.runner import run_ladder as run_measured
-    from capsim.store import read_case
+    from capsim.runs.runner import run_ladder as run_measured
+    from capsim.storage.store import read_case
 
     def stop_at_level_2(case, progress=None, overwrite=True):
         def interrupt(state):
@@ -292,8 +292,8 @@ def test_a_ladder_level_that_raises_keeps_the_finest_completed_level_and_leaves_
     raised as a plain run's would be, its 'failed' file at the output path."""
     import h5py
 
-    from capsim.runner import run_ladder as run_measured
-    from capsim.solver import SolverDivergence
+    from capsim.runs.runner import run_ladder as run_measured
+    from capsim.solve.solver import SolverDivergence
 
     def diverge_at(level):
         def run_one(case, progress=None, overwrite=True):

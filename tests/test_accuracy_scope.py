@@ -13,11 +13,11 @@ import pytest
 
 from typer.testing import CliRunner
 
-from capsim import accuracy
-from capsim.cli import app
+from capsim.solve import accuracy
+from capsim.face.cli import app
 from capsim.config import ConfigError, case_from_dict
-from capsim.runner import run_case
-from capsim.study import final_values, study
+from capsim.runs.runner import run_case
+from capsim.campaigns.study import final_values, study
 
 PAIR = [{"center": [-2.0, 0.0, 0.0]}, {"center": [2.0, 0.0, 0.0]}]
 
@@ -159,7 +159,7 @@ def test_a_measured_target_on_a_pair_runs_and_a_study_of_a_pair_has_values(tmp_p
 def test_verify_that_finds_the_target_not_met_exits_3(tmp_path, monkeypatch):
     """Before: --verify printed 'target NOT met' and exited 0 (finding 5's runs). The reruns are
     replaced by an estimate whose mesh difference is half the value (level 1, kt 0.5 runs)."""
-    import capsim.study as study_module
+    import capsim.campaigns.study as study_module
 
     def estimate(case, summary, workers=2):
         return {"coarse_level": 0, "loose_rtol": 0.02, "wall_time_s": 0.0,

@@ -29,7 +29,7 @@ def _python(code: str, cwd: Path, env_drop: tuple[str, ...] = ()) -> subprocess.
 
 
 def _cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
-    return _python(f"import sys; from capsim.cli import app; sys.argv = ['capsim'] + {args!r}; app()", cwd)
+    return _python(f"import sys; from capsim.face.cli import app; sys.argv = ['capsim'] + {args!r}; app()", cwd)
 
 
 def _tiny_sphere(tmp_path: Path) -> Path:
@@ -97,12 +97,12 @@ def test_capsim_run_of_the_demo_file_is_the_cli_run_and_refuses_to_overwrite(tmp
     assert cli_again.returncode == 2
     cli_line = cli_again.stderr.strip().splitlines()[-1]
     assert cli_line.startswith("error: ") and "--overwrite" in cli_line
-    assert again.stderr.strip().splitlines()[-1] == "capsim.files.OutputError: " + cli_line[len("error: "):].replace(
+    assert again.stderr.strip().splitlines()[-1] == "capsim.storage.files.OutputError: " + cli_line[len("error: "):].replace(
         str(tmp_path / "cli"), str(tmp_path / "lib"))
 
 
 def test_run_refuses_an_existing_file_before_computing(tmp_path):
-    from capsim.files import OutputError
+    from capsim.storage.files import OutputError
 
     out = tmp_path / "taken.h5"
     out.write_bytes(b"not yours")
@@ -147,9 +147,9 @@ def test_every_computing_cli_command_calls_the_library():
         assert not calls & engine, f"capsim {name} calls {calls & engine} directly"
     for name in ("run", "sweep", "summarize", "load_case", "open_run"):
         assert getattr(api, name) is getattr(capsim, name)
-    # capsim.study is the module capsim.study (the import system makes it so), and calling it
+    # capsim.campaigns.study is the module capsim.campaigns.study (the import system makes it so), and calling it
     # calls the library function
-    assert capsim.study is sys.modules["capsim.study"] and callable(capsim.study)
+    assert capsim.campaigns.study is sys.modules["capsim.campaigns.study"] and callable(capsim.campaigns.study)
 
 
 def test_the_first_run_after_an_install_says_it_is_compiling(tmp_path):
@@ -164,10 +164,10 @@ def test_the_first_run_after_an_install_says_it_is_compiling(tmp_path):
     case.write_text(yaml.safe_dump({"name": "c", "mesh": {"level": 0}, "time": {"t_end": 0.02}}))
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
     env.pop("NUMBA_NUM_THREADS", None)
-    first = subprocess.run([sys.executable, "-m", "capsim.cli", "run", str(case), "-o", str(tmp_path / "a.h5")],
+    first = subprocess.run([sys.executable, "-m", "capsim.face.cli", "run", str(case), "-o", str(tmp_path / "a.h5")],
                            env=env, capture_output=True, text=True, timeout=600)
     assert first.returncode == 0, first.stderr[-2000:]
     assert "compiling the numba kernels" in first.stderr
-    second = subprocess.run([sys.executable, "-m", "capsim.cli", "run", str(case), "-o", str(tmp_path / "b.h5")],
+    second = subprocess.run([sys.executable, "-m", "capsim.face.cli", "run", str(case), "-o", str(tmp_path / "b.h5")],
                             env=env, capture_output=True, text=True, timeout=600)
     assert second.returncode == 0 and "compiling" not in second.stderr

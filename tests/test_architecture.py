@@ -21,10 +21,10 @@ def _sources() -> list[Path]:
     return sorted(PACKAGE.rglob("*.py"))
 
 
-def _imports(path: Path, modules: set[str]) -> set[str]:
-    """Every capsim module `path` imports, at any depth of its code."""
+def _imports(path: Path, modules: set[str], text: str | None = None) -> set[str]:
+    """Every capsim module `path` imports (or `text`, its source as given), at any depth of its code."""
     found: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+    for node in ast.walk(ast.parse(path.read_text() if text is None else text, filename=str(path))):
         if isinstance(node, ast.Import):
             names = [alias.name for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
@@ -35,7 +35,7 @@ def _imports(path: Path, modules: set[str]) -> set[str]:
                 base = ".".join(package) + (f".{node.module}" if node.module else "")
             else:
                 base = node.module or ""
-            # `from capsim import store` imports the module capsim.store
+            # `from capsim import store` imports the module capsim.storage.store
             names = [base] + [f"{base}.{alias.name}" for alias in node.names]
         else:
             continue
@@ -80,10 +80,10 @@ def _find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
 
 def test_the_graph_sees_function_level_imports():
     graph = import_graph()
-    assert "capsim.store" in graph["capsim.runner"]
+    assert "capsim.storage.store" in graph["capsim.runs.runner"]
     # summary -> campaign, and not back (campaign reads run status through store)
-    assert "capsim.campaign" in graph["capsim.summary"]
-    assert "capsim.summary" not in graph["capsim.campaign"]
+    assert "capsim.campaigns.campaign" in graph["capsim.campaigns.summary"]
+    assert "capsim.campaigns.summary" not in graph["capsim.campaigns.campaign"]
 
 
 def test_no_import_cycle_among_capsim_modules():
@@ -96,20 +96,99 @@ def test_the_cycle_finder_finds_a_cycle():
     assert _find_cycle({"a": {"b"}, "b": set()}) is None
 
 
+# ---------------------------------------------------------------- the layers (the wings, issue 52)
+
+#: the package's layers, bottom first: a module may import its own layer and those below it,
+#: never one above (no back arrow). The root's modules each have their place: errors, units and
+#: the quantity table under everything; the case schema (config) names the numerics', the
+#: scene's and the solve's registries and is read by the run store and everything above; the
+#: library face (capsim, capsim.api) sits with the CLI at the top.
+LAYERS = (
+    {"capsim._version", "capsim.errors", "capsim.quantities", "capsim.units"},
+    {"capsim.numerics"},
+    {"capsim.scene"},
+    {"capsim.solve"},
+    {"capsim.config"},
+    {"capsim.storage"},
+    {"capsim.runs"},
+    {"capsim.campaigns"},
+    {"capsim.face", "capsim.api", "capsim"},
+)
+
+
+def _layer(module: str) -> int:
+    """The layer of a module: the root module itself, else the sub-package it lives in."""
+    parts = module.split(".")
+    for name in (module, ".".join(parts[:2])):
+        for rank, members in enumerate(LAYERS):
+            if name in members:
+                return rank
+    raise AssertionError(f"{module} is in no layer: add its sub-package to LAYERS")
+
+
+def _runtime_imports(path: Path, modules: set[str]) -> set[str]:
+    """As `_imports`, less the imports under ``if TYPE_CHECKING:`` (annotations, no dependency)."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and getattr(node.test, "id", getattr(node.test, "attr", None)) == "TYPE_CHECKING":
+            node.body = [ast.Pass()]
+    return _imports(path, modules, ast.unparse(tree))
+
+
+def test_every_module_has_a_layer_and_the_root_is_small():
+    graph = import_graph()
+    for module in graph:
+        _layer(module)
+    root = {m for m in graph if m.count(".") == 1 and (PACKAGE / (m.split(".")[1] + ".py")).exists()}
+    assert root == {"capsim._version", "capsim.api", "capsim.config", "capsim.errors", "capsim.quantities",
+                    "capsim.units"}, root
+
+
+def test_no_back_arrow_between_layers():
+    """A lower layer never imports a higher one, imports inside functions included."""
+    paths = _sources()
+    modules = {_module_name(p) for p in paths}
+    arrows = []
+    for path in paths:
+        module = _module_name(path)
+        for dep in _runtime_imports(path, modules):
+            if _layer(dep) > _layer(module):
+                arrows.append(f"{module} -> {dep}")
+    assert not arrows, arrows
+
+
+def test_the_layer_rule_sees_a_back_arrow():
+    assert _layer("capsim.numerics.kernels") < _layer("capsim.solve.solver") < _layer("capsim.face.cli")
+    assert _layer("capsim.config") < _layer("capsim.storage.store")
+    assert _layer("capsim.errors") < _layer("capsim.numerics.mesh")
+
+
+def test_no_re_export_shim_at_the_old_paths():
+    """The modules moved into the sub-packages left nothing behind at the package's root."""
+    for name in ("kernels", "solver", "flows", "store", "files", "runner", "campaign", "cli", "plot", "export",
+                 "bodies", "accuracy", "threads"):
+        assert not (PACKAGE / f"{name}.py").exists(), name
+
+
 def test_quantities_and_summary_stay_light():
     """The quantity table imports nothing of capsim; the summary no h5py, store no numba."""
     graph = import_graph()
     assert graph["capsim.quantities"] == set()
-    for module, banned in (("summary", "h5py"), ("quantities", "numba"), ("store", "numba")):
-        tree = ast.parse((PACKAGE / f"{module}.py").read_text())
+    for module, banned in (("campaigns.summary", "h5py"), ("quantities", "numba"), ("storage.store", "numba")):
+        tree = ast.parse(_path(module).read_text())
         names = {alias.name.split(".")[0] for node in ast.walk(tree)
                  if isinstance(node, (ast.Import, ast.ImportFrom))
                  for alias in (node.names if isinstance(node, ast.Import) else [ast.alias(node.module or "")])}
         assert banned not in names, f"capsim.{module} imports {banned}"
 
 
+def _path(module: str) -> Path:
+    """The source of a module named from the package down: "face.cli" -> capsim/face/cli.py."""
+    return PACKAGE.joinpath(*module.split(".")).with_suffix(".py")
+
+
 def _imported_names(module: str) -> set[str]:
-    tree = ast.parse((PACKAGE / f"{module}.py").read_text())
+    tree = ast.parse(_path(module).read_text())
     return {alias.name for node in ast.walk(tree) if isinstance(node, (ast.Import, ast.ImportFrom))
             for alias in (node.names if isinstance(node, ast.Import) else [ast.alias(node.module or "")])}
 
@@ -118,15 +197,15 @@ def test_the_cli_is_a_thin_face():
     """cli.py parses and prints (issue 27): no HDF5, no file naming or renaming of its own, <= 600 lines."""
     import re
 
-    text = (PACKAGE / "cli.py").read_text()
-    assert not any(name.split(".")[0] == "h5py" for name in _imported_names("cli"))
+    text = _path("face.cli").read_text()
+    assert not any(name.split(".")[0] == "h5py" for name in _imported_names("face.cli"))
     found = [line for line in text.splitlines() if re.search(r"h5py|ckpt|tmp-|rename|replace\(", line)]
     assert not found, found
     assert len(text.splitlines()) <= 600
 
 
 def test_only_the_checkpoint_module_knows_the_checkpoint_format():
-    """Its format (the constant, the npz writer) in capsim/checkpoint.py; its name in capsim/files.py."""
+    """Its format (the constant, the npz writer) in capsim/storage/checkpoint.py; its name in capsim/storage/files.py."""
     import re
 
     for path in _sources():
@@ -138,7 +217,7 @@ def test_only_the_checkpoint_module_knows_the_checkpoint_format():
 
 
 def test_every_writer_uses_the_one_temporary_name():
-    """Temporary files are named by capsim.files.tmp_name alone: no module builds its own."""
+    """Temporary files are named by capsim.storage.files.tmp_name alone: no module builds its own."""
     import re
 
     for path in _sources():
@@ -156,7 +235,7 @@ def test_one_formatter_for_every_schema_error():
         if path.name != "config.py":
             assert not re.search(r"\.errors\(", path.read_text()), path.name
     # the campaign's base model is the case schema's strict base
-    from capsim.campaign import Campaign
+    from capsim.campaigns.campaign import Campaign
     from capsim.config import StrictModel
 
     assert issubclass(Campaign, StrictModel)
@@ -167,8 +246,8 @@ def test_one_formatter_for_every_schema_error():
 #: what the scene may import of capsim: the flows, the meshes and the kernels under it (a
 #: boundary kind's regular part is a kernel), the membrane laws (the capsules' own materials);
 #: nothing of the solve, the time stepping, the files, the campaigns or the face
-SCENE_MAY_IMPORT = {"capsim.flows", "capsim.mesh", "capsim.geometry", "capsim.quadrature", "capsim.kernels",
-                    "capsim.membrane", "capsim.errors"}
+SCENE_MAY_IMPORT = {"capsim.scene.flows", "capsim.numerics.mesh", "capsim.numerics.geometry", "capsim.numerics.quadrature", "capsim.numerics.kernels",
+                    "capsim.numerics.membrane", "capsim.errors"}
 
 
 def test_the_scene_imports_nothing_above_it():
@@ -214,7 +293,7 @@ def test_the_walls_position_is_read_in_three_modules():
 
     readers = {_module_name(path) for path in _sources()
                if re.search(r"\bwall_y\b|\by_wall\b|wall\.distance", path.read_text())}
-    assert readers <= {"capsim.scene.plane_wall", "capsim.config", "capsim.kernels"}, readers
+    assert readers <= {"capsim.scene.plane_wall", "capsim.config", "capsim.numerics.kernels"}, readers
 
 
 def test_no_module_fishes_a_scene_part_off_the_model_or_the_case():

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from capsim.config import apply_overrides, case_from_dict
-from capsim.runner import run_case
-from capsim.solver import build_model
-from capsim.timestepping import SCHEMES, build_integrator
+from capsim.runs.runner import run_case
+from capsim.solve.solver import build_model
+from capsim.solve.timestepping import SCHEMES, build_integrator
 
 # the cases of benchmarks/stepping.py
 CASE_A = {"mesh": {"level": 3}, "flow": {"shear_rate_G": 0.1}}
@@ -120,8 +120,8 @@ def test_auto_keeps_the_users_preconditioner():
 
 
 def test_the_cost_table_prices_a_level_2_and_a_level_3_mesh():
-    """capsim.scheme_cost: per-operation seconds grow with the mesh; the dense matrices fastest."""
-    from capsim.scheme_cost import costs_for
+    """capsim.solve.scheme_cost: per-operation seconds grow with the mesh; the dense matrices fastest."""
+    from capsim.solve.scheme_cost import costs_for
 
     c2, c3 = costs_for(258), costs_for(1026)
     assert all(c3[k] >= c2[k] for k in c2)
@@ -148,7 +148,7 @@ def test_an_auto_run_records_its_choice_and_resumes_on_the_same_steps(tmp_path):
 
 def test_an_auto_run_is_the_run_of_the_scheme_it_picks_to_the_bit(tmp_path):
     """The measurement undoes its warm starts: same steps, same numbers (only the counted cost differs)."""
-    from capsim.store import read_trajectory
+    from capsim.storage.store import read_trajectory
 
     base = {"name": "bit", "mesh": {"level": 1}, "flow": {"shear_rate_G": 0.1}, "time": {"t_end": 0.5}}
     auto = run_case(case_from_dict({**base, "output": {"path": str(tmp_path / "auto.h5")}}))

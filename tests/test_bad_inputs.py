@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from capsim.cli import app
+from capsim.face.cli import app
 
 DATA = Path(__file__).parent / "data" / "invalid"
 

@@ -12,11 +12,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from capsim import kernels
+from capsim.numerics import kernels
 from capsim.config import ConfigError, case_from_dict
-from capsim.membrane import HingeBending, hinge_angles, linear_subtriangles, surface_hinges
-from capsim.mesh import rest_shape_mesh, unit_sphere_mesh
-from capsim.runner import run_case
+from capsim.numerics.membrane import HingeBending, hinge_angles, linear_subtriangles, surface_hinges
+from capsim.numerics.mesh import rest_shape_mesh, unit_sphere_mesh
+from capsim.runs.runner import run_case
 
 
 def test_hinge_gradient_matches_finite_differences():
@@ -105,7 +105,7 @@ def _small_G_run(tmp_path, level: int, kappa: float, G: float = 0.0125, t_end: f
     })
     summary = run_case(case)
     assert summary["status"] == "completed"
-    from capsim.store import read_trajectory
+    from capsim.storage.store import read_trajectory
 
     return read_trajectory(summary["path"])["timeseries"]
 

@@ -10,12 +10,12 @@ import pytest
 import xarray as xr
 import yaml
 
-from capsim.campaign import (
+from capsim.campaigns.campaign import (
     campaign_from_dict, execute_run, expand_campaign, load_campaign, run_campaign, usable_cores,
 )
 from capsim.config import ConfigError
-from capsim.store import read_trajectory
-from capsim.summary import SUMMARY_ATTRS, summarize_campaign, write_summary
+from capsim.storage.store import read_trajectory
+from capsim.campaigns.summary import SUMMARY_ATTRS, summarize_campaign, write_summary
 
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "campaigns" / "smoke.yaml"
@@ -89,12 +89,12 @@ def test_expansion_grid_zip_and_stable_ids(tmp_path):
 
 
 def test_a_raising_case_is_recorded_not_raised(tmp_path, monkeypatch):
-    import capsim.runner
+    import capsim.runs.runner
 
     def boom(case, progress=None):
         raise RuntimeError("solver exploded\nsecond line")
 
-    monkeypatch.setattr(capsim.runner, "run_case", boom)
+    monkeypatch.setattr(capsim.runs.runner, "run_case", boom)
     spec = expand_campaign(campaign_from_dict(smoke_dict(tmp_path)))[0]
     record = execute_run(spec)
     assert record == {"run_id": spec.run_id, "status": "failed", "status_reason": "RuntimeError: solver exploded"}
@@ -111,7 +111,7 @@ def _task(item, progress):  # module level: the spawned workers import it by nam
 
 @pytest.mark.parametrize("in_process", [True, False], ids=["in-process", "pool"])
 def test_executor_turns_a_raising_task_into_a_record(in_process):
-    from capsim.executor import run_batch
+    from capsim.campaigns.executor import run_batch
 
     items = ["a", "bad", "c"]
     done = []
@@ -128,7 +128,7 @@ def test_executor_turns_a_raising_task_into_a_record(in_process):
 
 def test_warm_up_covers_each_kind_of_kernel_once():
     from capsim.config import case_from_dict
-    from capsim.executor import distinct_kinds
+    from capsim.campaigns.executor import distinct_kinds
 
     def case(**sections):
         return case_from_dict({"name": "k", **sections})
@@ -270,7 +270,7 @@ def test_dask_local_cluster_gives_the_same_numbers(pool_sweep, tmp_path):
 def test_cli_sweep_and_summarize(pool_sweep, tmp_path):
     from typer.testing import CliRunner
 
-    from capsim.cli import app
+    from capsim.face.cli import app
 
     campaign, out, _, _ = pool_sweep
     path = tmp_path / "c.yaml"

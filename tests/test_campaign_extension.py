@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 import yaml
 
-from capsim.campaign import (
+from capsim.campaigns.campaign import (
     campaign_from_dict, expand_campaign, load_campaign_with, plan_lines, run_campaign,
 )
 from capsim.config import ConfigError
-from capsim.summary import summarize_campaign
+from capsim.campaigns.summary import summarize_campaign
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -94,7 +94,7 @@ def test_a_predicted_accuracy_target_campaign_extends_in_place(tmp_path):
     assert str(summarize_campaign(out)["status"].values.ravel()[0]) == "completed"
     # the same t_end with another explanation of the choice (say a newer capsim's) is no extension:
     # foreign, never resumed or replaced unasked
-    from capsim.campaign import FOREIGN, _file_status
+    from capsim.campaigns.campaign import FOREIGN, _file_status
 
     stored["accuracy"]["choice"] += " (reworded)"
     with h5py.File(spec.path, "r+") as f:
@@ -130,7 +130,7 @@ def test_a_sweep_over_a_short_name_replaces_the_bases_long_one(tmp_path, swept, 
     # one field by either name: the same cases, the same digests
     assert [s.digest() for s in expand_campaign(campaign_from_dict(other))] == [s.digest() for s in specs]
     # and the same summary dimension (what plot --kind steady takes as G), before any run
-    from capsim.campaign import _Index, campaign_digest
+    from capsim.campaigns.campaign import _Index, campaign_digest
 
     campaign = campaign_from_dict(d)
     tmp_path.mkdir(exist_ok=True)
@@ -167,7 +167,7 @@ def _long_campaign(tmp_path, t_end=50.0) -> Path:
 
 def _start_sweep(path: Path, *extra: str, env: dict | None = None) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, "-m", "capsim.cli", "sweep", str(path), "--workers", "2", "-q", *extra],
+        [sys.executable, "-m", "capsim.face.cli", "sweep", str(path), "--workers", "2", "-q", *extra],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT, env=env,
         start_new_session=True,  # its own process group: what Ctrl-C in a terminal signals
         # Ctrl-C's disposition, however the tests were started (a background job inherits SIGINT ignored)

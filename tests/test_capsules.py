@@ -16,8 +16,8 @@ import pytest
 
 from capsim.scene import Bodies, body_specs, scene_mesh, winding_numbers
 from capsim.config import ConfigError, case_from_dict
-from capsim.runner import run_case
-from capsim.solver import build_model
+from capsim.runs.runner import run_case
+from capsim.solve.solver import build_model
 
 
 def _pair(tmp_path, name: str, centers, **extra) -> dict:
@@ -147,7 +147,7 @@ def test_each_capsule_keeps_its_own_volume(tmp_path):
         Y[nodes] = c + (X[nodes] - c) @ np.diag([1.1, 0.9, 1.0 / 0.99])
     u = model.velocity(Y)
     geo = model.disc.geometry(Y)
-    from capsim import kernels
+    from capsim.numerics import kernels
 
     for elems in model.bodies.element_index:
         flux = kernels.surface_flux(model.disc.elements, elems, np.ones(elems.size), model.disc.reg_phi,
@@ -176,7 +176,7 @@ def test_capsules_closer_than_the_guard_stop_the_run(tmp_path):
 def test_per_capsule_columns_and_the_summary_read_with_xarray(tmp_path):
     import xarray as xr
 
-    from capsim.summary import read_run
+    from capsim.campaigns.summary import read_run
 
     d = _pair(tmp_path, "xr", [(-2.0, 0.25, 0.0), (2.0, -0.25, 0.0)], time={"t_end": 0.5})
     assert run_case(case_from_dict(d)).status == "completed"
@@ -213,7 +213,7 @@ def test_bad_capsules_are_refused_in_one_line(tmp_path, capsules, field):
 def test_the_cli_refuses_overlapping_capsules_with_exit_2(tmp_path):
     path = tmp_path / "overlap.yaml"
     path.write_text("name: overlap\ncapsules:\n  - center: [0, 0, 0]\n  - center: [0.5, 0.5, 0]\n")
-    out = subprocess.run([sys.executable, "-m", "capsim.cli", "validate", str(path)], capture_output=True, text=True)
+    out = subprocess.run([sys.executable, "-m", "capsim.face.cli", "validate", str(path)], capture_output=True, text=True)
     assert out.returncode == 2
     lines = [line for line in out.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and "overlaps capsule 0" in lines[0]

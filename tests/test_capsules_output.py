@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from capsim.cli import app
+from capsim.face.cli import app
 from capsim.config import case_from_dict
-from capsim.export import export_run, membrane_fields, model_for
-from capsim.plot import KINDS, SCENE_KINDS, capsule_count, plot, scene_bodies
-from capsim.runner import run_case
-from capsim.store import read_trajectory
+from capsim.face.export import export_run, membrane_fields, model_for
+from capsim.face.plot import KINDS, SCENE_KINDS, capsule_count, plot, scene_bodies
+from capsim.runs.runner import run_case
+from capsim.storage.store import read_trajectory
 
 CENTERS = ([2.5, -0.25, 0.0], [-2.5, 0.25, 0.0])
 

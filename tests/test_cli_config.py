@@ -4,7 +4,7 @@ import sys
 import yaml
 from typer.testing import CliRunner
 
-from capsim.cli import app
+from capsim.face.cli import app
 from capsim.config import Case, load_case
 
 runner = CliRunner()
@@ -25,7 +25,7 @@ def test_validate_bad_file_exits_2_with_one_line(tmp_path):
     path = tmp_path / "bad.yaml"
     path.write_text("name: x\nflow: {shear_rate_G: -1.0}\n")
     proc = subprocess.run(
-        [sys.executable, "-m", "capsim.cli", "validate", str(path)], capture_output=True, text=True
+        [sys.executable, "-m", "capsim.face.cli", "validate", str(path)], capture_output=True, text=True
     )
     assert proc.returncode == 2
     assert proc.stdout == ""
@@ -64,7 +64,7 @@ def test_validate_never_blocks_on_a_fifo_or_reads_dev_zero(tmp_path):
     zero.symlink_to("/dev/zero")
     for path in (fifo, zero):
         proc = subprocess.run(
-            [sys.executable, "-m", "capsim.cli", "validate", str(path)], capture_output=True, text=True, timeout=60
+            [sys.executable, "-m", "capsim.face.cli", "validate", str(path)], capture_output=True, text=True, timeout=60
         )
         assert proc.returncode == 2
         assert proc.stdout == ""

@@ -14,10 +14,10 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from capsim.cli import app
+from capsim.face.cli import app
 from capsim.config import case_from_dict
-from capsim.display import RunProgress, SweepProgress
-from capsim.runner import run_case
+from capsim.face.display import RunProgress, SweepProgress
+from capsim.runs.runner import run_case
 
 runner = CliRunner()
 ESCAPE = re.compile(r"[\x1b\r]")  # any control sequence or carriage-return redraw
@@ -105,7 +105,7 @@ def test_plot_and_export_refuse_what_is_not_a_run_in_one_line(tmp_path):
 
 
 def test_theta_is_not_drawn_before_it_is_defined_and_breaks_at_the_wrap():
-    from capsim.plot import theta_for_plot
+    from capsim.face.plot import theta_for_plot
 
     t = np.linspace(0.0, 4.0, 9)
     D = np.array([0.0, 0.1, 0.2, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3])
@@ -120,11 +120,11 @@ def test_theta_is_not_drawn_before_it_is_defined_and_breaks_at_the_wrap():
 
 
 def test_theory_lines_only_where_the_theory_applies(tiny_run):
-    from capsim.plot import inclination_figure, rheology_figure
+    from capsim.face.plot import inclination_figure, rheology_figure
 
     data_labels = {line.get_label() for line in inclination_figure(tiny_run).axes[0].get_lines()}
     assert r"first order, $\theta = \pi/4$ (Barthès-Biesel & Rallison 1981)" in data_labels  # a sphere at G = 0.1
-    from capsim.store import read_trajectory
+    from capsim.storage.store import read_trajectory
 
     data = read_trajectory(tiny_run)
     config = yaml.safe_load(data["attrs"]["config_yaml"])
@@ -137,7 +137,7 @@ def test_theory_lines_only_where_the_theory_applies(tiny_run):
 
 
 def test_figures_carry_a_caption_and_keep_the_legend_outside(tiny_run):
-    from capsim.plot import KINDS, SCENE_KINDS, plot
+    from capsim.face.plot import KINDS, SCENE_KINDS, plot
 
     # (a kind of several capsules refuses one: tests/test_capsules_output.py draws it)
     for kind in sorted(set(KINDS) - {"steady", "orbit_map", *SCENE_KINDS}):
@@ -162,8 +162,8 @@ def _legend_on_data(ax, legend) -> bool:
 
 
 def test_contours_are_cut_from_the_curved_elements():
-    from capsim.mesh import unit_sphere_mesh
-    from capsim.plot import xy_section
+    from capsim.numerics.mesh import unit_sphere_mesh
+    from capsim.face.plot import xy_section
 
     mesh = unit_sphere_mesh("octahedron", 1)
     flat, _ = xy_section(mesh.positions, mesh.elements, 0.3)
@@ -236,7 +236,7 @@ def test_set_overrides_case_fields(tmp_path):
     out = tmp_path / "set.h5"
     result = runner.invoke(app, ["run", str(case), "-q", "-o", str(out), "--set", "time.t_end=0.02"])
     assert result.exit_code == 0, result.output
-    from capsim.store import read_trajectory
+    from capsim.storage.store import read_trajectory
 
     assert yaml.safe_load(read_trajectory(out)["attrs"]["config_yaml"])["time"]["t_end"] == 0.02
 
@@ -283,7 +283,7 @@ def test_h_and_an_example_in_every_commands_help():
 
 
 def test_an_existing_completed_run_is_not_overwritten_without_overwrite(tmp_path):
-    from capsim.store import read_run_status
+    from capsim.storage.store import read_run_status
 
     case = _tiny_case(tmp_path)
     out = tmp_path / "tiny0.h5"
@@ -344,7 +344,7 @@ def test_campaign_dry_run_lists_exactly_the_runs_the_sweep_runs(tmp_path, monkey
 
 
 def test_the_compression_warning_says_what_to_do_in_one_line():
-    from capsim.display import _compression  # the closing table lives in display (issue 27)
+    from capsim.face.display import _compression  # the closing table lives in display (issue 27)
 
     text = _compression({"compressed_fraction": 0.26, "min_tension": -0.31, "bending_modulus": 0.0})
     assert "\n" not in text and text.startswith("26 %")

@@ -3,8 +3,8 @@ one tension scale."""
 
 import math
 
-from capsim.display import summary_table
-from capsim.study import format_error_estimate
+from capsim.face.display import summary_table
+from capsim.campaigns.study import format_error_estimate
 
 
 def _estimate() -> dict:

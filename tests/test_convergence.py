@@ -23,10 +23,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from capsim.config import case_from_dict
-from capsim.geometry import element_geometry
-from capsim.mesh import unit_sphere_mesh
-from capsim.observables import ellipsoid_axes
-from capsim.solver import build_model
+from capsim.numerics.geometry import element_geometry
+from capsim.numerics.mesh import unit_sphere_mesh
+from capsim.solve.observables import ellipsoid_axes
+from capsim.solve.solver import build_model
 
 SEMI_AXES = np.array([1.3, 0.8, 0.96])
 TILT = 0.45
@@ -115,8 +115,8 @@ def test_instantaneous_rates_converge_at_third_order_to_level_5():
 
 
 def _sphere_run(tmp_path, level: int, t_end: float = 7.0) -> dict:
-    from capsim.runner import run_case
-    from capsim.store import read_trajectory
+    from capsim.runs.runner import run_case
+    from capsim.storage.store import read_trajectory
 
     case = case_from_dict({
         "name": f"conv-L{level}", "flow": {"shear_rate_G": 0.1}, "mesh": {"level": level},
@@ -156,8 +156,8 @@ def _n2_ratio(tmp_path, G: float, lam: float) -> float:
     """N2*/N1*, thin shell, level 2, weak bending κ = 1e-4 (removes the mesh-scale
     creep of the compressed membrane, docs/user_guide.md), mean over the last third of
     kt ∈ [0, max(3, 8 kτ)] (kτ = 12.1 G at λ = 1, 33 G at λ = 5)."""
-    from capsim.runner import run_case
-    from capsim.store import read_trajectory
+    from capsim.runs.runner import run_case
+    from capsim.storage.store import read_trajectory
 
     t_end = max(3.0, 8 * {1.0: 12.1, 5.0: 33.0}[lam] * G)
     case = case_from_dict({

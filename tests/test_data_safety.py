@@ -6,7 +6,7 @@ per directory, a full disk, foreign trajectories and damaged checkpoints on
 A full disk is simulated two ways: a real one with ``RLIMIT_FSIZE`` in a
 subprocess (SIGXFSZ ignored, so that writes past the limit fail with EFBIG, as
 they fail with ENOSPC on a full disk), and, for the checks that run before any
-write, by monkeypatching ``capsim.store.free_bytes`` or one ``os.replace``.
+write, by monkeypatching ``capsim.storage.store.free_bytes`` or one ``os.replace``.
 """
 
 from __future__ import annotations
@@ -27,18 +27,18 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-import capsim.files
-import capsim.store
-from capsim.campaign import campaign_from_dict, expand_campaign, run_campaign
-from capsim.cli import app
+import capsim.storage.files
+import capsim.storage.store
+from capsim.campaigns.campaign import campaign_from_dict, expand_campaign, run_campaign
+from capsim.face.cli import app
 from capsim.config import Case, apply_overrides, case_from_dict
-from capsim.runner import ResumeError, run_case
-from capsim.store import checkpoint_path, read_checkpoint, read_run_status, read_trajectory
+from capsim.runs.runner import ResumeError, run_case
+from capsim.storage.store import checkpoint_path, read_checkpoint, read_run_status, read_trajectory
 from interrupts import InterruptAfter as _InterruptAfter
 
 # looked up when a test runs, so that each test fails on its own without the fix
 def FileLock(*args, **kwargs):  # noqa: N802
-    return capsim.store.FileLock(*args, **kwargs)
+    return capsim.storage.store.FileLock(*args, **kwargs)
 
 
 def _case(tmp: Path, name: str = "safe", **dotted) -> Case:
@@ -108,7 +108,7 @@ def test_second_writer_is_refused_before_anything_is_touched(tmp_path):
     })
     case_file = _case_file(case, tmp_path / "first.yaml")
     ckpt = checkpoint_path(case.output.path)
-    proc = subprocess.Popen([sys.executable, "-m", "capsim.cli", "run", str(case_file), "-q"],
+    proc = subprocess.Popen([sys.executable, "-m", "capsim.face.cli", "run", str(case_file), "-q"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
         deadline = time.monotonic() + 120
@@ -117,7 +117,7 @@ def test_second_writer_is_refused_before_anything_is_touched(tmp_path):
             assert time.monotonic() < deadline
             time.sleep(0.05)
         _one_line_exit_2(_cli("run", case_file, "-q", "--overwrite"), "in use by another capsim process")
-        with pytest.raises(capsim.store.LockedError):
+        with pytest.raises(capsim.storage.store.LockedError):
             run_case(case)
         assert ckpt.exists()
     finally:
@@ -131,7 +131,7 @@ def test_second_writer_is_refused_before_anything_is_touched(tmp_path):
 def test_lock_is_released_and_a_stale_lock_file_is_no_lock(tmp_path):
     path = tmp_path / "r.h5"
     with FileLock(path):
-        with pytest.raises(capsim.store.LockedError):
+        with pytest.raises(capsim.storage.store.LockedError):
             FileLock(path).acquire()
     assert not (tmp_path / "r.h5.lock").exists()
     (tmp_path / "r.h5.lock").write_text("12345")  # left by a killed process: flock died with it
@@ -147,7 +147,7 @@ def _limited(limit: int, *args: str) -> subprocess.CompletedProcess:
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # writes past the limit then fail with EFBIG
         resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
 
-    return subprocess.run([sys.executable, "-m", "capsim.cli", *args], preexec_fn=limit_file_size,
+    return subprocess.run([sys.executable, "-m", "capsim.face.cli", *args], preexec_fn=limit_file_size,
                           capture_output=True, text=True, timeout=300)
 
 
@@ -176,8 +176,8 @@ def test_full_disk_mid_run_keeps_a_readable_file_and_resume_refuses_then_finishe
     reference = run_case(case)
     want = read_trajectory(reference["path"])
     # the rows and snapshots only: the end state a completed run adds last is not what runs short
-    size = os.path.getsize(reference["path"]) - len(capsim.store.read_end_state(reference["path"]))
-    need = capsim.store._needed_bytes(len(want["rest_positions"]), tuple(want["timeseries"]))
+    size = os.path.getsize(reference["path"]) - len(capsim.storage.store.read_end_state(reference["path"]))
+    need = capsim.storage.store._needed_bytes(len(want["rest_positions"]), tuple(want["timeseries"]))
     limit = size + need - 72_000  # the room runs short partway (65-80 kB pass with the columns of issues 39-42)
     full = apply_overrides(case, **{"output.path": str(tmp_path / "runs" / "full.h5")})
     case_file = _case_file(full, tmp_path / "full.yaml")
@@ -194,7 +194,7 @@ def test_full_disk_mid_run_keeps_a_readable_file_and_resume_refuses_then_finishe
     assert "of room" in line and "nothing was changed" in line
     assert _snapshot(tmp_path / "runs") == before
 
-    done = subprocess.run([sys.executable, "-m", "capsim.cli", "run", str(case_file), "-q", "--resume"],
+    done = subprocess.run([sys.executable, "-m", "capsim.face.cli", "run", str(case_file), "-q", "--resume"],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     got = read_trajectory(full.output.path)
@@ -206,7 +206,7 @@ def test_full_disk_mid_run_keeps_a_readable_file_and_resume_refuses_then_finishe
 def test_resume_checks_free_space_first(stopped, tmp_path, monkeypatch):
     moved = _copy(stopped[0], tmp_path / "runs")
     before = _snapshot(tmp_path / "runs")
-    monkeypatch.setattr(capsim.files, "free_bytes", lambda path: 10_000)
+    monkeypatch.setattr(capsim.storage.files, "free_bytes", lambda path: 10_000)
     line = _one_line_exit_2(_cli("run", _case_file(moved, tmp_path / "c.yaml"), "-q", "--resume"), "cannot resume: ")
     assert "MB of room" in line and "resuming needs" in line
     assert _snapshot(tmp_path / "runs") == before
@@ -368,7 +368,7 @@ def _never(item, progress):
 
 
 def test_an_orphaned_worker_never_starts_a_run(monkeypatch):
-    from capsim import executor
+    from capsim.campaigns import executor
 
     monkeypatch.setattr(executor, "_WORKER_PARENT", os.getppid() + 1_000_000, raising=False)
     assert executor._pool_task(_never, "k", "item") == executor._NOT_STARTED
@@ -439,7 +439,7 @@ def test_resume_refuses_a_damaged_checkpoint_and_keeps_it(stopped, tmp_path, how
 
 
 def test_interrupt_check_stops_a_long_gmres_solve_between_iterations():
-    from capsim.solver import build_model
+    from capsim.solve.solver import build_model
 
     case = case_from_dict({"name": "slow", "flow": {"viscosity_ratio": 5.0}, "mesh": {"level": 0}})
     model, x = build_model(case)
@@ -462,7 +462,7 @@ def test_interrupt_check_stops_a_long_gmres_solve_between_iterations():
 
 
 def test_the_runner_hands_its_stop_flag_to_the_solver(tmp_path):
-    from capsim.runner import _Run, _StopRequested, _StopSignals
+    from capsim.runs.runner import _Run, _StopRequested, _StopSignals
 
     stop = _StopSignals()
     run = _Run(_case(tmp_path), None, False, stop)

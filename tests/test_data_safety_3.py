@@ -27,13 +27,13 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-import capsim.files
-import capsim.store
-from capsim.campaign import campaign_from_dict, run_campaign
-from capsim.cli import app
+import capsim.storage.files
+import capsim.storage.store
+from capsim.campaigns.campaign import campaign_from_dict, run_campaign
+from capsim.face.cli import app
 from capsim.config import apply_overrides, case_from_dict
-from capsim.runner import run_case
-from capsim.store import read_run_status, read_trajectory
+from capsim.runs.runner import run_case
+from capsim.storage.store import read_run_status, read_trajectory
 
 runner = CliRunner()
 
@@ -115,16 +115,16 @@ def test_error_estimate_that_fails_leaves_the_completed_run_as_it_was(tmp_path, 
     def full_disk(*args, **kwargs):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(capsim.store, "_write_dict", full_disk)
-    with pytest.raises(capsim.store.StorageError, match="nothing was changed"):
-        capsim.store.write_error_estimate(run, {"D_xy": 1e-3})
+    monkeypatch.setattr(capsim.storage.store, "_write_dict", full_disk)
+    with pytest.raises(capsim.storage.store.StorageError, match="nothing was changed"):
+        capsim.storage.store.write_error_estimate(run, {"D_xy": 1e-3})
     assert _digest(run) == before
     assert [p.name for p in tmp_path.iterdir()] == ["run.h5"]  # no copy left behind
 
     monkeypatch.undo()
-    monkeypatch.setattr(capsim.files, "free_bytes", lambda path: 1000)  # no room for the copy: refused first
-    with pytest.raises(capsim.store.StorageError, match="beyond a copy"):
-        capsim.store.write_error_estimate(run, {"D_xy": 1e-3})
+    monkeypatch.setattr(capsim.storage.files, "free_bytes", lambda path: 1000)  # no room for the copy: refused first
+    with pytest.raises(capsim.storage.store.StorageError, match="beyond a copy"):
+        capsim.storage.store.write_error_estimate(run, {"D_xy": 1e-3})
     assert _digest(run) == before
 
 
@@ -132,7 +132,7 @@ def test_error_estimate_is_written_through_a_copy(tmp_path, completed):
     run = tmp_path / "run.h5"
     shutil.copy(completed, run)
     inode = os.stat(run).st_ino
-    capsim.store.write_error_estimate(run, {"D_xy": 1e-3})
+    capsim.storage.store.write_error_estimate(run, {"D_xy": 1e-3})
     assert os.stat(run).st_ino != inode  # a new file renamed into place, not the old one written in place
     with h5py.File(run, "r") as f:
         assert float(f["error_estimate/D_xy"][()]) == 1e-3
@@ -156,17 +156,17 @@ def test_a_lock_that_is_a_link_is_refused_and_its_target_untouched(tmp_path):
     target = tmp_path / "precious.txt"
     target.write_text("keep me")
     out = tmp_path / "r.h5"
-    os.symlink(target, capsim.files.lock_path(out))
-    with pytest.raises(capsim.files.LockedError, match="symbolic link"):
-        capsim.files.FileLock(out).acquire()
+    os.symlink(target, capsim.storage.files.lock_path(out))
+    with pytest.raises(capsim.storage.files.LockedError, match="symbolic link"):
+        capsim.storage.files.FileLock(out).acquire()
     assert target.read_text() == "keep me"
-    assert os.path.islink(capsim.files.lock_path(out))
+    assert os.path.islink(capsim.storage.files.lock_path(out))
 
 
 def test_release_removes_only_the_lock_it_holds(tmp_path):
     out = tmp_path / "r.h5"
-    lock = capsim.files.FileLock(out).acquire()
-    path = capsim.files.lock_path(out)
+    lock = capsim.storage.files.FileLock(out).acquire()
+    path = capsim.storage.files.lock_path(out)
     path.unlink()
     path.write_text("someone else's")  # a file put at the lock's name meanwhile
     lock.release()
@@ -181,7 +181,7 @@ def _limited(limit: int, *args: str, cwd: Path | None = None) -> subprocess.Comp
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
         resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
 
-    return subprocess.run([sys.executable, "-m", "capsim.cli", *args], preexec_fn=limit_file_size,
+    return subprocess.run([sys.executable, "-m", "capsim.face.cli", *args], preexec_fn=limit_file_size,
                           capture_output=True, text=True, timeout=300, cwd=cwd)
 
 
@@ -225,7 +225,7 @@ def _stop_at(step: int, action):
 def test_a_run_whose_file_was_deleted_stops_failed(tmp_path):
     case = case_from_dict(_case_dict(tmp_path))
     path = Path(case.output.path)
-    with pytest.raises(capsim.store.StorageError, match="was deleted"):
+    with pytest.raises(capsim.storage.store.StorageError, match="was deleted"):
         run_case(case, progress=_stop_at(4, path.unlink))
     assert not path.exists()
 
@@ -233,14 +233,14 @@ def test_a_run_whose_file_was_deleted_stops_failed(tmp_path):
 def test_a_run_whose_file_was_replaced_leaves_the_new_file_and_its_checkpoint_alone(tmp_path, completed):
     case = case_from_dict(_case_dict(tmp_path))
     path = Path(case.output.path)
-    ckpt = capsim.store.checkpoint_path(path)
+    ckpt = capsim.storage.store.checkpoint_path(path)
 
     def replace():
         shutil.copy(completed, tmp_path / "other.h5")
         os.replace(tmp_path / "other.h5", path)
         ckpt.write_bytes(b"the other run's checkpoint")
 
-    with pytest.raises(capsim.store.StorageError, match="replaced by another file"):
+    with pytest.raises(capsim.storage.store.StorageError, match="replaced by another file"):
         run_case(case, progress=_stop_at(4, replace))
     assert _digest(path) == _digest(completed)
     assert ckpt.read_bytes() == b"the other run's checkpoint"
@@ -285,7 +285,7 @@ def _campaign(out_dir: Path) -> dict:
 
 
 def test_a_completed_file_of_another_case_is_neither_skipped_summarised_nor_replaced(tmp_path):
-    from capsim.summary import summarize_campaign
+    from capsim.campaigns.summary import summarize_campaign
 
     out = tmp_path / "c"
     campaign = campaign_from_dict(_campaign(out))
@@ -316,7 +316,7 @@ def test_a_killed_worker_costs_only_the_run_it_held(tmp_path):
     d["base"]["time"]["t_end"] = 1.0
     d["sweep"] = {"flow.shear_rate_G": [0.05, 0.1, 0.15, 0.2]}
     (tmp_path / "c.yaml").write_text(yaml.safe_dump(d))
-    proc = subprocess.Popen([sys.executable, "-m", "capsim.cli", "sweep", str(tmp_path / "c.yaml"), "--workers", "2",
+    proc = subprocess.Popen([sys.executable, "-m", "capsim.face.cli", "sweep", str(tmp_path / "c.yaml"), "--workers", "2",
                              "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     victim = None
     try:
@@ -354,7 +354,7 @@ def test_a_killed_worker_costs_only_the_run_it_held(tmp_path):
 
 
 def _cli(*args: str, env: dict | None = None, timeout: float = 120, **kwargs) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "capsim.cli", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "capsim.face.cli", *args], capture_output=True, text=True,
                           timeout=timeout, env=None if env is None else {**os.environ, **env}, **kwargs)
 
 
@@ -394,7 +394,7 @@ class _Listener:
 
 @pytest.mark.parametrize("greeting", [b"", b"SSH-2.0-OpenSSH_9.2\r\n"])
 def test_a_scheduler_that_is_not_dask_is_refused_within_its_timeout(tmp_path, greeting):
-    from capsim.campaign import check_scheduler
+    from capsim.campaigns.campaign import check_scheduler
     from capsim.config import ConfigError
 
     service = _Listener(greeting)
@@ -417,7 +417,7 @@ def test_a_scheduler_that_is_not_dask_is_refused_within_its_timeout(tmp_path, gr
 @pytest.mark.parametrize("address", ["http://localhost:8786", "inproc://x", "tls://127.0.0.1:8786", "tcp://:8786",
                                      "tcp://127.0.0.1:99999", "localhost", "", "tcp://127.0.0.1:1"])
 def test_bad_scheduler_addresses_are_one_line(address):
-    from capsim.campaign import check_scheduler
+    from capsim.campaigns.campaign import check_scheduler
     from capsim.config import ConfigError
 
     with pytest.raises(ConfigError) as info:
@@ -491,9 +491,9 @@ def test_a_resume_under_another_version_records_both(tmp_path, monkeypatch):
     d = _case_dict(tmp_path, t_end=1.0)
     case = case_from_dict({**d, "time": {**d["time"], "max_wall_s": 1e-3}})
     assert run_case(case)["status"] == "interrupted"
-    import capsim.runner
+    import capsim.runs.runner
 
-    monkeypatch.setattr(capsim.runner, "__version__", "9.9.9")
+    monkeypatch.setattr(capsim.runs.runner, "__version__", "9.9.9")
     assert run_case(apply_overrides(case, **{"time.max_wall_s": None}), resume=True)["status"] == "completed"
     with h5py.File(case.output.path, "r") as f:
         assert f.attrs["capsim_version"] == "9.9.9"
@@ -502,7 +502,7 @@ def test_a_resume_under_another_version_records_both(tmp_path, monkeypatch):
 
 def test_sighup_closes_the_run_as_interrupted(tmp_path):
     case_file = _case_file(tmp_path, t_end=50.0, rtol=1e-5)  # long enough to be stopped (rtol auto: ~1 s)
-    proc = subprocess.Popen([sys.executable, "-m", "capsim.cli", "run", str(case_file), "-q"],
+    proc = subprocess.Popen([sys.executable, "-m", "capsim.face.cli", "run", str(case_file), "-q"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             # SIGHUP's default disposition, however the tests were started: under nohup
                             # it is inherited ignored, which capsim keeps (as SIGINT in a background job)
@@ -510,7 +510,7 @@ def test_sighup_closes_the_run_as_interrupted(tmp_path):
     out = tmp_path / "r.h5"
     try:
         deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and not (out.exists() and capsim.store.checkpoint_path(out).exists()):
+        while time.monotonic() < deadline and not (out.exists() and capsim.storage.store.checkpoint_path(out).exists()):
             time.sleep(0.1)
         time.sleep(0.5)
         proc.send_signal(signal.SIGHUP)
@@ -530,7 +530,7 @@ def test_ctrl_c_in_a_sweep_is_recorded_as_sigint(tmp_path):
     d["base"]["time"]["t_end"] = 50.0
     d["base"]["time"]["rtol"] = 1e-5  # long enough to be stopped
     (tmp_path / "c.yaml").write_text(yaml.safe_dump(d))
-    proc = subprocess.Popen([sys.executable, "-m", "capsim.cli", "sweep", str(tmp_path / "c.yaml"), "--workers", "2",
+    proc = subprocess.Popen([sys.executable, "-m", "capsim.face.cli", "sweep", str(tmp_path / "c.yaml"), "--workers", "2",
                              "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             # Ctrl-C's disposition, however the tests were started: a background job
                             # inherits SIGINT ignored, which capsim keeps (issue 38 finding 8)

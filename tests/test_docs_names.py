@@ -5,7 +5,7 @@ README and REPRODUCTION.md are read for the names they cite, and each is looked 
 * commands and their options (``capsim sweep ... --workers 2``): the CLI;
 * groups and datasets of a run file (``/timeseries``, ``mesh/positions``, ``summary/``): a run
   file written here;
-* figure kinds (``--kind steady``): capsim.plot's registry;
+* figure kinds (``--kind steady``): capsim.face.plot's registry;
 * motion classes (``motion = tumbling``, a code span on a line about the motion): the classes
   of capsim.quantities (an old name only where the line says it is old);
 * summary dimensions (``dimension `x` ``): the names summarize gives them.
@@ -64,7 +64,7 @@ def _resolves(dotted: str) -> bool:
             return True
     except ImportError:
         pass
-    from capsim.campaign import Campaign
+    from capsim.campaigns.campaign import Campaign
     from capsim.config import _ALIASES  # a field's short name (flow.G) names that field
 
     dotted = _ALIASES.get(dotted, dotted)
@@ -91,7 +91,7 @@ def _in_model(model, dotted: str) -> bool:
 
 
 def _cli():
-    from capsim.cli import app
+    from capsim.face.cli import app
 
     group = typer.main.get_command(app)
     return {name: {opt for p in cmd.params for opt in (*getattr(p, "opts", ()), *getattr(p, "secondary_opts", ()))}
@@ -101,7 +101,7 @@ def _cli():
 @pytest.fixture(scope="module")
 def run_file_paths(tmp_path_factory) -> set[str]:
     from capsim.config import case_from_dict
-    from capsim.runner import run_case
+    from capsim.runs.runner import run_case
 
     tmp = tmp_path_factory.mktemp("names")
     case = case_from_dict({"name": "n", "mesh": {"level": 0}, "time": {"t_end": 0.2},
@@ -151,11 +151,11 @@ def test_every_command_and_option_a_page_names_exists():
 
 
 def test_every_figure_kind_a_page_names_exists():
-    from capsim.plot import KINDS
+    from capsim.face.plot import KINDS
 
     missing = [f"{page.relative_to(ROOT)}: --kind {kind}" for page, text in _pages()
                for code in _code_texts(text) for kind in _KIND.findall(code) if kind not in KINDS]
-    assert not missing, "figure kinds capsim.plot does not have:\n" + "\n".join(sorted(set(missing)))
+    assert not missing, "figure kinds capsim.face.plot does not have:\n" + "\n".join(sorted(set(missing)))
 
 
 def test_every_run_file_group_a_page_names_exists(run_file_paths):

@@ -65,7 +65,7 @@ def test_case_reference_states_defaults_and_bounds_from_the_schema():
     bounds = [getattr(m, a) for m in field.metadata for a in ("ge", "le") if getattr(m, a, None) is not None]
     assert bounds and all(f"`{b}`" in row for b in bounds), row
     scheme_row = re.search(r"^\| `time.scheme` \|([^\n]*)$", page, re.M).group(1)
-    from capsim.timestepping import SCHEMES
+    from capsim.solve.timestepping import SCHEMES
 
     assert all(f"`{name}`" in scheme_row for name in SCHEMES)
 

@@ -29,9 +29,9 @@ import numpy as np
 import pytest
 
 from capsim.config import case_from_dict
-from capsim.membrane import law_attributes
-from capsim.runner import run_case
-from capsim.store import read_trajectory
+from capsim.numerics.membrane import law_attributes
+from capsim.runs.runner import run_case
+from capsim.storage.store import read_trajectory
 
 
 def drop_theory(ca: float, lam: float) -> dict:

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from capsim.config import case_from_dict
-from capsim.runner import run_case
-from capsim.store import read_trajectory
+from capsim.runs.runner import run_case
+from capsim.storage.store import read_trajectory
 
 FIRST_ORDER_D_OVER_G = 25.0 / 4.0
 

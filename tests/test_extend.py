@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from capsim.cli import app
+from capsim.face.cli import app
 from capsim.config import apply_overrides, case_from_dict
-from capsim.runner import ResumeError, run_case
-from capsim.store import checkpoint_path, read_trajectory
+from capsim.runs.runner import ResumeError, run_case
+from capsim.storage.store import checkpoint_path, read_trajectory
 
 
 def _case(tmp_path: Path, t_end: float, name: str = "extend"):

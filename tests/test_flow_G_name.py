@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def _validate(tmp_path, text: str) -> subprocess.CompletedProcess:
     path = tmp_path / "case.yaml"
     path.write_text(text)
-    return subprocess.run([sys.executable, "-m", "capsim.cli", "validate", str(path)], cwd=tmp_path,
+    return subprocess.run([sys.executable, "-m", "capsim.face.cli", "validate", str(path)], cwd=tmp_path,
                           capture_output=True, text=True, timeout=120)
 
 
@@ -58,7 +58,7 @@ def test_the_package_and_capsim_help_say_what_capsim_does():
 
     from typer.testing import CliRunner
 
-    from capsim.cli import app
+    from capsim.face.cli import app
 
     description = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["description"]
     helptext = " ".join(CliRunner().invoke(app, ["--help"]).output.replace("│", " ").split())

@@ -1,6 +1,6 @@
-"""Rates that change in time (issue 41, item 2): the flow.history registry of capsim.flows.
+"""Rates that change in time (issue 41, item 2): the flow.history registry of capsim.scene.flows.
 Known answer (docs/known_answers.md, "Flows beyond simple shear"): small-amplitude oscillating
-shear against the first-order theory's response (capsim.small_deformation), its amplitude and
+shear against the first-order theory's response (capsim.scene.small_deformation), its amplitude and
 phase lag at ωτ = 0.3, 1, 3; a step in the rate; the kinds' fields refused in one line."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from capsim.config import ConfigError, case_from_dict
-from capsim.runner import run_case
-from capsim.small_deformation import LinearCapsule
+from capsim.runs.runner import run_case
+from capsim.scene.small_deformation import LinearCapsule
 
 G = 0.01
 

@@ -1,4 +1,4 @@
-"""Flows beyond simple shear (issue 41): the registry of capsim.flows, what the schema takes
+"""Flows beyond simple shear (issue 41): the registry of capsim.scene.flows, what the schema takes
 and refuses, the symmetries each flow keeps, and the known answers of docs/known_answers.md,
 "Flows beyond simple shear": the first-order deformation in planar and uniaxial extension
 against simple shear's, and a stiff capsule on the axis of Poiseuille flow translating at
@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from capsim.config import ConfigError, case_from_dict
-from capsim.flows import FLOWS, far_field_of, symmetries_kept
-from capsim.runner import run_case
-from capsim.solver import build_model
+from capsim.scene.flows import FLOWS, far_field_of, symmetries_kept
+from capsim.runs.runner import run_case
+from capsim.solve.solver import build_model
 
 
 def _case(tmp_path=None, name="f", **flow):
@@ -44,7 +44,7 @@ def test_every_flow_is_divergence_free_and_keeps_the_symmetries_it_claims(kind):
     h = 1e-6
     div = sum((field(x + h * np.eye(3)[i]) - field(x - h * np.eye(3)[i]))[:, i] for i in range(3)) / (2 * h)
     assert np.abs(div).max() < 1e-8
-    from capsim.flows import SYMMETRY_GROUPS
+    from capsim.scene.flows import SYMMETRY_GROUPS
 
     for name in symmetries_kept(field):
         for S in SYMMETRY_GROUPS[name]:
@@ -174,7 +174,7 @@ def test_a_pre_inflated_capsule_at_rest_keeps_its_shape_under_the_laws_isotropic
     (a rate factor 0) the Laplace pressure Δf = 2τ/R n of the isotropic tension
     τ = e^{−Λ1}(W_1 + W_2 s²) (Λ1 = ln s², Λ2 = s² − 1) drives no motion: the sphere stays, and
     the smallest principal tension is τ (in units of E_s)."""
-    from capsim.membrane import get_law
+    from capsim.numerics.membrane import get_law
 
     alpha = 0.05
     case = case_from_dict({**_case(tmp_path, name="inflated", history={"kind": "table", "table": [[0, 0], [1, 0]]}),
@@ -215,9 +215,9 @@ def test_a_campaign_sweeps_the_flow_and_every_flow_summarises_plots_and_exports(
     import xarray as xr
     from typer.testing import CliRunner
 
-    from capsim.campaign import campaign_from_dict, run_campaign
-    from capsim.cli import app
-    from capsim.summary import summarize_campaign
+    from capsim.campaigns.campaign import campaign_from_dict, run_campaign
+    from capsim.face.cli import app
+    from capsim.campaigns.summary import summarize_campaign
 
     campaign = campaign_from_dict({
         "name": "flows", "base": {"mesh": {"level": 0}, "time": {"t_end": 0.2}, "flow": {"shear_rate_G": 0.05}},
@@ -241,9 +241,9 @@ def test_a_campaign_sweeps_the_flow_and_every_flow_summarises_plots_and_exports(
 def test_flow_G_is_the_dimensionless_rate_of_every_flow_by_its_short_name(tmp_path):
     """Issue 41, item 1: flow.G = μ·rate·a/E_s for every kind, stored as flow.shear_rate_G (which
     keeps working); in a case, with --set and as a swept field whose summary dimension is G."""
-    from capsim.campaign import campaign_from_dict, run_campaign
+    from capsim.campaigns.campaign import campaign_from_dict, run_campaign
     from capsim.config import apply_overrides
-    from capsim.summary import summarize_campaign
+    from capsim.campaigns.summary import summarize_campaign
 
     case = case_from_dict({"name": "g", "flow": {"kind": "uniaxial_extension", "G": 0.02}})
     assert case.flow.shear_rate_G == 0.02

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from capsim.config import case_from_dict
-from capsim.flows import Oscillating
-from capsim.runner import run_case
+from capsim.scene.flows import Oscillating
+from capsim.runs.runner import run_case
 from interrupts import InterruptAfter
 
 #: a factor-100 pulse lasting kt 0.01 (a triangle: strain 0.5) in a flow at rest otherwise

@@ -21,9 +21,9 @@ import yaml
 
 import capsim
 from capsim import api
-from capsim.checkpoint import CheckpointError, ResumeError, load_end_state, read_checkpoint
+from capsim.storage.checkpoint import CheckpointError, ResumeError, load_end_state, read_checkpoint
 from capsim.config import ConfigError
-from capsim.store import TrajectoryError, TrajectoryWriter, read_trajectory
+from capsim.storage.store import TrajectoryError, TrajectoryWriter, read_trajectory
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -76,7 +76,7 @@ _PLAIN_SCRIPT = """\
 import capsim
 done = capsim.sweep("camp.yaml", workers=2)
 print("SWEEP", done["completed"], done["failed"], done["total"], flush=True)
-ds = capsim.study({{"name": "s", "time": {{"t_end": {t_end}}}}}, levels=[0, 1], rtols=[1e-3], workers=2)
+ds = capsim.campaigns.study({{"name": "s", "time": {{"t_end": {t_end}}}}}, levels=[0, 1], rtols=[1e-3], workers=2)
 print("STUDY", " ".join(str(s) for s in ds["status"].values.ravel()), flush=True)
 """
 
@@ -124,7 +124,7 @@ def test_a_spawned_reimport_of_the_script_is_refused_in_one_line_naming_the_guar
             print("PARENT", child.exitcode, flush=True)
         else:  # the child, importing this script again
             for call in (lambda: capsim.sweep("missing-campaign.yaml"),
-                         lambda: capsim.study({"name": "x"}, levels=[0], workers=2)):
+                         lambda: capsim.campaigns.study({"name": "x"}, levels=[0], workers=2)):
                 try:
                     call()
                 except ConfigError as exc:
@@ -136,7 +136,7 @@ def test_a_spawned_reimport_of_the_script_is_refused_in_one_line_naming_the_guar
     assert len(refused) == 2, out.stdout + out.stderr[-2000:]
     for line in refused:
         assert 'if __name__ == "__main__":' in line, line
-    assert "capsim.sweep" in refused[0] and "capsim.study" in refused[1]
+    assert "capsim.sweep" in refused[0] and "capsim.campaigns.study" in refused[1]
     assert "PARENT 0" in out.stdout
 
 
@@ -152,7 +152,7 @@ def _task(item, progress):
 def test_workers_that_die_as_they_start_leave_a_failed_record_for_every_item(monkeypatch):
     """Workers that die before running anything (pool after pool) used to leave items with no
     record at all: `completed 0, failed 0`, and a study's TypeError."""
-    from capsim.executor import run_batch
+    from capsim.campaigns.executor import run_batch
 
     monkeypatch.setenv(_DIE, "1")  # inherited by the workers, which die importing this module
     outcome = run_batch(["a"], _task, keys=["a"], workers=1,
@@ -166,8 +166,8 @@ def test_workers_that_die_as_they_start_leave_a_failed_record_for_every_item(mon
 
 
 def test_an_extended_run_keeps_no_error_estimate_of_its_earlier_window(tmp_path):
-    from capsim.store import write_error_estimate
-    from capsim.summary import read_run
+    from capsim.storage.store import write_error_estimate
+    from capsim.campaigns.summary import read_run
 
     case = _tiny(tmp_path, t_end=0.05)
     assert capsim.run(case).status == "completed"
@@ -186,8 +186,8 @@ def test_an_extended_run_keeps_no_error_estimate_of_its_earlier_window(tmp_path)
 def test_an_error_estimate_of_an_earlier_end_is_not_reported_beside_a_later_summary(tmp_path):
     """A file extended before the fix still holds the old window's estimate: its value at t_end
     is not the file's last row, so summarize leaves it out."""
-    from capsim.store import write_error_estimate
-    from capsim.summary import read_run
+    from capsim.storage.store import write_error_estimate
+    from capsim.campaigns.summary import read_run
 
     path = tmp_path / "old.h5"
     _header_only_run_file(path)
@@ -198,7 +198,7 @@ def test_an_error_estimate_of_an_earlier_end_is_not_reported_beside_a_later_summ
 def test_the_error_estimate_at_level_0_says_what_it_lacks(tmp_path):
     """Level 0 has no coarser mesh: no total (the time part alone, ~1e-6, is no bound of an
     error ~1e-2), the time part kept, and no 'level -1' printed."""
-    from capsim.study import error_estimate, format_error_estimate
+    from capsim.campaigns.study import error_estimate, format_error_estimate
 
     case = capsim.load_case(_tiny(tmp_path, t_end=0.05))
     summary = capsim.run(case)
@@ -238,8 +238,8 @@ def test_open_run_refuses_what_is_not_a_capsim_run_file(tmp_path):
 
 _WRITER = """\
 import sys, numpy as np, capsim
-from capsim.files import FileLock
-from capsim.store import TrajectoryWriter
+from capsim.storage.files import FileLock
+from capsim.storage.store import TrajectoryWriter
 path, n = sys.argv[1], 500
 with FileLock(path):
     w = TrajectoryWriter(path, config_yaml=capsim.load_case({"name": "h"}).to_yaml(),
@@ -264,14 +264,14 @@ def test_a_healthy_file_read_while_its_writer_appends_is_read(tmp_path, monkeypa
     when the writer (another process, holding the run file's lock) appends 37 snapshots; read in
     place, the reader then met a chunk past the end it saw ('addr overflow': 'truncated or
     corrupt?'). Read from an image of the file, it reads the file as it was when opened."""
-    import capsim.store
+    import capsim.storage.store
 
     path = tmp_path / "run.h5"
     writer = subprocess.Popen([sys.executable, "-c", _WRITER, str(path)], stdin=subprocess.PIPE,
                               stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
     try:
         assert writer.stdout.readline().strip() == "ready"
-        read_group = capsim.store._group_dataset
+        read_group = capsim.storage.store._group_dataset
         appended = []
 
         def midway(group):
@@ -281,7 +281,7 @@ def test_a_healthy_file_read_while_its_writer_appends_is_read(tmp_path, monkeypa
                 appended.append(writer.stdout.readline().strip())
             return read_group(group)
 
-        monkeypatch.setattr(capsim.store, "_group_dataset", midway)
+        monkeypatch.setattr(capsim.storage.store, "_group_dataset", midway)
         tree = capsim.open_run(path)
         assert appended == ["appended"]
         n_snap = tree["mesh"]["positions"].shape[0]
@@ -294,13 +294,13 @@ def test_a_file_being_written_is_read_or_said_to_be_being_written_never_corrupt(
     """Held by its writer (another process holds the run file's lock), a file read at a moment
     its metadata is half-flushed is read again, and if it stays unreadable, refused as being
     written. The writer's window is held open by construction: it holds the lock until told."""
-    import capsim.store
+    import capsim.storage.store
 
-    monkeypatch.setattr(capsim.store, "_BUSY_WAIT_S", 0.01, raising=False)  # a quick retry
+    monkeypatch.setattr(capsim.storage.store, "_BUSY_WAIT_S", 0.01, raising=False)  # a quick retry
     path = tmp_path / "run.h5"
     _header_only_run_file(path)
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys; from capsim.files import FileLock\n"
+        [sys.executable, "-c", "import sys; from capsim.storage.files import FileLock\n"
          f"with FileLock({str(path)!r}):\n    print('held', flush=True); sys.stdin.read()"],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
     try:
@@ -332,11 +332,11 @@ _SMALL = {"name": "x", "time": {"t_end": 0.01}}  # were a refusal missing, the s
 
 @pytest.mark.parametrize("call, name", [
     (lambda tmp: capsim.summarize(tmp, units="bogus"), "units"),
-    (lambda tmp: capsim.study(_SMALL, levels=[], rtols=[1e-3]), "levels"),
-    (lambda tmp: capsim.study(_SMALL, levels=[0], rtols="1e-3"), "rtols"),
-    (lambda tmp: capsim.study(_SMALL, levels=[0.5], rtols=[1e-3]), "levels"),
-    (lambda tmp: capsim.study(_SMALL, levels=[0], rtols=[1e-3], workers=0), "workers"),
-    (lambda tmp: capsim.study(_SMALL, levels=[0], rtols=[1e-3], runs_dir=5), "runs_dir"),
+    (lambda tmp: capsim.campaigns.study(_SMALL, levels=[], rtols=[1e-3]), "levels"),
+    (lambda tmp: capsim.campaigns.study(_SMALL, levels=[0], rtols="1e-3"), "rtols"),
+    (lambda tmp: capsim.campaigns.study(_SMALL, levels=[0.5], rtols=[1e-3]), "levels"),
+    (lambda tmp: capsim.campaigns.study(_SMALL, levels=[0], rtols=[1e-3], workers=0), "workers"),
+    (lambda tmp: capsim.campaigns.study(_SMALL, levels=[0], rtols=[1e-3], runs_dir=5), "runs_dir"),
     (lambda tmp: capsim.summarize(tmp, output=5), "output"),
     (lambda tmp: capsim.sweep(5), "campaign"),
     (lambda tmp: capsim.open_run(5), "path"),
@@ -360,7 +360,7 @@ def test_a_single_case_path_to_warm_up_is_a_list_of_one(tmp_path):
 
 
 def test_a_single_input_path_is_that_file_not_its_characters(tmp_path):
-    from capsim.files import OutputError
+    from capsim.storage.files import OutputError
 
     precious = tmp_path / "notes.txt"
     precious.write_text("mine")
@@ -407,7 +407,7 @@ def test_a_damaged_checkpoint_or_end_state_is_called_damaged_never_loaded_unsafe
 
 def _docstrings() -> str:
     return "\n".join([api.__doc__ or ""] + [getattr(api, n).__doc__ or "" for n in api.__all__]
-                     + [capsim.study.study.__doc__ or ""])
+                     + [capsim.campaigns.study.study.__doc__ or ""])
 
 
 def test_the_api_docstrings_are_markdown_not_rest():
@@ -419,7 +419,7 @@ def test_the_api_docstrings_are_markdown_not_rest():
 
 def test_the_api_docstrings_cite_groups_and_dimensions_the_files_have(tmp_path):
     from capsim.quantities import GROUPS
-    from capsim.summary import _dim_names
+    from capsim.campaigns.summary import _dim_names
 
     text = _docstrings()
     for group in re.findall(r"`/(\w+)`", text):

@@ -31,7 +31,7 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from capsim.cli import app
+from capsim.face.cli import app
 from capsim.config import (
     BQ_MAX,
     PHYSICAL_G_RANGE,
@@ -136,7 +136,7 @@ def test_a_physical_value_that_warns_is_named_in_the_warning():
 
 def test_the_cli_warning_is_one_line_and_the_case_still_validates(tmp_path):
     path = _case(tmp_path, "name: w\nflow: {shear_rate_G: 3}\n")
-    proc = subprocess.run([sys.executable, "-m", "capsim.cli", "validate", str(path)],
+    proc = subprocess.run([sys.executable, "-m", "capsim.face.cli", "validate", str(path)],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert yaml.safe_load(proc.stdout)["flow"]["G"] == 3.0  # validate names the rate G (issue 52)
@@ -145,7 +145,7 @@ def test_the_cli_warning_is_one_line_and_the_case_still_validates(tmp_path):
     lo, hi = VALIDATED_RANGES["flow.shear_rate_G"]
     assert lines[0].startswith(f"{path}:") and f"CaseWarning: flow.G = 3 is outside [{lo:g}, {hi:g}]" in lines[0]
     # an override that brings it back in range: no warning about the file's value
-    proc = subprocess.run([sys.executable, "-m", "capsim.cli", "validate", str(path), "--set", "flow.shear_rate_G=0.1"],
+    proc = subprocess.run([sys.executable, "-m", "capsim.face.cli", "validate", str(path), "--set", "flow.shear_rate_G=0.1"],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0 and proc.stderr == "", proc.stderr
 
@@ -195,8 +195,8 @@ def test_substitution_is_checked_at_the_lambda_the_inner_viscosity_gives():
 
 
 def test_a_campaign_sweeps_the_inner_viscosity(tmp_path):
-    from capsim.campaign import campaign_from_dict, expand_campaign
-    from capsim.summary import _coordinate
+    from capsim.campaigns.campaign import campaign_from_dict, expand_campaign
+    from capsim.campaigns.summary import _coordinate
 
     campaign = campaign_from_dict({
         "name": "lams", "base": {"physical": RBC, "mesh": {"level": 0}},
@@ -371,7 +371,7 @@ def test_a_membrane_viscosity_beyond_the_bound_names_the_physical_field(tmp_path
 def test_a_sphere_takes_quarter_exactly_where_auto_uses_it(base, axis):
     """A sphere keeps the mirror and the rotation whatever its axis; its mesh, turned onto the
     axis, keeps them for some axes: mesh.symmetry quarter is accepted exactly where auto uses it."""
-    from capsim.solver import build_model
+    from capsim.solve.solver import build_model
 
     auto = case_from_dict({"name": "s", "initial_axis": axis, "mesh": {"level": 0, "base": base}})
     model, _ = build_model(auto)

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from capsim.timestepping import Automatic, EmbeddedRungeKutta, RungeKuttaChebyshev, make_integrator
+from capsim.solve.timestepping import Automatic, EmbeddedRungeKutta, RungeKuttaChebyshev, make_integrator
 
 
 def _overflowing(y: np.ndarray):
@@ -61,9 +61,9 @@ from pathlib import Path
 import yaml
 from typer.testing import CliRunner
 
-from capsim.cli import app
+from capsim.face.cli import app
 from capsim.config import case_from_dict
-from capsim.runner import run_case
+from capsim.runs.runner import run_case
 
 cli = CliRunner()
 
@@ -132,7 +132,7 @@ def test_a_run_file_written_between_the_check_and_the_lock_is_not_replaced(tmp_p
     the same new path that completed in between was replaced by the first. The window is held
     open by construction: the second run is done inside the first's pre-lock warm-up."""
     import capsim.api as api
-    from capsim.files import OutputError
+    from capsim.storage.files import OutputError
 
     first = case_from_dict(_case(tmp_path, name="first"))
     second = case_from_dict({**_case(tmp_path, name="second"), "output": {"path": str(tmp_path / "first.h5")}})
@@ -147,7 +147,7 @@ def test_a_run_file_written_between_the_check_and_the_lock_is_not_replaced(tmp_p
     written = (tmp_path / "first.h5")
     with pytest.raises(OutputError, match="exists"):
         api.run(first)
-    from capsim.store import read_case
+    from capsim.storage.store import read_case
 
     assert read_case(written).name == "second"  # the other run's file is intact
 
@@ -170,7 +170,7 @@ def test_a_wall_clock_stop_resumes_with_the_same_case_and_advances_each_invocati
 
 
 def test_a_sweep_resumes_runs_its_wall_clock_limit_stopped(tmp_path):
-    from capsim.campaign import campaign_from_dict, run_campaign
+    from capsim.campaigns.campaign import campaign_from_dict, run_campaign
 
     base = _case(tmp_path, time={"t_end": 0.2, "max_wall_s": 1e-3})
     base.pop("name")
@@ -179,7 +179,7 @@ def test_a_sweep_resumes_runs_its_wall_clock_limit_stopped(tmp_path):
                                    "output": {"dir": str(tmp_path / "runs")}})
     first = run_campaign(campaign, workers=1)
     assert first["records"][0]["status"] == "interrupted", first["records"]
-    from capsim.store import read_trajectory
+    from capsim.storage.store import read_trajectory
 
     path = tmp_path / "runs" / (first["records"][0]["run_id"] + ".h5")
     t_first = read_trajectory(path)["timeseries"]["t"][-1]
@@ -202,7 +202,7 @@ def _campaign_file(tmp: Path, t_end: float) -> Path:
 
 def test_a_campaign_extends_to_a_later_t_end_with_one_command(tmp_path):
     """Finding 4: sweep --set time.t_end=... was refused as another campaign."""
-    from capsim.store import read_trajectory
+    from capsim.storage.store import read_trajectory
 
     path = _campaign_file(tmp_path, 0.2)
     assert cli.invoke(app, ["sweep", str(path), "-q", "--workers", "1"]).exit_code == 0
@@ -227,7 +227,7 @@ def test_a_campaign_extends_to_a_later_t_end_with_one_command(tmp_path):
 
 def test_a_run_file_given_as_the_case_extends_that_run(tmp_path):
     """Finding 4: capsim run RUN.h5 --resume --t-end 0.4 read the run file as YAML."""
-    from capsim.store import read_trajectory
+    from capsim.storage.store import read_trajectory
 
     case_path = tmp_path / "r.yaml"
     case_path.write_text(yaml.safe_dump(_case(tmp_path)))
@@ -267,7 +267,7 @@ def test_a_second_ctrl_c_while_the_run_closes_its_file_does_not_leave_it_running
     import h5py
 
     from capsim.config import apply_overrides
-    from capsim.store import TrajectoryWriter
+    from capsim.storage.store import TrajectoryWriter
 
     case = case_from_dict(_case(tmp_path, time={"t_end": 0.2}))
     if extend:
@@ -301,7 +301,7 @@ def test_a_second_ctrl_c_while_the_run_closes_its_file_does_not_leave_it_running
 
 def test_an_interrupted_run_resumes_to_another_t_end(tmp_path):
     """Finding 20: --resume --t-end on an interrupted run said 'belongs to another case: time.t_end'."""
-    from capsim.checkpoint import ResumeError
+    from capsim.storage.checkpoint import ResumeError
     from capsim.config import apply_overrides
 
     case = case_from_dict(_case(tmp_path, time={"t_end": 1.0, "max_wall_s": 1e-3}))
@@ -320,7 +320,7 @@ def test_an_interrupted_run_resumes_to_another_t_end(tmp_path):
 
 def test_extending_a_run_that_stopped_on_its_own_rule_says_why_it_cannot(tmp_path):
     """Finding 20: extending a settled run said 'no checkpoint'."""
-    from capsim.checkpoint import ResumeError
+    from capsim.storage.checkpoint import ResumeError
     from capsim.config import apply_overrides
 
     case = case_from_dict(_case(tmp_path, time={"t_end": 0.2}))
@@ -354,7 +354,7 @@ def test_a_zip_of_unequal_lists_is_refused_without_printing_the_campaign(tmp_pat
 
 def test_a_guard_reason_shows_the_digits_that_cross_the_limit():
     """Finding 20: 'largest principal stretch = 1 > 1.0001'."""
-    from capsim.stopping import guard_violation
+    from capsim.runs.stopping import guard_violation
 
     guards = case_from_dict({"name": "x", "guards": {"max_principal_stretch": 1.0001}}).guards
     row0 = {"volume": 1.0, "area": 1.0, "min_element_quality": 1.0, "max_principal_stretch": 1.0}
@@ -396,7 +396,7 @@ def test_the_error_prefix_is_the_same_whether_or_not_stderr_shares_a_pipe(tmp_pa
     bad = tmp_path / "bad.yaml"
     bad.write_text("name: x\nmesh: {level: 99}\n")
     for args in (["run", "--bogus", "x"], ["validate", str(bad)]):
-        done = subprocess.run([sys.executable, "-m", "capsim.cli", *args], stdout=subprocess.PIPE,
+        done = subprocess.run([sys.executable, "-m", "capsim.face.cli", *args], stdout=subprocess.PIPE,
                               stderr=subprocess.STDOUT if shared else subprocess.PIPE, text=True)
         text = (done.stdout if shared else done.stderr).strip()
         assert done.returncode == 2 and text.startswith("error: ") and "\n" not in text, text

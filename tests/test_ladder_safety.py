@@ -14,12 +14,12 @@ import h5py
 import numpy as np
 import pytest
 
-from capsim.checkpoint import checkpoint_path
+from capsim.storage.checkpoint import checkpoint_path
 from capsim.config import apply_overrides, case_from_dict
-from capsim.files import FileLock, LockedError, StorageError
-from capsim.runner import run_ladder as run_measured
-from capsim.runner import run_case
-from capsim.store import read_case
+from capsim.storage.files import FileLock, LockedError, StorageError
+from capsim.runs.runner import run_ladder as run_measured
+from capsim.runs.runner import run_case
+from capsim.storage.store import read_case
 
 TARGET = {"quantity": "D_xy", "target": 0.05, "method": "measure"}
 
@@ -153,11 +153,11 @@ def test_a_target_not_met_exits_3_and_the_summary_says_whether_it_was_met(tmp_pa
     """Finding 13. ``capsim run`` of a measured target NOT met by max_level exits 3 (before: 0), the
     file 'completed' and its verdict NOT met; a campaign summary's ``accuracy_target_met`` reads 0
     for it, 1 for a target met and NaN for a run without a measured target."""
-    from capsim.summary import read_run
+    from capsim.campaigns.summary import read_run
 
     path = tmp_path / "c.yaml"
     path.write_text(f"name: c\ntime: {{t_end: 0.5}}\noutput: {{path: {tmp_path / 'c.h5'}}}\n")
-    out = subprocess.run([sys.executable, "-m", "capsim.cli", "run", str(path), "--accuracy", "D_xy=1e-6", "--set",
+    out = subprocess.run([sys.executable, "-m", "capsim.face.cli", "run", str(path), "--accuracy", "D_xy=1e-6", "--set",
                           "accuracy.method=measure", "--set", "accuracy.max_level=2", "-q"],
                          capture_output=True, text=True)
     assert out.returncode == 3, out.stderr

@@ -5,12 +5,12 @@ both traction discretisations, and the laws compared in shear flow
 import numpy as np
 import pytest
 
-from capsim import kernels
+from capsim.numerics import kernels
 from capsim.config import case_from_dict
-from capsim.membrane import LAWS, MembraneForce, get_law, law_attributes, strain_from_gradient, tension_tensor
-from capsim.mesh import unit_sphere_mesh
-from capsim.runner import run_case
-from capsim.solver import Discretization
+from capsim.numerics.membrane import LAWS, MembraneForce, get_law, law_attributes, strain_from_gradient, tension_tensor
+from capsim.numerics.mesh import unit_sphere_mesh
+from capsim.runs.runner import run_case
+from capsim.solve.solver import Discretization
 
 # every law with a non-trivial parameter, and the documented moduli (units of E_s)
 CASES = [
@@ -213,7 +213,7 @@ def test_trajectory_stores_law_and_rest_shape(tmp_path):
     import h5py
 
     from capsim.config import case_from_dict
-    from capsim.runner import run_case
+    from capsim.runs.runner import run_case
 
     path = tmp_path / "attrs.h5"
     case = case_from_dict({

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from capsim.config import case_from_dict
-from capsim.solver import build_model
+from capsim.solve.solver import build_model
 
 
 def _model(shape, tilt=0.0, **quadrature):
@@ -103,7 +103,7 @@ def test_singular_corrections_equal_a_direct_reference(singular_order):
     (basis tables by node, one vectorised loop over a pair's Duffy points), equal the
     straightforward per-pair sums of the reference to 1e-12 relative: on a deformed level-2
     mesh, at every node and at the symmetry targets."""
-    from capsim import kernels
+    from capsim.numerics import kernels
 
     spec = {"name": "m", "mesh": {"level": 2}, "shape": {"kind": "oblate", "aspect_ratio": 0.5},
             "quadrature": {"singular_order": singular_order}, "initial_tilt_deg": 20.0}

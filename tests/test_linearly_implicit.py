@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from capsim.config import ConfigError, case_from_dict
-from capsim.krylov import gmres
-from capsim.linearization import StageSolver, hessian_colouring, node_adjacency
-from capsim.runner import run_case
-from capsim.solver import build_model
-from capsim.store import read_trajectory
-from capsim.timestepping import RKF23, ROSENBROCK, LinearlyImplicit, attempt_step, make_integrator
+from capsim.numerics.krylov import gmres
+from capsim.numerics.linearization import StageSolver, hessian_colouring, node_adjacency
+from capsim.runs.runner import run_case
+from capsim.solve.solver import build_model
+from capsim.storage.store import read_trajectory
+from capsim.solve.timestepping import RKF23, ROSENBROCK, LinearlyImplicit, attempt_step, make_integrator
 
 from stiff_problems import A, EIGENVALUES, Q, RKF23_LIMIT, Y0, capsule_case as _case, exact, linear
 
@@ -290,7 +290,7 @@ def test_an_option_of_another_scheme_is_refused(scheme, option, value, owner):
 
 def test_a_linearly_implicit_run_is_summarized_with_its_scheme_flag(tmp_path):
     from capsim.quantities import FLAGS
-    from capsim.summary import read_run
+    from capsim.campaigns.summary import read_run
 
     result = run_case(_case(tmp_path, "sum", **{"time.scheme": "linearly_implicit", "mesh.level": 1,
                                                  "time.t_end": 0.3}))

@@ -9,8 +9,8 @@ import pytest
 import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve
 
-from capsim.benchmark import SPLIT_STAGES, _model, bench_case, bench_velocity, split_lines
-from capsim.solver import build_model
+from capsim.runs.benchmark import SPLIT_STAGES, _model, bench_case, bench_velocity, split_lines
+from capsim.solve.solver import build_model
 
 # a deformed, tilted configuration in the shear plane: it keeps every symmetry of the mesh
 _C, _S = np.cos(0.6), np.sin(0.6)

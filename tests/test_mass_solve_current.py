@@ -9,7 +9,7 @@ import pytest
 from scipy.sparse.linalg import spsolve
 
 from capsim.config import case_from_dict
-from capsim.solver import build_model
+from capsim.solve.solver import build_model
 
 # a deformed, tilted configuration in the shear plane: it keeps every symmetry of the mesh
 _C, _S = np.cos(0.6), np.sin(0.6)

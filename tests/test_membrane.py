@@ -4,7 +4,7 @@ rigid-body invariance (docs/conventions.md, 'Checks')."""
 import numpy as np
 import pytest
 
-from capsim.membrane import LAWS, MembraneForce, get_law, principal_tensions
+from capsim.numerics.membrane import LAWS, MembraneForce, get_law, principal_tensions
 
 
 def rotation(a, b):
@@ -98,7 +98,7 @@ def test_galerkin_traction_is_the_energy_gradient(sphere2):
     X = mesh.positions
     law = get_law("neo_hookean")
     forces = MembraneForce(disc, X, law)
-    from capsim import kernels
+    from capsim.numerics import kernels
 
     def energy(x):
         l1, l2, _, _, j0 = MembraneForce(disc, X).gauss_point_strain(x)

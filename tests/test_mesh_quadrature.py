@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from capsim.geometry import element_geometry, volume_area
-from capsim.mesh import unit_sphere_mesh
-from capsim.quadrature import REGULAR_ORDERS, singular_rules, triangle_rule, triangle_rule_degree
+from capsim.numerics.geometry import element_geometry, volume_area
+from capsim.numerics.mesh import unit_sphere_mesh
+from capsim.numerics.quadrature import REGULAR_ORDERS, singular_rules, triangle_rule, triangle_rule_degree
 
 from conftest import single_layer_tensor
 

@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from capsim.mesh import rest_shape_mesh
-from capsim.quadrature import subdivided_rule
-from capsim.solver import Discretization
+from capsim.numerics.mesh import rest_shape_mesh
+from capsim.numerics.quadrature import subdivided_rule
+from capsim.solve.solver import Discretization
 
 
 def _identity_errors(kind: str, aspect_ratio: float, level: int, **quadrature) -> tuple[float, float]:
@@ -74,7 +74,7 @@ def test_a_run_with_the_near_field_matches_the_default_closely(tmp_path):
     """A λ = 5 oblate run (level 1, kt 0.3): the option changes the solution by the
     quadrature error it removes, small against D_xy itself."""
     from capsim.config import case_from_dict
-    from capsim.runner import run_case
+    from capsim.runs.runner import run_case
 
     finals = []
     for quadrature in ({}, {"near_field_factor": 0.5, "singular_order": 8}):

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from capsim.config import case_from_dict
-from capsim.mesh import unit_sphere_mesh
-from capsim.observables import (
+from capsim.numerics.mesh import unit_sphere_mesh
+from capsim.solve.observables import (
     TankTreadingTracker,
     classify_motion,
     ellipsoid_axes,
@@ -26,9 +26,9 @@ from capsim.observables import (
     stresslet_observables,
     window_stats,
 )
-from capsim.runner import run_case
-from capsim.solver import Discretization, shear_flow
-from capsim.store import read_trajectory
+from capsim.runs.runner import run_case
+from capsim.solve.solver import Discretization, shear_flow
+from capsim.storage.store import read_trajectory
 
 
 # ---------------------------------------------------------------- stresslet

@@ -6,9 +6,9 @@ import pytest
 import xarray as xr
 from typer.testing import CliRunner
 
-from capsim.cli import app
-from capsim.plot import CLASS_COLOURS, orbit_map_figure, plot
-from capsim.summary import write_summary
+from capsim.face.cli import app
+from capsim.face.plot import CLASS_COLOURS, orbit_map_figure, plot
+from capsim.campaigns.summary import write_summary
 
 
 def _summary(levels=(1,)):

@@ -1,5 +1,5 @@
 """Orbits you can trust (issue 39; issue 38, finding 13): the three-dimensional motion
-classifier (capsim.observables.classify_orbit, docs/method.md, "Motion classes") on
+classifier (capsim.solve.observables.classify_orbit, docs/method.md, "Motion classes") on
 constructed series whose answer is known, and on short runs.
 
 * A rigid spheroid's Jeffery orbit (the analytic solution, docs/known_answers.md, "Jeffery's
@@ -21,7 +21,7 @@ import math
 import numpy as np
 import pytest
 
-from capsim.observables import (
+from capsim.solve.observables import (
     DRIFT_RTOL,
     SETTLED_RTOL,
     ellipsoid_of_moment,
@@ -209,8 +209,8 @@ def test_the_class_names_are_one_list_and_old_names_still_read():
 
 def _run(tmp_path, name, shape, axis, t_end, level=1, symmetry="auto"):
     from capsim.config import case_from_dict
-    from capsim.runner import run_case
-    from capsim.store import read_trajectory
+    from capsim.runs.runner import run_case
+    from capsim.storage.store import read_trajectory
 
     case = case_from_dict({
         "name": name, "shape": shape, "initial_axis": axis, "flow": {"shear_rate_G": 0.1},
@@ -256,7 +256,7 @@ def test_the_first_row_of_an_off_plane_red_cell_is_no_tie_break(tmp_path):
 
 
 def test_the_closing_table_shows_the_orbit_of_a_run_that_has_one():
-    from capsim.display import summary_rows
+    from capsim.face.display import summary_rows
 
     r = 0.4
     T = 2 * math.pi * (r + 1 / r)
@@ -282,7 +282,7 @@ def test_the_closing_table_shows_the_orbit_of_a_run_that_has_one():
 
 
 def test_the_orbit_figure_marks_the_class_and_the_settled_window(tmp_path):
-    from capsim.plot import plot
+    from capsim.face.plot import plot
 
     r = 0.4
     T = 2 * math.pi * (r + 1 / r)
@@ -318,10 +318,10 @@ def test_an_old_run_file_still_summarises_plots_and_extends(tmp_path):
     import h5py
 
     from capsim.config import case_from_dict
-    from capsim.plot import plot
-    from capsim.runner import run_case
-    from capsim.store import read_trajectory
-    from capsim.summary import read_run
+    from capsim.face.plot import plot
+    from capsim.runs.runner import run_case
+    from capsim.storage.store import read_trajectory
+    from capsim.campaigns.summary import read_run
 
     path = tmp_path / "old.h5"
     case = case_from_dict({
@@ -379,7 +379,7 @@ def test_stop_when_settled_stops_on_the_summarys_own_rule(tmp_path):
     """A level-0 oblate (b/a = 0.6, G = 0.2) swings from kt ≈ 10 on: time.stop_when_settled
     stops it once its last two cycles agree, and the summary of the stopped run says settled."""
     from capsim.config import case_from_dict
-    from capsim.runner import run_case
+    from capsim.runs.runner import run_case
 
     case = case_from_dict({
         "name": "swing", "shape": {"kind": "oblate", "aspect_ratio": 0.6}, "flow": {"shear_rate_G": 0.2},
@@ -399,7 +399,7 @@ def test_an_axis_still_tilting_into_the_plane_is_not_settled_and_a_swing_about_i
     in-plane shape already holds; stop_when_settled stopped such runs as a settled 'steady'. And
     a normal swinging about the plane by up to ±11° is in the plane by its mean tilt (one motion
     at both mesh levels, not off_plane_tank_treading at one and swinging at the other)."""
-    from capsim.observables import classify_orbit
+    from capsim.solve.observables import classify_orbit
 
     t = np.linspace(0.0, 20.0, 801)
     D, theta = np.full_like(t, 0.1), np.full_like(t, 0.3)
@@ -421,9 +421,9 @@ def test_stop_when_settled_waits_a_few_of_the_capsules_own_relaxation_times():
     on. The stop rule now waits SETTLE_RELAXATION_TIMES slow relaxation times of the first-order
     theory (kτ = 12.1 G for a thin-shell sphere at λ = 1; longer with λ, G and membrane viscosity)."""
     from capsim.config import case_from_dict
-    from capsim.observables import SETTLE_RELAXATION_TIMES, slow_relaxation_time
-    from capsim.solver import build_model
-    from capsim.stopping import LoopState, stop_reason
+    from capsim.solve.observables import SETTLE_RELAXATION_TIMES, slow_relaxation_time
+    from capsim.solve.solver import build_model
+    from capsim.runs.stopping import LoopState, stop_reason
 
     sphere, _ = build_model(case_from_dict({"name": "s", "mesh": {"level": 0}, "flow": {"shear_rate_G": 0.1}}))
     assert slow_relaxation_time(sphere) == pytest.approx(12.1 * 0.1, rel=2e-3)

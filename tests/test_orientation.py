@@ -13,19 +13,19 @@ import yaml
 from scipy.integrate import solve_ivp
 
 from capsim.config import ConfigError, apply_overrides, case_from_dict
-from capsim.geometry import element_geometry
-from capsim.membrane import MembraneForce
-from capsim.mesh import rest_shape_mesh, rotation_about_z, rotation_onto
-from capsim.observables import (
+from capsim.numerics.geometry import element_geometry
+from capsim.numerics.membrane import MembraneForce
+from capsim.numerics.mesh import rest_shape_mesh, rotation_about_z, rotation_onto
+from capsim.solve.observables import (
     MaterialDirector,
     classify_orbit,
     orbit_settled,
     orbit_summary,
     rest_aspect_ratio,
 )
-from capsim.runner import run_case
-from capsim.solver import CapsuleModel, Discretization, build_model
-from capsim.store import read_trajectory
+from capsim.runs.runner import run_case
+from capsim.solve.solver import CapsuleModel, Discretization, build_model
+from capsim.storage.store import read_trajectory
 from interrupts import InterruptAfter
 
 OFF_PLANE = (0.3, 0.5, 0.8)  # a general direction: no principal plane holds it
@@ -322,9 +322,9 @@ def test_jeffery_deviation_shrinks_with_G(tmp_path, kind, polar):
 def test_an_orbit_campaign_summarises_and_plots(tmp_path):
     """A sweep of initial_axis × G (level 0, kt 0.3): the summary indexes the axes (a vector
     is no CF coordinate) and carries the orbit; plot --kind orbit draws a run."""
-    from capsim.campaign import campaign_from_dict, run_campaign
-    from capsim.plot import plot
-    from capsim.summary import summarize_campaign
+    from capsim.campaigns.campaign import campaign_from_dict, run_campaign
+    from capsim.face.plot import plot
+    from capsim.campaigns.summary import summarize_campaign
 
     axes = [[0.0, 0.5, 0.866025], [0.0, 1.0, 0.0]]
     campaign = campaign_from_dict({

@@ -22,14 +22,14 @@ import pytest
 import xarray as xr
 from typer.testing import CliRunner
 
-from capsim.campaign import campaign_from_dict, run_campaign
-from capsim.cli import app
+from capsim.campaigns.campaign import campaign_from_dict, run_campaign
+from capsim.face.cli import app
 from capsim.config import case_from_dict
-from capsim.display import summary_rows
+from capsim.face.display import summary_rows
 from capsim.quantities import SCALE_UNITS, physical_attrs, physical_units
-from capsim.runner import run_case
-from capsim.store import read_trajectory
-from capsim.summary import summarize_campaign, write_summary
+from capsim.runs.runner import run_case
+from capsim.storage.store import read_trajectory
+from capsim.campaigns.summary import summarize_campaign, write_summary
 from capsim.units import physical_factors
 
 PHYSICAL = {"shear_rate": "50 1/s", "viscosity": "1.2 mPa*s", "radius": "2.8 um", "shear_modulus": "6 uN/m"}
@@ -92,8 +92,8 @@ def test_closing_table_in_physical_units(runs):
 
 
 def test_figures_in_physical_units(runs):
-    from capsim.export import membrane_fields, model_for
-    from capsim.plot import plot
+    from capsim.face.export import membrane_fields, model_for
+    from capsim.face.plot import plot
 
     path = runs["rbc"].output.path
     data = read_trajectory(path)
@@ -124,7 +124,7 @@ def test_figures_in_physical_units(runs):
 
 
 def test_export_in_physical_units(runs, tmp_path):
-    from capsim.export import export_run
+    from capsim.face.export import export_run
 
     path = runs["rbc"].output.path
     files = export_run(path, tmp_path / "phys", "xdmf", units="physical")
@@ -229,7 +229,7 @@ def test_steady_figure_refuses_physical_units(tmp_path):
 
 
 def test_the_cli_choices_are_the_unit_systems():
-    from capsim import cli
+    from capsim.face import cli
     from capsim.quantities import UNIT_SYSTEMS
 
     assert cli._UNIT_SYSTEMS == UNIT_SYSTEMS
@@ -251,7 +251,7 @@ def test_the_compression_line_gives_the_bending_modulus_in_its_units():
     """One convention per screen: next to a tension in µN/m the bending modulus is in J
     (κ = 3e-3 E_s a², E_s = 18 µN/m, a = 2.8 µm: 4.23e-19 J by hand), and in capsim's
     scales it names E_s a²."""
-    from capsim.display import _compression
+    from capsim.face.display import _compression
 
     summary = {"compressed_fraction": 0.5, "min_tension": -0.1, "shear_rate_G": 0.05, "bending_modulus": 3e-3}
     physical = _compression(summary, physical_factors(PHYSICAL))

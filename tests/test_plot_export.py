@@ -10,13 +10,13 @@ import pytest
 import xarray as xr
 from typer.testing import CliRunner
 
-from capsim.cli import app
+from capsim.face.cli import app
 from capsim.config import case_from_dict
-from capsim.export import export_run, membrane_fields, model_for, snapshot_fields
-from capsim.plot import DPI, FIGSIZE, KINDS, SCENE_KINDS, plot, relaxation_time, xy_section
-from capsim.runner import run_case
-from capsim.store import read_trajectory
-from capsim.summary import write_summary
+from capsim.face.export import export_run, membrane_fields, model_for, snapshot_fields
+from capsim.face.plot import DPI, FIGSIZE, KINDS, SCENE_KINDS, plot, relaxation_time, xy_section
+from capsim.runs.runner import run_case
+from capsim.storage.store import read_trajectory
+from capsim.campaigns.summary import write_summary
 
 WIDTH, HEIGHT = round(FIGSIZE[0] * DPI), round(FIGSIZE[1] * DPI)
 
@@ -133,7 +133,7 @@ def test_contour_at_chosen_times_and_trajectory_node(tiny_run):
 
 
 def test_xy_section_of_a_sphere_is_a_circle():
-    from capsim.mesh import unit_sphere_mesh
+    from capsim.numerics.mesh import unit_sphere_mesh
 
     mesh = unit_sphere_mesh("octahedron", 3)
     x = mesh.positions * np.array([1.5, 1.0, 1.0])
@@ -166,7 +166,7 @@ def test_principal_tensions_of_an_inflated_sphere_are_isotropic(tiny_run):
 @pytest.fixture
 def written(monkeypatch):
     """The fields export_run computes, snapshot by snapshot, to compare with what is read back."""
-    import capsim.export
+    import capsim.face.export
 
     out = []
 
@@ -175,7 +175,7 @@ def written(monkeypatch):
         out.append(fields)
         return fields
 
-    monkeypatch.setattr(capsim.export, "snapshot_fields", recording)
+    monkeypatch.setattr(capsim.face.export, "snapshot_fields", recording)
     return out
 
 
@@ -313,7 +313,7 @@ def test_deformation_overlays_several_runs_each_with_its_theory(tiny_run, tmp_pa
 
 
 def test_cli_names_the_plot_kinds_the_plot_module_has():
-    from capsim.cli import _PLOT_KINDS
+    from capsim.face.cli import _PLOT_KINDS
 
     assert _PLOT_KINDS == tuple(KINDS)
 

@@ -16,13 +16,13 @@ import pytest
 import xarray as xr
 
 from capsim import quantities
-from capsim.campaign import campaign_from_dict, run_campaign
+from capsim.campaigns.campaign import campaign_from_dict, run_campaign
 from capsim.config import case_from_dict
 from capsim.quantities import PLANNED, TABLE, attrs_for, key_for
-from capsim.runner import run_case
-from capsim.store import read_case, read_run_record, read_run_status, write_error_estimate
-from capsim.study import error_estimate, run_study, write_study
-from capsim.summary import summarize_campaign, write_summary
+from capsim.runs.runner import run_case
+from capsim.storage.store import read_case, read_run_record, read_run_status, write_error_estimate
+from capsim.campaigns.study import error_estimate, run_study, write_study
+from capsim.campaigns.summary import summarize_campaign, write_summary
 
 _UDUNITS = {"1", "rad", "degree", "s"}  # what the table uses; a later CF issue may add more
 
@@ -109,7 +109,7 @@ def written(tmp_path_factory):
         "output": {"path": str(tmp / "pair.h5"), "snapshot_every": 0.02},
     }))
 
-    # a measured accuracy target: the kept run's accuracy group (capsim.ladder)
+    # a measured accuracy target: the kept run's accuracy group (capsim.runs.ladder)
     run_case(case_from_dict({
         "name": "qa", "time": {"t_end": 0.02}, "output": {"path": str(tmp / "measured.h5")},
         "accuracy": {"quantity": "D_xy", "target": 0.5, "method": "measure", "max_level": 2},

@@ -12,7 +12,8 @@ from typing import get_args
 
 import pytest
 
-from capsim import cli, config
+from capsim.face import cli
+from capsim import config
 from capsim.config import Case, Membrane, Mesh, Quadrature, Shape, Solver, Time
 
 
@@ -21,20 +22,21 @@ def _choices(model, field: str) -> tuple:
 
 
 def test_membrane_laws_are_the_registry():
-    from capsim.membrane import LAWS
+    from capsim.numerics.membrane import LAWS
 
     assert set(_choices(Membrane, "law")) == set(LAWS)
 
 
 def test_rest_shapes_and_bases_are_the_registries():
-    from capsim.mesh import BASE_POLYHEDRA, REST_SHAPES
+    from capsim.numerics.mesh import BASE_POLYHEDRA, REST_SHAPES
 
     assert set(_choices(Shape, "kind")) == set(REST_SHAPES)
     assert set(_choices(Mesh, "base")) == set(BASE_POLYHEDRA)
 
 
 def test_traction_and_solver_methods_are_the_registries():
-    from capsim import membrane, solver
+    from capsim.numerics import membrane
+    from capsim.solve import solver
 
     traction = getattr(membrane, "TRACTION_METHODS", None) or solver.TRACTION_METHODS
     assert set(_choices(Membrane, "traction")) == set(traction)
@@ -42,7 +44,7 @@ def test_traction_and_solver_methods_are_the_registries():
 
 
 def test_regular_orders_are_the_quadrature_rules():
-    from capsim.quadrature import REGULAR_ORDERS
+    from capsim.numerics.quadrature import REGULAR_ORDERS
 
     assert set(_choices(Quadrature, "regular_order")) == set(REGULAR_ORDERS)
 
@@ -50,7 +52,7 @@ def test_regular_orders_are_the_quadrature_rules():
 def test_time_schemes_are_the_registry():
     if "scheme" not in Time.model_fields:
         pytest.skip("the case has no time.scheme field yet")
-    from capsim.timestepping import SCHEMES
+    from capsim.solve.timestepping import SCHEMES
 
     assert set(_choices(Time, "scheme")) == set(SCHEMES)
     # a summary's time_scheme flag has a code for every scheme
@@ -61,7 +63,7 @@ def test_time_schemes_are_the_registry():
 
 def test_law_parameters_and_defaults_are_defined_once():
     """Every law parameter is a Membrane field whose default is the law functions' default."""
-    from capsim.membrane import LAWS
+    from capsim.numerics.membrane import LAWS
 
     with_params = {name: law for name, law in LAWS.items() if law.parameters}
     assert set(config.LAW_PARAMETER_DEFAULTS) == set(with_params)
@@ -76,8 +78,8 @@ def test_law_parameters_and_defaults_are_defined_once():
 
 
 def test_cli_choices_are_the_registries():
-    from capsim import plot
-    from capsim.campaign import MAX_RUNS
+    from capsim.face import plot
+    from capsim.campaigns.campaign import MAX_RUNS
 
     assert tuple(cli._PLOT_KINDS) == tuple(plot.KINDS)
     sweep_max_runs = inspect.signature(cli.sweep).parameters["max_runs"].default
@@ -104,7 +106,8 @@ def _click_choices(command: str, option: str) -> tuple:
 
 def test_cli_choice_enums_are_the_registries():
     """--kind, --format, --reference (and the figure suffixes) are enums whose values are the registries'."""
-    from capsim import export, plot, study
+    from capsim.face import export, plot
+    from capsim.campaigns import study
 
     assert tuple(m.value for m in cli.PlotKind) == tuple(plot.KINDS)
     assert tuple(m.value for m in cli.ExportFormat) == tuple(export.FORMATS)
@@ -115,7 +118,8 @@ def test_cli_choice_enums_are_the_registries():
 
 
 def test_cli_parameters_accept_exactly_the_registries():
-    from capsim import export, plot, study
+    from capsim.face import export, plot
+    from capsim.campaigns import study
 
     assert _click_choices("plot", "kind") == tuple(plot.KINDS)
     assert _click_choices("export", "fmt") == tuple(export.FORMATS)
@@ -123,11 +127,12 @@ def test_cli_parameters_accept_exactly_the_registries():
 
 
 def test_a_scheme_declares_its_options_and_builds_itself():
-    """Adding a time scheme is one class in capsim.timestepping (issue 27): its option
+    """Adding a time scheme is one class in capsim.solve.timestepping (issue 27): its option
     fields become time.<option> in the schema, its settings are what it is built with."""
     from pydantic import Field
 
-    from capsim import config, timestepping
+    from capsim import config
+    from capsim.solve import timestepping
 
     @timestepping.register_scheme
     class Demo(timestepping.EmbeddedRungeKutta):
@@ -156,8 +161,8 @@ def test_a_scheme_declares_its_options_and_builds_itself():
 def test_the_runner_names_no_scheme():
     from pathlib import Path
 
-    import capsim.runner
-    from capsim.timestepping import SCHEMES
+    import capsim.runs.runner
+    from capsim.solve.timestepping import SCHEMES
 
-    text = Path(capsim.runner.__file__).read_text()
+    text = Path(capsim.runs.runner.__file__).read_text()
     assert not [name for name in SCHEMES if f'"{name}"' in text or f"'{name}'" in text]

@@ -7,7 +7,7 @@ the kernel's departure from a quadratic: by O(h³) or faster."""
 import numpy as np
 
 from capsim.config import case_from_dict
-from capsim.solver import build_model
+from capsim.solve.solver import build_model
 
 _C, _S = np.cos(0.6), np.sin(0.6)
 _F = np.diag([1.15, 0.88, 1.0 / (1.15 * 0.88)]) @ np.array([[_C, -_S, 0], [_S, _C, 0], [0, 0, 1]]).T

@@ -25,13 +25,13 @@ import pytest
 import xarray as xr
 
 import capsim
-from capsim.campaign import campaign_from_dict, run_campaign
+from capsim.campaigns.campaign import campaign_from_dict, run_campaign
 from capsim.config import apply_overrides, case_from_dict, load_case
 from capsim.quantities import CONVENTIONS, FLAGS
-from capsim.runner import run_case
-from capsim.store import TrajectoryWriter, read_trajectory
-from capsim.study import run_study, write_study
-from capsim.summary import read_run, summarize_campaign, write_summary
+from capsim.runs.runner import run_case
+from capsim.storage.store import TrajectoryWriter, read_trajectory
+from capsim.campaigns.study import run_study, write_study
+from capsim.campaigns.summary import read_run, summarize_campaign, write_summary
 
 ROOT = Path(__file__).resolve().parents[1]
 CF_TABLES = ROOT / "tests" / "data" / "cf"
@@ -106,7 +106,7 @@ _KILLED = textwrap.dedent(
     """
     import sys, time
     import numpy as np
-    from capsim.store import TrajectoryWriter
+    from capsim.storage.store import TrajectoryWriter
     w = TrajectoryWriter(sys.argv[1], config_yaml="name: x\\n", elements=np.zeros((8, 6), int),
                          rest_positions=np.zeros((18, 3)), version="0")
     w.append_snapshot(0.0, np.ones((18, 3)))

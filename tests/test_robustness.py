@@ -19,12 +19,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from capsim.cli import app
+from capsim.face.cli import app
 from capsim.config import Case, ConfigError, Guards, apply_overrides, case_from_dict
-from capsim.runner import ResumeError, run_case
-from capsim.stopping import guard_violation
-from capsim.store import TrajectoryError, checkpoint_path, read_checkpoint, read_trajectory
-from capsim.summary import read_run_status
+from capsim.runs.runner import ResumeError, run_case
+from capsim.runs.stopping import guard_violation
+from capsim.storage.store import TrajectoryError, checkpoint_path, read_checkpoint, read_trajectory
+from capsim.campaigns.summary import read_run_status
 from interrupts import InterruptAfter as _InterruptAfter
 
 BAD = Path(__file__).parent / "data" / "bad"
@@ -357,7 +357,7 @@ def test_sigkill_sigterm_and_resume_match_uninterrupted_run(tmp_path):
     case_file = tmp_path / "case.yaml"
     case_file.write_text(case.to_yaml())
     path, ckpt = Path(case.output.path), checkpoint_path(case.output.path)
-    cmd = [sys.executable, "-m", "capsim.cli", "run", str(case_file), "-q"]
+    cmd = [sys.executable, "-m", "capsim.face.cli", "run", str(case_file), "-q"]
 
     # SIGKILL somewhere after a random checkpoint (the run takes about 270 steps)
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -423,7 +423,7 @@ def test_fuzzed_case_dicts_validate_or_fail_in_one_line(name, sections):
 
 
 def test_step_collapse_guard_names_the_stall():
-    from capsim.stopping import step_collapse
+    from capsim.runs.stopping import step_collapse
 
     steady = [0.05] * 300
     assert step_collapse(steady, 1e-3) is None
@@ -447,7 +447,7 @@ def test_sweep_stops_on_sigterm_to_its_process_group_with_idle_workers(tmp_path)
         "output": {"dir": str(tmp_path / "out")},
     }))
     proc = subprocess.Popen(
-        [sys.executable, "-m", "capsim.cli", "sweep", str(campaign), "--workers", "3", "-q"],
+        [sys.executable, "-m", "capsim.face.cli", "sweep", str(campaign), "--workers", "3", "-q"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
     )
     out = tmp_path / "out"

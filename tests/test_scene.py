@@ -58,7 +58,7 @@ def test_the_scene_says_what_it_has(extra, features):
 
 
 def test_a_model_holds_its_scene_and_its_bodies_layout():
-    from capsim.solver import build_model
+    from capsim.solve.solver import build_model
 
     model, X = build_model(_case(wall={"distance": 3.0}))
     assert model.scene.boundaries == (PlaneWall(-3.0),) and model.bodies.count == 1
@@ -92,7 +92,7 @@ def test_a_boundary_contributes_through_the_interface_alone():
     """A boundary kind the solver has never heard of adds its single layer to the velocity:
     a uniform V gives u − V/(8πG) at every node (a uniform field has no net flux: the volume
     correction leaves it), and a zero one changes nothing to the bit."""
-    from capsim.solver import build_model
+    from capsim.solve.solver import build_model
 
     model, X = build_model(_case(mesh={"level": 1, "symmetry": "none"}, flow={"shear_rate_G": 0.1}))
     u0 = model.velocity(X)

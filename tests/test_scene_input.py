@@ -16,10 +16,10 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from capsim.cli import app
+from capsim.face.cli import app
 from capsim.config import MAX_COORDINATE, CaseWarning, ConfigError, case_from_dict
-from capsim.display import summary_rows
-from capsim.runner import run_case
+from capsim.face.display import summary_rows
+from capsim.runs.runner import run_case
 
 runner = CliRunner()
 
@@ -170,7 +170,7 @@ def test_booleans_in_any_list_of_numbers_are_refused():
 def test_a_changed_capsule_list_is_named_down_to_the_item_that_differs():
     """Two capsule lists that differ in their third capsule's z read the same when the whole
     list was cut to 60 characters; now the item and the coordinate are named."""
-    from capsim.checkpoint import first_difference
+    from capsim.storage.checkpoint import first_difference
 
     capsule = {"center": [-3.0, 0.0, 0.0], "initial_axis": None, "initial_tilt_deg": None, "membrane": None}
     then = {"capsules": [capsule, {**capsule, "center": [3.0, 0.0, 0.0]}, {**capsule, "center": [0.0, 0.0, 4.0]}]}
@@ -203,7 +203,7 @@ def test_a_centroid_carried_past_1e9_a_stops_the_run_with_the_reason():
     round-off (1e-16 |x|) passes 1e-7 a, and the run stops 'unstable' saying so, where it went
     on silently while its positions lost digits."""
     from capsim.config import Guards
-    from capsim.stopping import MAX_CENTROID_COORDINATE, guard_violation
+    from capsim.runs.stopping import MAX_CENTROID_COORDINATE, guard_violation
 
     row = {"D_xy": 0.4, "theta": 0.0, "min_element_quality": 0.9, "volume": 4.18, "area": 12.6,
            "max_principal_stretch": 1.2, "centroid_x": 1.0, "centroid_y": 0.0, "centroid_z": 0.0}
@@ -219,7 +219,7 @@ def test_a_centroid_carried_past_1e9_a_stops_the_run_with_the_reason():
 def test_the_error_norm_holds_a_far_capsules_shape_to_its_size_and_its_place_to_its_distance():
     """scene_error: at the origin the plain max norm over rtol · size, to the bit; one capsule
     1e6 a out (carried) has its translation's error relative to 1e6, its shape's to its size."""
-    from capsim.timestepping import scene_error, scene_size
+    from capsim.solve.timestepping import scene_error, scene_size
 
     rng = np.random.default_rng(1)
     y = rng.standard_normal((18, 3))

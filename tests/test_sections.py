@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from capsim.mesh import rest_shape_mesh, rotation_about_z, unit_sphere_mesh
-from capsim.plot import _arc_length_from_largest_x, _shoelace, section_loops, xy_section
+from capsim.numerics.mesh import rest_shape_mesh, rotation_about_z, unit_sphere_mesh
+from capsim.face.plot import _arc_length_from_largest_x, _shoelace, section_loops, xy_section
 
 
 def _segments_cross(p: np.ndarray) -> int:
@@ -92,7 +92,7 @@ def _cut_area_from_flat_pieces(x: np.ndarray, elements: np.ndarray, n: int = 8, 
     into n² flat triangles, each crossing triangle's straight piece of the cut collected,
     and the area summed as chords along rows y = const (the crossings of a row sorted in x,
     pairs inside)."""
-    from capsim.plot import _quadratic_shape
+    from capsim.face.plot import _quadratic_shape
 
     grid = [(i, j) for j in range(n + 1) for i in range(n + 1 - j)]
     index = {ij: k for k, ij in enumerate(grid)}
@@ -133,8 +133,8 @@ def _cut_area_from_flat_pieces(x: np.ndarray, elements: np.ndarray, n: int = 8, 
 def red_cell_at_lambda_5(tmp_path_factory):
     """configs/rbc.yaml at level 2 (λ = 5, Skalak, bending), run to kt = 4: its cut is an S."""
     from capsim.config import apply_overrides, load_case
-    from capsim.runner import run_case
-    from capsim.store import read_trajectory
+    from capsim.runs.runner import run_case
+    from capsim.storage.store import read_trajectory
 
     path = tmp_path_factory.mktemp("rbc") / "rbc.h5"
     case = apply_overrides(load_case("configs/rbc.yaml"), **{

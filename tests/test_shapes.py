@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from capsim.config import case_from_dict
-from capsim.geometry import element_geometry, second_moment, centroid, volume_area
-from capsim.mesh import REST_SHAPES, rest_shape_attributes, rest_shape_mesh
-from capsim.runner import build_model
+from capsim.numerics.geometry import element_geometry, second_moment, centroid, volume_area
+from capsim.numerics.mesh import REST_SHAPES, rest_shape_attributes, rest_shape_mesh
+from capsim.runs.runner import build_model
 
 # seed §5: sphericities quoted for the level-3 rest shapes (measured at level 3:
 # 0.99799, 0.91287, 0.76163, 0.74606)

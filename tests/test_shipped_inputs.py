@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from capsim.campaign import expand_campaign, load_campaign
+from capsim.campaigns.campaign import expand_campaign, load_campaign
 from capsim.config import load_case
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -25,7 +25,7 @@ def test_campaign_expands(path):
 
 @pytest.mark.parametrize("path", sorted((ROOT / "campaigns").glob("*.yaml")), ids=lambda p: p.name)
 def test_campaign_within_the_input_limits(path):
-    from capsim.campaign import MAX_RUNS, count_runs
+    from capsim.campaigns.campaign import MAX_RUNS, count_runs
     from capsim.config import NAME_MAX
 
     campaign = load_campaign(path)

@@ -35,7 +35,7 @@ def _loaded_after(code: str, cwd: Path, watch: tuple[str, ...]) -> list[str]:
 def test_reading_a_case_loads_no_numerics():
     """The CLI, a case and the checkpoint module (what `capsim validate` and the start of
     `capsim run` load) import neither scipy nor numba nor HDF5."""
-    loaded = _loaded_after("import capsim.cli, capsim.config, capsim.checkpoint\n"
+    loaded = _loaded_after("import capsim.face.cli, capsim.config, capsim.storage.checkpoint\n"
                            "capsim.config.load_case_with('configs/sphere.yaml', [])", ROOT,
                            ("scipy", "numba", "h5py", *NOT_FOR_A_RUN))
     assert loaded == []
@@ -50,7 +50,7 @@ def test_the_run_path_imports_nothing_it_does_not_use(tmp_path):
     data["time"]["t_end"] = 0.2
     data["output"] = {"path": "runs/tiny.h5", "snapshot_every": 0.1}
     (tmp_path / "sphere.yaml").write_text(yaml.safe_dump(data))
-    run = ("from capsim.cli import app\n"
+    run = ("from capsim.face.cli import app\n"
            "sys.argv = ['capsim', 'run', 'sphere.yaml']\n"
            "try:\n    app()\nexcept SystemExit as exc:\n    assert not exc.code, exc.code")
     loaded = _loaded_after(run, tmp_path, ("h5py", "numba", *NOT_FOR_A_RUN))
@@ -59,12 +59,12 @@ def test_the_run_path_imports_nothing_it_does_not_use(tmp_path):
 
 
 def test_the_cli_leaves_its_heap_to_the_os_at_exit():
-    """capsim.cli freezes the heap at exit (atexit handlers run last-registered first, so this
+    """capsim.face.cli freezes the heap at exit (atexit handlers run last-registered first, so this
     probe, registered before the import, runs after it): the interpreter's teardown then skips
     collecting numba's, pydantic's and scipy's objects, ~0.2 s of every command."""
     code = ("import atexit, gc\n"
             "atexit.register(lambda: print('frozen' if gc.get_freeze_count() else 'not frozen'))\n"
-            "import capsim.cli\n")
+            "import capsim.face.cli\n")
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
@@ -92,7 +92,7 @@ SCENES = {
 
 
 def test_every_scene_kind_is_sampled():
-    from capsim.flows import FLOW_HISTORIES, FLOWS
+    from capsim.scene.flows import FLOW_HISTORIES, FLOWS
 
     assert set(FLOWS) <= set(SCENES) and {f"history {k}" for k in FLOW_HISTORIES} <= set(SCENES)
 
@@ -111,7 +111,7 @@ def test_validating_every_scene_kind_loads_no_numerics(tmp_path):
                                                 **part}))
     watch = ("scipy", "numba", "h5py", *NOT_FOR_A_RUN)
     code = ("import contextlib, io, json\n"
-            "from capsim.cli import app\n"
+            "from capsim.face.cli import app\n"
             "report = {}\n"
             f"for scene, path in {({k: str(v) for k, v in paths.items()})!r}.items():\n"
             "    out = io.StringIO()\n"

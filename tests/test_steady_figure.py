@@ -5,9 +5,9 @@ import pytest
 import xarray as xr
 from typer.testing import CliRunner
 
-from capsim.cli import app
-from capsim.plot import plot
-from capsim.summary import write_summary
+from capsim.face.cli import app
+from capsim.face.plot import plot
+from capsim.campaigns.summary import write_summary
 
 
 def _grid(steady_average):
@@ -97,7 +97,7 @@ def test_a_periodic_run_is_settled_with_its_half_amplitude_as_error_bar():
 
 
 def test_the_summary_gives_a_tumbling_run_no_mean_theta(monkeypatch):
-    import capsim.summary as summary
+    import capsim.campaigns.summary as summary
 
     def fake(path):
         return {"attrs": {"status": "completed"}, "n_steps": 10, "first": {}, "last": {}, "run": {},

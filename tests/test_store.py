@@ -7,7 +7,7 @@ import h5py
 import numpy as np
 import pytest
 
-from capsim.store import TrajectoryError, TrajectoryWriter, read_trajectory
+from capsim.storage.store import TrajectoryError, TrajectoryWriter, read_trajectory
 
 ELEMENTS = np.arange(8 * 6).reshape(8, 6) % 18
 REST = np.random.default_rng(0).normal(size=(18, 3))
@@ -119,7 +119,7 @@ _KILLED_WRITER = textwrap.dedent(
     """
     import sys, time
     import numpy as np
-    from capsim.store import TrajectoryWriter
+    from capsim.storage.store import TrajectoryWriter
     w = TrajectoryWriter(sys.argv[1], config_yaml="name: x\\n", elements=np.zeros((8, 6), int),
                          rest_positions=np.zeros((18, 3)), version="0")
     w.append_snapshot(0.0, np.ones((18, 3)))
@@ -174,7 +174,7 @@ def test_named_group_writers_label_from_the_table(tmp_path):
 
 
 def test_error_estimate_group_and_scalar_readers(tmp_path):
-    from capsim.store import read_run_record, read_run_status, write_error_estimate
+    from capsim.storage.store import read_run_record, read_run_status, write_error_estimate
 
     path = tmp_path / "e.h5"
     with _writer(path) as w:
@@ -195,7 +195,7 @@ def test_error_estimate_group_and_scalar_readers(tmp_path):
 
 
 def test_read_case_errors_are_one_line(tmp_path):
-    from capsim.store import read_case
+    from capsim.storage.store import read_case
 
     with pytest.raises(TrajectoryError, match="cannot read"):
         read_case(tmp_path / "none.h5")

@@ -16,10 +16,10 @@ import xarray as xr
 import yaml
 from typer.testing import CliRunner
 
-from capsim.cli import app
+from capsim.face.cli import app
 from capsim.config import apply_overrides, case_from_dict
-from capsim.runner import run_case
-from capsim.study import (
+from capsim.runs.runner import run_case
+from capsim.campaigns.study import (
     QUANTITIES,
     _order_three_level,
     richardson,
@@ -155,7 +155,7 @@ def test_error_estimate_bounds_actual_error(tmp_path, lam, t_end):
     assert est["coarse_level"] == 0 and est["loose_rtol"] == pytest.approx(1e-3)
     finest = apply_overrides(case, **{"mesh.level": 3, "time.rtol": 1e-5,
                                       "output.path": str(tmp_path / "finest.h5")})
-    from capsim.study import _run_one
+    from capsim.campaigns.study import _run_one
 
     ref = _run_one(finest, window=(summary["averaging_t_from"], summary["averaging_t_to"]))
     assert ref["status"] == "completed"
@@ -186,7 +186,7 @@ def test_cli_run_error_estimate_stores_group(tmp_path):
 
 
 def test_interrupted_run_stops_the_ladder(tmp_path, monkeypatch):
-    import capsim.study as study
+    import capsim.campaigns.study as study
 
     calls = []
 
@@ -207,7 +207,7 @@ def test_a_study_compares_the_orbits_numbers_with_quantity_orbit(tmp_path, monke
     orbit constant and body rotation rate (its run summary's window values) with the reference,
     with each setting's settled flag beside them. The runs are stood in for by records with a
     known first-order error in h = 2^-level: the observed order must come out as 1."""
-    import capsim.study as study
+    import capsim.campaigns.study as study
 
     def fake_run_one(case, window=None):
         rec = study._failed_record("")

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from capsim.config import case_from_dict
-from capsim.membrane import MembraneForce
-from capsim.mesh import rest_shape_mesh
-from capsim.runner import run_case
-from capsim.solver import CapsuleModel, Discretization, FarField, build_model
-from capsim.store import read_trajectory
+from capsim.numerics.membrane import MembraneForce
+from capsim.numerics.mesh import rest_shape_mesh
+from capsim.runs.runner import run_case
+from capsim.solve.solver import CapsuleModel, Discretization, FarField, build_model
+from capsim.storage.store import read_trajectory
 
 GROUP = {"mirror": np.array([1.0, 1.0, -1.0]), "rotation": np.array([-1.0, -1.0, 1.0])}
 SHAPES = [
@@ -74,7 +74,7 @@ def test_the_image_search_finds_what_a_kd_tree_finds(base, kind, params, tilt):
     node wherever every node has an image within the tolerance, and None where one has not."""
     from scipy.spatial import cKDTree
 
-    from capsim.solver import _images_within
+    from capsim.solve.solver import _images_within
 
     x = rest_shape_mesh(kind, base, 2, tilt, **params).positions
     tol = 1e-9 * np.abs(x).max()

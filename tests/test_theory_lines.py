@@ -14,15 +14,15 @@ import numpy as np
 import pytest
 import yaml
 
-from capsim.flows import FLOWS
-from capsim.plot import deformation_figure, inclination_figure, rheology_figure
-from capsim.small_deformation import first_order_D_xy, strain_coefficient
+from capsim.scene.flows import FLOWS
+from capsim.face.plot import deformation_figure, inclination_figure, rheology_figure
+from capsim.scene.small_deformation import first_order_D_xy, strain_coefficient
 
 G = 0.01
 
 
 def _record(**case) -> dict:
-    """A run record as capsim.store.read_trajectory returns it: the stored case and a D_xy series."""
+    """A run record as capsim.storage.store.read_trajectory returns it: the stored case and a D_xy series."""
     d = {"name": "theory", "mesh": {"level": 1}, "time": {"t_end": 2.0}, "membrane": {"law": "neo_hookean"}}
     for key, value in case.items():
         d[key] = {**d.get(key, {}), **value} if isinstance(value, dict) else value
@@ -92,7 +92,7 @@ def test_no_line_where_no_first_order_theory_is_derived(scene):
 
 
 def test_the_first_order_constants_follow_from_the_small_deformation_theory():
-    """capsim.small_deformation in a pure strain E: A = α G E with α = 25/2 for K_s/G_s = 3
+    """capsim.scene.small_deformation in a pure strain E: A = α G E with α = 25/2 for K_s/G_s = 3
     (ν_s = 1/2) and twice the shear's (5/4)(2 + ν_s)/(1 + ν_s)·3 for Skalak's K_s/G_s = 21
     (C = 10); D_xy = α G (e1 − e2)/2 of E's xy block, and each flow kind's constant follows."""
     assert strain_coefficient(3.0) == pytest.approx(12.5, rel=1e-12)

@@ -13,10 +13,10 @@ import pytest
 import xarray as xr
 
 from capsim.config import case_from_dict
-from capsim.observables import THETA_UNDEFINED_GAP, classify_motion, ellipsoid_axes, run_summary, unwrap_defined
-from capsim.runner import build_model, run_case
-from capsim.store import read_trajectory
-from capsim.summary import read_run
+from capsim.solve.observables import THETA_UNDEFINED_GAP, classify_motion, ellipsoid_axes, run_summary, unwrap_defined
+from capsim.runs.runner import build_model, run_case
+from capsim.storage.store import read_trajectory
+from capsim.campaigns.summary import read_run
 
 
 @pytest.mark.parametrize("base,level", [("octahedron", 0), ("octahedron", 3), ("icosahedron", 2)])
@@ -65,8 +65,8 @@ def sphere_run(tmp_path_factory):
 
 
 def test_a_sphere_run_stores_nan_theta_at_rest_and_everything_downstream_works(sphere_run, tmp_path):
-    from capsim.export import export_run
-    from capsim.plot import plot
+    from capsim.face.export import export_run
+    from capsim.face.plot import plot
 
     tmp, result = sphere_run
     path = tmp / "s.h5"
@@ -108,6 +108,6 @@ def test_a_tumbling_run_reports_the_half_amplitude_of_D_xy():
                            "N1_star": ones, "N2_star": ones})
     assert summary["motion"] == "tumbling" and math.isnan(summary["theta"]) and math.isnan(summary["theta_std"])
     assert summary["D_xy_amplitude"] == pytest.approx(0.1, rel=1e-4)
-    from capsim.display import summary_rows
+    from capsim.face.display import summary_rows
 
     assert dict(summary_rows(summary))["theta/pi"] == "undefined (NaN)"

@@ -1,4 +1,4 @@
-"""Thread policy (capsim.threads): chosen before numba loads, recorded in every run file.
+"""Thread policy (capsim.numerics.threads): chosen before numba loads, recorded in every run file.
 
 A CLI run and a pool worker get the policy (read back from the run file's root
 attributes), and a user's NUMBA_NUM_THREADS / NUMBA_THREADING_LAYER /
@@ -13,8 +13,8 @@ import h5py
 import pytest
 import yaml
 
-from capsim import threads
-from capsim.campaign import campaign_from_dict, run_campaign
+from capsim.numerics import threads
+from capsim.campaigns.campaign import campaign_from_dict, run_campaign
 
 VARIABLES = (threads.ENV_THREADS, threads.ENV_LAYER, threads.ENV_WAIT, threads.ENV_BLAS_TIMEOUT, "CAPSIM_THREAD_POLICY")
 CASE = {"name": "threads", "mesh": {"level": 0}, "time": {"t_end": 0.05}, "output": {"snapshot_every": 0.05}}
@@ -64,7 +64,7 @@ def test_policy_choice_and_the_users_variables_win():
 def test_apply_sets_the_environment_before_numba_and_records_it():
     """In a fresh interpreter: apply_policy puts the policy in os.environ; numba then runs with it."""
     code = (
-        "import os, capsim.threads as t; p = t.apply_policy(workers=2); "
+        "import os, capsim.numerics.threads as t; p = t.apply_policy(workers=2); "
         "import numba, numpy as np\n"
         "@numba.njit(parallel=True)\n"
         "def f(a):\n"
@@ -87,7 +87,7 @@ def _cli_run(tmp_path, env):
     case = tmp_path / "case.yaml"
     case.write_text(yaml.safe_dump(CASE))
     out = tmp_path / "run.h5"
-    res = subprocess.run([sys.executable, "-m", "capsim.cli", "run", str(case), "-o", str(out), "-q"],
+    res = subprocess.run([sys.executable, "-m", "capsim.face.cli", "run", str(case), "-o", str(out), "-q"],
                          env=env, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     return root_attrs(out), res.stderr

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from capsim.config import apply_overrides
-from capsim.runner import run_case
-from capsim.store import read_trajectory
-from capsim.timestepping import (
+from capsim.runs.runner import run_case
+from capsim.storage.store import read_trajectory
+from capsim.solve.timestepping import (
     SCHEMES, RungeKuttaChebyshev, attempt_step, make_integrator, rkc_coefficients, rkc_stages_for, rkc_step,
     RKF23,
 )

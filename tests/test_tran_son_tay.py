@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from capsim.campaign import expand_campaign, load_campaign
+from capsim.campaigns.campaign import expand_campaign, load_campaign
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMPAIGN = ROOT / "campaigns" / "tran-son-tay-1984.yaml"
@@ -70,7 +70,7 @@ def test_tank_treading_frequency_against_measurement_at_114_3_per_s(tmp_path):
     import yaml
 
     from capsim.config import case_from_dict
-    from capsim.runner import run_case
+    from capsim.runs.runner import run_case
 
     data = yaml.safe_load(CAMPAIGN.read_text())
     case = data["base"]

@@ -15,7 +15,7 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from capsim.cli import app
+from capsim.face.cli import app
 from capsim.config import ConfigError, case_from_dict, load_case
 from capsim.units import UnitsError, conversion, parse
 
@@ -142,8 +142,8 @@ def test_set_a_physical_value_on_the_red_cell_recomputes_G():
 
 
 def test_a_sweep_over_a_physical_value_has_an_SI_coordinate(tmp_path):
-    from capsim.campaign import campaign_from_dict, expand_campaign
-    from capsim.summary import _coordinate
+    from capsim.campaigns.campaign import campaign_from_dict, expand_campaign
+    from capsim.campaigns.summary import _coordinate
 
     base = {"physical": {"shear_rate": "100 1/s", "viscosity": "1.2 mPa*s", "radius": "2.8 um",
                          "shear_modulus": "2.5 uN/m"}, "mesh": {"level": 0}}

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from capsim.membrane import MembraneForce
-from capsim.solver import CapsuleModel, FarField
+from capsim.numerics.membrane import MembraneForce
+from capsim.solve.solver import CapsuleModel, FarField
 
 def _model(disc, X, **kw):
     """The capsule model at rest shape X with G = 0.1."""
@@ -92,8 +92,8 @@ def test_first_order_deformation_does_not_depend_on_lambda(tmp_path, lam, G_pair
     """D_xy/G extrapolated linearly to G → 0 is 25/4 for every λ (level 2),
     each run measured at five first-order relaxation times after the start."""
     from capsim.config import case_from_dict
-    from capsim.runner import run_case
-    from capsim.store import read_trajectory
+    from capsim.runs.runner import run_case
+    from capsim.storage.store import read_trajectory
 
     ratios = []
     for G in G_pair:
@@ -126,8 +126,8 @@ def test_extreme_viscosity_ratios_run_with_converged_solves(tmp_path, lam):
     configuration where A was factorised needs no iteration (measured: 0 on steps 2-3, then
     1-3; with rkf23 5-7 each), so the check is the residual, not the count."""
     from capsim.config import case_from_dict
-    from capsim.runner import run_case
-    from capsim.store import read_trajectory
+    from capsim.runs.runner import run_case
+    from capsim.storage.store import read_trajectory
 
     path = tmp_path / f"lam{lam}.h5"
     case = case_from_dict(
@@ -185,7 +185,7 @@ def test_work_counters_and_state_restore_repeat_the_evaluation_to_the_bit(sphere
 
 def test_the_model_is_built_complete_from_a_case():
     from capsim.config import case_from_dict
-    from capsim.solver import build_model
+    from capsim.solve.solver import build_model
 
     case = case_from_dict({
         "name": "x", "flow": {"shear_rate_G": 0.05, "viscosity_ratio": 3.0}, "mesh": {"level": 1},

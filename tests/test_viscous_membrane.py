@@ -10,11 +10,11 @@ import pytest
 import scipy.sparse as sp
 from typer.testing import CliRunner
 
-from capsim.cli import app
+from capsim.face.cli import app
 from capsim.config import ConfigError, apply_overrides, case_from_dict
-from capsim.runner import run_case
-from capsim.solver import build_model
-from capsim.store import read_trajectory
+from capsim.runs.runner import run_case
+from capsim.solve.solver import build_model
+from capsim.storage.store import read_trajectory
 from interrupts import InterruptAfter as _InterruptAfter, InterruptAt as _InterruptAt
 
 
@@ -183,7 +183,7 @@ def test_extrapolated_warm_start_saves_iterations_and_not_accuracy(tmp_path, mon
     0), fewer GMRES iterations (level 3, kt 0-2: 12 % fewer layer applications with rkf23,
     27 % with rkc, whose stages lie on a smooth path; here level 2) and the same D_xy at the
     end to the solve's tolerance."""
-    import capsim.viscosity as viscosity
+    import capsim.numerics.viscosity as viscosity
 
     runs = {}
     for limit in (viscosity.KelvinVoigtMembrane.EXTRAPOLATION_LIMIT, 0.0):
@@ -290,7 +290,7 @@ def test_viscosity_models_are_the_registry():
     from typing import get_args
 
     from capsim.config import MembraneViscosity
-    from capsim.viscosity import VISCOSITY_MODELS
+    from capsim.numerics.viscosity import VISCOSITY_MODELS
 
     assert set(get_args(MembraneViscosity.model_fields["model"].annotation)) == set(VISCOSITY_MODELS)
     fields = set(MembraneViscosity.model_fields) - {"model"}

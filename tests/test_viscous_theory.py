@@ -1,5 +1,5 @@
 """A viscous membrane against the first-order small-deformation theory (issue 28):
-capsim.small_deformation (docs/viscous_membrane.md, eq. V11) checked against the
+capsim.scene.small_deformation (docs/viscous_membrane.md, eq. V11) checked against the
 elastic known answers, then capsim's sphere at small G in shear that stops
 (flow.history) against it: steady D_xy, θ and tank-treading frequency in shear, the
 relaxation time at rest, S*_xy and its viscous part, for two Bq at λ = 1 and one at
@@ -22,9 +22,9 @@ import numpy as np
 import pytest
 
 from capsim.config import case_from_dict
-from capsim.runner import run_case
-from capsim.small_deformation import LinearCapsule
-from capsim.store import read_trajectory
+from capsim.runs.runner import run_case
+from capsim.scene.small_deformation import LinearCapsule
+from capsim.storage.store import read_trajectory
 
 G = 0.01
 KAPPA = 1e-4  # κ/(E_s a²): its effect on the degree-2 shape is O(κ/G_s) ≈ 0.1 %

@@ -1,4 +1,4 @@
-"""A capsule near a plane wall (issue 42): Blake's image system (capsim.kernels.wall_image_sum),
+"""A capsule near a plane wall (issue 42): Blake's image system (capsim.numerics.kernels.wall_image_sum),
 the scene's wall section, and the known answers of docs/known_answers.md, "A capsule near a
 wall": the Green's function vanishes on the wall and is reciprocal; a stiff capsule translates
 and rotates as Goldman, Cox & Brenner's free sphere and has no lift; a deformable one lifts
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from capsim.config import ConfigError, case_from_dict
-from capsim.kernels import stokeslet_sum, wall_image_sum
-from capsim.runner import run_case
+from capsim.numerics.kernels import stokeslet_sum, wall_image_sum
+from capsim.runs.runner import run_case
 
 Y_WALL = -1.5
 
@@ -46,7 +46,7 @@ def test_the_image_double_layer_is_the_stress_of_blakes_image_system():
     pressure (∇²G^image_ij = ∂_i P_j, checked too); against finite differences of
     wall_image_sum to 1e-9. Over a closed surface above the wall the image stress (its pole below
     the wall, outside) integrates to zero: ∮ T^image·n dS = 0 on the unit sphere's mesh."""
-    from capsim.kernels import wall_image_double_layer
+    from capsim.numerics.kernels import wall_image_double_layer
 
     rng = np.random.default_rng(7)
     for _ in range(5):
@@ -82,7 +82,7 @@ def test_the_image_double_layer_is_the_stress_of_blakes_image_system():
         reference = np.einsum("i,ijk,k->j", u, T, n)
         got = wall_image_double_layer(x0[None], x[None], n[None], u[None], Y_WALL)[0]
         np.testing.assert_allclose(got, reference, atol=1e-9 * max(1.0, np.abs(reference).max()))
-    from capsim.solver import build_model
+    from capsim.solve.solver import build_model
 
     model, X = build_model(case_from_dict({"name": "s", "mesh": {"level": 2}}))
     geo = model.disc.geometry(X)
@@ -240,7 +240,7 @@ def test_a_wall_the_case_cannot_take_is_refused_in_one_line():
 
 
 def test_the_gap_guard_stops_a_run_before_the_wall_is_reached():
-    from capsim.stopping import guard_violation
+    from capsim.runs.stopping import guard_violation
 
     guards = case_from_dict({"name": "w", "wall": {"distance": 3.0}}).guards
     row0 = {"volume": 1.0, "area": 1.0, "min_element_quality": 1.0, "max_principal_stretch": 1.0, "wall_gap": 2.0}
@@ -253,7 +253,7 @@ def test_the_paraview_export_draws_the_wall(tmp_path):
     """Issue 42, item 5: `capsim export` writes the wall as a quad beside the membrane."""
     import meshio
 
-    from capsim.export import export_to_dir
+    from capsim.face.export import export_to_dir
 
     path = tmp_path / "w.h5"
     run_case(case_from_dict({"name": "w", "mesh": {"level": 0}, "wall": {"distance": 3.0}, "time": {"t_end": 0.1},
@@ -269,7 +269,7 @@ def test_the_paraview_export_draws_the_wall(tmp_path):
 
 def test_the_section_figures_draw_the_wall(tmp_path):
     """Issue 42, item 5: capsim plot --kind contour and trajectory draw the wall (a line at y_w)."""
-    from capsim.plot import contour_figure, trajectory_figure
+    from capsim.face.plot import contour_figure, trajectory_figure
 
     path = tmp_path / "w.h5"
     run_case(case_from_dict({"name": "w", "mesh": {"level": 0}, "wall": {"distance": 2.5}, "time": {"t_end": 0.2},
@@ -289,7 +289,7 @@ def test_near_the_wall_the_image_integrals_take_the_subdivided_rule():
     there (not far away), and the regular rule it replaces was already close (the image integrand
     is smooth on the membrane while the gap exceeds ~ an element: 1e-3 here)."""
     from capsim.scene.plane_wall import PlaneWall
-    from capsim.solver import build_model
+    from capsim.solve.solver import build_model
 
     model, X = build_model(case_from_dict({"name": "s", "mesh": {"level": 2}}))
     disc = model.disc

@@ -15,7 +15,7 @@ import textwrap
 SCRIPT = textwrap.dedent('''
     import json, sys, tempfile, os
     from capsim.config import case_from_dict
-    from capsim.executor import warm_up, kernel_kind
+    from capsim.campaigns.executor import warm_up, kernel_kind
 
     tmp = tempfile.mkdtemp()
     def case(name, **time):
@@ -30,11 +30,11 @@ SCRIPT = textwrap.dedent('''
     warm_up(cases)
     import numba
     from numba.core.registry import CPUDispatcher
-    import capsim.kernels as k
+    import capsim.numerics.kernels as k
     def signatures():
         return {name: len(obj.signatures) for name, obj in vars(k).items() if isinstance(obj, CPUDispatcher)}
     before = signatures()
-    from capsim.runner import run_case
+    from capsim.runs.runner import run_case
     compiled = {}
     for c in cases:
         run_case(c)
@@ -58,7 +58,7 @@ RUN_AND_COUNT = textwrap.dedent('''
     from numba.core.registry import CPUDispatcher
     import capsim
     result = capsim.run(sys.argv[1], output=sys.argv[2])
-    import capsim.kernels as k
+    import capsim.numerics.kernels as k
     stats = [obj.stats for obj in vars(k).values() if isinstance(obj, CPUDispatcher)]
     print(json.dumps({"status": result.status, "hits": sum(sum(s.cache_hits.values()) for s in stats),
                       "misses": sum(sum(s.cache_misses.values()) for s in stats)}))
@@ -77,7 +77,7 @@ def test_capsim_warm_up_fills_the_cache_so_the_first_run_compiles_nothing(tmp_pa
     case.write_text(yaml.safe_dump({"name": "c", "mesh": {"level": 1}, "time": {"t_end": 0.05}}))
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
     env.pop("NUMBA_NUM_THREADS", None)
-    warm = subprocess.run([sys.executable, "-m", "capsim.cli", "warm-up", str(case)], env=env,
+    warm = subprocess.run([sys.executable, "-m", "capsim.face.cli", "warm-up", str(case)], env=env,
                           capture_output=True, text=True, timeout=900)
     assert warm.returncode == 0, warm.stderr[-2000:]
     assert warm.stdout.startswith("kernels ready in ")
@@ -87,7 +87,7 @@ def test_capsim_warm_up_fills_the_cache_so_the_first_run_compiles_nothing(tmp_pa
     counts = json.loads(run.stdout.strip().splitlines()[-1])
     assert counts["status"] == "completed"
     assert counts["hits"] > 0 and counts["misses"] == 0, counts
-    cli = subprocess.run([sys.executable, "-m", "capsim.cli", "run", str(case), "-o", str(tmp_path / "cli.h5")],
+    cli = subprocess.run([sys.executable, "-m", "capsim.face.cli", "run", str(case), "-o", str(tmp_path / "cli.h5")],
                          env=env, capture_output=True, text=True, timeout=600)
     assert cli.returncode == 0 and "compiling" not in cli.stderr, cli.stderr[-2000:]
 
@@ -98,7 +98,7 @@ def test_warm_up_of_a_bad_case_file_is_one_line(tmp_path):
     case = tmp_path / "bad.yaml"
     case.write_text("name: b\nmesh: {level: -1}\n")
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_NUM_THREADS"}
-    proc = subprocess.run([sys.executable, "-m", "capsim.cli", "warm-up", str(case)], env=env,
+    proc = subprocess.run([sys.executable, "-m", "capsim.face.cli", "warm-up", str(case)], env=env,
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()

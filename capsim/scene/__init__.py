@@ -1,5 +1,8 @@
 """The scene: the far field, the boundaries and the bodies a run's capsules are put in.
 
+The far field is the flow registry (``capsim/scene/flows.py``: a kind is one class) with its
+first-order small-deformation theory (``capsim/scene/small_deformation.py``).
+
 One public surface: :class:`Scene` (built once from the case: ``Scene.of(case)``), the
 boundary registry (:data:`BOUNDARIES`, :class:`Boundary`; the plane wall its first kind, one
 module each: ``capsim/scene/plane_wall.py``) and the bodies (the capsules' placement and

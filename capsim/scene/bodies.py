@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from capsim.mesh import rest_shape_mesh
+from capsim.numerics.mesh import rest_shape_mesh
 
 #: at most this many capsules in one scene (each a mesh of its own; the dense sums grow as N²)
 MAX_CAPSULES = 64
@@ -136,7 +136,7 @@ def materials(specs: list[BodySpec], bodies: "Bodies", case: Any) -> dict[str, A
     per element ``element_scale`` (modulus_ratio) and ``element_params`` (the law's parameters),
     per vertex node ``vertex_scale`` and ``vertex_params``, per node ``node_bending`` (κ) and
     ``node_lambda`` (λ) — what the membrane force and the model read instead of one value."""
-    from capsim.membrane import get_law
+    from capsim.numerics.membrane import get_law
 
     law = get_law(case.membrane.law)
     lam = [spec.viscosity_ratio if spec.viscosity_ratio is not None else case.flow.viscosity_ratio for spec in specs]
@@ -287,7 +287,7 @@ def start_problem(specs: list[BodySpec], base: str, level: int, min_gap: float) 
 
 
 def groups_keeping_materials(specs: list[BodySpec], groups: dict[str, list[np.ndarray]]) -> set[str]:
-    """The symmetry groups (``capsim.flows.SYMMETRY_GROUPS``) whose every generator maps each
+    """The symmetry groups (``capsim.scene.flows.SYMMETRY_GROUPS``) whose every generator maps each
     capsule onto a capsule of the same membrane, modulus and λ: the mesh's symmetry search sees
     only positions, and a mirror that maps a stiff capsule onto a soft one is no symmetry."""
     centers = np.array([spec.center for spec in specs], dtype=np.float64)

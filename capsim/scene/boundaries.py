@@ -2,7 +2,7 @@
 
 A boundary is what bounds the fluid besides the capsules (a plane wall today; a tube or a
 periodic box are new modules here, issue 53). Its kind is one class registered in
-:data:`BOUNDARIES` on the flow registry's pattern (capsim.flows.Kind: ``name``,
+:data:`BOUNDARIES` on the flow registry's pattern (capsim.scene.flows.Kind: ``name``,
 ``description``, ``uses``, ``problem``), plus ``section``, the case's field that places it, and
 :meth:`Boundary.from_case`, which builds the boundary of a case (None when the case has none).
 
@@ -31,7 +31,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from capsim.flows import Kind, _registrar
+from capsim.scene.flows import Kind, _registrar
 
 #: boundary kind → its class (the scene's boundaries are built from the case by these)
 BOUNDARIES: dict[str, type["Boundary"]] = {}
@@ -43,7 +43,7 @@ class Boundary(Kind):
 
     #: the case's field whose section places a boundary of this kind
     section: ClassVar[str]
-    #: the flow kinds (capsim.flows.FLOWS) whose far field this boundary admits
+    #: the flow kinds (capsim.scene.flows.FLOWS) whose far field this boundary admits
     flows: ClassVar[tuple[str, ...]] = ()
     #: the name its drawing carries in plots and in the export's file name
     label: ClassVar[str] = "boundary"

@@ -4,7 +4,7 @@ Everything that knows where the wall lies is here: its normal and its position a
 of the wall (:class:`PlaneWall`), and the solver, guards, observables, plots and export ask it
 through the boundary interface (capsim.scene.boundaries). Its regular part of the Green's
 function is the image system of Blake (1971), integrated by the kernels
-``capsim.kernels.wall_image_sum`` and ``wall_image_double_layer``, which take the wall's
+``capsim.numerics.kernels.wall_image_sum`` and ``wall_image_double_layer``, which take the wall's
 height as a number (kernels take and return arrays): this module is their one call site.
 
 The kernels are written in the frame whose y-axis is the wall's normal; the wall's normal is
@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from capsim.flows import FarField
+from capsim.scene.flows import FarField
 from capsim.scene.boundaries import Boundary, register_boundary
 
 #: the coordinate axis the wall's normal points along (into the fluid): y, the shear's gradient
@@ -89,13 +89,13 @@ class PlaneWall(Boundary):
         return float(x[:, NORMAL_AXIS].min() - self.height)
 
     def single_layer(self, targets: np.ndarray, points: np.ndarray, strengths: np.ndarray) -> np.ndarray:
-        from capsim.kernels import wall_image_sum  # numba: only when a wall's run evaluates a velocity
+        from capsim.numerics.kernels import wall_image_sum  # numba: only when a wall's run evaluates a velocity
 
         return wall_image_sum(targets, points, strengths, self.height)
 
     def double_layer(self, targets: np.ndarray, points: np.ndarray, normals_w: np.ndarray,
                      u_points: np.ndarray) -> np.ndarray:
-        from capsim.kernels import wall_image_double_layer
+        from capsim.numerics.kernels import wall_image_double_layer
 
         return wall_image_double_layer(targets, points, normals_w, u_points, self.height)
 

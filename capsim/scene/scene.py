@@ -1,6 +1,6 @@
 """The Scene: what a run's capsules are put in and with, built once from the case.
 
-A scene is its far field (the undisturbed flow, capsim.flows, shifted by its boundaries where
+A scene is its far field (the undisturbed flow, capsim.scene.flows, shifted by its boundaries where
 they need it), its boundaries (capsim.scene.boundaries: a plane wall today) and its bodies
 (capsim.scene.bodies: the capsules' placement, then their layout in the union mesh). The
 solver, the time schemes, the guards, the observables, the plots, the export and the accuracy
@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from capsim.flows import FLOWS, FarField, far_field_of
+from capsim.scene.flows import FLOWS, FarField, far_field_of
 from capsim.scene.bodies import Bodies, BodySpec, body_specs, scene_mesh
 from capsim.scene.boundaries import Boundary, boundaries_of
 
@@ -32,7 +32,7 @@ class Scene:
     None until :meth:`meshed`; a scene made without a case (a model built by hand) is one
     capsule in its ``base_field`` without boundaries."""
 
-    #: the flow's own undisturbed velocity (capsim.flows), before any boundary shifts it
+    #: the flow's own undisturbed velocity (capsim.scene.flows), before any boundary shifts it
     base_field: Any = field(default_factory=FarField)
     boundaries: tuple[Boundary, ...] = ()
     specs: tuple[BodySpec, ...] = ()
@@ -78,7 +78,7 @@ class Scene:
         """Whether the scene looks the same about any point up to a uniform velocity: a linear
         far field L·x in free space (no boundary). A capsule in it may be carried (its uniform
         part taken out of the solve: CapsuleModel.carried_velocity) and its translation's error
-        held relative to its distance (capsim.timestepping.scene_error)."""
+        held relative to its distance (capsim.solve.timestepping.scene_error)."""
         return not self.boundaries and isinstance(self.far_field, FarField)
 
     @property
