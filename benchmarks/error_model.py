@@ -37,7 +37,7 @@ import numpy as np
 from capsim.solve.accuracy import SAFETY_QUANTILE, observed_order
 
 ROOT = Path(__file__).resolve().parents[1]
-MODEL = ROOT / "capsim" / "error_model.json"
+MODEL = ROOT / "capsim" / "solve" / "error_model.json"
 MD = ROOT / "benchmarks" / "error_model.md"
 PARTIAL = Path(tempfile.gettempdir()) / "capsim-error-model-rows.json"
 

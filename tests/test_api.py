@@ -135,7 +135,7 @@ def test_every_computing_cli_command_calls_the_library():
     """No CLI command does work the library does not expose: run, sweep, summarize and study call
     capsim.api, and none of them calls the engine (run_case, run_campaign, run_study,
     summarize_to_file) itself."""
-    tree = ast.parse((ROOT / "capsim" / "cli.py").read_text())
+    tree = ast.parse((ROOT / "capsim" / "face" / "cli.py").read_text())
     engine = {"run_case", "run_campaign", "run_study", "summarize_to_file"}
     commands = {node.name: node for node in tree.body if isinstance(node, ast.FunctionDef)}
     for name in ("run", "sweep", "summarize", "study"):

@@ -153,7 +153,8 @@ def test_cited_sections_exist():
 def test_developer_guide_layout_names_every_module():
     layout = _section(_read(ROOT / "docs" / "developer.md"), "Layout")
     assert layout, "docs/developer.md has no '## Layout' section"
-    modules = sorted(p.name for p in (ROOT / "capsim").glob("*.py"))
+    modules = sorted(p.name for p in (ROOT / "capsim").rglob("*.py") if p.name != "__init__.py")
+    modules += sorted(f"{p.parent.name}/" for p in (ROOT / "capsim").glob("*/__init__.py"))
     unlisted = [m for m in modules if not re.search(rf"(?<![\w.]){re.escape(m)}(?!\w)", layout)]
     assert not unlisted, f"the developer guide's layout does not list: {unlisted}"
     for folder in ("capsim", "configs", "campaigns", "tests", "benchmarks", "docs"):

@@ -20,6 +20,8 @@ import h5py
 import pytest
 import typer
 
+import capsim
+
 ROOT = Path(__file__).resolve().parents[1]
 # capsim/api.py: its docstrings are the Python API page (mkdocstrings renders them)
 PAGES = sorted({*ROOT.glob("docs/*.md"), *ROOT.glob("docs/**/*.md"), ROOT / "README.md", ROOT / "REPRODUCTION.md",
@@ -59,11 +61,14 @@ def _resolves(dotted: str) -> bool:
     import importlib
 
     module, _, attr = dotted.partition(".")
-    try:
-        if "." not in attr and hasattr(importlib.import_module(f"capsim.{module}"), attr):
-            return True
-    except ImportError:
-        pass
+    # a module is named by its own name (membrane.LAWS), wherever its layer put it
+    for home in ("capsim", *(f"capsim.{p.name}" for p in sorted(Path(capsim.__file__).parent.iterdir())
+                             if (p / "__init__.py").exists())):
+        try:
+            if "." not in attr and hasattr(importlib.import_module(f"{home}.{module}"), attr):
+                return True
+        except ImportError:
+            pass
     from capsim.campaigns.campaign import Campaign
     from capsim.config import _ALIASES  # a field's short name (flow.G) names that field
 
