@@ -21,7 +21,7 @@ test: venv cf-tools
 test-all: venv
 	$(BIN)/python -m pytest -q
 
-# cfchecker and the libudunits2 it loads, for tests/test_results.py (it runs offline with the CF
+# cfchecker and the libudunits2 it loads, for tests/storage/test_results.py (it runs offline with the CF
 # tables of tests/data/cf). Best effort: without network or root the CF tests skip with the reason.
 CF_STAMP := $(VENV)/.cf-tools
 cf-tools: $(CF_STAMP)

@@ -2,7 +2,7 @@
 (mirror z and rotation by π about z, axis in the shear plane) at the same level and
 tolerance (issue 26: at most 2.2×). The same in-plane case (oblate b/a = 0.6 tilted
 30°, G = 0.1, kt 1, rkf23 rtol 1e-4) is run with mesh.symmetry quarter, half and none;
-quarter and half give the same trajectory to 1e-10 (tests/test_orientation.py), so
+quarter and half give the same trajectory to 1e-10 (tests/solve/test_orientation.py), so
 the runs take the same steps and the wall times compare the layer work alone.
 Medians of ``--repeat`` runs, interleaved (the machine is shared).
 

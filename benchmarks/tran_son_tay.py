@@ -69,7 +69,7 @@ TABLE_II = [
 TABLE_III_MU = [0.96, 0.72, 0.53, 0.53, 0.57]
 
 RADIUS_UM = 2.98          # (3 V / 4 pi)^(1/3) for V = 111 um^3
-SENSITIVITY_RATE = 28.6   # the shear rate of the sensitivity table and of tests/test_tran_son_tay.py
+SENSITIVITY_RATE = 28.6   # the shear rate of the sensitivity table and of tests/campaigns/test_tran_son_tay.py
 MAIN_LEVEL = 2
 #: the Evans-Fung coefficients times 1.3215: the sphericity of their young cells, 0.792
 THICK = (0.2736, 2.647, -1.4841)

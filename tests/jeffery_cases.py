@@ -1,4 +1,4 @@
-"""Jeffery's rigid limit as capsim cases (issue 26): shared by tests/test_orientation.py and
+"""Jeffery's rigid limit as capsim cases (issue 26): shared by tests/solve/test_orientation.py and
 benchmarks/jeffery_orbits.py. A prolate (r = 2) or oblate (r = 0.5) capsule with a stiff
 neo-Hookean membrane, started with the director at a polar angle from the vorticity axis
 and azimuth 0 (in the yz-plane), run for ``periods`` of Jeffery's period 2π(r + 1/r)."""

@@ -1,5 +1,5 @@
-"""Shared test problems of the time integrators (tests/test_timestepping.py,
-tests/test_linearly_implicit.py).
+"""Shared test problems of the time integrators (tests/solve/test_timestepping.py,
+tests/solve/test_linearly_implicit.py).
 
 y' = A y + b with A = Q diag(λ) Qᵀ, eigenvalues spread over [−1e4, −1]: exact
 solution known. The start lies on the slow manifold (the stiff modes at their

@@ -44,7 +44,7 @@ _EXPORT_FORMATS = ("xdmf", "vtu")
 _STUDY_REFERENCES = ("finest", "richardson")
 _FIGURE_FORMATS = ("png", "pdf", "svg")
 # capsim.quantities.UNIT_SYSTEMS, copied: importing that table costs ~60 ms of every command's
-# start-up (tests/test_physical_output.py keeps the two equal)
+# start-up (tests/face/test_physical_output.py keeps the two equal)
 _UNIT_SYSTEMS = ("capsim", "physical")
 _FIGURE_MAGIC = FIGURE_MAGIC
 PlotKind = enum.Enum("PlotKind", {k: k for k in _PLOT_KINDS}, type=str)

@@ -128,7 +128,7 @@ def wall_image_sum(targets, sources, strengths, y_wall):
 
         G_B = G(x − x_m) − G(R) + 2h ε_j ∂/∂R_j [h R_i/R³ − δ_iy/R − R_i R_y/R³],
 
-    so that G_B vanishes on the wall (tests/test_wall.py). Same normalisation as stokeslet_sum
+    so that G_B vanishes on the wall (tests/scene/test_wall.py). Same normalisation as stokeslet_sum
     (G = I/r + r r/r³); regular wherever the sources are above the wall. targets (Nt, 3),
     sources (M, 3), strengths (M, 3) → (Nt, 3)."""
     nt = targets.shape[0]
@@ -181,7 +181,7 @@ def wall_image_double_layer(targets, sources, normals_w, u_sources, y_wall):
         2h ε_j [(h − R_y) K_j − 6 (u·n) R_y R_j/R⁵ + 6 δ_jy (u·R)(n·R)/R⁵],
         K_j = −6 (u_j (n·R) + (u·R) n_j + (u·n) R_j)/R⁵ + 30 (u·R)(n·R) R_j/R⁷,
 
-    from the image pressure P_j = −2R_j/R³ − 4h ε_j ∂_j(R_y/R³) (tests/test_wall.py checks the
+    from the image pressure P_j = −2R_j/R³ − 4h ε_j ∂_j(R_y/R³) (tests/scene/test_wall.py checks the
     contraction against finite differences of wall_image_sum and that pressure). Regular while
     the targets are above the wall: no desingularisation. Same arguments as double_layer_sum
     without u at the targets."""

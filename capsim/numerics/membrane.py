@@ -223,7 +223,7 @@ def principal_tensions(strain: VertexStrain, law: MembraneLaw, params: dict) -> 
 # Sphere calibration of the hinge energy: for a smooth surface triangulated
 # near-equilaterally, θ_e ≈ κ_⊥ (h1 + h2)/3 across an edge, so that
 # Σ θ_e² |e|²/A_e → (4/3) ∫ ⟨κ_⊥²⟩ dA; on a sphere ⟨κ_⊥²⟩ = H², and (3/2) of it
-# is the Helfrich energy (κ/2) ∫ (2H)² dA (tests/test_bending.py checks 8πκ).
+# is the Helfrich energy (κ/2) ∫ (2H)² dA (tests/numerics/test_bending.py checks 8πκ).
 HINGE_CALIBRATION = 1.5
 
 

@@ -231,7 +231,7 @@ class PlanarExtension(Flow):
     elongates_without_bound = True
     description = "u∞ = ε (x, −y, 0): stretching along x, compression along y (a four-roll mill, a cross-slot)"
     rate = "ε, the extension rate"
-    # twice the shear's 25G/4 (docs/known_answers.md, "Flows beyond simple shear"; tests/test_flows.py)
+    # twice the shear's 25G/4 (docs/known_answers.md, "Flows beyond simple shear"; tests/scene/test_flows.py)
     first_order_source = "Barthès-Biesel & Rallison 1981, pure strain"
     # θ is 0 and S*_xy vanishes by the flow's symmetry; nothing tank-treads as in shear
     steady_quantities = ("D_xy", "N1_star", "N2_star")

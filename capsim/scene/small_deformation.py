@@ -25,7 +25,7 @@ With Z = I − R L(μ_s, μ_d) the shape then obeys (corotational rate, W the sp
     dA/dt − [W, A] = U,  Z (U, V) = w E + R L(G_s, K_s) (A, B)          (V11)
 
 Units: lengths a, time 1/k, tensions μka; so G_s/(μka) = 1/Ca and μ_s/(μa) = Bq_s.
-Checks (tests/test_viscous_theory.py): without viscosity the steady deformation is
+Checks (tests/solve/test_viscous_theory.py): without viscosity the steady deformation is
 D = (5/4)(2 + ν_s)/(1 + ν_s) Ca for every λ and the slow relaxation times are
 2.63, 4.03, 11.0 μa/G_s at λ = 0.2, 1, 5 (docs/known_answers.md).
 
@@ -33,7 +33,7 @@ In a pure strain the steady shape is A = α G E with one constant α for every �
 K_s/G_s = 3): :func:`first_order_D_xy` gives D_xy of any linear flow to first order in G, each
 flow kind's theory line (capsim.scene.flows ``Flow.first_order``) follows, and the plots
 (capsim.face.plot.first_order_theory) ask the scene whether the theory's assumptions hold
-(tests/test_theory_lines.py).
+(tests/face/test_theory_lines.py).
 """
 
 from __future__ import annotations

@@ -360,7 +360,7 @@ def test_the_docs_and_the_quantity_table_name_the_classes_the_classifier_has():
 
     from capsim.quantities import MOTION_ALIASES, MOTION_MEANINGS, TABLE
 
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     method = (root / "docs" / "method.md").read_text(encoding="utf-8")
     section = method.split("## Motion classes", 1)[1].split("\n## ", 1)[0]
     guide = (root / "docs" / "user_guide.md").read_text(encoding="utf-8")

@@ -139,7 +139,7 @@ def test_theory_lines_only_where_the_theory_applies(tiny_run):
 def test_figures_carry_a_caption_and_keep_the_legend_outside(tiny_run):
     from capsim.face.plot import KINDS, SCENE_KINDS, plot
 
-    # (a kind of several capsules refuses one: tests/test_capsules_output.py draws it)
+    # (a kind of several capsules refuses one: tests/face/test_capsules_output.py draws it)
     for kind in sorted(set(KINDS) - {"steady", "orbit_map", *SCENE_KINDS}):
         fig = plot(tiny_run, kind)
         caption = fig._supxlabel.get_text()
@@ -350,7 +350,7 @@ def test_the_compression_warning_says_what_to_do_in_one_line():
     assert "\n" not in text and text.startswith("26 %")
     assert "--set membrane.bending_modulus=" in text
     page, section = re.search(r'(docs/\w+\.md),\s"(.+?)"', text).groups()  # the docs section it cites
-    cited = (Path(__file__).resolve().parents[1] / page).read_text()
+    cited = (Path(__file__).resolve().parents[2] / page).read_text()
     assert re.search(rf"^## {re.escape(section)}$", cited, re.M)
     assert "would wrinkle" not in (_compression({"compressed_fraction": 0.01, "min_tension": -0.01}) or "")
 

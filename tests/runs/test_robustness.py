@@ -27,7 +27,7 @@ from capsim.storage.store import TrajectoryError, checkpoint_path, read_checkpoi
 from capsim.campaigns.summary import read_run_status
 from interrupts import InterruptAfter as _InterruptAfter
 
-BAD = Path(__file__).parent / "data" / "bad"
+BAD = Path(__file__).parents[1] / "data" / "bad"
 
 # Each bad file and what its one-line error must say: the field, the value and what is allowed.
 EXPECTED = {

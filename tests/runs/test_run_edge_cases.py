@@ -371,7 +371,7 @@ def test_make_docs_refuses_a_site_that_is_a_link(tmp_path):
 
     if shutil.which("make") is None:
         pytest.skip("make is not installed")
-    repo = Path(__file__).resolve().parents[1]
+    repo = Path(__file__).resolve().parents[2]
     (tmp_path / "pyproject.toml").write_text("")
     time.sleep(0.01)
     (tmp_path / ".venv").mkdir()

@@ -11,7 +11,7 @@ import pytest
 
 from capsim.config import case_from_dict
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 from _common import run_or_stop  # noqa: E402
 
 

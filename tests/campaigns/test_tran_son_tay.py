@@ -12,7 +12,7 @@ import pytest
 
 from capsim.campaigns.campaign import expand_campaign, load_campaign
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CAMPAIGN = ROOT / "campaigns" / "tran-son-tay-1984.yaml"
 ELASTIC = ROOT / "campaigns" / "tran-son-tay-1984-elastic.yaml"
 

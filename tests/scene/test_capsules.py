@@ -229,7 +229,7 @@ def test_a_pair_collides_as_lac_morel_and_barthes_biesels(tmp_path):
     from pathlib import Path
 
     spec = importlib.util.spec_from_file_location(
-        "pair_collision", Path(__file__).resolve().parents[1] / "benchmarks" / "pair_collision.py")
+        "pair_collision", Path(__file__).resolve().parents[2] / "benchmarks" / "pair_collision.py")
     pair = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(pair)
     path = str(tmp_path / "lac.h5")

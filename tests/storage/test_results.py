@@ -33,7 +33,7 @@ from capsim.storage.store import TrajectoryWriter, read_trajectory
 from capsim.campaigns.study import run_study, write_study
 from capsim.campaigns.summary import read_run, summarize_campaign, write_summary
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CF_TABLES = ROOT / "tests" / "data" / "cf"
 
 

@@ -24,7 +24,7 @@ from capsim.campaigns.campaign import (
 from capsim.config import ConfigError
 from capsim.campaigns.summary import summarize_campaign
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def tiny(out_dir, t_end=0.05, **base):

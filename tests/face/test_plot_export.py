@@ -84,7 +84,7 @@ EXPECTED_LABELS = {
 
 @pytest.mark.parametrize("kind", sorted(KINDS))
 def test_every_kind_writes_a_png_with_labelled_axes(kind, tiny_run, summary_nc, tmp_path):
-    if kind in SCENE_KINDS:  # a run of several capsules only: drawn in tests/test_capsules_output.py
+    if kind in SCENE_KINDS:  # a run of several capsules only: drawn in tests/face/test_capsules_output.py
         with pytest.raises(ValueError, match="the run holds one"):
             plot(tiny_run, kind, tmp_path / f"{kind}.png")
         assert not (tmp_path / f"{kind}.png").exists()

@@ -1,7 +1,7 @@
 """A viscous (Kelvin–Voigt) membrane (issue 28): the viscous stiffness against the
 analytic dissipation on a sphere, the velocity solve against a dense solve, the
 schema's one-line refusals, Bq = 0 bit for bit, a resumed run, both explicit schemes.
-The small-deformation theory and the trends are in tests/test_viscous_theory.py."""
+The small-deformation theory and the trends are in tests/solve/test_viscous_theory.py."""
 
 from __future__ import annotations
 
@@ -247,7 +247,7 @@ def test_units_give_the_boussinesq_number():
     with pytest.raises(ConfigError, match="membrane.viscosity.shear = 3.0: give membrane.viscosity.shear or "
                                           "physical.membrane_viscosity, not both"):
         case_from_dict({"name": "p", "physical": physical, "membrane": {"viscosity": {"shear": 3.0}}})
-    preset = load_case(Path(__file__).resolve().parents[1] / "configs" / "rbc-viscous.yaml")
+    preset = load_case(Path(__file__).resolve().parents[2] / "configs" / "rbc-viscous.yaml")
     assert preset.membrane.viscosity.shear == pytest.approx(hand, rel=1e-12)
     assert preset.flow.viscosity_ratio == 5.0 and preset.time.scheme == "rkc"
 

@@ -19,7 +19,7 @@ from capsim.config import case_from_dict
 from capsim.scene import BOUNDARIES, Boundary, Scene
 from capsim.scene.plane_wall import PlaneWall
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _case(**extra):

@@ -14,7 +14,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 #: never needed by `capsim run` (plots, the xarray view of a run file, units, exports)
 NOT_FOR_A_RUN = ("scipy.spatial", "matplotlib", "xarray", "pint", "dask", "pandas", "meshio", "netCDF4", "h5netcdf")

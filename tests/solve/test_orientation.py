@@ -65,7 +65,7 @@ def test_both_orientation_fields_and_quarter_off_the_plane_are_refused():
     with pytest.raises(ConfigError, match=r"mesh.symmetry = 'quarter': needs the rest shape's axis in the shear plane"):
         case_from_dict({"name": "a", "shape": {"kind": "prolate", "aspect_ratio": 2.0}, "initial_axis": [0, 1, 1],
                         "mesh": {"symmetry": "quarter"}})
-    # (a sphere keeps it where its turned mesh does: tests/test_hostile_round4_input.py)
+    # (a sphere keeps it where its turned mesh does: tests/test_case_file_refusals.py)
     # in the plane, or along the vorticity axis, the quarter holds
     for axis in ([1, 2, 0], [0, 0, 1]):
         assert case_from_dict({"name": "a", "initial_axis": axis, "mesh": {"symmetry": "quarter"}})
@@ -356,7 +356,7 @@ def test_a_soft_prolate_capsule_drifts_to_rolling(tmp_path):
 
     from capsim.config import load_case
 
-    case = load_case(Path(__file__).resolve().parents[1] / "configs" / "orbit-prolate-rolling.yaml")
+    case = load_case(Path(__file__).resolve().parents[2] / "configs" / "orbit-prolate-rolling.yaml")
     case = apply_overrides(case, **{"time.stop_when_settled": True, "output.path": str(tmp_path / "roll.h5")})
     s = run_case(case)
     assert s["status"] == "completed" and s["status_reason"].startswith("orbit settled"), s["status_reason"]

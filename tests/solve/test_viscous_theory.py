@@ -5,7 +5,7 @@ elastic known answers, then capsim's sphere at small G in shear that stops
 relaxation time at rest, S*_xy and its viscous part, for two Bq at λ = 1 and one at
 λ = 5; and the trends.
 
-Tolerances: as the elastic first-order check of tests/test_dynamics.py, 5 % in D_xy
+Tolerances: as the elastic first-order check of tests/solve/test_dynamics.py, 5 % in D_xy
 and 1.5° in θ (level 2 here for CI time, level 3 in the slow test), with a weak bending
 modulus that removes the low-G creep (measured: D_xy within 0.6–2.6 %, θ within 0.7°). The relaxation time, fitted over [τ/2, 2τ] after the stop on
 capsim's D_xy(t) and on the theory's, to 3 %. The tank-treading frequency departs
@@ -78,7 +78,7 @@ def _run(tmp_path_factory, lam, bq, level=2):
         "name": "visc", "mesh": {"level": level},
         "flow": {"shear_rate_G": G, "viscosity_ratio": lam, "history": {"kind": "stop", "stop_time": stop}},
         # a weak bending modulus removes the creep of a compressed membrane at small G (docs/user_guide.md,
-        # "Compressed membranes and bending stiffness"; tests/test_bending.py): without it D_xy
+        # "Compressed membranes and bending stiffness"; tests/numerics/test_bending.py): without it D_xy
         # drifts up with time and mesh (level 3, Bq_s = 10: +16 % at the stop)
         "membrane": {"viscosity": {"shear": bq}, "bending_modulus": KAPPA},
         "time": {"t_end": t_end, "scheme": "rkc", "rtol": 1e-5},
@@ -162,7 +162,7 @@ def test_red_cell_goes_from_swinging_to_tumbling_as_the_membrane_viscosity_rises
 
     from capsim.config import apply_overrides, load_case
 
-    base = load_case(Path(__file__).resolve().parents[1] / "configs" / "rbc-viscous.yaml")
+    base = load_case(Path(__file__).resolve().parents[2] / "configs" / "rbc-viscous.yaml")
     runs = {}
     for bq in (0.0, 30.0):
         case = apply_overrides(base, **{

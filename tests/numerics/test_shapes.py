@@ -110,7 +110,7 @@ def test_example_configs_build_their_rest_shapes(path, kind, sphericity):
 
     from capsim.config import load_case
 
-    case = load_case(Path(__file__).parents[1] / "configs" / path)
+    case = load_case(Path(__file__).parents[2] / "configs" / path)
     assert case.shape.kind == kind
     mesh = rest_shape_mesh(case.shape.kind, case.mesh.base, case.mesh.level, case.initial_tilt_deg,
                            aspect_ratio=case.shape.aspect_ratio, c0=case.shape.c0, c2=case.shape.c2, c4=case.shape.c4)

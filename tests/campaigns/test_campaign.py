@@ -17,7 +17,7 @@ from capsim.config import ConfigError
 from capsim.storage.store import read_trajectory
 from capsim.campaigns.summary import SUMMARY_ATTRS, summarize_campaign, write_summary
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SMOKE = ROOT / "campaigns" / "smoke.yaml"
 
 

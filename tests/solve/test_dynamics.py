@@ -66,7 +66,7 @@ def test_moderate_shear_conserves_volume_and_settles(tmp_path):
 @pytest.mark.parametrize("lam", [1.0, 5.0])
 def test_mirror_symmetry_changes_nothing_but_the_cost(tmp_path, lam):
     """mesh.symmetry evaluates the integrals at one node of each orbit of the
-    mirror in z and the rotation by π about z (tests/test_symmetry.py); a tilted
+    mirror in z and the rotation by π about z (tests/scene/test_symmetry.py); a tilted
     oblate capsule must follow the same trajectory as with every node."""
     finals = []
     for sym in (False, True):
