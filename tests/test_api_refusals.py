@@ -1,4 +1,4 @@
-"""Issue 38 (round four), the findings about the Python library's face: documented exception
+"""The Python library's refusals and promises (issue 38's findings): documented exception
 classes with one-line messages (findings 7, 19), sweep and study from a plain script
 (finding 12), error estimates of the window they sit beside (finding 14), a damaged
 checkpoint called damaged (finding 20, part), and the API page's statements (finding 9, the

@@ -1,4 +1,4 @@
-"""Issue 38 (round four of hostile input), the case-file and physical-unit findings:
+"""Case files and physical units under hostile input (issue 38's findings):
 
 - 5: physical values far outside where capsim is validated warn (one line naming the field, its
   value and the range); absurd ones (a radius of 2.8 m meant as 2.8 um) are refused naming the

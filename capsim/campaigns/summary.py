@@ -7,7 +7,7 @@ not hold. Swept fields become dimensions (a ``run`` dimension when the runs are
 not a full grid). The run files are read through :mod:`capsim.storage.store`; units,
 long names and definitions come from the one table :mod:`capsim.quantities`.
 
-Each record carries its context (issue 16): the motion's period and amplitudes,
+Each record carries its context: the motion's period and amplitudes,
 the averaging window, the mesh (base, level), the law and its parameters, the
 bending modulus, the time scheme and tolerance, status and reason, the error
 estimates when ``--error-estimate`` ran, the intrinsic viscosity (5/2)·S*_xy, and

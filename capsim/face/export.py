@@ -16,7 +16,7 @@ point data
 cell data
     ``traction``            element average of Δf, ∫ Δf dS / S_e (E_s/a)
 
-point and cell data of a run of several capsules (issue 43; one mesh, every capsule's surface)
+point and cell data of a run of several capsules (one mesh, every capsule's surface)
     ``capsule``             the capsule's index (0, 1, ...: the case's ``capsules`` order), an
                             integer to colour or threshold by (one capsule: not written)
 

@@ -14,7 +14,7 @@ Sections of the surface are cut from the curved 6-node elements (each element's
 quadratic map, sampled :data:`SECTION_SUBDIVISIONS` times along an edge, the
 crossing solved on the quadratic), not from its four flat sub-triangles.
 
-A run of several capsules (``capsules:``, issue 43; per-capsule columns (t, capsule)): the
+A run of several capsules (``capsules:``; per-capsule columns (t, capsule)): the
 time-series kinds (deformation, inclination, rheology) draw one line per capsule, labelled
 capsule 0, 1, ...; contour and trajectory draw every capsule's outline in the section (contour
 numbers them); tensions draws each capsule along its own section; ``separation`` draws a pair's

@@ -1,5 +1,5 @@
 """An accuracy target met by measuring (``accuracy.method: measure``, or ``auto`` where the error
-model cannot place the case; issue 44).
+model cannot place the case).
 
 The ladder runs the case at mesh levels 1, 2, … at one tolerance (``capsim.solve.accuracy.ladder_rtol``:
 its time error a tenth of the target) and, after each, estimates that run's error from the levels

@@ -1,4 +1,4 @@
-"""The scene's bodies: one capsule or several (``capsules:``, issue 43), in capsim.scene.
+"""The scene's bodies: one capsule or several (``capsules:``), in capsim.scene.
 
 Several capsules are one surface of disjoint closed parts: every capsule's mesh (its own rest
 shape, orientation and centre, the case's mesh base and level) is laid one after another into

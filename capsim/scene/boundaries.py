@@ -1,7 +1,7 @@
 """The scene's boundaries: the registry of boundary kinds and the one interface each kind meets.
 
 A boundary is what bounds the fluid besides the capsules (a plane wall today; a tube or a
-periodic box are new modules here, issue 53). Its kind is one class registered in
+periodic box are new modules here). Its kind is one class registered in
 :data:`BOUNDARIES` on the flow registry's pattern (capsim.scene.flows.Kind: ``name``,
 ``description``, ``uses``, ``problem``), plus ``section``, the case's field that places it, and
 :meth:`Boundary.from_case`, which builds the boundary of a case (None when the case has none).

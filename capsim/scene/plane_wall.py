@@ -1,4 +1,4 @@
-"""The no-slip plane wall (the case's ``wall:`` section, issue 42): the first boundary kind.
+"""The no-slip plane wall (the case's ``wall:`` section): the first boundary kind.
 
 Everything that knows where the wall lies is here: its normal and its position are properties
 of the wall (:class:`PlaneWall`), and the solver, guards, observables, plots and export ask it

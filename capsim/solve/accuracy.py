@@ -1,4 +1,4 @@
-"""Ask for an accuracy, get the cheapest run (issue 44): ``time.rtol: auto`` and the case's
+"""Ask for an accuracy, get the cheapest run: ``time.rtol: auto`` and the case's
 ``accuracy`` target, from the error model measured by ``benchmarks/error_model.py``
 (``capsim/solve/error_model.json``; its tables: docs/benchmarks.md, "Error model").
 

@@ -1,4 +1,4 @@
-"""What one operation of a time scheme costs in wall time, per mesh (issue 44, item 3).
+"""What one operation of a time scheme costs in wall time, per mesh.
 
 ``time.scheme: auto`` (``capsim.solve.timestepping.Automatic``) predicts each candidate's wall time
 per unit time as counts × costs: the counts (accepted steps, velocity evaluations, layer

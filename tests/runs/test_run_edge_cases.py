@@ -1,4 +1,4 @@
-"""Issue 38 (round four), the findings about runs: the automatic scheme at extreme stiffness,
+"""Runs at their edges (issue 38's findings): the automatic scheme at extreme stiffness,
 a stop during its start-up probe, wall-clock stops that resume, extending a campaign, the
 output check under the lock, Ctrl-C twice."""
 

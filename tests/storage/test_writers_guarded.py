@@ -1,4 +1,4 @@
-"""Nothing on disk lost, round three (issue 25): every writer guarded (study, error
+"""Every writer guarded, nothing on disk lost (issue 25): every writer guarded (study, error
 estimate, lock, exporters), a run that knows its file is still its own, campaigns
 that check a completed file is the run's before trusting it, and a campaign that
 outlives a killed worker.
