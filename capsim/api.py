@@ -327,7 +327,7 @@ def kernels_cached() -> bool:
     """Whether numba's on-disk cache holds capsim's kernels: ``NUMBA_CACHE_DIR`` when set
     (numba then looks nowhere else), else the ``__pycache__`` beside capsim/numerics/kernels.py."""
     cache_dir = os.environ.get("NUMBA_CACHE_DIR", "").strip()
-    where = Path(cache_dir) if cache_dir else Path(__file__).with_name("__pycache__")
+    where = Path(cache_dir) if cache_dir else Path(__file__).parent / "numerics" / "__pycache__"
     try:
         return where.is_dir() and next(where.rglob("kernels.*.nbi"), None) is not None
     except OSError:

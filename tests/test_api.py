@@ -171,3 +171,21 @@ def test_the_first_run_after_an_install_says_it_is_compiling(tmp_path):
     second = subprocess.run([sys.executable, "-m", "capsim.face.cli", "run", str(case), "-o", str(tmp_path / "b.h5")],
                             env=env, capture_output=True, text=True, timeout=600)
     assert second.returncode == 0 and "compiling" not in second.stderr
+
+
+def test_kernels_cached_looks_where_numba_caches_the_kernels(monkeypatch, tmp_path):
+    """Without NUMBA_CACHE_DIR, numba caches beside the kernels' module (capsim/numerics/); the
+    'compiling the numba kernels' notice asks there, not beside api.py."""
+    from pathlib import Path
+
+    from capsim.api import kernels_cached
+    from capsim.numerics import kernels
+
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    beside = Path(kernels.__file__).parent / "__pycache__"
+    assert kernels_cached() == (beside.is_dir() and any(beside.glob("kernels.*.nbi")))
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    assert not kernels_cached()
+    (tmp_path / "some" / "where").mkdir(parents=True)
+    (tmp_path / "some" / "where" / "kernels.layer_sum-1.py311.nbi").write_bytes(b"")
+    assert kernels_cached()
