@@ -9,8 +9,7 @@ numba nor HDF5)::
     tree = capsim.open_run(result.path)                             # an xarray.DataTree
 
 ``sweep``, ``summarize`` and ``study`` do what the CLI commands of the same names do;
-see :mod:`capsim.api`. ``capsim.campaigns.study`` is also the module of that name: calling it calls
-:func:`capsim.campaigns.study.study`.
+see :mod:`capsim.api`.
 """
 
 from capsim._version import __version__
@@ -25,7 +24,7 @@ _LAZY = {
     "run": "capsim.api",
     "sweep": "capsim.api",
     "summarize": "capsim.api",
-    "study": "capsim.campaigns.study",  # the module, callable: capsim.campaigns.study(...) is capsim.campaigns.study.study(...)
+    "study": "capsim.api",
     "open_run": "capsim.api",
     "warm_up": "capsim.api",
     "Case": "capsim.config",
@@ -41,8 +40,6 @@ def __getattr__(name: str):
 
     if name == "RunResult":  # capsim.runs.runner loads numba: the thread policy first
         importlib.import_module("capsim.numerics.threads").apply_policy()
-    if name == "study":  # importing the submodule makes it the package's attribute `study`
-        return importlib.import_module(module)
     value = getattr(importlib.import_module(module), name)
     globals()[name] = value
     return value

@@ -263,7 +263,7 @@ def summarize(directory: PathLike, output: PathLike | None = None, *, overwrite:
 def study(case: "PathLike | Mapping[str, Any] | Case", levels: "int | Sequence[int]" = (2, 3, 4),
           rtols: "float | Sequence[float]" = (1e-3, 1e-4, 1e-5), **options: Any) -> "xr.Dataset":
     """Accuracy against cost; see [`capsim.campaigns.study.study`][capsim.campaigns.study.study]
-    (`capsim.campaigns.study(...)` calls it too)."""
+    (`capsim.study(...)` calls it too)."""
     from capsim.campaigns.study import study as _study
 
     return _study(case, levels, rtols, **options)

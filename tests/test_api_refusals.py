@@ -76,7 +76,7 @@ _PLAIN_SCRIPT = """\
 import capsim
 done = capsim.sweep("camp.yaml", workers=2)
 print("SWEEP", done["completed"], done["failed"], done["total"], flush=True)
-ds = capsim.campaigns.study({{"name": "s", "time": {{"t_end": {t_end}}}}}, levels=[0, 1], rtols=[1e-3], workers=2)
+ds = capsim.study({{"name": "s", "time": {{"t_end": {t_end}}}}}, levels=[0, 1], rtols=[1e-3], workers=2)
 print("STUDY", " ".join(str(s) for s in ds["status"].values.ravel()), flush=True)
 """
 
@@ -124,7 +124,7 @@ def test_a_spawned_reimport_of_the_script_is_refused_in_one_line_naming_the_guar
             print("PARENT", child.exitcode, flush=True)
         else:  # the child, importing this script again
             for call in (lambda: capsim.sweep("missing-campaign.yaml"),
-                         lambda: capsim.campaigns.study({"name": "x"}, levels=[0], workers=2)):
+                         lambda: capsim.study({"name": "x"}, levels=[0], workers=2)):
                 try:
                     call()
                 except ConfigError as exc:
@@ -136,7 +136,7 @@ def test_a_spawned_reimport_of_the_script_is_refused_in_one_line_naming_the_guar
     assert len(refused) == 2, out.stdout + out.stderr[-2000:]
     for line in refused:
         assert 'if __name__ == "__main__":' in line, line
-    assert "capsim.sweep" in refused[0] and "capsim.campaigns.study" in refused[1]
+    assert "capsim.sweep" in refused[0] and "capsim.study" in refused[1]
     assert "PARENT 0" in out.stdout
 
 
@@ -332,11 +332,11 @@ _SMALL = {"name": "x", "time": {"t_end": 0.01}}  # were a refusal missing, the s
 
 @pytest.mark.parametrize("call, name", [
     (lambda tmp: capsim.summarize(tmp, units="bogus"), "units"),
-    (lambda tmp: capsim.campaigns.study(_SMALL, levels=[], rtols=[1e-3]), "levels"),
-    (lambda tmp: capsim.campaigns.study(_SMALL, levels=[0], rtols="1e-3"), "rtols"),
-    (lambda tmp: capsim.campaigns.study(_SMALL, levels=[0.5], rtols=[1e-3]), "levels"),
-    (lambda tmp: capsim.campaigns.study(_SMALL, levels=[0], rtols=[1e-3], workers=0), "workers"),
-    (lambda tmp: capsim.campaigns.study(_SMALL, levels=[0], rtols=[1e-3], runs_dir=5), "runs_dir"),
+    (lambda tmp: capsim.study(_SMALL, levels=[], rtols=[1e-3]), "levels"),
+    (lambda tmp: capsim.study(_SMALL, levels=[0], rtols="1e-3"), "rtols"),
+    (lambda tmp: capsim.study(_SMALL, levels=[0.5], rtols=[1e-3]), "levels"),
+    (lambda tmp: capsim.study(_SMALL, levels=[0], rtols=[1e-3], workers=0), "workers"),
+    (lambda tmp: capsim.study(_SMALL, levels=[0], rtols=[1e-3], runs_dir=5), "runs_dir"),
     (lambda tmp: capsim.summarize(tmp, output=5), "output"),
     (lambda tmp: capsim.sweep(5), "campaign"),
     (lambda tmp: capsim.open_run(5), "path"),

@@ -35,7 +35,6 @@ import os
 import shutil
 import sys
 import tempfile
-import types
 from collections.abc import Mapping
 from datetime import datetime, timezone
 from pathlib import Path
@@ -735,7 +734,7 @@ def study(case: "PathLike | Mapping[str, Any] | Case", levels: "int | Sequence[i
     from capsim.storage.files import FIGURE_MAGIC, check_writable, guard_output, is_study_file, replace_atomically, starts_with
     from capsim.numerics.threads import apply_policy
 
-    refuse_in_spawned_import_of_main("capsim.campaigns.study")
+    refuse_in_spawned_import_of_main("capsim.study")
     levels = number_list(levels, "levels", whole=True)
     rtols = number_list(rtols, "rtols")
     quad = number_list(quad, "quad", whole=True) if quad is not None else None
@@ -775,16 +774,3 @@ def study(case: "PathLike | Mapping[str, Any] | Case", levels: "int | Sequence[i
         replace_atomically(output, lambda tmp: write_study(ds, tmp))
         replace_atomically(png, lambda tmp: plot_pareto(ds, tmp, _studied(ds)[:2]))
     return ds
-
-
-
-class _CallableStudyModule(types.ModuleType):
-    """`capsim.campaigns.study` is both this module and the library function `study`:
-    importing the module sets the package's attribute ``study`` to it (the import system does),
-    so the module, called, is the function."""
-
-    def __call__(self, *args: Any, **kwargs: Any):
-        return study(*args, **kwargs)
-
-
-sys.modules[__name__].__class__ = _CallableStudyModule
