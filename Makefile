@@ -15,8 +15,10 @@ $(STAMP): pyproject.toml
 	$(BIN)/capsim warm-up configs/sphere.yaml
 	touch $@
 
+# one test process per core, a test file's tests on one of them (module fixtures computed once):
+# the suite is single-threaded work, ~14 min of CPU on this 2-core machine
 test: venv cf-tools
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(BIN)/python -m pytest -q -m "not slow" -n auto --dist loadfile
 
 test-all: venv
 	$(BIN)/python -m pytest -q
