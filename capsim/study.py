@@ -574,6 +574,10 @@ def error_estimate(case: Case, summary: dict[str, Any], workers: int = 2,
             jobs.append((apply_overrides(base, **{
                 "mesh.level": case.mesh.level - 1, "time.rtol": case.time.rtol,
                 "output.path": str(Path(tmp) / "mesh.h5")}), "mesh"))
+        if case.mesh.level > 1:  # a third level measures the Richardson order (4x cheaper than level − 1)
+            jobs.append((apply_overrides(base, **{
+                "mesh.level": case.mesh.level - 2, "time.rtol": case.time.rtol,
+                "output.path": str(Path(tmp) / "mesh2.h5")}), "mesh2"))
         records = _run_jobs(jobs, workers, None, window=window)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -593,6 +597,9 @@ def error_estimate(case: Case, summary: dict[str, Any], workers: int = 2,
             out[f"{key}_value"] = main[key]
             out[f"{key}_time"] = float(d_time)
             out[f"{key}_mesh"] = float(d_mesh)
+            out[f"{key}_mesh2"] = float(main[key] - by_kind["mesh2"][key]
+                                        if "mesh2" in by_kind and by_kind["mesh2"]["status"] == "completed"
+                                        else float("nan"))
             # one part alone would be read as the error (at level 0 the time part is ~1e-6,
             # the mesh's error ~1e-2): no total without both
             out[key] = float(abs(d_time) + abs(d_mesh))
@@ -606,13 +613,81 @@ def write_error_estimate(path: str | os.PathLike, estimate: dict[str, Any]) -> N
     store.write_error_estimate(path, estimate)
 
 
-def format_error_estimate(summary: dict[str, Any], estimate: dict[str, Any]) -> str:
+#: the band of an estimate whose order three levels measured: Roache's factor of safety 1.25 for a
+#: grid-convergence index with an observed order (P. J. Roache, Verification and Validation in
+#: Computational Science and Engineering, 1998), taken both ways
+MEASURED_ORDER_BAND = 1.25
+
+
+def _finite(*xs: Any) -> bool:
+    return all(isinstance(x, (int, float)) and math.isfinite(x) for x in xs)
+
+
+def own_error(estimate: dict[str, Any], q: str, key: str, model_order: float) -> dict[str, Any] | None:
+    """The run's own error of `key` (``q`` or ``q_mean``) by Richardson from the reruns: the one
+    error statement of the error block and of ``--verify``. Relative to |value| (θ: in rad, as its
+    target), the absolute beside it; with its band {"lo", "hi"}: where three levels measure the
+    order (:func:`capsim.accuracy.measured_error`) the estimate ÷/× MEASURED_ORDER_BAND; from two
+    levels the orders LADDER_MAX_ORDER to LADDER_TWO_LEVEL_ORDER around the error model's
+    `model_order`; levels that do not converge, their larger difference (a scale) down to it over
+    2^LADDER_MAX_ORDER − 1. The time part is the 10× looser tolerance's difference over 9 (time
+    error ∝ rtol). None where the mesh part is unknown (level 0)."""
+    from capsim import accuracy as am
+
+    value, d_mesh, d_time, d_mesh2 = (estimate.get(f"{key}{k}") for k in ("_value", "_mesh", "_time", "_mesh2"))
+    if not _finite(value, d_mesh, d_time):
+        return None
+    relative = q != "theta"
+    scale = max(abs(float(value)), 1e-300) if relative else 1.0
+    time = abs(d_time) / 9.0
+    hi_cap = 2.0**am.LADDER_MAX_ORDER - 1.0
+    if _finite(d_mesh2):
+        m = am.measured_error([value - d_mesh2, value - d_mesh, value], relative=False,
+                              period=math.pi if q == "theta" else None)
+        mesh, order = float(m["error"]), float(m["order"])
+        if m["converging"]:
+            lo, hi = mesh / MEASURED_ORDER_BAND, mesh * MEASURED_ORDER_BAND
+            how = f"order {order:.2g} measured from three levels"
+        else:
+            lo, hi = mesh / hi_cap, mesh
+            how = "three levels that do not converge: their larger difference"
+    else:
+        order = float(model_order)
+        mesh = abs(d_mesh) / (2.0**order - 1.0)
+        lo, hi = abs(d_mesh) / hi_cap, abs(d_mesh) / (2.0**am.LADDER_TWO_LEVEL_ORDER - 1.0)
+        lo, hi = min(lo, mesh), max(hi, mesh)
+        how = f"order {order:.2g} of the error model, two levels"
+    return {"abs": mesh + time, "rel": (mesh + time) / scale, "lo": (lo + time) / scale,
+            "hi": (hi + time) / scale, "order": order, "how": how, "relative": relative}
+
+
+def own_errors(case: Case, estimate: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """:func:`own_error` of every quantity the estimate holds (orders from the case's error model)."""
+    from capsim import accuracy as error_model
+
+    orders = error_model.entry(case.error_model_features())[0]["order"]
+    out = {}
+    for q in QUANTITIES:
+        for key in (q, f"{q}_mean"):
+            e = own_error(estimate, q, key, float(orders.get(q, error_model.LADDER_TWO_LEVEL_ORDER)))
+            if e is not None:
+                out[key] = e
+    return out
+
+
+def format_error_estimate(summary: dict[str, Any], estimate: dict[str, Any],
+                          errors: dict[str, dict[str, Any]] | None = None) -> str:
     """Lines 'q  value ± estimate (mesh …, time …)' for the summary values; a part that could
-    not be had (level 0 has no coarser mesh) is said to be unknown, and so is the ±."""
+    not be had (level 0 has no coarser mesh) is said to be unknown, and so is the ±. With `errors`
+    (:func:`own_errors`) the ± is the run's own error by Richardson, relative beside it: the same
+    statement ``--verify`` judges."""
     coarse = int(estimate["coarse_level"])
+    errors = errors or {}
     if coarse >= 0:
+        what = ("the Richardson estimate of the run's own error (absolute; relative beside it, θ in rad)"
+                if errors else "error estimate |mesh| + |time| (not a window spread)")
         lines = [f"error estimate (level {coarse} and rtol {estimate['loose_rtol']:g} reruns, "
-                 f"{estimate['wall_time_s']:.1f} s); value ± error estimate |mesh| + |time| (not a window spread), "
+                 f"{estimate['wall_time_s']:.1f} s); value ± {what}, "
                  "θ in units of π as in the table above:"]
     else:
         lines = [f"error estimate: the rtol {estimate['loose_rtol']:g} rerun only ({estimate['wall_time_s']:.1f} s): "
@@ -632,8 +707,11 @@ def format_error_estimate(summary: dict[str, Any], estimate: dict[str, Any]) -> 
             if not isinstance(value, (int, float)) or not math.isfinite(value):
                 continue
             c = scales.get(q, 1.0)
-            lines.append(f"  {label + where:<{width}}  {value / c:.6f} ± {shown(estimate.get(key), c, '.2e')}"
-                         f"  (mesh {shown(estimate.get(f'{key}_mesh'), c, '+.1e')}, "
+            own = errors.get(key)
+            bar = shown(own["abs"] if own else estimate.get(key), c, ".2e")
+            rel = (f"{own['rel']:.1e} {'relative' if own['relative'] else 'rad'}, " if own else "")
+            lines.append(f"  {label + where:<{width}}  {value / c:.6f} ± {bar}"
+                         f"  ({rel}mesh {shown(estimate.get(f'{key}_mesh'), c, '+.1e')}, "
                          f"time {shown(estimate.get(f'{key}_time'), c, '+.1e')})")
     return "\n".join(lines)
 
@@ -643,7 +721,7 @@ def run_error_estimate(case: Case, summary: dict[str, Any], workers: int = 2, ve
     with `verify` (``--verify``) the last line says whether the case's accuracy target was met."""
     estimate = error_estimate(case, summary, workers=workers)
     write_error_estimate(case.output.path, estimate)  # the run's result itself is read-only (RunResult)
-    text = format_error_estimate(summary, estimate)
+    text = format_error_estimate(summary, estimate, own_errors(case, estimate))
     return text + "\n" + verification(case, estimate) if verify else text
 
 
@@ -665,11 +743,11 @@ def check_run(case: Case, summary: dict[str, Any], error_estimate: bool = False,
 
 def run_verification(case: Case, summary: dict[str, Any], workers: int = 2) -> tuple[str, bool | None]:
     """`capsim run --verify`: :func:`run_error_estimate`'s lines with the verdict, and whether the
-    target was met (None: unchecked); a target NOT met exits 3, as a ladder's does."""
+    target was met (None: unchecked or undecided); a target NOT met exits 3, as a ladder's does."""
     estimate = error_estimate(case, summary, workers=workers)
     write_error_estimate(case.output.path, estimate)
     line, met = _verified(case, estimate)
-    return format_error_estimate(summary, estimate) + "\n" + line, met
+    return format_error_estimate(summary, estimate, own_errors(case, estimate)) + "\n" + line, met
 
 
 def verification(case: Case, estimate: dict[str, Any]) -> str:
@@ -678,25 +756,33 @@ def verification(case: Case, estimate: dict[str, Any]) -> str:
     return _verified(case, estimate)[0]
 
 
+def verdict(error: float, lo: float, hi: float, target: float) -> tuple[str, bool | None]:
+    """The verdict of an error estimate with its band [lo, hi] against a target: met where the band
+    is below it, met within the estimate's uncertainty where the estimate is, undecided where only
+    the band's lower end is, NOT met where the whole band is above: no flat NOT met that the
+    estimate's own uncertainty does not carry."""
+    if hi <= target:
+        return "target met", True
+    if error <= target:
+        return "target met within the estimate's uncertainty", True
+    if lo <= target:
+        return "undecided: the estimate's uncertainty straddles the target", None
+    return "target NOT met", False
+
+
 def _verified(case: Case, estimate: dict[str, Any]) -> tuple[str, bool | None]:
     target = case.accuracy
     if target is None:
         return "verify: the case has no accuracy target (give accuracy: {quantity, target} or --accuracy)", None
-    from capsim import accuracy as error_model
-
     q = target.quantity
-    value, d_mesh, d_time = (estimate.get(f"{q}{k}") for k in ("_value", "_mesh", "_time"))
-    if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in (value, d_mesh, d_time)):
+    own = own_errors(case, estimate).get(q)
+    if own is None:
         return f"verify: no error estimate of {q} (level 0 has no coarser mesh): the target is unchecked", None
-    # the run's own error by Richardson: the coarser level's difference over 2^p − 1 (p the order
-    # of the error model's entry), the 10× looser tolerance's over 9 (time error ∝ rtol)
-    entry, _ = error_model.entry(case.error_model_features())
-    order = float(entry["order"][q])
-    error = abs(d_mesh) / (2.0**order - 1.0) + abs(d_time) / 9.0
-    achieved = error if q == "theta" else error / max(abs(float(value)), 1e-300)
-    met = achieved <= target.target
-    return (f"verify: {q} error {achieved:.2g} (Richardson from the reruns, order {order:.2g}) "
-            f"{'<=' if met else '>'} target {target.target:g}: target {'met' if met else 'NOT met'} ({target.choice})",
+    said, met = verdict(own["rel"], own["lo"], own["hi"], target.target)
+    unit = "relative" if own["relative"] else "rad"
+    return (f"verify: {q} error {own['rel']:.2g} {unit} ({own['abs']:.2g} absolute; Richardson from the reruns, "
+            f"{own['how']}; uncertainty {own['lo']:.2g} to {own['hi']:.2g}) "
+            f"{'<=' if own['rel'] <= target.target else '>'} target {target.target:g}: {said} ({target.choice})",
             met)
 
 
