@@ -1,6 +1,6 @@
 """Accuracy against cost: a ladder of settings, errors against a reference, wall time.
 
-:func:`run_study` runs one case over a ladder of mesh levels × RKF23 tolerances
+:func:`run_study` runs one case over a ladder of mesh levels × time tolerances (of the case's time.scheme)
 (× regular Gauss orders, optionally), in a process pool, and returns an xarray
 Dataset with, for every setting, the raw values of the observables at ``t_end``,
 their errors against the reference, the wall time, the number of steps and the
@@ -445,13 +445,25 @@ def _settings(ds):
         yield idx
 
 
+def _error_cell(ds, sel, q: str) -> str:
+    """One error, in the convention of accuracy targets, --verify and the error block: relative
+    to |reference| with the absolute beside it; θ in rad (its target's unit)."""
+    error = float(sel[f"{q}_error"])
+    if q == "theta":
+        return f"{error:+.2e}"
+    reference = abs(float(ds[f"{q}_reference"]))
+    relative = error / reference if reference > 0 else float("nan")
+    return f"{relative:+.2e} ({error:+.1e})"
+
+
 def format_study_table(ds) -> str:
     """The study as a text table: one row per setting, then the observed orders."""
     studied = _studied(ds)
     short = {"D_xy": "D_xy", "theta": "θ", "ttf_ratio": "ttf", "Sxy_star": "S*xy", "orbit_period": "T_orbit",
              "orbit_constant": "C", "body_rotation_ratio": "body"}
     head = ["level", "rtol"] + (["quad"] if "regular_order" in ds.dims else []) + [
-        "nodes", "steps", "wall s", studied[0], *(f"err {short.get(q, q)}" for q in studied)] + (
+        "nodes", "steps", "wall s", studied[0],
+        *(f"err {short.get(q, q)}" + (" rad" if q == "theta" else " rel (abs)") for q in studied)] + (
         ["settled"] if "settled" in ds else []) + ["vol drift", "status"]
     rows = []
     for idx in _settings(ds):
@@ -462,7 +474,7 @@ def format_study_table(ds) -> str:
         row += [
             str(int(sel["n_nodes"])), str(int(sel["steps"])), f"{float(sel['wall_time_s']):.1f}",
             f"{float(sel[studied[0]]):.6f}",
-            *(f"{float(sel[f'{q}_error']):+.2e}" for q in studied),
+            *(_error_cell(ds, sel, q) for q in studied),
             *([f"{float(sel['settled']):.0f}"] if "settled" in ds else []),
             f"{float(sel['volume_drift']):.1e}", str(sel["status"].values),
         ]
@@ -623,40 +635,52 @@ def _finite(*xs: Any) -> bool:
     return all(isinstance(x, (int, float)) and math.isfinite(x) for x in xs)
 
 
-def own_error(estimate: dict[str, Any], q: str, key: str, model_order: float) -> dict[str, Any] | None:
+def own_error(estimate: dict[str, Any], q: str, key: str, model_order: float,
+              level: int | None = None) -> dict[str, Any] | None:
     """The run's own error of `key` (``q`` or ``q_mean``) by Richardson from the reruns: the one
     error statement of the error block and of ``--verify``. Relative to |value| (θ: in rad, as its
-    target), the absolute beside it; with its band {"lo", "hi"}: where three levels measure the
-    order (:func:`capsim.accuracy.measured_error`) the estimate ÷/× MEASURED_ORDER_BAND; from two
-    levels the orders LADDER_MAX_ORDER to LADDER_TWO_LEVEL_ORDER around the error model's
-    `model_order`; levels that do not converge, their larger difference (a scale) down to it over
-    2^LADDER_MAX_ORDER − 1. The time part is the 10× looser tolerance's difference over 9 (time
-    error ∝ rtol). None where the mesh part is unknown (level 0)."""
+    target), the absolute beside it, with its band {"lo", "hi"}.
+
+    The order: measured from three levels (:func:`capsim.accuracy.measured_error`) where they
+    converge and the coarsest is level 1 or finer; level 0 is short of the asymptotic range
+    (sphere G 0.1 at kt 2, levels 0-3: D_xy 0.3515, 0.3726, 0.3814, 0.3823: the order of levels
+    0-2 is 1.3, of 1-3 3.2), so there, from two levels or from levels that do not converge,
+    the error model's `model_order`. The band: with a measured order, its estimate and the model
+    order's, widened ÷/× MEASURED_ORDER_BAND; else the orders LADDER_MAX_ORDER to
+    LADDER_TWO_LEVEL_ORDER (and up to the larger difference where three levels do not converge).
+    The time part is the 10× looser tolerance's difference over 9 (time error ∝ rtol), in all
+    three. None where the mesh part is unknown (level 0). `level`: the run's (the estimate's
+    coarse_level + 1 when not given)."""
     from capsim import accuracy as am
 
     value, d_mesh, d_time, d_mesh2 = (estimate.get(f"{key}{k}") for k in ("_value", "_mesh", "_time", "_mesh2"))
     if not _finite(value, d_mesh, d_time):
         return None
+    level = int(estimate.get("coarse_level", -1)) + 1 if level is None else level
     relative = q != "theta"
     scale = max(abs(float(value)), 1e-300) if relative else 1.0
     time = abs(d_time) / 9.0
-    hi_cap = 2.0**am.LADDER_MAX_ORDER - 1.0
+    d = abs(d_mesh)
+    by_model = d / (2.0**model_order - 1.0)
+    order, mesh = float(model_order), by_model
+    lo, hi = d / (2.0**am.LADDER_MAX_ORDER - 1.0), d / (2.0**am.LADDER_TWO_LEVEL_ORDER - 1.0)
+    how = f"order {order:.2g} of the error model"
     if _finite(d_mesh2):
         m = am.measured_error([value - d_mesh2, value - d_mesh, value], relative=False,
                               period=math.pi if q == "theta" else None)
-        mesh, order = float(m["error"]), float(m["order"])
-        if m["converging"]:
-            lo, hi = mesh / MEASURED_ORDER_BAND, mesh * MEASURED_ORDER_BAND
-            how = f"order {order:.2g} measured from three levels"
+        if m["converging"] and level - 2 >= 1:
+            order, mesh = float(m["order"]), float(m["error"])
+            lo = min(mesh, by_model) / MEASURED_ORDER_BAND
+            hi = max(mesh, by_model) * MEASURED_ORDER_BAND
+            how = f"order {order:.2g} measured from levels {level - 2}-{level}"
+        elif not m["converging"]:
+            hi = max(hi, float(m["error"]))
+            how += f", levels {level - 2}-{level} not converging"
         else:
-            lo, hi = mesh / hi_cap, mesh
-            how = "three levels that do not converge: their larger difference"
+            how += f" (levels {level - 2}-{level}: level 0 short of the asymptotic range)"
     else:
-        order = float(model_order)
-        mesh = abs(d_mesh) / (2.0**order - 1.0)
-        lo, hi = abs(d_mesh) / hi_cap, abs(d_mesh) / (2.0**am.LADDER_TWO_LEVEL_ORDER - 1.0)
-        lo, hi = min(lo, mesh), max(hi, mesh)
-        how = f"order {order:.2g} of the error model, two levels"
+        how += ", two levels"
+    lo, hi = min(lo, mesh), max(hi, mesh)
     return {"abs": mesh + time, "rel": (mesh + time) / scale, "lo": (lo + time) / scale,
             "hi": (hi + time) / scale, "order": order, "how": how, "relative": relative}
 
@@ -669,7 +693,8 @@ def own_errors(case: Case, estimate: dict[str, Any]) -> dict[str, dict[str, Any]
     out = {}
     for q in QUANTITIES:
         for key in (q, f"{q}_mean"):
-            e = own_error(estimate, q, key, float(orders.get(q, error_model.LADDER_TWO_LEVEL_ORDER)))
+            e = own_error(estimate, q, key, float(orders.get(q, error_model.LADDER_TWO_LEVEL_ORDER)),
+                          case.mesh.level)
             if e is not None:
                 out[key] = e
     return out
