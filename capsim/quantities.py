@@ -487,6 +487,9 @@ for _name in _STUDIED:
              _base.scale)
         _add(f"error_estimate/{_key}_time", f"time-step part of the error estimate of the {_base.long_name}",
              _base.units, f"{_name} {_of} of the run minus that of the run at loose_rtol", _base.scale)
+        _add(f"error_estimate/{_key}_mesh2", f"{_base.long_name} two levels coarser, as a difference",
+             _base.units, f"{_name} {_of} of the run minus that of the run two levels coarser (the third level "
+             "that measures the Richardson order); NaN below level 2", _base.scale)
 
 # ---------------------------------------------------------------- accuracy/ (a measured accuracy target: capsim.runs.ladder)
 

@@ -35,8 +35,11 @@ def _imports(path: Path, modules: set[str], text: str | None = None) -> set[str]
                 base = ".".join(package) + (f".{node.module}" if node.module else "")
             else:
                 base = node.module or ""
-            # `from capsim import store` imports the module capsim.storage.store
-            names = [base] + [f"{base}.{alias.name}" for alias in node.names]
+            # `from capsim.storage import store` imports the module capsim.storage.store, and not the
+            # package's __init__ as such when every name it takes is a module
+            names = [f"{base}.{alias.name}" for alias in node.names]
+            if not all(name in modules for name in names):
+                names.append(base)
         else:
             continue
         for name in names:

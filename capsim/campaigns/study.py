@@ -1,6 +1,6 @@
 """Accuracy against cost: a ladder of settings, errors against a reference, wall time.
 
-:func:`run_study` runs one case over a ladder of mesh levels × RKF23 tolerances
+:func:`run_study` runs one case over a ladder of mesh levels × time tolerances (of the case's time.scheme)
 (× regular Gauss orders, optionally), in a process pool, and returns an xarray
 Dataset with, for every setting, the raw values of the observables at ``t_end``,
 their errors against the reference, the wall time, the number of steps and the
@@ -444,13 +444,25 @@ def _settings(ds):
         yield idx
 
 
+def _error_cell(ds, sel, q: str) -> str:
+    """One error, in the convention of accuracy targets, --verify and the error block: relative
+    to |reference| with the absolute beside it; θ in rad (its target's unit)."""
+    error = float(sel[f"{q}_error"])
+    if q == "theta":
+        return f"{error:+.2e}"
+    reference = abs(float(ds[f"{q}_reference"]))
+    relative = error / reference if reference > 0 else float("nan")
+    return f"{relative:+.2e} ({error:+.1e})"
+
+
 def format_study_table(ds) -> str:
     """The study as a text table: one row per setting, then the observed orders."""
     studied = _studied(ds)
     short = {"D_xy": "D_xy", "theta": "θ", "ttf_ratio": "ttf", "Sxy_star": "S*xy", "orbit_period": "T_orbit",
              "orbit_constant": "C", "body_rotation_ratio": "body"}
     head = ["level", "rtol"] + (["quad"] if "regular_order" in ds.dims else []) + [
-        "nodes", "steps", "wall s", studied[0], *(f"err {short.get(q, q)}" for q in studied)] + (
+        "nodes", "steps", "wall s", studied[0],
+        *(f"err {short.get(q, q)}" + (" rad" if q == "theta" else " rel (abs)") for q in studied)] + (
         ["settled"] if "settled" in ds else []) + ["vol drift", "status"]
     rows = []
     for idx in _settings(ds):
@@ -461,7 +473,7 @@ def format_study_table(ds) -> str:
         row += [
             str(int(sel["n_nodes"])), str(int(sel["steps"])), f"{float(sel['wall_time_s']):.1f}",
             f"{float(sel[studied[0]]):.6f}",
-            *(f"{float(sel[f'{q}_error']):+.2e}" for q in studied),
+            *(_error_cell(ds, sel, q) for q in studied),
             *([f"{float(sel['settled']):.0f}"] if "settled" in ds else []),
             f"{float(sel['volume_drift']):.1e}", str(sel["status"].values),
         ]
@@ -573,6 +585,10 @@ def error_estimate(case: Case, summary: dict[str, Any], workers: int = 2,
             jobs.append((apply_overrides(base, **{
                 "mesh.level": case.mesh.level - 1, "time.rtol": case.time.rtol,
                 "output.path": str(Path(tmp) / "mesh.h5")}), "mesh"))
+        if case.mesh.level > 1:  # a third level measures the Richardson order (4x cheaper than level − 1)
+            jobs.append((apply_overrides(base, **{
+                "mesh.level": case.mesh.level - 2, "time.rtol": case.time.rtol,
+                "output.path": str(Path(tmp) / "mesh2.h5")}), "mesh2"))
         records = _run_jobs(jobs, workers, None, window=window)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -592,6 +608,9 @@ def error_estimate(case: Case, summary: dict[str, Any], workers: int = 2,
             out[f"{key}_value"] = main[key]
             out[f"{key}_time"] = float(d_time)
             out[f"{key}_mesh"] = float(d_mesh)
+            out[f"{key}_mesh2"] = float(main[key] - by_kind["mesh2"][key]
+                                        if "mesh2" in by_kind and by_kind["mesh2"]["status"] == "completed"
+                                        else float("nan"))
             # one part alone would be read as the error (at level 0 the time part is ~1e-6,
             # the mesh's error ~1e-2): no total without both
             out[key] = float(abs(d_time) + abs(d_mesh))
@@ -605,13 +624,94 @@ def write_error_estimate(path: str | os.PathLike, estimate: dict[str, Any]) -> N
     store.write_error_estimate(path, estimate)
 
 
-def format_error_estimate(summary: dict[str, Any], estimate: dict[str, Any]) -> str:
+#: the band of an estimate whose order three levels measured: Roache's factor of safety 1.25 for a
+#: grid-convergence index with an observed order (P. J. Roache, Verification and Validation in
+#: Computational Science and Engineering, 1998), taken both ways
+MEASURED_ORDER_BAND = 1.25
+
+
+def _finite(*xs: Any) -> bool:
+    return all(isinstance(x, (int, float)) and math.isfinite(x) for x in xs)
+
+
+def own_error(estimate: dict[str, Any], q: str, key: str, model_order: float,
+              level: int | None = None) -> dict[str, Any] | None:
+    """The run's own error of `key` (``q`` or ``q_mean``) by Richardson from the reruns: the one
+    error statement of the error block and of ``--verify``. Relative to |value| (θ: in rad, as its
+    target), the absolute beside it, with its band {"lo", "hi"}.
+
+    The order: measured from three levels (:func:`capsim.solve.accuracy.measured_error`) where they
+    converge and the coarsest is level 1 or finer; level 0 is short of the asymptotic range
+    (sphere G 0.1 at kt 2, levels 0-3: D_xy 0.3515, 0.3726, 0.3814, 0.3823: the order of levels
+    0-2 is 1.3, of 1-3 3.2), so there, from two levels or from levels that do not converge,
+    the error model's `model_order`. The band: with a measured order, its estimate and the model
+    order's, widened ÷/× MEASURED_ORDER_BAND; else the orders LADDER_MAX_ORDER to
+    LADDER_TWO_LEVEL_ORDER (and up to the larger difference where three levels do not converge).
+    The time part is the 10× looser tolerance's difference over 9 (time error ∝ rtol), in all
+    three. None where the mesh part is unknown (level 0). `level`: the run's (the estimate's
+    coarse_level + 1 when not given)."""
+    from capsim.solve import accuracy as am
+
+    value, d_mesh, d_time, d_mesh2 = (estimate.get(f"{key}{k}") for k in ("_value", "_mesh", "_time", "_mesh2"))
+    if not _finite(value, d_mesh, d_time):
+        return None
+    level = int(estimate.get("coarse_level", -1)) + 1 if level is None else level
+    relative = q != "theta"
+    scale = max(abs(float(value)), 1e-300) if relative else 1.0
+    time = abs(d_time) / 9.0
+    d = abs(d_mesh)
+    by_model = d / (2.0**model_order - 1.0)
+    order, mesh = float(model_order), by_model
+    lo, hi = d / (2.0**am.LADDER_MAX_ORDER - 1.0), d / (2.0**am.LADDER_TWO_LEVEL_ORDER - 1.0)
+    how = f"order {order:.2g} of the error model"
+    if _finite(d_mesh2):
+        m = am.measured_error([value - d_mesh2, value - d_mesh, value], relative=False,
+                              period=math.pi if q == "theta" else None)
+        if m["converging"] and level - 2 >= 1:
+            order, mesh = float(m["order"]), float(m["error"])
+            lo = min(mesh, by_model) / MEASURED_ORDER_BAND
+            hi = max(mesh, by_model) * MEASURED_ORDER_BAND
+            how = f"order {order:.2g} measured from levels {level - 2}-{level}"
+        elif not m["converging"]:
+            hi = max(hi, float(m["error"]))
+            how += f", levels {level - 2}-{level} not converging"
+        else:
+            how += f" (levels {level - 2}-{level}: level 0 short of the asymptotic range)"
+    else:
+        how += ", two levels"
+    lo, hi = min(lo, mesh), max(hi, mesh)
+    return {"abs": mesh + time, "rel": (mesh + time) / scale, "lo": (lo + time) / scale,
+            "hi": (hi + time) / scale, "order": order, "how": how, "relative": relative}
+
+
+def own_errors(case: Case, estimate: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """:func:`own_error` of every quantity the estimate holds (orders from the case's error model)."""
+    from capsim.solve import accuracy as error_model
+
+    orders = error_model.entry(case.error_model_features())[0]["order"]
+    out = {}
+    for q in QUANTITIES:
+        for key in (q, f"{q}_mean"):
+            e = own_error(estimate, q, key, float(orders.get(q, error_model.LADDER_TWO_LEVEL_ORDER)),
+                          case.mesh.level)
+            if e is not None:
+                out[key] = e
+    return out
+
+
+def format_error_estimate(summary: dict[str, Any], estimate: dict[str, Any],
+                          errors: dict[str, dict[str, Any]] | None = None) -> str:
     """Lines 'q  value ± estimate (mesh …, time …)' for the summary values; a part that could
-    not be had (level 0 has no coarser mesh) is said to be unknown, and so is the ±."""
+    not be had (level 0 has no coarser mesh) is said to be unknown, and so is the ±. With `errors`
+    (:func:`own_errors`) the ± is the run's own error by Richardson, relative beside it: the same
+    statement ``--verify`` judges."""
     coarse = int(estimate["coarse_level"])
+    errors = errors or {}
     if coarse >= 0:
+        what = ("the Richardson estimate of the run's own error (absolute; relative beside it, θ in rad)"
+                if errors else "error estimate |mesh| + |time| (not a window spread)")
         lines = [f"error estimate (level {coarse} and rtol {estimate['loose_rtol']:g} reruns, "
-                 f"{estimate['wall_time_s']:.1f} s); value ± error estimate |mesh| + |time| (not a window spread), "
+                 f"{estimate['wall_time_s']:.1f} s); value ± {what}, "
                  "θ in units of π as in the table above:"]
     else:
         lines = [f"error estimate: the rtol {estimate['loose_rtol']:g} rerun only ({estimate['wall_time_s']:.1f} s): "
@@ -631,8 +731,11 @@ def format_error_estimate(summary: dict[str, Any], estimate: dict[str, Any]) -> 
             if not isinstance(value, (int, float)) or not math.isfinite(value):
                 continue
             c = scales.get(q, 1.0)
-            lines.append(f"  {label + where:<{width}}  {value / c:.6f} ± {shown(estimate.get(key), c, '.2e')}"
-                         f"  (mesh {shown(estimate.get(f'{key}_mesh'), c, '+.1e')}, "
+            own = errors.get(key)
+            bar = shown(own["abs"] if own else estimate.get(key), c, ".2e")
+            rel = (f"{own['rel']:.1e} {'relative' if own['relative'] else 'rad'}, " if own else "")
+            lines.append(f"  {label + where:<{width}}  {value / c:.6f} ± {bar}"
+                         f"  ({rel}mesh {shown(estimate.get(f'{key}_mesh'), c, '+.1e')}, "
                          f"time {shown(estimate.get(f'{key}_time'), c, '+.1e')})")
     return "\n".join(lines)
 
@@ -642,7 +745,7 @@ def run_error_estimate(case: Case, summary: dict[str, Any], workers: int = 2, ve
     with `verify` (``--verify``) the last line says whether the case's accuracy target was met."""
     estimate = error_estimate(case, summary, workers=workers)
     write_error_estimate(case.output.path, estimate)  # the run's result itself is read-only (RunResult)
-    text = format_error_estimate(summary, estimate)
+    text = format_error_estimate(summary, estimate, own_errors(case, estimate))
     return text + "\n" + verification(case, estimate) if verify else text
 
 
@@ -664,11 +767,11 @@ def check_run(case: Case, summary: dict[str, Any], error_estimate: bool = False,
 
 def run_verification(case: Case, summary: dict[str, Any], workers: int = 2) -> tuple[str, bool | None]:
     """`capsim run --verify`: :func:`run_error_estimate`'s lines with the verdict, and whether the
-    target was met (None: unchecked); a target NOT met exits 3, as a ladder's does."""
+    target was met (None: unchecked or undecided); a target NOT met exits 3, as a ladder's does."""
     estimate = error_estimate(case, summary, workers=workers)
     write_error_estimate(case.output.path, estimate)
     line, met = _verified(case, estimate)
-    return format_error_estimate(summary, estimate) + "\n" + line, met
+    return format_error_estimate(summary, estimate, own_errors(case, estimate)) + "\n" + line, met
 
 
 def verification(case: Case, estimate: dict[str, Any]) -> str:
@@ -677,25 +780,33 @@ def verification(case: Case, estimate: dict[str, Any]) -> str:
     return _verified(case, estimate)[0]
 
 
+def verdict(error: float, lo: float, hi: float, target: float) -> tuple[str, bool | None]:
+    """The verdict of an error estimate with its band [lo, hi] against a target: met where the band
+    is below it, met within the estimate's uncertainty where the estimate is, undecided where only
+    the band's lower end is, NOT met where the whole band is above: no flat NOT met that the
+    estimate's own uncertainty does not carry."""
+    if hi <= target:
+        return "target met", True
+    if error <= target:
+        return "target met within the estimate's uncertainty", True
+    if lo <= target:
+        return "undecided: the estimate's uncertainty straddles the target", None
+    return "target NOT met", False
+
+
 def _verified(case: Case, estimate: dict[str, Any]) -> tuple[str, bool | None]:
     target = case.accuracy
     if target is None:
         return "verify: the case has no accuracy target (give accuracy: {quantity, target} or --accuracy)", None
-    from capsim.solve import accuracy as error_model
-
     q = target.quantity
-    value, d_mesh, d_time = (estimate.get(f"{q}{k}") for k in ("_value", "_mesh", "_time"))
-    if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in (value, d_mesh, d_time)):
+    own = own_errors(case, estimate).get(q)
+    if own is None:
         return f"verify: no error estimate of {q} (level 0 has no coarser mesh): the target is unchecked", None
-    # the run's own error by Richardson: the coarser level's difference over 2^p − 1 (p the order
-    # of the error model's entry), the 10× looser tolerance's over 9 (time error ∝ rtol)
-    entry, _ = error_model.entry(case.error_model_features())
-    order = float(entry["order"][q])
-    error = abs(d_mesh) / (2.0**order - 1.0) + abs(d_time) / 9.0
-    achieved = error if q == "theta" else error / max(abs(float(value)), 1e-300)
-    met = achieved <= target.target
-    return (f"verify: {q} error {achieved:.2g} (Richardson from the reruns, order {order:.2g}) "
-            f"{'<=' if met else '>'} target {target.target:g}: target {'met' if met else 'NOT met'} ({target.choice})",
+    said, met = verdict(own["rel"], own["lo"], own["hi"], target.target)
+    unit = "relative" if own["relative"] else "rad"
+    return (f"verify: {q} error {own['rel']:.2g} {unit} ({own['abs']:.2g} absolute; Richardson from the reruns, "
+            f"{own['how']}; uncertainty {own['lo']:.2g} to {own['hi']:.2g}) "
+            f"{'<=' if own['rel'] <= target.target else '>'} target {target.target:g}: {said} ({target.choice})",
             met)
 
 

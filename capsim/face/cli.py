@@ -543,7 +543,7 @@ def _number_list(text: str, kind: type, option: str) -> list:
 def study(
     case_path: Path = typer.Argument(..., metavar="CASE.yaml", help="case file"),
     levels: str = typer.Option("2,3,4", "--levels", help="mesh levels, comma-separated"),
-    rtols: str = typer.Option("1e-3,1e-4,1e-5", "--rtols", help="RKF23 tolerances, comma-separated"),
+    rtols: str = typer.Option("1e-3,1e-4,1e-5", "--rtols", help="time.rtol values of the case's time.scheme, comma-separated"),
     quad: Optional[str] = typer.Option(None, "--quad", help="regular Gauss orders (points per element), comma-separated"),
     reference: StudyReference = typer.Option(
         "finest", "--reference", help="finest (run) or richardson (extrapolated in the level)"),
