@@ -455,8 +455,7 @@ class EmbeddedRungeKutta(Integrator):
 
     def _try(self, h: float) -> tuple[Trial, np.ndarray, bool]:
         stages = self._at([self.t + c * h for c in self.tableau.c[1:]])
-        res = attempt_step(stages, self.y, h, self.tableau, self.error_rtol, k1=self.u, size=self.size_of(self.y),
-                           error_of=self.error_of)
+        res = attempt_step(stages, self.y, h, self.tableau, self.error_rtol, k1=self.u, error_of=self.error_of)
         finite = bool(np.isfinite(res.error) and np.all(np.isfinite(res.y)))
         trial = Trial(accepted=finite and res.error <= 1.0, finite=finite, h=h, error=res.error,
                       stages=len(self.tableau.c) - 1)
