@@ -36,6 +36,7 @@ from pydantic import (
 from capsim.errors import bounded_repr, first_line
 from capsim.scene.flows import (FLOW_FIELDS, FLOW_HISTORIES, FLOWS, HISTORY_FIELDS, SYMMETRY_CANDIDATES,
                           fields_problem, symmetries_kept)
+from capsim.scene.conduit import CONDUIT_FIELDS, CONDUITS, TRUNCATION_DEFAULT
 from capsim.solve.timestepping import DEFAULT_SCHEME, SCHEMES
 from capsim.numerics.viscosity import VISCOSITY_MODELS
 from capsim.numerics.viscosity import is_active as is_viscous
@@ -895,6 +896,53 @@ class Wall(_Model):
     )
 
 
+class Conduit(_Model):
+    """The scene's conduit: a rigid tube or duct along x that the capsules flow through
+    (capsim.scene.conduit), with flow.kind conduit, its fully developed pressure-driven flow."""
+
+    kind: Literal[tuple(CONDUITS)] = Field(  # type: ignore[valid-type]
+        ..., description="the conduit's cross-section: " + "; ".join(
+            f"{name}: {cls.description}" for name, cls in CONDUITS.items()))
+    radius: Optional[float] = Field(
+        None, gt=1.0, le=100.0, description="kind: tube only: its radius R in units of a (the capsule's a/R = 1/R)")
+    half_widths: Optional[tuple[float, float]] = Field(
+        None, description="kind: duct only: its half-widths [h_y, h_z] in units of a, each in (1, 100]")
+    length: Optional[float] = Field(
+        None, gt=0, le=1e3, description="the truncated conduit's length L (units of a); default: from "
+        "conduit.truncation (the disturbance's decay along the conduit, docs/conduits.md)")
+    truncation: float = Field(
+        TRUNCATION_DEFAULT, gt=0, lt=0.1,
+        description="the truncation error the closed ends may cause, relative to the capsule's disturbance: the "
+        "length is chosen so that exp(-k l/h) is below it (k the conduit's measured decay rate, h its half-width, "
+        "l the distance from the capsule's reach to an end)")
+    element_size: Optional[float] = Field(
+        None, gt=0.05, le=5.0, description="the wall's element size near the capsules (units of a; growing "
+        "away from them); default: 2πh/24, h the half-width (docs/conduits.md: the accuracy it gives)")
+
+    @field_validator("half_widths")
+    @classmethod
+    def _half_widths_in_range(cls, v):
+        if v is not None and not all(1.0 < h <= 100.0 for h in v):
+            raise ValueError(f"each half-width must be in (1, 100] (units of a), got {list(v)}")
+        return v
+
+    @model_validator(mode="after")
+    def _fields_of_the_kind(self) -> "Conduit":
+        problem = fields_problem(self, CONDUITS, CONDUIT_FIELDS)
+        if problem is not None:
+            raise _FieldProblem(*problem)
+        if self.length is not None:
+            from capsim.scene.conduit import NEAR_REACH, conduit_kind, truncation_error
+
+            kind = conduit_kind(self)
+            error = truncation_error(self, kind, self.length)
+            if self.length <= 2 * NEAR_REACH or error > self.truncation:
+                raise _FieldProblem("length", self.length, f"is too short for conduit.truncation = "
+                                    f"{self.truncation:g}: its ends err by {min(error, 1.0):.2g}; leave length out "
+                                    "(chosen from the truncation) or raise the truncation")
+        return self
+
+
 class Capsule(_Model):
     """One capsule of a scene of several (``capsules:``): where it starts, and what differs from
     the top-level sections, which every field it leaves out takes (capsim.scene.bodies)."""
@@ -990,6 +1038,10 @@ class Case(_Model):
     wall: Optional[Wall] = Field(
         None, description="a no-slip plane wall below the capsule (none: unbounded flow); simple shear, any λ, "
         "any membrane; the run stops 'unstable' (guard min_wall_gap) before the membrane touches it")
+    conduit: Optional[Conduit] = Field(
+        None, description="a rigid conduit (a tube or a duct along x) the capsules flow through, with flow.kind "
+        "conduit (its pressure-driven flow; G = μU/E_s with U the mean velocity); the run stops 'unstable' (guard "
+        "min_wall_gap) before a membrane touches its wall")
     accuracy: Optional[Accuracy] = Field(
         None, description="an accuracy target: capsim picks mesh.level and time.rtol that meet it at the least "
         "predicted cost (give it or those two, not both); capsim run --verify checks it afterwards")
@@ -1172,6 +1224,40 @@ class Case(_Model):
             raise _FieldProblem("wall.distance", self.wall.distance,
                                 f"the rest shape reaches {below:.4g} a below its centre: it must clear the wall by "
                                 f"guards.min_wall_gap = {gap:g} (give distance > {below + gap:.4g})")
+        return self
+
+    @model_validator(mode="after")
+    def _a_conduit_this_case_can_take(self) -> Case:
+        if (self.conduit is None) != (self.flow.kind != "conduit"):
+            if self.conduit is None:
+                raise _FieldProblem("flow.kind", self.flow.kind, "is the flow of a conduit: give the conduit section")
+            raise _FieldProblem("conduit", self.conduit.kind, f"takes flow.kind conduit (its pressure-driven flow), "
+                                f"not {self.flow.kind}")
+        if self.conduit is None:
+            return self
+        if self.wall is not None:
+            raise _FieldProblem("wall", self.wall.distance, "and a conduit cannot bound one scene; remove one")
+        from capsim.numerics.geometry import numpy_quadrature  # a check need not import numba
+        from capsim.scene import body_mesh, body_specs
+        from capsim.scene.conduit import conduit_kind
+
+        kind = conduit_kind(self.conduit)
+        gap = self.guards.min_wall_gap
+        for j, spec in enumerate(body_specs(self)):
+            with numpy_quadrature():
+                nodes = body_mesh(spec, self.mesh.base, min(self.mesh.level, 3))[0]
+            clearance = float(kind.gap(nodes).min())
+            if clearance >= gap:
+                continue
+            placed = bool(self.capsules) or self.initial_center is not None
+            field = (f"capsules[{j}].center" if self.capsules else "initial_center") if placed else \
+                f"conduit.{kind.uses[0]}"
+            value = list(spec.center) if placed else getattr(self.conduit, kind.uses[0])
+            if clearance < 0:
+                raise _FieldProblem(field, value, f"puts the capsule outside the {kind.describe()}: its rest shape "
+                                    f"reaches {-clearance:.4g} a beyond the wall; place it inside")
+            raise _FieldProblem(field, value, f"leaves the capsule {clearance:.4g} a from the {kind.describe()}'s "
+                                f"wall: it must clear it by guards.min_wall_gap = {gap:g}")
         return self
 
     @model_validator(mode="after")

@@ -131,7 +131,16 @@ _add("centroid_travel", "distance the centroid travelled", "1",
      "distance from the volume centroid at the run's first row to its last, in units of a (several capsules: "
      "the largest); every shape value is measured about the centroid, wherever it went", "a")
 _add("wall_gap", "gap between membrane and wall", "1",
-     "smallest distance of a membrane node from the wall (runs with a wall only), in units of a", "a")
+     "smallest distance of a membrane node from the wall or the conduit's wall (runs with one only), in units "
+     "of a", "a")
+# conduits (conduit:, capsim.scene.conduit): velocities in units of the mean velocity U (k = U/a)
+_add("extra_pressure_drop", "additional pressure drop", "1",
+     "ΔP+, the pressure drop the capsule adds to the empty conduit's at the same flow rate, in units of μU/a "
+     "(runs in a conduit only; U the conduit's mean velocity): by the reciprocal theorem with the empty "
+     "conduit's flow, ΔP+ Q = ∫ u∞·Δf dS + (λ − 1) ∫ u·σ∞·n dS (docs/conduits.md); ΔP+ R/(μU) is it times R/a")
+_add("axis_offset", "distance of the centroid from the conduit's axis", "1",
+     "distance of the volume centroid from the conduit's axis (the x-axis), in units of a (runs in a conduit "
+     "only): a capsule's lateral migration", "a")
 # several capsules (capsules:, issue 43): the scene's columns beside every capsule's own
 _add("capsule", "capsule index", "1",
      "zero-based index of a capsule of the scene, in the order of the case's capsules list; a per-capsule "

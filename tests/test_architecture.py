@@ -250,7 +250,8 @@ def test_one_formatter_for_every_schema_error():
 #: boundary kind's regular part is a kernel), the membrane laws (the capsules' own materials);
 #: nothing of the solve, the time stepping, the files, the campaigns or the face
 SCENE_MAY_IMPORT = {"capsim.scene.flows", "capsim.numerics.mesh", "capsim.numerics.geometry", "capsim.numerics.quadrature", "capsim.numerics.kernels",
-                    "capsim.numerics.membrane", "capsim.errors"}
+                    "capsim.numerics.membrane", "capsim.numerics.conduit_mesh", "capsim.numerics.rigid_surface",
+                    "capsim.errors"}
 
 
 def test_the_scene_imports_nothing_above_it():

@@ -16,6 +16,7 @@ from capsim.scene.bodies import (MAX_CAPSULES, MAX_SCENE_NODES, Bodies, BodySpec
                                  run_capsule_count, scene_mesh, smallest_gap, start_problem, winding_numbers)
 from capsim.scene.boundaries import BOUNDARIES, Boundary, boundaries_of, register_boundary
 from capsim.scene import plane_wall  # noqa: F401 - registers the plane wall (a boundary kind is its module)
+from capsim.scene import conduit  # noqa: F401 - registers the conduit
 from capsim.scene.scene import Scene, scene_of
 
 __all__ = ["BOUNDARIES", "Boundary", "boundaries_of", "register_boundary", "Scene", "scene_of", "Bodies",

@@ -12,6 +12,8 @@ G = G_free + G_boundary, G_boundary regular while the membrane stays off the bou
 boundary contributes through these methods alone, and the solver, guards, observables, plots
 and export ask them — never where the boundary lies:
 
+- :meth:`Boundary.placed`: the boundary as it lies for the capsules' nodes at one evaluation
+  (itself, or a straight conduit's piece centred on them);
 - :meth:`Boundary.far_field`: the undisturbed flow the boundary admits (a no-slip wall: the flow
   shifted to vanish on it);
 - :meth:`Boundary.gap`: the smallest distance of the membrane's nodes from it (units of a): the
@@ -57,6 +59,11 @@ class Boundary(Kind):
         """The undisturbed flow of the scene bounded by this boundary, from the flow's own."""
         raise NotImplementedError
 
+    def placed(self, x: np.ndarray) -> "Boundary":
+        """The boundary as it lies for the capsules' nodes x (N, 3) at one evaluation: itself,
+        unless it follows them (a straight conduit's truncated piece is centred on them)."""
+        return self
+
     def gap(self, x: np.ndarray) -> float:
         """The smallest distance of the nodes x (N, 3) from the boundary (units of a)."""
         raise NotImplementedError
@@ -69,6 +76,12 @@ class Boundary(Kind):
                      u_points: np.ndarray) -> np.ndarray:
         """Σ_m u_m·T_boundary(point_m, target)·(n w)_m at every target (T, 3)."""
         raise NotImplementedError
+
+    def quantities(self, points: np.ndarray, load_w: np.ndarray, u_points: np.ndarray, normals_w: np.ndarray,
+                   center: np.ndarray, G: float, viscosity_ratio: float) -> dict:
+        """The boundary's own columns of one capsule (a conduit's additional pressure drop), from
+        the capsule's rule points, its load and velocity there (times the weights); none by default."""
+        return {}
 
     def outline_xy(self, lo: float, hi: float) -> tuple[np.ndarray, np.ndarray]:
         """(its trace in the xy-plane between x = lo and hi (k, 2), the solid side's band (m, 2))."""

@@ -304,6 +304,35 @@ class Poiseuille(Flow):
         return PoiseuilleFarField(float(flow.poiseuille_radius))
 
 
+@dataclass(frozen=True)
+class ConduitFlowPlaceholder:
+    """flow.kind conduit before its conduit places it: the scene's conduit (capsim.scene.conduit)
+    replaces it by the fully developed flow of its cross-section (Scene.far_field)."""
+
+    linear: ClassVar[bool] = False
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        raise ValueError("flow.kind conduit needs a conduit section (the conduit's flow)")
+
+    def is_invariant(self, signs: np.ndarray) -> bool:
+        return bool(signs[0] == 1.0)
+
+
+@register_flow
+class PressureDriven(Flow):
+    name = "conduit"
+    description = ("the pressure-driven flow of the case's conduit (its conduit section: a tube, a duct) along +x, "
+                   "fully developed, U its mean velocity; the capsule placed with initial_center")
+    rate = "U/a, the conduit's mean velocity over the capsule's radius: G = μU/E_s is the conduit's capillary number"
+    # no first-order theory: the capsule's strain rate varies over it; D_xy and θ are what the
+    # steady summary compares (the capsule's shape in the flow's plane)
+    steady_quantities = ("D_xy", "theta")
+
+    @classmethod
+    def far_field(cls, flow: Any) -> ConduitFlowPlaceholder:
+        return ConduitFlowPlaceholder()
+
+
 #: the optional fields of ``flow`` that some kind reads
 FLOW_FIELDS = tuple(sorted({f for cls in FLOWS.values() for f in cls.uses}))
 

@@ -1378,6 +1378,23 @@ class StepObserver:
         self.tracker.restore({k.removeprefix("tracker."): v for k, v in state.items() if k.startswith("tracker.")})
 
 
+def boundary_quantities(model, geometry, density: np.ndarray, weights: np.ndarray, u: np.ndarray,
+                        elements: np.ndarray, center: np.ndarray, lam: float) -> dict:
+    """The scene's boundaries' own columns of one capsule (capsim.scene.Boundary.quantities: a
+    conduit's additional pressure drop), from the capsule's load and velocity at its rule points."""
+    phi = model.disc.reg_phi
+    df = interpolate(phi, density) if density.ndim == 3 else np.broadcast_to(density[:, None, :], geometry.points.shape)
+    w = geometry.weights if weights is None else weights
+    load_w = (df * w[..., None]).reshape(-1, 3)
+    u_points = interpolate(phi, u[elements]).reshape(-1, 3)
+    normals_w = (geometry.normals * geometry.weights[..., None]).reshape(-1, 3)
+    points = geometry.points.reshape(-1, 3)
+    row: dict = {}
+    for boundary in model.scene.boundaries:
+        row.update(boundary.quantities(points, load_w, u_points, normals_w, center, model.shear_rate_G, lam))
+    return row
+
+
 def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarray, weights: np.ndarray,
                 strain, elements: np.ndarray, director: MaterialDirector, material: dict | None = None) -> dict:
     """One capsule's columns at an accepted state (its nodes y, u, its elements' geometry,
@@ -1405,6 +1422,7 @@ def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarr
     gap = model.scene.boundary_gap(y)  # the scene's boundaries (a wall): the guard min_wall_gap reads it
     if gap is not None:
         row["wall_gap"] = gap
+        row.update(boundary_quantities(model, geometry, density, weights, u, elements, center, lam))
     S_star = particle_stresslet(
         geometry, density, u, elements, model.disc.reg_phi, center, row["volume"],
         model.shear_rate_G, lam, weights,

@@ -390,6 +390,7 @@ class Discretization:
         u = kernels.stokeslet_sum(x[self.targets], geo.points.reshape(-1, 3), strengths)
         clock.lap("stokeslet_sum")
         for boundary in boundaries:
+            boundary = boundary.placed(x)
             fine = self.boundary_fine_rule(x, geo, boundary)
             if fine is None:
                 u += boundary.single_layer(x[self.targets], geo.points.reshape(-1, 3), strengths)
@@ -469,6 +470,7 @@ class Discretization:
             geo.points, nw, u_pts, *self.duffy_by_node, self.sing_w, t,
         )
         for boundary in boundaries:
+            boundary = boundary.placed(x)
             fine = self.boundary_fine_rule(x, geo, boundary)
             if fine is None:
                 out += boundary.double_layer(x[t], geo.points.reshape(-1, 3), nw.reshape(-1, 3), u_pts.reshape(-1, 3))

@@ -88,12 +88,16 @@ SCENES = {
     "capsules": {"flow": {"G": 0.05}, "capsules": [{"center": [4.0, -0.5, 0.0]}, {"center": [-4.0, 0.5, 0.0]}]},
     "capsules above a wall": {"flow": {"G": 0.05}, "wall": {"distance": 2.0},
                               "capsules": [{"center": [4.0, 0.0, 0.0]}, {"center": [-4.0, 0.5, 0.0]}]},
+    "conduit": {"flow": {"kind": "conduit", "G": 0.05}, "conduit": {"kind": "tube", "radius": 2.0}},
+    "conduit duct": {"flow": {"kind": "conduit", "G": 0.05}, "conduit": {"kind": "duct", "half_widths": [2.0, 1.5]}},
 }
 
 
 def test_every_scene_kind_is_sampled():
+    from capsim.scene.conduit import CONDUITS
     from capsim.scene.flows import FLOW_HISTORIES, FLOWS
 
+    assert {f"conduit {k}" for k in CONDUITS if k != "tube"} <= set(SCENES)
     assert set(FLOWS) <= set(SCENES) and {f"history {k}" for k in FLOW_HISTORIES} <= set(SCENES)
 
 

@@ -1,0 +1,487 @@
+"""Conduits (the case's ``conduit:`` section): a rigid tube or duct the capsules flow through.
+
+A conduit is a boundary kind (capsim.scene.boundaries) whose surface is discretised: a closed
+surface of 6-node triangles (the side wall, and two flat caps that close the truncated
+conduit at x = ±L/2; capsim.numerics.conduit_mesh) carrying an unknown traction density q.
+Everything that knows where the conduit's wall lies is here.
+
+**The formulation** (docs/conduits.md). The undisturbed flow u∞ is the fully developed
+pressure-driven flow of the empty conduit (capsim.scene.conduit_profiles; it vanishes on the
+wall); the capsules' disturbance vanishes on the wall too. The disturbance velocity at a point
+x of the fluid is the capsules' free-space single and double layers plus the wall's single
+layer ∫_W G(x, y)·q(y) dS, and q is fixed by u_disturbance = 0 at the wall's nodes:
+
+    W q = −c,   c = the capsules' free-space layers at the wall's nodes,
+
+W the wall's single-layer matrix (collocation at its nodes, capsim.numerics.rigid_surface),
+built and LU-factorised once per run. Eliminating q (a Schur complement) makes the conduit one
+more regular part of the Green's function, as the plane wall's image is: G_conduit(x, y)·s =
+−∫_W G(x, z)·(W⁻¹ G(·, y)·s)(z) dS_z, and likewise for the double layer (the conduit's Green's
+function vanishes on the wall, so its double layer at the wall is minus the free-space one).
+So the solver, the time schemes and the λ ≠ 1 solve run unchanged: each application of a
+layer costs one capsule→wall sum, one back-substitution and one wall→capsule sum.
+
+**The closed ends.** The truncated conduit is closed by caps on which the disturbance also
+vanishes: the disturbance decays exponentially along a conduit (its slowest Stokes mode decays
+like exp(−k x/h), h the half-width), so closing it a distance ℓ from the capsule errs by
+O(exp(−k ℓ/h)); the disturbance pressure does not decay (the capsule's additional pressure
+drop), which caps carry as a uniform normal traction. On a closed surface W has a null vector
+(q = n: a uniform pressure moves no fluid), removed by a rank-one term (Pozrikidis 1992, §6.4).
+
+**The window.** A straight conduit is the same at every x: its truncated piece is placed
+centred on the capsules (their nodes' mean x) at every evaluation, so W is factorised once
+and a capsule travels any distance.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import Any, ClassVar
+
+import numpy as np
+
+from capsim.scene.boundaries import Boundary, register_boundary
+from capsim.scene.flows import Kind, _registrar
+
+def _profiles():
+    from capsim.scene import conduit_profiles  # numpy; imported where a flow is evaluated
+
+    return conduit_profiles
+
+
+#: conduit.kind → its class (the schema's choices follow this)
+CONDUITS: dict[str, type["ConduitKind"]] = {}
+register_conduit = _registrar(CONDUITS)
+
+
+class ConduitKind(Kind):
+    """A kind of conduit: its cross-section (where the wall lies, the fully developed flow in
+    it, how fast a disturbance decays along it) and its surface mesh. Lengths in units of a,
+    velocities in units of the mean velocity U."""
+
+    #: the slowest decay rate of a Stokes disturbance along the conduit, times its half-width h
+    #: (measured: docs/conduits.md, "Truncation"); the truncation error is ~exp(−decay ℓ/h)
+    decay: ClassVar[float]
+    #: whether the conduit is the same at every x (its mesh follows the capsules)
+    straight: ClassVar[bool] = True
+
+    def __init__(self, section: Any):
+        self.section = section
+
+    @property
+    def half_width(self) -> float:
+        """h: the smallest distance from the axis to the wall (the decay's length scale)."""
+        raise NotImplementedError
+
+    @property
+    def reach_y(self) -> float:
+        """The wall's distance from the axis along y (the plots' outline)."""
+        raise NotImplementedError
+
+    def gap(self, x: np.ndarray) -> np.ndarray:
+        """The distance of each point (N, 3) from the side wall (negative outside)."""
+        raise NotImplementedError
+
+    def velocity(self, x: np.ndarray) -> np.ndarray:
+        """The fully developed flow at the points (N, 3), mean velocity 1 along x."""
+        raise NotImplementedError
+
+    def gradient(self, point: np.ndarray) -> np.ndarray:
+        """∂u_i/∂x_j of the fully developed flow at one point (3, 3)."""
+        raise NotImplementedError
+
+    @property
+    def area(self) -> float:
+        """The cross-section's area (the flow rate Q = U·area)."""
+        raise NotImplementedError
+
+    @property
+    def centerline_velocity(self) -> float:
+        raise NotImplementedError
+
+    @property
+    def wall_shear(self) -> float:
+        """The mean wall shear stress of the fully developed flow (units of μU/a): the pressure
+        gradient times area over perimeter."""
+        raise NotImplementedError
+
+    @property
+    def pressure_gradient(self) -> float:
+        """|dp/dx| of the fully developed flow (units of μU/a²)."""
+        raise NotImplementedError
+
+    def mesh(self, length: float, size_near: float, size_far: float, near_half_length: float):
+        raise NotImplementedError
+
+    def describe(self) -> str:
+        raise NotImplementedError
+
+
+@register_conduit
+class Tube(ConduitKind):
+    name = "tube"
+    description = "a circular tube of radius conduit.radius about the x-axis (Poiseuille flow in it)"
+    uses = ("radius",)
+    # the tube's slowest Stokes mode decays like exp(−k x/R); k measured (docs/conduits.md, "Truncation")
+    decay = 3.0
+
+    @property
+    def radius(self) -> float:
+        return float(self.section.radius)
+
+    @property
+    def half_width(self) -> float:
+        return self.radius
+
+    @property
+    def reach_y(self) -> float:
+        return self.radius
+
+    def gap(self, x: np.ndarray) -> np.ndarray:
+        return self.radius - np.hypot(x[:, 1], x[:, 2])
+
+    def velocity(self, x: np.ndarray) -> np.ndarray:
+        u = np.zeros_like(x)
+        u[:, 0] = _profiles().tube_velocity(x[:, 1], x[:, 2], self.radius)
+        return u
+
+    def gradient(self, point: np.ndarray) -> np.ndarray:
+        return _profiles().tube_gradient(np.asarray(point, dtype=np.float64).reshape(1, 3), self.radius)[0]
+
+    @property
+    def area(self) -> float:
+        return math.pi * self.radius ** 2
+
+    @property
+    def centerline_velocity(self) -> float:
+        return 2.0
+
+    @property
+    def wall_shear(self) -> float:
+        return float(_profiles().tube_wall_shear(self.radius))
+
+    @property
+    def pressure_gradient(self) -> float:
+        return 8.0 / self.radius ** 2
+
+    def mesh(self, length: float, size_near: float, size_far: float, near_half_length: float):
+        from capsim.numerics.conduit_mesh import tube_mesh
+
+        return tube_mesh(self.radius, length, size_near, size_far, near_half_length)
+
+    def describe(self) -> str:
+        return f"tube R = {self.radius:g} a"
+
+
+@register_conduit
+class Duct(ConduitKind):
+    name = "duct"
+    description = ("a rectangular duct about the x-axis, |y| <= h_y and |z| <= h_z, conduit.half_widths "
+                   "[h_y, h_z] (its series solution)")
+    uses = ("half_widths",)
+    decay = 2.5
+
+    @property
+    def half_widths(self) -> tuple[float, float]:
+        hy, hz = self.section.half_widths
+        return float(hy), float(hz)
+
+    @property
+    def half_width(self) -> float:
+        return min(self.half_widths)
+
+    @property
+    def reach_y(self) -> float:
+        return self.half_widths[0]
+
+    def gap(self, x: np.ndarray) -> np.ndarray:
+        hy, hz = self.half_widths
+        return np.minimum(hy - np.abs(x[:, 1]), hz - np.abs(x[:, 2]))
+
+    def velocity(self, x: np.ndarray) -> np.ndarray:
+        hy, hz = self.half_widths
+        u = np.zeros_like(x)
+        u[:, 0] = _profiles().duct_velocity(x[:, 1], x[:, 2], hy, hz)
+        return u
+
+    def gradient(self, point: np.ndarray) -> np.ndarray:
+        hy, hz = self.half_widths
+        return _profiles().duct_gradient(np.asarray(point, dtype=np.float64).reshape(1, 3), hy, hz)[0]
+
+    @property
+    def area(self) -> float:
+        hy, hz = self.half_widths
+        return 4.0 * hy * hz
+
+    @property
+    def centerline_velocity(self) -> float:
+        return float(_profiles().duct_centerline_velocity(*self.half_widths))
+
+    @property
+    def wall_shear(self) -> float:
+        hy, hz = self.half_widths
+        return self.pressure_gradient * self.area / (4.0 * (hy + hz))
+
+    @property
+    def pressure_gradient(self) -> float:
+        return float(_profiles().duct_pressure_gradient(*self.half_widths))
+
+    def mesh(self, length: float, size_near: float, size_far: float, near_half_length: float):
+        from capsim.numerics.conduit_mesh import duct_mesh
+
+        return duct_mesh(*self.half_widths, length, size_near, size_far, near_half_length)
+
+    def describe(self) -> str:
+        hy, hz = self.half_widths
+        return f"duct {2 * hy:g} a × {2 * hz:g} a"
+
+
+#: the conduit section's fields some kind reads
+CONDUIT_FIELDS = tuple(sorted({f for cls in CONDUITS.values() for f in cls.uses}))
+
+
+@dataclass(frozen=True)
+class ConduitFarField:
+    """The fully developed pressure-driven flow of a conduit along +x, mean velocity 1 (the
+    velocity unit U; the time unit a/U, so G = μU/E_s: the conduit's capillary number)."""
+
+    kind: Any  # a ConduitKind
+    linear: ClassVar[bool] = False
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        return self.kind.velocity(np.asarray(x, dtype=np.float64).reshape(-1, 3))
+
+    @property
+    def matrix(self) -> np.ndarray:
+        raise ValueError("a conduit's flow has no constant velocity gradient")
+
+    def gradient_at(self, point: np.ndarray) -> np.ndarray:
+        return self.kind.gradient(point)
+
+    def is_invariant(self, signs: np.ndarray) -> bool:
+        # u_x is even in y and z (a tube's or a duct's cross-section is mirror-symmetric) and the
+        # flow goes one way along x: S x keeps it when S_x = +1
+        return bool(signs[0] == 1.0)
+
+
+def conduit_kind(section: Any) -> ConduitKind:
+    return CONDUITS[section.kind](section)
+
+
+@register_boundary
+@dataclass(frozen=True, eq=False)
+class RigidConduit(Boundary):
+    """A rigid conduit about the x-axis (its kind: tube, duct), truncated to ``length`` and closed
+    by caps; ``size_near`` the wall's element size along the capsules' stretch, growing to
+    ``size_far`` beyond."""
+
+    name: ClassVar[str] = "conduit"
+    section: ClassVar[str] = "conduit"
+    description: ClassVar[str] = ("a rigid conduit (a circular tube, a rectangular duct) along x, meshed with "
+                                  "6-node triangles carrying the wall's unknown traction")
+    uses: ClassVar[tuple[str, ...]] = CONDUIT_FIELDS
+    flows: ClassVar[tuple[str, ...]] = ("conduit",)
+    label: ClassVar[str] = "conduit"
+
+    kind: ConduitKind
+    length: float
+    size_near: float
+    size_far: float
+    near_half_length: float
+    #: the window's centre along x (a straight conduit follows its capsules: ``placed``)
+    shift: float = 0.0
+    operator: Any = field(default=None, repr=False)
+
+    @classmethod
+    def from_case(cls, case: Any) -> "RigidConduit | None":
+        section = getattr(case, "conduit", None)
+        if section is None:
+            return None
+        kind = conduit_kind(section)
+        return cls(kind, *conduit_dimensions(section, kind))
+
+    # ---- the scene's view
+    def far_field(self, field: Any) -> ConduitFarField:
+        return ConduitFarField(self.kind)
+
+    def gap(self, x: np.ndarray) -> float:
+        return float(self.kind.gap(np.asarray(x).reshape(-1, 3)).min())
+
+    def placed(self, x: np.ndarray) -> "RigidConduit":
+        """The conduit as it lies for the capsules' nodes x: a straight one centred on their mean x."""
+        if not self.kind.straight:
+            return self
+        import dataclasses
+
+        return dataclasses.replace(self, shift=float(np.mean(x[:, 0])), operator=self.wall_operator())
+
+    def wall_operator(self) -> "WallOperator":
+        """The wall's mesh and its factorised single layer (built once per conduit, shared by
+        every placement)."""
+        if self.operator is not None:
+            return self.operator
+        return _wall_operator(self.kind.name, _section_key(self.kind.section), self.length, self.size_near,
+                              self.size_far, self.near_half_length)
+
+    # ---- the regular part of the Green's function: the wall's response (module docstring)
+    def single_layer(self, targets: np.ndarray, points: np.ndarray, strengths: np.ndarray) -> np.ndarray:
+        from capsim.numerics.kernels import stokeslet_sum
+
+        op = self.wall_operator()
+        c = stokeslet_sum(op.nodes_at(self.shift), np.ascontiguousarray(points), np.ascontiguousarray(strengths))
+        return op.response_at(np.ascontiguousarray(targets), -c, self.shift)
+
+    def double_layer(self, targets: np.ndarray, points: np.ndarray, normals_w: np.ndarray,
+                     u_points: np.ndarray) -> np.ndarray:
+        from capsim.numerics.kernels import double_layer_sum
+
+        op = self.wall_operator()
+        nodes = op.nodes_at(self.shift)
+        c = double_layer_sum(nodes, np.zeros_like(nodes), np.ascontiguousarray(points),
+                             np.ascontiguousarray(normals_w), np.ascontiguousarray(u_points))
+        return op.response_at(np.ascontiguousarray(targets), -c, self.shift)
+
+    # ---- drawing
+    def outline_xy(self, lo: float, hi: float, depth: float = 0.15) -> tuple[np.ndarray, np.ndarray]:
+        h = self.kind.reach_y
+        if isinstance(self.kind, Tube) or isinstance(self.kind, Duct):
+            line = np.array([[lo, h], [hi, h], [np.nan, np.nan], [lo, -h], [hi, -h]])
+            band = np.array([[lo, -h - depth], [hi, -h - depth], [hi, -h], [lo, -h]])
+            return line, band
+        raise NotImplementedError
+
+    def patch(self, x: np.ndarray, margin: float = 2.0) -> np.ndarray:
+        xs = np.asarray(x, dtype=np.float64).reshape(-1, 3)
+        x0, x1 = xs[:, 0].min() - margin, xs[:, 0].max() + margin
+        h = self.kind.reach_y
+        return np.array([[x0, -h, 0.0], [x1, -h, 0.0], [x1, h, 0.0], [x0, h, 0.0]], dtype=np.float64)
+
+    # ---- what the run reports
+    def quantities(self, points: np.ndarray, load_w: np.ndarray, u_points: np.ndarray, normals_w: np.ndarray,
+                   center: np.ndarray, G: float, viscosity_ratio: float) -> dict:
+        """The conduit's columns of one capsule: ``extra_pressure_drop`` ΔP+ (units of μU/a) by the
+        reciprocal theorem with the empty conduit's flow (u∞, σ∞) (docs/conduits.md):
+
+            ΔP+ Q = (1/G) ∫_S u∞·Δf dS + (λ − 1) ∫_S u·σ∞·n dS,
+
+        Q the flow rate, Δf the membrane's load (units of E_s/a, so 1/G), u the membrane's
+        velocity; ``centerline_velocity_ratio`` (the centroid's axial speed over the centreline
+        speed, added by the observer) and ``axis_offset`` (the centroid's distance from the axis).
+        points, load_w (Δf·dS), u_points, normals_w (n·dS): at the capsule's rule points."""
+        u_far = self.kind.velocity(points)
+        work = float(np.einsum("ij,ij->", u_far, load_w)) / G
+        if viscosity_ratio != 1.0:
+            # σ∞ = −p∞ I + ∇u∞ + ∇u∞ᵀ, p∞ = −|dp/dx| x (a constant adds −p0 ∫u·n = 0: the volume is kept)
+            p = -self.kind.pressure_gradient * (points[:, 0] - center[0])
+            traction = -p[:, None] * normals_w
+            for k in range(points.shape[0]):
+                L = self.kind.gradient(points[k])
+                traction[k] += (L + L.T) @ normals_w[k]
+            work += (viscosity_ratio - 1.0) * float(np.einsum("ij,ij->", u_points, traction))
+        return {"extra_pressure_drop": work / self.kind.area,
+                "axis_offset": float(math.hypot(center[1], center[2]))}
+
+
+def _section_key(section: Any) -> tuple:
+    return tuple((name, tuple(v) if isinstance(v, (list, tuple)) else v)
+                 for name, v in sorted(vars(section).items()) if not name.startswith("_"))
+
+
+#: the capsule's reach along the conduit from its centre the fine wall elements cover, beyond
+#: the half-width (units of a): a capsule elongated to 2.5 a stays on fine elements
+NEAR_REACH = 2.5
+#: the default truncation error: exp(−decay ℓ/h) at the ends
+TRUNCATION_DEFAULT = 1e-3
+
+
+def conduit_dimensions(section: Any, kind: ConduitKind) -> tuple[float, float, float, float]:
+    """(length, size_near, size_far, near_half_length) of a conduit section: its length from
+    the truncation error it states (the disturbance's decay, ``ConduitKind.decay``)."""
+    h = kind.half_width
+    near_half_length = NEAR_REACH + h
+    size_near = float(section.element_size) if section.element_size is not None else default_element_size(kind)
+    size_far = max(size_near, 0.5 * h)
+    if section.length is not None:
+        length = float(section.length)
+    else:
+        ell = h * math.log(1.0 / section.truncation) / kind.decay
+        length = 2.0 * (NEAR_REACH + ell)
+    return length, size_near, size_far, near_half_length
+
+
+def default_element_size(kind: ConduitKind) -> float:
+    """The wall's element size along the capsules' stretch (units of a): 1/24 of the
+    half-width's circumference (the wall's traction varies on the scale of the capsule's distance
+    from it, which grows with the half-width; docs/conduits.md: the accuracy it gives)."""
+    return 2.0 * math.pi * kind.half_width / 24.0
+
+
+def truncation_error(section: Any, kind: ConduitKind, length: float) -> float:
+    """The predicted truncation error exp(−decay ℓ/h) of a conduit of this length."""
+    ell = 0.5 * length - NEAR_REACH
+    return math.exp(-kind.decay * ell / kind.half_width)
+
+
+class WallOperator:
+    """The wall's mesh and its single layer, factorised once (module docstring)."""
+
+    def __init__(self, mesh: Any):
+        import scipy.linalg
+
+        from capsim.numerics import rigid_surface
+
+        self.mesh = mesh
+        self.positions = np.ascontiguousarray(mesh.positions, dtype=np.float64)
+        self.elements = np.ascontiguousarray(mesh.elements, dtype=np.int64)
+        n = self.positions.shape[0]
+        matrix = rigid_surface.single_layer_matrix(self.positions, self.elements)
+        weights = rigid_surface.surface_integral_weights(self.positions, self.elements)
+        normals = rigid_surface.nodal_normals(self.positions, self.elements)
+        # the closed surface's null vector (a uniform pressure, q = n): W n = 0; the rank-one term
+        # n (Σ w n·q) (scaled like W's entries) picks the q with Σ w n·q = 0 (Pozrikidis 1992 §6.4)
+        area = float(weights.sum())
+        scale = 8.0 * math.pi * math.sqrt(area / (4.0 * math.pi)) / area
+        matrix += scale * np.outer(normals.reshape(-1), (weights[:, None] * normals).reshape(-1))
+        self.lu = scipy.linalg.lu_factor(matrix, overwrite_a=True, check_finite=False)
+        self.n_nodes = n
+        self.solves = 0
+        self.last_density = np.zeros((n, 3))
+
+    def nodes_at(self, shift: float) -> np.ndarray:
+        nodes = self.positions.copy()
+        nodes[:, 0] += shift
+        return nodes
+
+    def density(self, wall_velocity: np.ndarray) -> np.ndarray:
+        """q with W q = wall_velocity at the wall's nodes."""
+        import scipy.linalg
+
+        self.solves += 1
+        q = scipy.linalg.lu_solve(self.lu, wall_velocity.reshape(-1), check_finite=False)
+        return q.reshape(-1, 3)
+
+    def response_at(self, targets: np.ndarray, wall_velocity: np.ndarray, shift: float) -> np.ndarray:
+        """∫_W G(t, y)·q(y) dS at the targets, q the density that makes wall_velocity at the nodes."""
+        from capsim.numerics import rigid_surface
+
+        q = self.density(wall_velocity)
+        local = targets.copy()
+        local[:, 0] -= shift
+        return rigid_surface.single_layer_at(local, self.positions, self.elements, np.ascontiguousarray(q))
+
+
+@lru_cache(maxsize=4)
+def _wall_operator(kind_name: str, section_key: tuple, length: float, size_near: float, size_far: float,
+                   near_half_length: float) -> WallOperator:
+    section = _SectionView(dict(section_key))
+    kind = CONDUITS[kind_name](section)
+    return WallOperator(kind.mesh(length, size_near, size_far, near_half_length))
+
+
+class _SectionView:
+    """A conduit section rebuilt from its cache key (the operator's cache is keyed by values)."""
+
+    def __init__(self, values: dict):
+        self.__dict__.update(values)
