@@ -1136,7 +1136,7 @@ class Case(_Model):
                     "bending": membrane.bending_modulus > 0,
                     "flow": scene.flow_kind, "history": history.kind if acting else "steady",
                     "wall": scene.has_boundary, "capsules": scene.body_count}
-        if self.flow.kind == "poiseuille":  # the axis is x: the distance in y and z
+        if self.flow.kind in ("poiseuille", "conduit"):  # the axis is x: the distance in y and z
             features["axis_offset"] = float(math.hypot(self.center[1], self.center[2]))
         return features
 

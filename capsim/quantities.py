@@ -141,6 +141,12 @@ _add("extra_pressure_drop", "additional pressure drop", "1",
 _add("axis_offset", "distance of the centroid from the conduit's axis", "1",
      "distance of the volume centroid from the conduit's axis (the x-axis), in units of a (runs in a conduit "
      "only): a capsule's lateral migration", "a")
+_add("length_along", "the capsule's length along the conduit", "1",
+     "extent of the membrane's nodes along the conduit's axis (x), in units of a (runs in a conduit only); 2 "
+     "for the sphere at rest", "a")
+_add("width_across", "the capsule's width across the conduit", "1",
+     "twice the largest distance of a membrane node from the axis line through the centroid (parallel to x), in "
+     "units of a (runs in a conduit only); 2 for the sphere at rest", "a")
 # several capsules (capsules:, issue 43): the scene's columns beside every capsule's own
 _add("capsule", "capsule index", "1",
      "zero-based index of a capsule of the scene, in the order of the case's capsules list; a per-capsule "
@@ -374,7 +380,8 @@ for _name, _what in (("D_xy", "Taylor deformation parameter"), ("theta", "inclin
          f"half the peak-to-peak of {_name} over the last cycle (for a turning body, D_xy's over its last whole "
          f"orbit; θ turns through every angle and has none); NaN unless swinging or turning")
 for _name in ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star", "centroid_velocity_y",
-              "slip_velocity_x", "dissipation_ratio"):
+              "slip_velocity_x", "dissipation_ratio", "centroid_velocity_x", "extra_pressure_drop", "axis_offset",
+              "length_along", "width_across"):
     _base = TABLE[_name]
     _add(f"{_name}_std", f"standard deviation of the {_base.long_name}", _base.units,
          f"standard deviation of {_name} over the averaging window; NaN when not reported", _base.scale,

@@ -102,6 +102,13 @@ def written(tmp_path_factory):
         "output": {"path": str(tmp / "wall.h5"), "snapshot_every": 0.02},
     }))
 
+    # a capsule in a tube (issue 53): the conduit's columns (a coarse wall: its columns, not its accuracy)
+    run_case(case_from_dict({
+        "name": "qc", "mesh": {"level": 0}, "time": {"t_end": 0.02}, "flow": {"kind": "conduit"},
+        "conduit": {"kind": "tube", "radius": 2.0, "element_size": 1.0},
+        "output": {"path": str(tmp / "conduit.h5"), "snapshot_every": 0.02},
+    }))
+
     # a pair of capsules: the capsule dimension, the scene's columns and the pair's summary
     run_case(case_from_dict({
         "name": "qp", "mesh": {"level": 0}, "time": {"t_end": 0.02},
@@ -138,7 +145,7 @@ def written(tmp_path_factory):
     # a study of the orbit's numbers (capsim study --quantity orbit)
     orbit_study = write_study(run_study(study_case, levels=[0, 1], rtols=[1e-3], workers=1, quantity="orbit",
                                         out_dir=tmp / "study_orbit"), tmp / "study_orbit.nc")
-    run_files = [tmp / "run.h5", tmp / "viscous.h5", tmp / "wall.h5", tmp / "pair.h5", tmp / "measured.h5", *sorted((tmp / "campaign").glob("*.h5"))]
+    run_files = [tmp / "run.h5", tmp / "viscous.h5", tmp / "wall.h5", tmp / "conduit.h5", tmp / "pair.h5", tmp / "measured.h5", *sorted((tmp / "campaign").glob("*.h5"))]
     return case, summary, run_files, nc, (study, orbit_study)
 
 

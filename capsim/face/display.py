@@ -468,10 +468,11 @@ def summary_rows(summary: dict[str, Any], factors: Mapping[str, float] | None = 
         *_scene_rows(summary),
         ("D_xy", _mean_std(summary, "D_xy")),
         ("theta/pi", _mean_std(summary, "theta", math.pi)),
-        _ttf(scaled("ttf_ratio", "TTF/f_s", "TTF f"), summary),
-        scaled("Sxy_star", "S*_xy", "S_xy"),
-        scaled("N1_star", "N1*", "S_xx - S_yy"),
-        scaled("N2_star", "N2*", "S_yy - S_zz"),
+        *(_conduit_rows(summary) if _in_conduit(summary) else (
+            _ttf(scaled("ttf_ratio", "TTF/f_s", "TTF f"), summary),
+            scaled("Sxy_star", "S*_xy", "S_xy"),
+            scaled("N1_star", "N1*", "S_xx - S_yy"),
+            scaled("N2_star", "N2*", "S_yy - S_zz"))),
         ("scheme", summary.get("scheme")),
         ("scheme chosen because", summary.get("scheme_choice")),
         ("rtol", (f"{summary['rtol']:g}" + (f" ({summary['rtol_choice']})" if summary.get("rtol_choice") else ""))
@@ -503,6 +504,26 @@ def _travel(summary: dict[str, Any]) -> str | None:
     if not isinstance(d, float) or not d > FAR_TRAVEL:
         return None
     return f"{d:.4g} (carried far from its start; the shape's values are measured about its centroid)"
+
+
+def _in_conduit(summary: dict[str, Any]) -> bool:
+    """Whether the run's capsule flowed through a conduit (its summary has the conduit's numbers)."""
+    return isinstance(summary.get("extra_pressure_drop"), float) and math.isfinite(summary["extra_pressure_drop"])
+
+
+def _conduit_rows(summary: dict[str, Any]) -> list[tuple[str, str | None]]:
+    """A capsule in a conduit (capsim.scene.conduit): its speed over the mean velocity U, the
+    pressure drop it adds, its distance from the axis and its lengths along and across; the
+    tank-treading and stresslet rows of a linear flow have no meaning there."""
+    def pair(a: str, b: str) -> str | None:
+        if not (_finite(summary.get(a)) and _finite(summary.get(b))):
+            return None
+        return f"{summary[a]:.4f} along, {summary[b]:.4f} across"
+
+    return [("capsule speed / U", _mean_std(summary, "centroid_velocity_x")),
+            ("extra pressure drop ΔP+ (μU/a)", _mean_std(summary, "extra_pressure_drop")),
+            ("distance from the axis (a)", _mean_std(summary, "axis_offset")),
+            ("length (a)", pair("length_along", "width_across"))]
 
 
 def _scene_rows(summary: dict[str, Any]) -> list[tuple[str, str | None]]:

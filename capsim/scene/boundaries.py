@@ -77,8 +77,8 @@ class Boundary(Kind):
         """Σ_m u_m·T_boundary(point_m, target)·(n w)_m at every target (T, 3)."""
         raise NotImplementedError
 
-    def quantities(self, points: np.ndarray, load_w: np.ndarray, u_points: np.ndarray, normals_w: np.ndarray,
-                   center: np.ndarray, G: float, viscosity_ratio: float) -> dict:
+    def quantities(self, nodes: np.ndarray, points: np.ndarray, load_w: np.ndarray, u_points: np.ndarray,
+                   normals_w: np.ndarray, center: np.ndarray, G: float, viscosity_ratio: float) -> dict:
         """The boundary's own columns of one capsule (a conduit's additional pressure drop), from
         the capsule's rule points, its load and velocity there (times the weights); none by default."""
         return {}

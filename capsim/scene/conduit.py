@@ -359,17 +359,18 @@ class RigidConduit(Boundary):
         return np.array([[x0, -h, 0.0], [x1, -h, 0.0], [x1, h, 0.0], [x0, h, 0.0]], dtype=np.float64)
 
     # ---- what the run reports
-    def quantities(self, points: np.ndarray, load_w: np.ndarray, u_points: np.ndarray, normals_w: np.ndarray,
-                   center: np.ndarray, G: float, viscosity_ratio: float) -> dict:
+    def quantities(self, nodes: np.ndarray, points: np.ndarray, load_w: np.ndarray, u_points: np.ndarray,
+                   normals_w: np.ndarray, center: np.ndarray, G: float, viscosity_ratio: float) -> dict:
         """The conduit's columns of one capsule: ``extra_pressure_drop`` ΔP+ (units of μU/a) by the
         reciprocal theorem with the empty conduit's flow (u∞, σ∞) (docs/conduits.md):
 
             ΔP+ Q = (1/G) ∫_S u∞·Δf dS + (λ − 1) ∫_S u·σ∞·n dS,
 
         Q the flow rate, Δf the membrane's load (units of E_s/a, so 1/G), u the membrane's
-        velocity; ``centerline_velocity_ratio`` (the centroid's axial speed over the centreline
-        speed, added by the observer) and ``axis_offset`` (the centroid's distance from the axis).
-        points, load_w (Δf·dS), u_points, normals_w (n·dS): at the capsule's rule points."""
+        velocity; ``axis_offset`` (the centroid's distance from the axis: lateral migration),
+        ``length_along`` (the capsule's extent along the axis) and ``width_across`` (twice its
+        largest distance from the axis line through its centroid), units of a.
+        nodes: the capsule's; points, load_w (Δf·dS), u_points, normals_w (n·dS): at its rule points."""
         u_far = self.kind.velocity(points)
         work = float(np.einsum("ij,ij->", u_far, load_w)) / G
         if viscosity_ratio != 1.0:
@@ -380,8 +381,11 @@ class RigidConduit(Boundary):
                 L = self.kind.gradient(points[k])
                 traction[k] += (L + L.T) @ normals_w[k]
             work += (viscosity_ratio - 1.0) * float(np.einsum("ij,ij->", u_points, traction))
+        across = np.hypot(nodes[:, 1] - center[1], nodes[:, 2] - center[2])
         return {"extra_pressure_drop": work / self.kind.area,
-                "axis_offset": float(math.hypot(center[1], center[2]))}
+                "axis_offset": float(math.hypot(center[1], center[2])),
+                "length_along": float(nodes[:, 0].max() - nodes[:, 0].min()),
+                "width_across": float(2.0 * across.max())}
 
 
 def _section_key(section: Any) -> tuple:

@@ -161,7 +161,7 @@ DEFAULT_FEATURES = {"shape": "sphere", "aspect_ratio": 1.0, "law": "thin_shell",
 TRAINED_SCENE = {"flow": "simple_shear", "history": "steady", "wall": False, "capsules": 1}
 #: how each scene feature that differs from the training's is named (to the user: the field that sets it)
 SCENE_NAMES = {"flow": "flow.kind {v}", "history": "flow.history.kind {v} (the rate changes before t_end)",
-               "wall": "a wall", "capsules": "{v} capsules"}
+               "wall": "a wall or a conduit", "capsules": "{v} capsules"}
 
 
 def scene_outside(features: dict[str, Any] | None) -> str:
@@ -174,7 +174,8 @@ def scene_outside(features: dict[str, Any] | None) -> str:
 
 def _axisymmetric(f: dict[str, Any]) -> bool:
     """Uniaxial extension, or a capsule on the Poiseuille axis: the flow is axisymmetric about x."""
-    return f.get("flow") == "uniaxial_extension" or (f.get("flow") == "poiseuille" and f.get("axis_offset") == 0.0)
+    return f.get("flow") == "uniaxial_extension" or (f.get("flow") in ("poiseuille", "conduit")
+                                                     and f.get("axis_offset") == 0.0)
 
 
 #: a quantity the scene's symmetry fixes, whatever the mesh: a target on it measures nothing (zero or a

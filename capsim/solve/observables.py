@@ -1094,7 +1094,7 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
         # the long axis turns through every angle: a mean θ over whole turns is no property of
         # the motion (the folded mean of a uniform turn is arbitrary, its spread the whole range)
         out["theta"] = out["theta_std"] = float("nan")
-    for name in ("centroid_velocity_y", "slip_velocity_x", "dissipation_ratio"):  # issues 41, 42
+    for name in ("centroid_velocity_y", "slip_velocity_x", "dissipation_ratio", *CONDUIT_COLUMNS):  # issues 41, 42, 53
         s = np.asarray(series.get(name, ()), float)
         if s.size == t.size and np.isfinite(s).all() and t.size:
             out[name], out[f"{name}_std"] = window_stats(t, s, t0, t1)
@@ -1160,13 +1160,16 @@ def scene_summary(observer) -> dict:
 
 COMPRESSION_TOL = 1e-10  # in E_s: below round-off of the tension at the rest shape
 
+#: a capsule in a conduit (capsim.scene.conduit, issue 53): its speed along the conduit (units of the
+#: mean velocity U), the pressure drop it adds, its migration and its lengths along and across
+CONDUIT_COLUMNS = ("centroid_velocity_x", "extra_pressure_drop", "axis_offset", "length_along", "width_across")
 #: time-series columns that the summary and the stopping rules read back
 HISTORY_COLUMNS = ("t", "dt", "tt_angle", *SUMMARY_QUANTITIES, "director_x", "director_y", "director_z",
                    # the shape's orientation and semi-axes (issue 39): the body's axis, its shape period
                    "long_axis_x", "long_axis_y", "long_axis_z", "short_axis_x", "short_axis_y", "short_axis_z",
                    "ellipsoid_a", "ellipsoid_b", "ellipsoid_c",
                    # the body's drift across and along the flow (issues 41, 42): lift or migration, slip
-                   "centroid_velocity_y", "slip_velocity_x", "dissipation_ratio")
+                   "centroid_velocity_y", "slip_velocity_x", "dissipation_ratio", *CONDUIT_COLUMNS)
 #: several capsules: the scene's columns the summary reads back (a pair's relative trajectory)
 SCENE_HISTORY_COLUMNS = ("min_capsule_gap", "separation_x", "separation_y", "separation_z")
 
@@ -1378,8 +1381,8 @@ class StepObserver:
         self.tracker.restore({k.removeprefix("tracker."): v for k, v in state.items() if k.startswith("tracker.")})
 
 
-def boundary_quantities(model, geometry, density: np.ndarray, weights: np.ndarray, u: np.ndarray,
-                        elements: np.ndarray, center: np.ndarray, lam: float) -> dict:
+def boundary_quantities(model, nodes: np.ndarray, geometry, density: np.ndarray, weights: np.ndarray,
+                        u: np.ndarray, elements: np.ndarray, center: np.ndarray, lam: float) -> dict:
     """The scene's boundaries' own columns of one capsule (capsim.scene.Boundary.quantities: a
     conduit's additional pressure drop), from the capsule's load and velocity at its rule points."""
     phi = model.disc.reg_phi
@@ -1391,7 +1394,7 @@ def boundary_quantities(model, geometry, density: np.ndarray, weights: np.ndarra
     points = geometry.points.reshape(-1, 3)
     row: dict = {}
     for boundary in model.scene.boundaries:
-        row.update(boundary.quantities(points, load_w, u_points, normals_w, center, model.shear_rate_G, lam))
+        row.update(boundary.quantities(nodes, points, load_w, u_points, normals_w, center, model.shear_rate_G, lam))
     return row
 
 
@@ -1422,7 +1425,7 @@ def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarr
     gap = model.scene.boundary_gap(y)  # the scene's boundaries (a wall): the guard min_wall_gap reads it
     if gap is not None:
         row["wall_gap"] = gap
-        row.update(boundary_quantities(model, geometry, density, weights, u, elements, center, lam))
+        row.update(boundary_quantities(model, y, geometry, density, weights, u, elements, center, lam))
     S_star = particle_stresslet(
         geometry, density, u, elements, model.disc.reg_phi, center, row["volume"],
         model.shear_rate_G, lam, weights,
