@@ -911,10 +911,10 @@ class Conduit(_Model):
         None, gt=0, le=1e3, description="the truncated conduit's length L (units of a); default: from "
         "conduit.truncation (the disturbance's decay along the conduit, docs/conduits.md)")
     truncation: float = Field(
-        TRUNCATION_DEFAULT, gt=0, lt=0.1,
-        description="the truncation error the closed ends may cause, relative to the capsule's disturbance: the "
-        "length is chosen so that exp(-k l/h) is below it (k the conduit's measured decay rate, h its half-width, "
-        "l the distance from the capsule's reach to an end)")
+        TRUNCATION_DEFAULT, gt=0, le=1e-3,
+        description="the truncation error the closed ends may cause, relative to the capsule's values: the "
+        "length is chosen so that A exp(-k l/h) is below it (k/h the slowest decay rate of a disturbance along the "
+        "conduit, l the distance from the capsule's reach to an end, A = 1e-3 measured; docs/conduits.md)")
     element_size: Optional[float] = Field(
         None, gt=0.05, le=5.0, description="the wall's element size near the capsules (units of a; growing "
         "away from them); default: 2πh/24, h the half-width (docs/conduits.md: the accuracy it gives)")

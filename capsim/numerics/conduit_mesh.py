@@ -254,11 +254,35 @@ def axisymmetric_conduit_mesh(radius_of_x: Callable[[np.ndarray], np.ndarray], l
     return _assemble(np.concatenate(vertices), triangles, mid_list, [SIDE, INLET, OUTLET], length)
 
 
+def round_caps(mesh: ConduitMesh) -> ConduitMesh:
+    """The conduit with its flat end caps bent into hemispheres of the end radius (axisymmetric
+    ends): a cap node at distance r from the axis moves to polar angle φ = (π/2)(r/R) of the
+    sphere about (±L/2, 0, 0), so the rim stays and the surface meets the side wall with its
+    tangent. A smooth closed surface: its traction density (continuous at the nodes) can carry a
+    uniform pressure, which a flat cap's corner cannot (the normal jumps there)."""
+    positions = mesh.positions.copy()
+    cap_nodes = np.unique(mesh.elements[mesh.part != SIDE])
+    moved = np.setdiff1d(cap_nodes, np.unique(mesh.elements[mesh.part == SIDE]))
+    p = positions[moved]
+    r, theta = np.hypot(p[:, 1], p[:, 2]), np.arctan2(p[:, 2], p[:, 1])
+    rim = np.unique(np.intersect1d(cap_nodes, np.unique(mesh.elements[mesh.part == SIDE])))
+    radius = float(np.hypot(positions[rim, 1], positions[rim, 2]).mean())
+    phi = 0.5 * np.pi * r / radius
+    positions[moved, 0] = np.sign(p[:, 0]) * (0.5 * mesh.length + radius * np.cos(phi))
+    positions[moved, 1] = radius * np.sin(phi) * np.cos(theta)
+    positions[moved, 2] = radius * np.sin(phi) * np.sin(theta)
+    return ConduitMesh(positions, mesh.elements, mesh.n_vertices, mesh.part, mesh.length)
+
+
 def tube_mesh(radius: float, length: float, size_near: float, size_far: float, near_half_length: float,
-              n_theta: int | None = None) -> ConduitMesh:
-    """Closed mesh of the circular tube of ``radius`` (see :func:`axisymmetric_conduit_mesh`)."""
-    return axisymmetric_conduit_mesh(lambda x: np.full(np.shape(x), float(radius)), length, size_near, size_far,
+              n_theta: int | None = None, caps: str = "flat") -> ConduitMesh:
+    """Closed mesh of the circular tube of ``radius`` (see :func:`axisymmetric_conduit_mesh`);
+    ``caps`` "round": hemispherical ends (:func:`round_caps`) beyond x = ±L/2."""
+    mesh = axisymmetric_conduit_mesh(lambda x: np.full(np.shape(x), float(radius)), length, size_near, size_far,
                                      near_half_length, n_theta)
+    if caps not in ("flat", "round"):
+        raise ValueError(f"caps must be 'flat' or 'round', got {caps!r}")
+    return round_caps(mesh) if caps == "round" else mesh
 
 
 def cosine_constriction_radius(radius: float, throat_radius: float, half_length: float) -> Callable:

@@ -61,9 +61,6 @@ class ConduitKind(Kind):
     it, how fast a disturbance decays along it) and its surface mesh. Lengths in units of a,
     velocities in units of the mean velocity U."""
 
-    #: the slowest decay rate of a Stokes disturbance along the conduit, times its half-width h
-    #: (measured: docs/conduits.md, "Truncation"); the truncation error is ~exp(−decay ℓ/h)
-    decay: ClassVar[float]
     #: whether the conduit is the same at every x (its mesh follows the capsules)
     straight: ClassVar[bool] = True
 
@@ -72,7 +69,13 @@ class ConduitKind(Kind):
 
     @property
     def half_width(self) -> float:
-        """h: the smallest distance from the axis to the wall (the decay's length scale)."""
+        """h: the smallest distance from the axis to the wall (the wall's element size scales with it)."""
+        raise NotImplementedError
+
+    @property
+    def decay_rate(self) -> float:
+        """k/h: a Stokes disturbance decays along the conduit like exp(−(k/h) x) (its slowest mode);
+        the truncation error of closing the conduit ℓ beyond the capsule's reach is ~exp(−(k/h) ℓ)."""
         raise NotImplementedError
 
     @property
@@ -124,8 +127,12 @@ class Tube(ConduitKind):
     name = "tube"
     description = "a circular tube of radius conduit.radius about the x-axis (Poiseuille flow in it)"
     uses = ("radius",)
-    # the tube's slowest Stokes mode decays like exp(−k x/R); k measured (docs/conduits.md, "Truncation")
-    decay = 3.0
+    @property
+    def decay_rate(self) -> float:
+        # the tube's slowest Stokes mode (n = 1, Papkovich–Neuber, no slip at r = R) decays like
+        # exp(−2.5678 x/R); the axisymmetric one, all a capsule on the axis excites, like
+        # exp(−4.4663 x/R) (docs/conduits.md, "Truncation")
+        return 2.5678 / self.radius
 
     @property
     def radius(self) -> float:
@@ -169,7 +176,9 @@ class Tube(ConduitKind):
     def mesh(self, length: float, size_near: float, size_far: float, near_half_length: float):
         from capsim.numerics.conduit_mesh import tube_mesh
 
-        return tube_mesh(self.radius, length, size_near, size_far, near_half_length)
+        # hemispherical ends: the disturbance's uniform pressure at the ends needs a smooth surface (a flat
+        # cap's corner left a spurious far velocity of 1 % of a point force's near field; docs/conduits.md)
+        return tube_mesh(self.radius, length, size_near, size_far, near_half_length, caps="round")
 
     def describe(self) -> str:
         return f"tube R = {self.radius:g} a"
@@ -181,7 +190,12 @@ class Duct(ConduitKind):
     description = ("a rectangular duct about the x-axis, |y| <= h_y and |z| <= h_z, conduit.half_widths "
                    "[h_y, h_z] (its series solution)")
     uses = ("half_widths",)
-    decay = 2.5
+
+    @property
+    def decay_rate(self) -> float:
+        # bounded by the plane channel's slowest mode across the wider half-width (sin 2k + 2k = 0:
+        # k = 2.1062, exp(−k x/h)); the duct's own modes decay faster (docs/conduits.md, "Truncation")
+        return 2.1062 / max(self.half_widths)
 
     @property
     def half_widths(self) -> tuple[float, float]:
@@ -396,13 +410,16 @@ def _section_key(section: Any) -> tuple:
 #: the capsule's reach along the conduit from its centre the fine wall elements cover, beyond
 #: the half-width (units of a): a capsule elongated to 2.5 a stays on fine elements
 NEAR_REACH = 2.5
-#: the default truncation error: exp(−decay ℓ/h) at the ends
-TRUNCATION_DEFAULT = 1e-3
+#: the default truncation error, relative to the capsule's own values (docs/conduits.md, "Truncation")
+TRUNCATION_DEFAULT = 1e-4
+#: the truncation error of ends at the capsule's reach (ℓ = 0), relative: measured for a capsule off the
+#: axis of a tube (a/R = 0.5, Ca 0.1; round ends) at most 3e-4 (its migration velocity), 1.1e-4 (D_xy)
+TRUNCATION_AMPLITUDE = 1e-3
 
 
 def conduit_dimensions(section: Any, kind: ConduitKind) -> tuple[float, float, float, float]:
     """(length, size_near, size_far, near_half_length) of a conduit section: its length from
-    the truncation error it states (the disturbance's decay, ``ConduitKind.decay``)."""
+    the truncation error it states (the disturbance's decay, ``ConduitKind.decay_rate``)."""
     h = kind.half_width
     near_half_length = NEAR_REACH + h
     size_near = float(section.element_size) if section.element_size is not None else default_element_size(kind)
@@ -410,7 +427,7 @@ def conduit_dimensions(section: Any, kind: ConduitKind) -> tuple[float, float, f
     if section.length is not None:
         length = float(section.length)
     else:
-        ell = h * math.log(1.0 / section.truncation) / kind.decay
+        ell = max(0.0, math.log(TRUNCATION_AMPLITUDE / section.truncation)) / kind.decay_rate
         length = 2.0 * (NEAR_REACH + ell)
     return length, size_near, size_far, near_half_length
 
@@ -423,9 +440,10 @@ def default_element_size(kind: ConduitKind) -> float:
 
 
 def truncation_error(section: Any, kind: ConduitKind, length: float) -> float:
-    """The predicted truncation error exp(−decay ℓ/h) of a conduit of this length."""
+    """The predicted truncation error A exp(−(k/h) ℓ) of a conduit of this length, ℓ the distance from
+    the capsule's reach (NEAR_REACH) to an end, A = TRUNCATION_AMPLITUDE (measured)."""
     ell = 0.5 * length - NEAR_REACH
-    return math.exp(-kind.decay * ell / kind.half_width)
+    return TRUNCATION_AMPLITUDE * math.exp(-kind.decay_rate * ell)
 
 
 class WallOperator:
@@ -444,11 +462,17 @@ class WallOperator:
         weights = rigid_surface.surface_integral_weights(self.positions, self.elements)
         normals = rigid_surface.nodal_normals(self.positions, self.elements)
         # the closed surface's null vector (a uniform pressure, q = n): W n = 0; the rank-one term
-        # n (Σ w n·q) (scaled like W's entries) picks the q with Σ w n·q = 0 (Pozrikidis 1992 §6.4)
+        # n (Σ w n·q) (scaled like W's entries) picks the q with Σ w n·q = 0 (Pozrikidis 1992 §6.4);
+        # added by rows (an outer product would hold a second matrix)
         area = float(weights.sum())
         scale = 8.0 * math.pi * math.sqrt(area / (4.0 * math.pi)) / area
-        matrix += scale * np.outer(normals.reshape(-1), (weights[:, None] * normals).reshape(-1))
-        self.lu = scipy.linalg.lu_factor(matrix, overwrite_a=True, check_finite=False)
+        v, u = normals.reshape(-1), (weights[:, None] * normals).reshape(-1) * scale
+        for start in range(0, 3 * n, 1024):
+            matrix[start:start + 1024] += np.outer(v[start:start + 1024], u)
+        # factorised as its transpose: the F-ordered view of the C-ordered matrix, factorised in place
+        # (lu_solve's trans=1 then solves W q = b); no copy of the largest array of the run
+        self.lu = scipy.linalg.lu_factor(matrix.T, overwrite_a=True, check_finite=False)
+        self.matrix_bytes = matrix.nbytes
         self.n_nodes = n
         self.solves = 0
         self.last_density = np.zeros((n, 3))
@@ -463,7 +487,7 @@ class WallOperator:
         import scipy.linalg
 
         self.solves += 1
-        q = scipy.linalg.lu_solve(self.lu, wall_velocity.reshape(-1), check_finite=False)
+        q = scipy.linalg.lu_solve(self.lu, wall_velocity.reshape(-1), trans=1, check_finite=False)
         return q.reshape(-1, 3)
 
     def response_at(self, targets: np.ndarray, wall_velocity: np.ndarray, shift: float) -> np.ndarray:

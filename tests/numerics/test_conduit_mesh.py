@@ -46,11 +46,14 @@ def relative_errors(build, exact, sizes):
     return np.array(out)
 
 
-@pytest.mark.parametrize("name", ["tube", "bump"])
+@pytest.mark.parametrize("name", ["tube", "bump", "round caps"])
 def test_smooth_conduits_area_and_volume_converge_like_h4(name):
     if name == "tube":
         build = lambda h: tube_mesh(R, L, h, 2 * h, 1.0)
         exact = (2 * np.pi * R * L + 2 * np.pi * R**2, np.pi * R**2 * L)
+    elif name == "round caps":  # a tube closed by two hemispheres (the conduit's runs use these ends)
+        build = lambda h: tube_mesh(R, L, h, 2 * h, 1.0, caps="round")
+        exact = (2 * np.pi * R * L + 4 * np.pi * R**2, np.pi * R**2 * L + 4 / 3 * np.pi * R**3)
     else:
         build = lambda h: axisymmetric_conduit_mesh(bump, L, h, 2 * h, 1.5)
         exact = axisymmetric_exact(bump, bump_slope, [], L)
@@ -59,7 +62,8 @@ def test_smooth_conduits_area_and_volume_converge_like_h4(name):
     # (order 4.0); bump: area 3.5e-5, 2.7e-6, 2.1e-7, volume 6.8e-5, 5.2e-6, 4.1e-7 (order 3.7)
     assert np.all(errors[-1] < 2e-6), errors
     order = np.log2(errors[:-1] / errors[1:])
-    assert np.all(order > 3.5), order
+    # the round caps' pole (its ring of fan elements) costs half an order at the coarsest step: 3.3, then 4.0
+    assert np.all(order > (3.2 if name == "round caps" else 3.5)), order
 
 
 def test_cosine_constriction_converges_at_least_like_h3():
@@ -85,6 +89,7 @@ def test_duct_area_and_volume_are_exact():
 MESHES = {
     "tube": lambda: tube_mesh(R, L, 0.3, 0.9, 1.0),
     "tube n_theta=12": lambda: tube_mesh(R, L, 0.5, 1.0, 1.0, n_theta=12),
+    "tube round caps": lambda: tube_mesh(R, L, 0.3, 0.9, 1.0, caps="round"),
     "constriction": lambda: axisymmetric_conduit_mesh(cosine, L, 0.3, 0.9, 1.0),
     "duct": lambda: duct_mesh(1.0, 0.6, L, 0.3, 0.9, 1.0),
     "square duct": lambda: duct_mesh(0.5, 0.5, 4.0, 0.5, 0.5, 4.0),
@@ -103,6 +108,12 @@ def test_normals_point_out_of_the_fluid(mesh):
     radial = p[side].copy()
     radial[..., 0] = 0.0
     assert np.einsum("eqd,eqd->eq", n[side], radial).min() > 0
+    half = 0.5 * mesh.length
+    if p[mesh.part == OUTLET][..., 0].max() > half + 1e-9:  # round caps: out of the hemisphere's centre
+        for part, sign in ((INLET, -1.0), (OUTLET, 1.0)):
+            out = p[mesh.part == part] - [sign * half, 0.0, 0.0]
+            assert np.einsum("eqd,eqd->eq", n[mesh.part == part], out).min() > 0
+        return
     assert np.abs(n[mesh.part == INLET] - [-1, 0, 0]).max() < 1e-12
     assert np.abs(n[mesh.part == OUTLET] - [1, 0, 0]).max() < 1e-12
     half = 0.5 * mesh.length
