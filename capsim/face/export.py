@@ -278,16 +278,16 @@ def _write_vtu(out_dir: Path, stem: str, elements, rest, snapshots, factors=None
     return [pvd] + written
 
 
-def _write_boundary(out_dir: Path, stem: str, label: str, corners: np.ndarray, factors=None) -> Path:
-    """A piece of the scene's boundary (its ``patch``: the wall under the capsules' paths) as one
-    quad (``<stem>_<label>.vtu``, ``_wall.vtu`` for the wall), for ParaView to draw beside the membrane."""
+def _write_boundary(out_dir: Path, stem: str, label: str, drawing, factors=None) -> Path:
+    """A piece of the scene's boundary (its ``drawing``: the wall under the capsules' paths, a quad;
+    a conduit's side wall along them) as ``<stem>_<label>.vtu`` (``_wall.vtu`` for the wall,
+    ``_conduit.vtu`` for a conduit), for ParaView to draw beside the membrane."""
     import meshio
 
+    points, cells = drawing
     f = factors["a"] if factors is not None else 1.0
-    corners = f * np.asarray(corners, dtype=np.float64)
     name = out_dir / f"{stem}_{label}.vtu"
-    meshio.write(name, meshio.Mesh(corners, [("quad", np.array([[0, 1, 2, 3]], dtype=np.int64))]),
-                 file_format="vtu", binary=True)
+    meshio.write(name, meshio.Mesh(f * np.asarray(points, dtype=np.float64), cells), file_format="vtu", binary=True)
     return name
 
 
@@ -347,7 +347,7 @@ def export_run(
     patches = []
     if scene.has_boundary:  # the scene's boundaries (a wall): a piece under the capsules' whole paths
         xs = np.concatenate([np.asarray(p, dtype=np.float64) for p in positions])
-        patches = [(b.label, b.patch(xs)) for b in scene.boundaries]
+        patches = [(b.label, b.drawing(xs)) for b in scene.boundaries]
     # Every file is written in a private staging directory inside `out`, then renamed into
     # place: a full disk, a size limit or a kill leaves what was in `out` as it was.
     staging = out / f".capsim-export-{os.getpid()}"

@@ -91,6 +91,11 @@ class Boundary(Kind):
         """Corners (4, 3) of a piece of the boundary under positions x (any (..., 3)), margin a beyond."""
         raise NotImplementedError
 
+    def drawing(self, x: np.ndarray, margin: float = 2.0) -> tuple[np.ndarray, list[tuple[str, np.ndarray]]]:
+        """The piece of the boundary the ParaView export draws beside positions x (any (..., 3)):
+        (points (P, 3), [(meshio cell type, cells)]); by default the quad of :meth:`patch`."""
+        return np.asarray(self.patch(x, margin), dtype=np.float64), [("quad", np.array([[0, 1, 2, 3]], dtype=np.int64))]
+
 
 def boundaries_of(case: Any) -> tuple[Boundary, ...]:
     """Every boundary a case places, in the registry's order."""

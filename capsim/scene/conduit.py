@@ -372,6 +372,20 @@ class RigidConduit(Boundary):
         h = self.kind.reach_y
         return np.array([[x0, -h, 0.0], [x1, -h, 0.0], [x1, h, 0.0], [x0, h, 0.0]], dtype=np.float64)
 
+    def drawing(self, x: np.ndarray, margin: float = 2.0) -> tuple[np.ndarray, list[tuple[str, np.ndarray]]]:
+        """The conduit's side wall along the capsules' whole path (6-node triangles, margin a beyond)."""
+        xs = np.asarray(x, dtype=np.float64).reshape(-1, 3)
+        lo, hi = float(xs[:, 0].min()) - margin, float(xs[:, 0].max()) + margin
+        size = self.size_near
+        mesh = self.kind.mesh(hi - lo, size, size, hi - lo)
+        side = mesh.elements[mesh.part == 0]
+        used = np.unique(side)
+        index = np.full(mesh.positions.shape[0], -1, dtype=np.int64)
+        index[used] = np.arange(used.size)
+        points = mesh.positions[used].copy()
+        points[:, 0] += 0.5 * (lo + hi)
+        return points, [("triangle6", index[side])]
+
     # ---- what the run reports
     def quantities(self, nodes: np.ndarray, points: np.ndarray, load_w: np.ndarray, u_points: np.ndarray,
                    normals_w: np.ndarray, center: np.ndarray, G: float, viscosity_ratio: float) -> dict:

@@ -213,3 +213,25 @@ def test_a_conduit_the_case_cannot_take_is_refused_in_one_line(change, message):
     with pytest.raises(ConfigError, match=message) as info:
         case_from_dict(d)
     assert "\n" not in str(info.value)
+
+
+def test_the_paraview_export_and_the_contour_plot_draw_the_conduit(tmp_path):
+    """The export writes the tube's side wall along the capsule's path (6-node triangles on the
+    cylinder r = R), the contour plot its two walls in the xy-plane."""
+    import meshio
+
+    from capsim.face.export import export_run
+    from capsim.face.plot import contour_figure
+
+    d = _case(tmp_path, "drawn", mesh={"level": 0}, time={"t_end": 0.2})
+    d["output"]["snapshot_every"] = 0.1
+    assert run_case(case_from_dict(d)).status == "completed"
+    written = export_run(d["output"]["path"], tmp_path / "export")
+    conduit = [p for p in written if p.name.endswith("_conduit.vtu")] or list((tmp_path / "export").glob("*_conduit.vtu"))
+    mesh = meshio.read(conduit[0])
+    assert mesh.cells[0].type == "triangle6"
+    np.testing.assert_allclose(np.hypot(mesh.points[:, 1], mesh.points[:, 2]), 2.5, rtol=1e-12)
+    assert mesh.points[:, 0].min() < -1.0 and mesh.points[:, 0].max() > 1.0  # the capsule's path, margin beyond
+    fig = contour_figure(d["output"]["path"])
+    walls = [line for line in fig.axes[0].get_lines() if line.get_label() == "conduit"]
+    assert walls and np.nanmax(np.abs(walls[0].get_ydata())) == pytest.approx(2.5)
