@@ -56,11 +56,18 @@ _FLOATS = ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star",
            "min_capsule_gap", "separation_y_initial", "separation_y_peak", "separation_y_final", "separation_x_final",
            "D_xy_error_estimate", "theta_error_estimate", "ttf_ratio_error_estimate", "Sxy_star_error_estimate",
            # a measured accuracy target (capsim.runs.ladder): met 1, not met 0, none NaN
-           "accuracy_target_met")
+           "accuracy_target_met",
+           # a capsule in a conduit (issue 53, _CONDUIT_FLOATS): its speed over U, ΔP+, migration, lengths
+           "centroid_velocity_x", "centroid_velocity_x_std", "extra_pressure_drop", "extra_pressure_drop_std",
+           "axis_offset", "axis_offset_std", "length_along", "length_along_std", "width_across", "width_across_std")
 _STRINGS = ("status", "status_reason", "motion")
 #: the numbers only a scene of several capsules has: left out of a campaign none of whose runs has them
 _SCENE_FLOATS = frozenset({"min_capsule_gap", "separation_y_initial", "separation_y_peak", "separation_y_final",
                            "separation_x_final"})
+#: the numbers only a run in a conduit has: left out of a campaign none of whose runs has them
+_CONDUIT_FLOATS = frozenset({"centroid_velocity_x", "centroid_velocity_x_std", "extra_pressure_drop",
+                             "extra_pressure_drop_std", "axis_offset", "axis_offset_std", "length_along",
+                             "length_along_std", "width_across", "width_across_std"})
 #: the context of a run from its resolved case: name -> (dtype, value for a run without a case)
 _CONTEXT = {"level": (np.int64, -1), "mesh_base": (np.int8, -1), "law": (object, ""),
             "skalak_c": (np.float64, np.nan), "psi": (np.float64, np.nan), "bending_modulus": (np.float64, np.nan),
@@ -287,7 +294,7 @@ def summarize_campaign(directory: str | os.PathLike, units: str = "capsim") -> x
 
     ds = xr.Dataset(
         {name: (dims, values, _attrs_for(name)) for name, values in data.items()
-         if not (name in _SCENE_FLOATS and np.isnan(values).all())},
+         if not (name in (_SCENE_FLOATS | _CONDUIT_FLOATS) and np.isnan(values).all())},
         coords=coords,
     )
     if units == "physical":

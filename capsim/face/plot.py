@@ -1648,12 +1648,89 @@ def to_physical(fig, factors: dict[str, float]) -> None:
         _supxlabel(fig, kt_text(fig.caption))
 
 
+#: the conduit figure's panels: (summary variable(s), axis label)
+CONDUIT_PANELS = ((("centroid_velocity_x",), r"speed $/ U$"),
+                  (("extra_pressure_drop",), r"$\Delta P^+ a/(\mu U)$"),
+                  (("length_along", "width_across"), r"length, width $/a$"))
+
+
+def conduit_figure(source, x: str | None = None):
+    """A campaign of capsules in conduits (issue 53): the capsule's speed over the mean velocity U,
+    the pressure drop it adds and its lengths along and across the conduit, against a swept field
+    (default G, the conduit's capillary number μU/E_s), one line per combination of the other swept
+    values (the conduit's radius: a/R). Settled runs are points with the window's standard
+    deviation as error bars; the others grey ×."""
+    import xarray as xr
+
+    ds = source if isinstance(source, xr.Dataset) else xr.load_dataset(source)
+    if "extra_pressure_drop" not in ds.variables:
+        raise ValueError("the summary has no 'extra_pressure_drop': no run of its campaign was in a conduit "
+                         "(conduit:, flow.kind conduit)")
+    swept = _swept_fields(ds)
+    numeric = [f for f in swept if np.asarray(ds[f].values).dtype.kind in "iuf"]
+    if x is None:
+        x = "shear_rate_G" if "shear_rate_G" in numeric else (numeric[0] if numeric else None)
+        if x is None:
+            raise ValueError(f"the summary sweeps no numeric field to draw against (swept: {', '.join(swept) or 'none'})")
+    elif x not in numeric:
+        raise ValueError(f"--x {x!r}: not a numeric swept field of the summary (allowed: {', '.join(numeric) or 'none'})")
+    names = tuple(n for panel, _ in CONDUIT_PANELS for n in panel)
+    cells = _summary_cells(ds, names, swept)
+    fig = _figure(figsize=(FIGSIZE[0], FIGSIZE[1]))
+    axes = np.atleast_1d(fig.subplots(len(CONDUIT_PANELS), 1, sharex=True))
+    others = [f for f in swept if f != x]
+    groups: dict[tuple, list[dict]] = {}
+    for cell in cells:
+        groups.setdefault(tuple(cell["swept"][f] for f in others), []).append(cell)
+
+    def group_label(key) -> str:
+        parts = []
+        for f, v in zip(others, key):
+            field = str(ds[f].attrs.get("case_field", f))
+            parts.append(f"R = {_shown(v)} a (a/R = {1 / float(v):.3g})" if field == "conduit.radius"
+                         else f"{_short(f)} = {_shown(v)}")
+        return ", ".join(parts) or "capsim"
+
+    for j, (key, members) in enumerate(groups.items()):
+        settled = sorted((c for c in members if c["settled"]), key=lambda c: c["swept"][x])
+        if not settled:
+            continue
+        xs = np.array([float(c["swept"][x]) for c in settled])
+        color = f"C{j % 10}"
+        for ax, (panel, _) in zip(axes, CONDUIT_PANELS):
+            for k, name in enumerate(panel):
+                y = np.array([c["values"][name] for c in settled], dtype=np.float64)
+                err = np.array([c["std"].get(name, np.nan) for c in settled], dtype=np.float64)
+                ax.plot(xs, y, "o-" if k == 0 else "s--", color=color, ms=4,
+                        label=group_label(key) if (ax is axes[0] and k == 0) else None)
+                if np.isfinite(err).any():
+                    ax.errorbar(xs, y, yerr=np.where(np.isfinite(err), err, 0.0), fmt="none", ecolor=color,
+                                elinewidth=0.8, capsize=2)
+    unsettled = [c for c in cells if not c["settled"]]
+    for ax, (panel, _) in zip(axes, CONDUIT_PANELS):
+        if unsettled:
+            ux = np.array([float(c["swept"][x]) for c in unsettled])
+            uy = np.array([c["values"][panel[0]] for c in unsettled], dtype=np.float64)
+            ax.plot(ux, uy, "x", color="0.55", ms=5, label="not settled" if ax is axes[0] else None)
+    for ax, (_, label) in zip(axes, CONDUIT_PANELS):
+        ax.set_ylabel(label)
+    axes[-1].set_xlabel(r"$G = \mu U/E_s$ (Ca)" if x == "shear_rate_G" else SWEPT_LABELS.get(x, x))
+    _legend(axes[0])
+    context = _summary_context(ds)
+    parts = [context[k] for k in ("shape", "law", "lam", "mesh") if context.get(k)]
+    title = str(ds.attrs.get("title", ""))
+    fig.caption = ((f"{title}: " if title else "") + ", ".join(parts)
+                   + "; lengths along the conduit (—) and across it (--)")
+    _supxlabel(fig, fig.caption)
+    return fig
+
+
 # ------------------------------------------------------------ dispatcher
 
 # kinds that overlay several runs when given a list of them
 OVERLAY_KINDS = ("deformation", "inclination")
 # kinds drawn from a campaign summary (netCDF of capsim summarize), not from a run file
-SUMMARY_KINDS = ("steady", "orbit_map")
+SUMMARY_KINDS = ("steady", "orbit_map", "conduit")
 # kinds drawn from a run of several capsules only (capsules:, issue 43); a one-capsule run is refused
 SCENE_KINDS = ("separation",)
 
@@ -1668,6 +1745,7 @@ KINDS: dict[str, Callable[..., Any]] = {
     "steady": steady_figure,
     "orbit": orbit_figure,
     "orbit_map": orbit_map_figure,
+    "conduit": conduit_figure,
 }
 
 
@@ -1893,7 +1971,7 @@ def write_figure(paths: Sequence[str | os.PathLike], kind: str, output: str | os
             raise FigureError(str(exc)) from None
     if x is not None:
         if kind not in SUMMARY_KINDS:
-            raise FigureError(f"--x {x!r}: only for --kind steady and orbit_map (the swept field on its axis)")
+            raise FigureError(f"--x {x!r}: only for --kind steady, orbit_map and conduit (the swept field on its axis)")
         options["x"] = x
     if y is not None:
         if kind != "orbit_map":

@@ -137,10 +137,10 @@ def test_theory_lines_only_where_the_theory_applies(tiny_run):
 
 
 def test_figures_carry_a_caption_and_keep_the_legend_outside(tiny_run):
-    from capsim.face.plot import KINDS, SCENE_KINDS, plot
+    from capsim.face.plot import KINDS, SCENE_KINDS, SUMMARY_KINDS, plot
 
     # (a kind of several capsules refuses one: tests/face/test_capsules_output.py draws it)
-    for kind in sorted(set(KINDS) - {"steady", "orbit_map", *SCENE_KINDS}):
+    for kind in sorted(set(KINDS) - {*SUMMARY_KINDS, *SCENE_KINDS}):
         fig = plot(tiny_run, kind)
         caption = fig._supxlabel.get_text()
         for words in ("sphere", "thin_shell", "λ = 1", "G = 0.1", "mesh octahedron level 1"):

@@ -63,6 +63,17 @@ def _orbit_summary():
         coords={"run": list("abcdef"), "shear_rate": ("run", rate), "viscosity_ratio": ("run", lam)})
 
 
+def _conduit_summary():
+    """A grid summary of capsules in tubes over radius × G (as `capsim summarize` writes it)."""
+    radius, G = np.array([1.6, 2.5]), np.array([0.05, 0.1])
+    grid = ("radius", "shear_rate_G")
+    values = {name: (grid, np.array([[1.0, 1.1], [1.2, 1.3]])) for name in
+              ("D_xy", "theta", "centroid_velocity_x", "extra_pressure_drop", "length_along", "width_across")}
+    values["steady_average"] = (grid, np.ones((2, 2), dtype=np.int8))
+    return xr.Dataset(values, coords={"radius": ("radius", radius, {"case_field": "conduit.radius"}),
+                                      "shear_rate_G": G})
+
+
 def png_size(path):
     head = path.read_bytes()[:24]
     assert head[:8] == b"\x89PNG\r\n\x1a\n"
@@ -79,6 +90,8 @@ EXPECTED_LABELS = {
     "steady": [("", "$D_{xy}$"), ("$G = \\mu k a / E_s$", r"$\theta/\pi$")],
     "orbit": [("$kt$", r"angle / $\pi$"), ("director $x$", "director $y$"), ("director $y$", "director $z$")],
     "orbit_map": [("shear rate $k$ (1/s)", r"viscosity ratio $\lambda$")],
+    "conduit": [("", r"speed $/ U$"), ("", r"$\Delta P^+ a/(\mu U)$"),
+                (r"$G = \mu U/E_s$ (Ca)", r"length, width $/a$")],
 }
 
 
@@ -89,7 +102,7 @@ def test_every_kind_writes_a_png_with_labelled_axes(kind, tiny_run, summary_nc, 
             plot(tiny_run, kind, tmp_path / f"{kind}.png")
         assert not (tmp_path / f"{kind}.png").exists()
         return
-    source = {"steady": summary_nc, "orbit_map": _orbit_summary()}.get(kind, tiny_run)
+    source = {"steady": summary_nc, "orbit_map": _orbit_summary(), "conduit": _conduit_summary()}.get(kind, tiny_run)
     out = tmp_path / f"{kind}.png"
     fig = plot(source, kind, out)
     labels = [(ax.get_xlabel(), ax.get_ylabel()) for ax in fig.axes]

@@ -235,3 +235,26 @@ def test_the_paraview_export_and_the_contour_plot_draw_the_conduit(tmp_path):
     fig = contour_figure(d["output"]["path"])
     walls = [line for line in fig.axes[0].get_lines() if line.get_label() == "conduit"]
     assert walls and np.nanmax(np.abs(walls[0].get_ydata())) == pytest.approx(2.5)
+
+
+def test_the_conduit_figure_draws_a_campaign_over_size_ratio_and_capillary_number(tmp_path):
+    """`capsim plot s.nc --kind conduit`: one line per radius over G in each panel (speed, ΔP+,
+    lengths), its legend naming a/R; a summary without a conduit's numbers is refused in one line."""
+    import xarray as xr
+
+    from capsim.face.plot import conduit_figure
+
+    radius, G = np.array([1.6, 2.5]), np.array([0.05, 0.1, 0.2])
+    shape = (radius.size, G.size)
+    data = {name: (("radius", "shear_rate_G"), np.linspace(1.0, 2.0, 6).reshape(shape))
+            for name in ("D_xy", "theta", "centroid_velocity_x", "extra_pressure_drop", "length_along", "width_across")}
+    data["steady_average"] = (("radius", "shear_rate_G"), np.ones(shape, dtype=np.int8))
+    ds = xr.Dataset(data, coords={"radius": ("radius", radius, {"case_field": "conduit.radius"}),
+                                  "shear_rate_G": G})
+    fig = conduit_figure(ds)
+    lines = [line for line in fig.axes[0].get_lines() if line.get_label().startswith("R = ")]
+    assert [line.get_label() for line in lines] == ["R = 1.6 a (a/R = 0.625)", "R = 2.5 a (a/R = 0.4)"]
+    np.testing.assert_allclose(lines[1].get_xdata(), G)
+    assert len([line for line in fig.axes[2].get_lines() if len(line.get_xdata()) == 3]) >= 4  # along and across
+    with pytest.raises(ValueError, match="no 'extra_pressure_drop'"):
+        conduit_figure(ds.drop_vars("extra_pressure_drop"))
