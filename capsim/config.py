@@ -907,6 +907,11 @@ class Conduit(_Model):
         None, gt=1.0, le=100.0, description="kind: tube only: its radius R in units of a (the capsule's a/R = 1/R)")
     half_widths: Optional[tuple[float, float]] = Field(
         None, description="kind: duct only: its half-widths [h_y, h_z] in units of a, each in (1, 100]")
+    throat_radius: Optional[float] = Field(
+        None, gt=0.2, le=100.0, description="kind: constriction only: the radius R_c of its narrowest section (units "
+        "of a; below 1 the capsule is squeezed through it)")
+    throat_length: Optional[float] = Field(
+        None, gt=0.0, le=100.0, description="kind: constriction only: ℓ, the narrowing spans |x| < ℓ (units of a)")
     length: Optional[float] = Field(
         None, gt=0, le=1e3, description="the truncated conduit's length L (units of a); default: from "
         "conduit.truncation (the disturbance's decay along the conduit, docs/conduits.md)")
@@ -931,6 +936,9 @@ class Conduit(_Model):
         problem = fields_problem(self, CONDUITS, CONDUIT_FIELDS)
         if problem is not None:
             raise _FieldProblem(*problem)
+        if self.kind == "constriction" and not self.throat_radius < self.radius:
+            raise _FieldProblem("throat_radius", self.throat_radius, f"must be below conduit.radius = {self.radius:g} "
+                                "(the tube narrows to it)")
         if self.length is not None:
             from capsim.scene.conduit import NEAR_REACH, conduit_kind, truncation_error
 

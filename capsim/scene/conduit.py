@@ -80,8 +80,12 @@ class ConduitKind(Kind):
 
     @property
     def reach_y(self) -> float:
-        """The wall's distance from the axis along y (the plots' outline)."""
+        """The wall's largest distance from the axis along y."""
         raise NotImplementedError
+
+    def wall_y(self, x: np.ndarray) -> np.ndarray:
+        """The wall's distance from the axis along y at each x (the plots' outline in z = 0)."""
+        return np.full(np.shape(x), self.reach_y)
 
     def gap(self, x: np.ndarray) -> np.ndarray:
         """The distance of each point (N, 3) from the side wall (negative outside)."""
@@ -252,6 +256,91 @@ class Duct(ConduitKind):
         return f"duct {2 * hy:g} a × {2 * hz:g} a"
 
 
+@register_conduit
+class Constriction(ConduitKind):
+    name = "constriction"
+    description = ("a circular tube of radius conduit.radius narrowing smoothly to conduit.throat_radius over |x| < "
+                   "conduit.throat_length, r(x) = R − (R − R_c)(1 + cos(πx/ℓ))/2 (its flow computed once by the same "
+                   "method); the capsule starts upstream (initial_center x < 0) and the run stops before it leaves "
+                   "the meshed stretch")
+    uses = ("radius", "throat_radius", "throat_length")
+    straight = False
+
+    @property
+    def radius(self) -> float:
+        return float(self.section.radius)
+
+    @property
+    def throat_radius(self) -> float:
+        return float(self.section.throat_radius)
+
+    @property
+    def throat_length(self) -> float:
+        return float(self.section.throat_length)
+
+    def wall_y(self, x: np.ndarray) -> np.ndarray:
+        return self.radius_at(x)
+
+    def radius_at(self, x: np.ndarray) -> np.ndarray:
+        R, Rc, ell = self.radius, self.throat_radius, self.throat_length
+        x = np.asarray(x, dtype=np.float64)
+        return np.where(np.abs(x) < ell, R - (R - Rc) * 0.5 * (1.0 + np.cos(np.pi * x / ell)), R)
+
+    @property
+    def half_width(self) -> float:
+        return self.radius
+
+    @property
+    def decay_rate(self) -> float:
+        return 2.5678 / self.radius  # the tube's slowest mode beyond the constriction
+
+    @property
+    def reach_y(self) -> float:
+        return self.radius
+
+    def gap(self, x: np.ndarray) -> np.ndarray:
+        # the radial distance to the wall, times the cosine of its slope (the normal distance to first order)
+        R, Rc, ell = self.radius, self.throat_radius, self.throat_length
+        xs = x[:, 0]
+        slope = np.where(np.abs(xs) < ell, (R - Rc) * 0.5 * np.pi / ell * np.sin(np.pi * xs / ell), 0.0)
+        return (self.radius_at(xs) - np.hypot(x[:, 1], x[:, 2])) / np.sqrt(1.0 + slope**2)
+
+    def velocity(self, x: np.ndarray) -> np.ndarray:
+        """The tube's Poiseuille flow (radius R): the constriction's own flow adds the wall's
+        response (RigidConduit.empty_flow)."""
+        u = np.zeros_like(x)
+        u[:, 0] = _profiles().tube_velocity(x[:, 1], x[:, 2], self.radius)
+        return u
+
+    def gradient(self, point: np.ndarray) -> np.ndarray:
+        return _profiles().tube_gradient(np.asarray(point, dtype=np.float64).reshape(1, 3), self.radius)[0]
+
+    @property
+    def area(self) -> float:
+        return math.pi * self.radius ** 2
+
+    @property
+    def centerline_velocity(self) -> float:
+        return 2.0
+
+    @property
+    def wall_shear(self) -> float:
+        return float(_profiles().tube_wall_shear(self.radius))
+
+    @property
+    def pressure_gradient(self) -> float:
+        return 8.0 / self.radius ** 2
+
+    def mesh(self, length: float, size_near: float, size_far: float, near_half_length: float):
+        from capsim.numerics.conduit_mesh import axisymmetric_conduit_mesh, round_caps
+
+        return round_caps(axisymmetric_conduit_mesh(self.radius_at, length, size_near, size_far, near_half_length))
+
+    def describe(self) -> str:
+        return (f"constriction R = {self.radius:g} a to {self.throat_radius:g} a over "
+                f"|x| < {self.throat_length:g} a")
+
+
 #: the conduit section's fields some kind reads
 CONDUIT_FIELDS = tuple(sorted({f for cls in CONDUITS.values() for f in cls.uses}))
 
@@ -262,17 +351,29 @@ class ConduitFarField:
     velocity unit U; the time unit a/U, so G = μU/E_s: the conduit's capillary number)."""
 
     kind: Any  # a ConduitKind
+    #: the conduit whose empty flow adds to the kind's analytic one (a constriction); None: analytic
+    conduit: Any = None
     linear: ClassVar[bool] = False
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        return self.kind.velocity(np.asarray(x, dtype=np.float64).reshape(-1, 3))
+        x = np.asarray(x, dtype=np.float64).reshape(-1, 3)
+        u = self.kind.velocity(x)
+        if self.conduit is not None:
+            u += self.conduit.empty_flow_correction(x)
+        return u
 
     @property
     def matrix(self) -> np.ndarray:
         raise ValueError("a conduit's flow has no constant velocity gradient")
 
     def gradient_at(self, point: np.ndarray) -> np.ndarray:
-        return self.kind.gradient(point)
+        L = self.kind.gradient(point)
+        if self.conduit is not None:  # the computed part by central differences (it is smooth inside)
+            h = 1e-4
+            p = np.asarray(point, dtype=np.float64).reshape(1, 3) + h * np.vstack([np.eye(3), -np.eye(3)])
+            u = self.conduit.empty_flow_correction(p)
+            L = L + (u[:3] - u[3:]).T / (2 * h)
+        return L
 
     def is_invariant(self, signs: np.ndarray) -> bool:
         # u_x is even in y and z (a tube's or a duct's cross-section is mirror-symmetric) and the
@@ -314,14 +415,29 @@ class RigidConduit(Boundary):
         if section is None:
             return None
         kind = conduit_kind(section)
-        return cls(kind, *conduit_dimensions(section, kind))
+        return cls(kind, *conduit_dimensions(section, kind, case.center[0]))
 
     # ---- the scene's view
     def far_field(self, field: Any) -> ConduitFarField:
-        return ConduitFarField(self.kind)
+        return ConduitFarField(self.kind, None if self.kind.straight else self)
 
     def gap(self, x: np.ndarray) -> float:
         return float(self.kind.gap(np.asarray(x).reshape(-1, 3)).min())
+
+    @property
+    def travel_end(self) -> float:
+        """|x| a membrane may reach in a conduit that is not straight: its ends' truncation margin short
+        of ±L/2 (capsim.runs.stopping ends the run there: the capsule has passed through)."""
+        return 0.5 * self.length - truncation_margin(self.kind)
+
+    def empty_flow_correction(self, x: np.ndarray) -> np.ndarray:
+        """The empty conduit's flow less the kind's analytic one at points x (a constriction's: the
+        tube's Poiseuille flow u_P plus the wall's response u_c = ∫G·q_c dS with u_c = −u_P on the
+        side wall and 0 on the round ends, where the flow is fully developed; docs/conduits.md)."""
+        from capsim.numerics import rigid_surface
+
+        op = self.wall_operator()
+        return rigid_surface.single_layer_at(np.ascontiguousarray(x), op.positions, op.elements, op.empty_density())
 
     def placed(self, x: np.ndarray) -> "RigidConduit":
         """The conduit as it lies for the capsules' nodes x: a straight one centred on their mean x."""
@@ -359,12 +475,12 @@ class RigidConduit(Boundary):
 
     # ---- drawing
     def outline_xy(self, lo: float, hi: float, depth: float = 0.15) -> tuple[np.ndarray, np.ndarray]:
-        h = self.kind.reach_y
-        if isinstance(self.kind, Tube) or isinstance(self.kind, Duct):
-            line = np.array([[lo, h], [hi, h], [np.nan, np.nan], [lo, -h], [hi, -h]])
-            band = np.array([[lo, -h - depth], [hi, -h - depth], [hi, -h], [lo, -h]])
-            return line, band
-        raise NotImplementedError
+        """The wall's trace in the plane z = 0 (both sides of the axis) and a band behind its lower side."""
+        xs = np.linspace(lo, hi, 200)
+        ys = self.kind.wall_y(xs)
+        line = np.concatenate([np.stack([xs, ys], 1), [[np.nan, np.nan]], np.stack([xs, -ys], 1)])
+        band = np.concatenate([np.stack([xs, -ys - depth], 1), np.stack([xs[::-1], -ys[::-1]], 1)])
+        return line, band
 
     def patch(self, x: np.ndarray, margin: float = 2.0) -> np.ndarray:
         xs = np.asarray(x, dtype=np.float64).reshape(-1, 3)
@@ -410,7 +526,11 @@ class RigidConduit(Boundary):
                 traction[k] += (L + L.T) @ normals_w[k]
             work += (viscosity_ratio - 1.0) * float(np.einsum("ij,ij->", u_points, traction))
         across = np.hypot(nodes[:, 1] - center[1], nodes[:, 2] - center[2])
-        return {"extra_pressure_drop": work / self.kind.area,
+        out = {}
+        if not self.kind.straight:  # how far the membrane is from the meshed stretch's end (the stop rule's)
+            out["_end_clearance"] = min(self.travel_end - float(nodes[:, 0].max()),
+                                        float(nodes[:, 0].min()) + self.travel_end)
+        return out | {"extra_pressure_drop": work / self.kind.area,
                 "axis_offset": float(math.hypot(center[1], center[2])),
                 "length_along": float(nodes[:, 0].max() - nodes[:, 0].min()),
                 "width_across": float(2.0 * across.max())}
@@ -431,18 +551,27 @@ TRUNCATION_DEFAULT = 1e-4
 TRUNCATION_AMPLITUDE = 1e-3
 
 
-def conduit_dimensions(section: Any, kind: ConduitKind) -> tuple[float, float, float, float]:
+def truncation_margin(kind: ConduitKind, truncation: float = TRUNCATION_DEFAULT) -> float:
+    """ℓ: how far beyond the capsule's reach the ends lie for a truncation error (A exp(−k ℓ/h))."""
+    return max(0.0, math.log(TRUNCATION_AMPLITUDE / truncation)) / kind.decay_rate
+
+
+def conduit_dimensions(section: Any, kind: ConduitKind, start_x: float = 0.0) -> tuple[float, float, float, float]:
     """(length, size_near, size_far, near_half_length) of a conduit section: its length from
     the truncation error it states (the disturbance's decay, ``ConduitKind.decay_rate``)."""
     h = kind.half_width
     near_half_length = NEAR_REACH + h
     size_near = float(section.element_size) if section.element_size is not None else default_element_size(kind)
     size_far = max(size_near, 0.5 * h)
+    ell = truncation_margin(kind, section.truncation)
     if section.length is not None:
         length = float(section.length)
-    else:
-        ell = max(0.0, math.log(TRUNCATION_AMPLITUDE / section.truncation)) / kind.decay_rate
+    elif kind.straight:
         length = 2.0 * (NEAR_REACH + ell)
+    else:  # the capsule travels through: from its start upstream as far downstream, and the margin
+        length = 2.0 * (max(kind.throat_length, abs(float(start_x))) + NEAR_REACH + ell)
+    if not kind.straight:
+        near_half_length = 0.5 * length  # fine wherever the capsule passes
     return length, size_near, size_far, near_half_length
 
 
@@ -488,8 +617,21 @@ class WallOperator:
         self.lu = scipy.linalg.lu_factor(matrix.T, overwrite_a=True, check_finite=False)
         self.matrix_bytes = matrix.nbytes
         self.n_nodes = n
+        self._empty = None
+        self.analytic_velocity = None  # set by _wall_operator: the kind's analytic flow
+        side = np.unique(self.elements[np.asarray(mesh.part) == 0])
+        self.end_nodes = np.setdiff1d(np.arange(n), side)
         self.solves = 0
         self.last_density = np.zeros((n, 3))
+
+    def empty_density(self) -> np.ndarray:
+        """q_c of the empty conduit's flow correction: W q_c = −u_P on the side wall, 0 on the ends
+        (computed once; a straight conduit's is zero)."""
+        if self._empty is None:
+            b = -self.analytic_velocity(self.positions)
+            b[self.end_nodes] = 0.0
+            self._empty = self.density(b)
+        return self._empty
 
     def nodes_at(self, shift: float) -> np.ndarray:
         nodes = self.positions.copy()
@@ -519,7 +661,9 @@ def _wall_operator(kind_name: str, section_key: tuple, length: float, size_near:
                    near_half_length: float) -> WallOperator:
     section = _SectionView(dict(section_key))
     kind = CONDUITS[kind_name](section)
-    return WallOperator(kind.mesh(length, size_near, size_far, near_half_length))
+    op = WallOperator(kind.mesh(length, size_near, size_far, near_half_length))
+    op.analytic_velocity = kind.velocity
+    return op
 
 
 class _SectionView:

@@ -392,7 +392,9 @@ class TrajectoryWriter:
 
     # -- writing ---------------------------------------------------------
     def append_step(self, values: dict[str, float]) -> None:
-        """Append one row; the keys of the first row fix the columns."""
+        """Append one row; the keys of the first row fix the columns. A key that starts with "_" is
+        the observer's own (what a stopping rule reads: a conduit's end clearance), never a column."""
+        values = {key: value for key, value in values.items() if not key.startswith("_")}
         if self._keys is None:
             self._create_timeseries(tuple(values), {key: int(np.size(v)) for key, v in values.items()
                                                     if isinstance(v, np.ndarray)})

@@ -90,6 +90,9 @@ SCENES = {
                               "capsules": [{"center": [4.0, 0.0, 0.0]}, {"center": [-4.0, 0.5, 0.0]}]},
     "conduit": {"flow": {"kind": "conduit", "G": 0.05}, "conduit": {"kind": "tube", "radius": 2.0}},
     "conduit duct": {"flow": {"kind": "conduit", "G": 0.05}, "conduit": {"kind": "duct", "half_widths": [2.0, 1.5]}},
+    "conduit constriction": {"flow": {"kind": "conduit", "G": 0.05}, "initial_center": [-4.0, 0.0, 0.0],
+                             "conduit": {"kind": "constriction", "radius": 2.0, "throat_radius": 1.2,
+                                         "throat_length": 3.0}},
 }
 
 

@@ -258,3 +258,29 @@ def test_the_conduit_figure_draws_a_campaign_over_size_ratio_and_capillary_numbe
     assert len([line for line in fig.axes[2].get_lines() if len(line.get_xdata()) == 3]) >= 4  # along and across
     with pytest.raises(ValueError, match="no 'extra_pressure_drop'"):
         conduit_figure(ds.drop_vars("extra_pressure_drop"))
+
+
+def test_the_empty_constrictions_flow_keeps_its_flux_and_is_fore_aft_symmetric():
+    """A tube (R = 1.6 a) narrowing to 1.1 a over |x| < 2 a: the empty conduit's flow, computed once
+    (the tube's Poiseuille flow plus the wall's response that cancels it on the narrowed wall),
+    carries the flow rate Q = πR²U through every cross-section (measured within 1e-4, the throat
+    included), its centreline speed is the same at ±x (Stokes flow is reversible: to round-off)
+    and, far upstream and downstream, the fully developed 2U; at the throat it rises towards the
+    lubrication value 2U(R/R_c)² (a long gentle constriction's)."""
+    d = _case(conduit={"kind": "constriction", "radius": 1.6, "throat_radius": 1.1, "throat_length": 2.0},
+              initial_center=[-3.0, 0.0, 0.0])
+    scene = Scene.of(case_from_dict(d))
+    field, kind = scene.far_field, scene.boundaries[0].kind
+    t, w = np.polynomial.legendre.leggauss(20)
+    theta = np.linspace(0.0, 2 * np.pi, 40, endpoint=False)
+    for x0 in (-3.5, -1.0, 0.0, 1.0, 3.5):
+        R = float(kind.radius_at(np.array(x0)))
+        r, wr = 0.5 * R * (t + 1), 0.5 * R * w
+        rr, tt = np.meshgrid(r, theta, indexing="ij")
+        points = np.stack([np.full(rr.size, x0), (rr * np.cos(tt)).ravel(), (rr * np.sin(tt)).ravel()], 1)
+        flux = (field(points)[:, 0].reshape(rr.shape) * rr * wr[:, None]).sum() * 2 * np.pi / theta.size
+        assert flux == pytest.approx(np.pi * 1.6**2, rel=3e-4), x0
+    centre = field(np.array([[-1.0, 0, 0], [1.0, 0, 0], [-3.5, 0, 0], [0.0, 0, 0]]))[:, 0]
+    assert centre[0] == pytest.approx(centre[1], rel=1e-6)
+    assert centre[2] == pytest.approx(2.0, rel=2e-3)
+    assert 2.0 < centre[3] < 2 * (1.6 / 1.1) ** 2
