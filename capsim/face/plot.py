@@ -48,7 +48,6 @@ from capsim.numerics.mesh import linear_subtriangles  # numba-free: figures need
 from capsim.scene import run_bodies, run_capsule_count
 from capsim.quantities import PERIODIC_MOTIONS, canonical_motion
 from capsim.scene.flows import FLOWS
-from capsim.scene.small_deformation import NU_HALF_LAWS
 
 __all__ = [
     "DPI", "FIGSIZE", "FIGURE_FORMATS", "FIRST_ORDER_G_MAX", "KINDS", "contour_figure", "orbit_figure", "orbit_map_figure", "deformation_figure", "inclination_figure",
@@ -275,27 +274,13 @@ def _drawn_paths(ax):
 
 
 def first_order_theory(case, scene=None) -> Any:
-    """The first-order theory of a case's scene (capsim.scene.Scene, built here if not given),
-    where its assumptions hold: one capsule, spherical and stress-free at rest (no pre-inflation:
-    a pre-stretched membrane is stiffer), a ν_s = 1/2 law without bending stiffness, in an
-    unbounded flow of constant rate (no boundary, no history) whose kind derives one
-    (``Flow.first_order``); else None. How small G must be is the caller's."""
+    """The first-order theory of a case's scene where its assumptions hold, else None: the scene's
+    own verdict (capsim.scene.Scene.first_order_theory; built here if not given)."""
     if scene is None:
         from capsim.scene import Scene
 
         scene = Scene.of(case)
-    if scene.has_boundary or scene.several:
-        return None
-    spec = scene.specs[0] if scene.specs else None
-    shape = spec.shape if spec is not None else case.shape
-    membrane = spec.membrane if spec is not None and spec.membrane is not None else case.membrane
-    if shape.kind != "sphere" or shape.inflation or membrane.law not in NU_HALF_LAWS or membrane.bending_modulus:
-        return None
-    if spec is not None and spec.modulus_ratio != 1.0:
-        return None
-    if case.flow.history is not None and case.flow.history.kind != "steady":
-        return None
-    return FLOWS[scene.flow_kind or case.flow.kind].first_order(case.flow)
+    return scene.first_order_theory(case)
 
 
 def _theory_applies(info: dict[str, Any]) -> bool:

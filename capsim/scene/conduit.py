@@ -83,7 +83,7 @@ class ConduitKind(Kind):
         """The wall's largest distance from the axis along y."""
         raise NotImplementedError
 
-    def wall_y(self, x: np.ndarray) -> np.ndarray:
+    def outline_y(self, x: np.ndarray) -> np.ndarray:
         """The wall's distance from the axis along y at each x (the plots' outline in z = 0)."""
         return np.full(np.shape(x), self.reach_y)
 
@@ -278,7 +278,7 @@ class Constriction(ConduitKind):
     def throat_length(self) -> float:
         return float(self.section.throat_length)
 
-    def wall_y(self, x: np.ndarray) -> np.ndarray:
+    def outline_y(self, x: np.ndarray) -> np.ndarray:
         return self.radius_at(x)
 
     def radius_at(self, x: np.ndarray) -> np.ndarray:
@@ -307,7 +307,7 @@ class Constriction(ConduitKind):
 
     def velocity(self, x: np.ndarray) -> np.ndarray:
         """The tube's Poiseuille flow (radius R): the constriction's own flow adds the wall's
-        response (RigidConduit.empty_flow)."""
+        response (RigidConduit.empty_flow_correction)."""
         u = np.zeros_like(x)
         u[:, 0] = _profiles().tube_velocity(x[:, 1], x[:, 2], self.radius)
         return u
@@ -477,7 +477,7 @@ class RigidConduit(Boundary):
     def outline_xy(self, lo: float, hi: float, depth: float = 0.15) -> tuple[np.ndarray, np.ndarray]:
         """The wall's trace in the plane z = 0 (both sides of the axis) and a band behind its lower side."""
         xs = np.linspace(lo, hi, 200)
-        ys = self.kind.wall_y(xs)
+        ys = self.kind.outline_y(xs)
         line = np.concatenate([np.stack([xs, ys], 1), [[np.nan, np.nan]], np.stack([xs, -ys], 1)])
         band = np.concatenate([np.stack([xs, -ys - depth], 1), np.stack([xs[::-1], -ys[::-1]], 1)])
         return line, band

@@ -91,6 +91,27 @@ class Scene:
         return {"flow_kind": self.flow_kind, "boundaries": tuple(b.name for b in self.boundaries),
                 "capsules": self.body_count}
 
+    def first_order_theory(self, case: Any) -> Any:
+        """The first-order small-deformation theory of this scene (capsim.scene.small_deformation,
+        ``Flow.first_order``) where its assumptions hold: one capsule, spherical and stress-free at
+        rest (no pre-inflation: a pre-stretched membrane is stiffer), a ν_s = 1/2 law without bending
+        stiffness, of the case's modulus, in an unbounded flow of constant rate (no boundary, no
+        history) whose kind derives one; else None. How small G must be is the caller's."""
+        from capsim.scene.small_deformation import NU_HALF_LAWS
+
+        if self.has_boundary or self.several:
+            return None
+        spec = self.specs[0] if self.specs else None
+        shape = spec.shape if spec is not None else case.shape
+        membrane = spec.membrane if spec is not None and spec.membrane is not None else case.membrane
+        if shape.kind != "sphere" or shape.inflation or membrane.law not in NU_HALF_LAWS or membrane.bending_modulus:
+            return None
+        if spec is not None and spec.modulus_ratio != 1.0:
+            return None
+        if case.flow.history is not None and case.flow.history.kind != "steady":
+            return None
+        return FLOWS[self.flow_kind or case.flow.kind].first_order(case.flow)
+
     # ---- the boundaries' part, as the guards and observables read it
     def boundary_gap(self, x: np.ndarray) -> float | None:
         """The smallest distance of the nodes x from any boundary (units of a); None without one."""
