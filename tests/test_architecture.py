@@ -308,3 +308,63 @@ def test_no_module_fishes_a_scene_part_off_the_model_or_the_case():
     pattern = re.compile(r"getattr\((model|self\.model|case), \"(wall|wall_y|bodies|far_field|capsules|scene)\"")
     for path in _sources():
         assert not pattern.search(path.read_text()), path.name
+
+
+# ---------------------------------------------------------------- one public surface per package (issue 52)
+
+#: the sub-packages whose __init__ is a lazy table (PEP 562) of the names their modules give
+SURFACES = ("capsim.numerics", "capsim.solve", "capsim.storage", "capsim.runs", "capsim.campaigns", "capsim.face")
+
+
+def _top_level_definitions(module: str) -> set[str]:
+    """The names a module binds itself at its top level (def, class, assignment), not by an import."""
+    names = set()
+    for node in ast.parse(_path(module.removeprefix("capsim.")).read_text()).body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign)):
+            for target in node.targets if isinstance(node, ast.Assign) else [node.target]:
+                names |= {n.id for n in ast.walk(target) if isinstance(n, ast.Name)}
+    return names
+
+
+def test_each_sub_package_has_one_lazy_public_surface():
+    """Every name of a sub-package's ``__all__`` resolves to an object defined in one of its own
+    modules (not a re-export, no name shadowing a module); and importing the six packages, in a
+    fresh interpreter, loads none of numba, h5py, matplotlib, xarray, scipy."""
+    import importlib
+    import inspect
+    import json
+    import os
+    import subprocess
+    import sys
+
+    for package in SURFACES:
+        pkg = importlib.import_module(package)
+        modules = {p.stem for p in (PACKAGE / package.split(".")[1]).glob("*.py")} - {"__init__"}
+        assert pkg.__all__ and len(set(pkg.__all__)) == len(pkg.__all__), package
+        assert set(pkg.__all__) <= set(dir(pkg)), package
+        for name in pkg.__all__:
+            assert name not in modules, f"{package}.{name} is also a module's name"
+            home = pkg._LAZY[name]
+            assert home.startswith(package + "."), (package, name, home)
+            value = getattr(pkg, name)
+            assert value is getattr(importlib.import_module(home), name), (package, name)
+            assert name in _top_level_definitions(home), f"{name} is imported into {home}, not defined there"
+            if inspect.isclass(value) or inspect.isfunction(value) or hasattr(value, "py_func"):
+                assert value.__module__ == home, (package, name, value.__module__)
+        try:
+            pkg.no_such_name
+        except AttributeError:
+            pass
+        else:
+            raise AssertionError(f"{package} invents a name")
+
+    banned = ["numba", "h5py", "matplotlib", "xarray", "scipy"]
+    code = (f"import sys, json\nimport {', '.join(SURFACES)}\n"
+            f"print(json.dumps(sorted(m for m in {banned!r} if m in sys.modules)))\n")
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_", "CAPSIM_"))}
+    env["PYTHONPATH"] = str(PACKAGE.parent)
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == []

@@ -2,5 +2,39 @@
 checkpoints (checkpoint) and when a run writes them (schedules).
 
 Sits above the case schema (``capsim.config``); never imports a run, a campaign or the CLI.
-Modules are imported by their full name; this ``__init__`` loads nothing (no h5py on import).
+One public surface: ``capsim.storage.<name>`` for every name of
+``__all__`` (``TrajectoryWriter``, ``open_run``, ``read_trajectory``, ``read_run_record``, ``FileLock``,
+``checkpoint_path`` ...), each loaded from its module on first access; ``import capsim.storage`` loads
+no h5py. The library's own modules import each other by their full name.
 """
+
+
+#: module -> the names it gives the package's surface
+_SURFACE = {
+    "files": ("FileLock StorageError OutputError LockedError check_writable guard_output protected "
+              "replace_atomically write_durably write_failure starts_with is_hdf5 is_run_file is_study_file "
+              "is_summary_file ladder_work_path remove_stale_ladder_files CAMPAIGN_FILE INDEX_FILE FIGURE_MAGIC"),
+    "store": ("TrajectoryWriter TrajectoryError open_run read_trajectory read_run_record read_run_status "
+              "read_run_digest read_run_identity read_case read_end_state case_from_trajectory guard_run_output "
+              "mark_abandoned move_run write_accuracy write_error_estimate REQUESTED_CASE"),
+    "checkpoint": ("checkpoint_path read_checkpoint load_end_state remove_checkpoint without_t_end first_difference "
+                   "CheckpointError ResumeError"),
+    "schedules": "SnapshotSchedule CheckpointSchedule end_tolerance",
+}
+# name -> module that defines it; imported on first access (PEP 562)
+_LAZY = {name: f"{__name__}.{module}" for module, names in _SURFACE.items() for name in names.split()}
+__all__ = list(_LAZY)
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
