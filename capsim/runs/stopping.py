@@ -129,9 +129,10 @@ def stop_reason(state: LoopState, time: Time, guards: Guards, row: dict | None, 
         violation = guard_violation(row, row0, guards) or step_collapse(history["dt"], guards.min_dt_fraction)
         if violation is not None:
             return Stop("unstable", f"{violation} {at}")
-        if np.min(row.get("_end_clearance", np.inf)) < 0.0:  # a conduit that is not straight (a constriction)
-            return Stop("completed", f"the capsule reached the end of the conduit's meshed stretch {at} (its "
-                        "ends lie the truncation margin beyond, capsim.scene.conduit: travel_end)")
+        if np.min(row.get("_end_clearance", np.inf)) < 0.0:  # a conduit's meshed stretch (capsim.scene.conduit)
+            return Stop("completed", f"a membrane reached the end of the conduit's meshed stretch {at} (through a "
+                        "constriction; or capsules drifted apart beyond a tube's window: its ends lie the truncation "
+                        "margin beyond, capsim.scene.conduit: travel_end)")
         if time.stop_when_steady and is_steady(history["t"], history["D_xy"], history["theta"]):
             return Stop("completed", f"steady state reached {at}")
         if time.stop_when_settled and state.t >= settle_after and _settled(history, aspect_ratio):

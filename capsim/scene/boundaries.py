@@ -77,6 +77,11 @@ class Boundary(Kind):
         """Σ_m u_m·T_boundary(point_m, target)·(n w)_m at every target (T, 3)."""
         raise NotImplementedError
 
+    def end_clearance(self, x: np.ndarray) -> float:
+        """How far the membranes' nodes x (N, 3) are from where the boundary stops being modelled
+        (a conduit's meshed stretch; inf: everywhere)."""
+        return float("inf")
+
     def quantities(self, nodes: np.ndarray, points: np.ndarray, load_w: np.ndarray, u_points: np.ndarray,
                    normals_w: np.ndarray, center: np.ndarray, G: float, viscosity_ratio: float) -> dict:
         """The boundary's own columns of one capsule (a conduit's additional pressure drop), from

@@ -415,7 +415,9 @@ class RigidConduit(Boundary):
         if section is None:
             return None
         kind = conduit_kind(section)
-        return cls(kind, *conduit_dimensions(section, kind, case.center[0]))
+        xs = [c.center[0] for c in case.capsules] if case.capsules else [case.center[0]]
+        spread = max(abs(x - sum(xs) / len(xs)) for x in xs)
+        return cls(kind, *conduit_dimensions(section, kind, min(xs) if not kind.straight else 0.0, spread))
 
     # ---- the scene's view
     def far_field(self, field: Any) -> ConduitFarField:
@@ -426,9 +428,18 @@ class RigidConduit(Boundary):
 
     @property
     def travel_end(self) -> float:
-        """|x| a membrane may reach in a conduit that is not straight: its ends' truncation margin short
-        of ±L/2 (capsim.runs.stopping ends the run there: the capsule has passed through)."""
+        """|x| a membrane may reach (from the window's centre in a straight conduit): the ends'
+        truncation margin short of ±L/2 (capsim.runs.stopping ends the run there: a capsule has
+        passed through a constriction, or capsules have drifted apart beyond a tube's window)."""
         return 0.5 * self.length - truncation_margin(self.kind)
+
+    def end_clearance(self, x: np.ndarray) -> float:
+        """How far the membranes' nodes x (all capsules') are from the end of the meshed stretch they
+        may reach (the stop rule's: capsim.runs.stopping): a constriction's fixed travel_end, a
+        straight conduit's window about the nodes' mean x (capsules that drift apart leave it)."""
+        xs = np.asarray(x).reshape(-1, 3)[:, 0]
+        centre = float(np.mean(xs)) if self.kind.straight else 0.0
+        return self.travel_end - float(np.max(np.abs(xs - centre)))
 
     def empty_flow_correction(self, x: np.ndarray) -> np.ndarray:
         """The empty conduit's flow less the kind's analytic one at points x (a constriction's: the
@@ -526,11 +537,7 @@ class RigidConduit(Boundary):
                 traction[k] += (L + L.T) @ normals_w[k]
             work += (viscosity_ratio - 1.0) * float(np.einsum("ij,ij->", u_points, traction))
         across = np.hypot(nodes[:, 1] - center[1], nodes[:, 2] - center[2])
-        out = {}
-        if not self.kind.straight:  # how far the membrane is from the meshed stretch's end (the stop rule's)
-            out["_end_clearance"] = min(self.travel_end - float(nodes[:, 0].max()),
-                                        float(nodes[:, 0].min()) + self.travel_end)
-        return out | {"extra_pressure_drop": work / self.kind.area,
+        return {"extra_pressure_drop": work / self.kind.area,
                 "axis_offset": float(math.hypot(center[1], center[2])),
                 "length_along": float(nodes[:, 0].max() - nodes[:, 0].min()),
                 "width_across": float(2.0 * across.max())}
@@ -556,18 +563,21 @@ def truncation_margin(kind: ConduitKind, truncation: float = TRUNCATION_DEFAULT)
     return max(0.0, math.log(TRUNCATION_AMPLITUDE / truncation)) / kind.decay_rate
 
 
-def conduit_dimensions(section: Any, kind: ConduitKind, start_x: float = 0.0) -> tuple[float, float, float, float]:
+def conduit_dimensions(section: Any, kind: ConduitKind, start_x: float = 0.0,
+                       spread: float = 0.0) -> tuple[float, float, float, float]:
     """(length, size_near, size_far, near_half_length) of a conduit section: its length from
-    the truncation error it states (the disturbance's decay, ``ConduitKind.decay_rate``)."""
+    the truncation error it states (the disturbance's decay, ``ConduitKind.decay_rate``);
+    ``spread``: how far the capsules' centres lie from their mean x (several capsules: a straight
+    conduit's window covers them all)."""
     h = kind.half_width
-    near_half_length = NEAR_REACH + h
+    near_half_length = NEAR_REACH + spread + h
     size_near = float(section.element_size) if section.element_size is not None else default_element_size(kind)
     size_far = max(size_near, 0.5 * h)
     ell = truncation_margin(kind, section.truncation)
     if section.length is not None:
         length = float(section.length)
     elif kind.straight:
-        length = 2.0 * (NEAR_REACH + ell)
+        length = 2.0 * (NEAR_REACH + spread + ell)
     else:  # the capsule travels through: from its start upstream as far downstream, and the margin
         length = 2.0 * (max(kind.throat_length, abs(float(start_x))) + NEAR_REACH + ell)
     if not kind.straight:

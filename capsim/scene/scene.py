@@ -119,6 +119,10 @@ class Scene:
             return None
         return min(b.gap(x) for b in self.boundaries)
 
+    def end_clearance(self, x: np.ndarray) -> float:
+        """How far the membranes' nodes x are from the end of what the boundaries model (inf without)."""
+        return min((b.end_clearance(x) for b in self.boundaries), default=float("inf"))
+
     # ---- the bodies
     def meshed(self, base: str, level: int) -> tuple[np.ndarray, np.ndarray, int, "Scene"]:
         """(positions, elements, vertex nodes, the scene with its bodies' layout): the capsules'

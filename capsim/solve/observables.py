@@ -1260,7 +1260,15 @@ class StepObserver:
         row.pop("_S_star", None)
         center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
         row.update(self.tracker.update(y, u, center))
+        self._end_clearance(row, y)
         return self._close_row(row, work)
+
+    def _end_clearance(self, row: dict, y: np.ndarray) -> None:
+        """The private ``_end_clearance`` (never a column): how far the membranes are from the end of
+        a conduit's meshed stretch (capsim.runs.stopping ends the run there)."""
+        clearance = self.model.scene.end_clearance(y)
+        if np.isfinite(clearance):
+            row["_end_clearance"] = clearance
 
     def _close_row(self, row: dict, work: dict[str, float]) -> dict:
         """The solve's and the cost's columns, the file's own columns only (an old run extended),
@@ -1270,7 +1278,7 @@ class StepObserver:
         row["solver_residual"] = float(info.get("residual", 0.0))
         row.update({key: float(value) for key, value in work.items()})
         if self.columns is not None:
-            row = {key: value for key, value in row.items() if key in self.columns}
+            row = {key: value for key, value in row.items() if key in self.columns or key.startswith("_")}
         self._remember(row)
         return row
 
@@ -1297,6 +1305,7 @@ class StepObserver:
         if bodies.count == 2:  # the pair's relative trajectory: capsule 1's centroid less capsule 0's
             for c in "xyz":
                 row[f"separation_{c}"] = float(row[f"centroid_{c}"][1] - row[f"centroid_{c}"][0])
+        self._end_clearance(row, y)
         return self._close_row(row, work)
 
     def capsule_series(self, i: int) -> dict[str, np.ndarray]:
