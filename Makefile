@@ -112,6 +112,14 @@ bench-pair: venv
 bench-capsules: venv
 	PYTHONPATH=. $(BIN)/python benchmarks/capsules.py $(if $(FMM_PYTHON),--fmm-python $(FMM_PYTHON))
 
+# the cost of a conduit's wall (issue 53): assembly, LU, memory, back-solve and the layer's sums
+# against the wall's nodes (1k-8k), the GMRES alternative, and whole runs of configs/tube.yaml at
+# levels 2 and 3 (about 10 min, and 10-20 min more for level 3; SKIP_LEVEL3=1 leaves it out):
+# writes benchmarks/conduits.md and benchmarks/conduits.json
+.PHONY: bench-conduits
+bench-conduits: venv
+	PYTHONPATH=. $(BIN)/python benchmarks/conduits.py $(if $(SKIP_LEVEL3),--skip-level3)
+
 .PHONY: bench-scheme-cost
 bench-scheme-cost: venv
 	PYTHONPATH=. $(BIN)/python benchmarks/scheme_cost.py
