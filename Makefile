@@ -114,7 +114,7 @@ bench-capsules: venv
 
 # the cost of a conduit's wall (issue 53): assembly, LU, memory, back-solve and the layer's sums
 # against the wall's nodes (1k-8k), the GMRES alternative, and whole runs of configs/tube.yaml at
-# levels 2 and 3 (about 10 min, and 10-20 min more for level 3; SKIP_LEVEL3=1 leaves it out):
+# levels 2 and 3 (about 8 min on 2 shared cores, level 3 1.5 min of it; SKIP_LEVEL3=1 leaves it out):
 # writes benchmarks/conduits.md and benchmarks/conduits.json
 .PHONY: bench-conduits
 bench-conduits: venv

@@ -18,7 +18,7 @@
    LU: medians of ``--build-rounds`` builds up to 4k nodes, one build at 8k.
 2. Whole runs (``run_case`` through ``run_or_stop``, each in its own subprocess so that its peak
    memory is its own, a fresh output path each): configs/tube.yaml (level 2, Ca = G = 0.1,
-   neo-Hookean) with t_end 6.0 (10 radii at about 1.70 U), and the same at level 3 (10-20 min;
+   neo-Hookean) with t_end 6.0 (10 radii at about 1.70 U), and the same at level 3 (1.5 min here;
    ``--skip-level3`` leaves it out). The wall's operator is built first and timed (the one-time
    wall work; the run finds it in the operator cache), then the run.
 
@@ -379,7 +379,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--build-rounds", type=int, default=3, help="builds (assembly, LU) per size up to 4k nodes")
-    ap.add_argument("--skip-level3", action="store_true", help="leave out the level-3 run (10-20 min)")
+    ap.add_argument("--skip-level3", action="store_true", help="leave out the level-3 run (1.5 min here)")
     ap.add_argument("--skip-runs", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--run-worker", nargs=3, help=argparse.SUPPRESS)
     ap.add_argument("--out", default=str(OUT))
