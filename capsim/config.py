@@ -1246,10 +1246,17 @@ class Case(_Model):
         if self.wall is not None:
             raise _FieldProblem("wall", self.wall.distance, "and a conduit cannot bound one scene; remove one")
         from capsim.numerics.geometry import numpy_quadrature  # a check need not import numba
-        from capsim.scene import body_mesh, body_specs
-        from capsim.scene.conduit import conduit_kind
+        from capsim.scene import Scene, body_mesh, body_specs
+        from capsim.scene.conduit import MAX_WALL_NODES, conduit_kind
 
         kind = conduit_kind(self.conduit)
+        wall = Scene.of(self).boundaries[0]
+        nodes = kind.mesh(wall.length, wall.size_near, wall.size_far, wall.near_half_length).n_nodes  # numpy, ms
+        if nodes > MAX_WALL_NODES:
+            raise _FieldProblem("conduit.element_size", self.conduit.element_size,
+                                f"gives the {kind.describe()} ({wall.length:.3g} a long) a wall of {nodes} nodes, whose "
+                                f"dense matrix takes {(3 * nodes) ** 2 * 8 / 1e9:.2g} GB: at most {MAX_WALL_NODES} nodes "
+                                "(raise conduit.element_size, or shorten the conduit or the capsule's travel)")
         gap = self.guards.min_wall_gap
         for j, spec in enumerate(body_specs(self)):
             with numpy_quadrature():

@@ -548,6 +548,11 @@ def _section_key(section: Any) -> tuple:
                  for name, v in sorted(vars(section).items()) if not name.startswith("_"))
 
 
+#: the most nodes a conduit's wall may have: its dense matrix is (3M)² doubles, 2.6 GB at 6000; beyond
+#: ~7.5k nodes (4 GB) scipy's OpenBLAS LU crashed on 2 threads here, and its factorisation takes minutes
+#: (benchmarks/conduits.md: 134 s at 8130 nodes)
+MAX_WALL_NODES = 6000
+
 #: the capsule's reach along the conduit from its centre the fine wall elements cover, beyond
 #: the half-width (units of a): a capsule elongated to 2.5 a stays on fine elements
 NEAR_REACH = 2.5

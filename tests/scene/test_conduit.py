@@ -203,6 +203,10 @@ def test_far_from_a_wide_tubes_wall_the_capsule_is_the_unbounded_poiseuille_caps
     ({"conduit": {"kind": "duct", "half_widths": [2, 0.9]}}, "half-width must be in \\(1, 100\\]"),
     ({"flow": {"kind": "simple_shear"}}, "conduit = 'tube': takes flow.kind conduit"),
     ({"conduit": None}, "flow.kind = 'conduit': is the flow of a conduit"),
+    ({"conduit": {"kind": "tube", "radius": 2.5, "element_size": 0.2}}, "conduit.element_size = 0.2: .* nodes, whose "
+     "dense matrix takes"),
+    ({"conduit": {"kind": "constriction", "radius": 2.0, "throat_radius": 2.2, "throat_length": 2.0}},
+     "conduit.throat_radius = 2.2: must be below conduit.radius"),
     ({"wall": {"distance": 3.0}}, "flow.kind = .conduit.: cannot be bounded by a wall"),
 ])
 def test_a_conduit_the_case_cannot_take_is_refused_in_one_line(change, message):
