@@ -130,9 +130,11 @@ def stop_reason(state: LoopState, time: Time, guards: Guards, row: dict | None, 
         if violation is not None:
             return Stop("unstable", f"{violation} {at}")
         if np.min(row.get("_end_clearance", np.inf)) < 0.0:  # a conduit's meshed stretch (capsim.scene.conduit)
-            return Stop("completed", f"a membrane reached the end of the conduit's meshed stretch {at} (through a "
-                        "constriction; or capsules drifted apart beyond a tube's window: its ends lie the truncation "
-                        "margin beyond, capsim.scene.conduit: travel_end)")
+            if row.get("_end_follows"):
+                return Stop("unstable", f"guard conduit window: a membrane reached the end of the conduit's window "
+                            f"{at} (the capsules outgrew it: elongated or drifted apart); give a longer conduit.length")
+            return Stop("completed", f"the capsule passed through: a membrane reached the end of the conduit's "
+                        f"meshed stretch {at} (its ends lie the truncation margin beyond)")
         if time.stop_when_steady and is_steady(history["t"], history["D_xy"], history["theta"]):
             return Stop("completed", f"steady state reached {at}")
         if time.stop_when_settled and state.t >= settle_after and _settled(history, aspect_ratio):

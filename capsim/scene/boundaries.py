@@ -77,6 +77,11 @@ class Boundary(Kind):
         """Σ_m u_m·T_boundary(point_m, target)·(n w)_m at every target (T, 3)."""
         raise NotImplementedError
 
+    @property
+    def follows(self) -> bool:
+        """Whether where it stops being modelled follows the capsules (a straight conduit's window)."""
+        return False
+
     def end_clearance(self, x: np.ndarray) -> float:
         """How far the membranes' nodes x (N, 3) are from where the boundary stops being modelled
         (a conduit's meshed stretch; inf: everywhere)."""

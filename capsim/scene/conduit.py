@@ -405,6 +405,8 @@ class RigidConduit(Boundary):
     size_near: float
     size_far: float
     near_half_length: float
+    #: ℓ, how far the ends lie beyond where a membrane may reach (the stated truncation's margin)
+    margin: float = 0.0
     #: the window's centre along x (a straight conduit follows its capsules: ``placed``)
     shift: float = 0.0
     operator: Any = field(default=None, repr=False)
@@ -431,7 +433,7 @@ class RigidConduit(Boundary):
         """|x| a membrane may reach (from the window's centre in a straight conduit): the ends'
         truncation margin short of ±L/2 (capsim.runs.stopping ends the run there: a capsule has
         passed through a constriction, or capsules have drifted apart beyond a tube's window)."""
-        return 0.5 * self.length - truncation_margin(self.kind)
+        return 0.5 * self.length - self.margin
 
     def end_clearance(self, x: np.ndarray) -> float:
         """How far the membranes' nodes x (all capsules') are from the end of the meshed stretch they
@@ -440,6 +442,12 @@ class RigidConduit(Boundary):
         xs = np.asarray(x).reshape(-1, 3)[:, 0]
         centre = float(np.mean(xs)) if self.kind.straight else 0.0
         return self.travel_end - float(np.max(np.abs(xs - centre)))
+
+    @property
+    def follows(self) -> bool:
+        """Whether its meshed stretch follows the capsules (a straight conduit's window): reaching
+        its end then means they outgrew it, not that they passed through."""
+        return self.kind.straight
 
     def empty_flow_correction(self, x: np.ndarray) -> np.ndarray:
         """The empty conduit's flow less the kind's analytic one at points x (a constriction's: the
@@ -569,8 +577,8 @@ def truncation_margin(kind: ConduitKind, truncation: float = TRUNCATION_DEFAULT)
 
 
 def conduit_dimensions(section: Any, kind: ConduitKind, start_x: float = 0.0,
-                       spread: float = 0.0) -> tuple[float, float, float, float]:
-    """(length, size_near, size_far, near_half_length) of a conduit section: its length from
+                       spread: float = 0.0) -> tuple[float, float, float, float, float]:
+    """(length, size_near, size_far, near_half_length, margin) of a conduit section: its length from
     the truncation error it states (the disturbance's decay, ``ConduitKind.decay_rate``);
     ``spread``: how far the capsules' centres lie from their mean x (several capsules: a straight
     conduit's window covers them all)."""
@@ -587,7 +595,7 @@ def conduit_dimensions(section: Any, kind: ConduitKind, start_x: float = 0.0,
         length = 2.0 * (max(kind.throat_length, abs(float(start_x))) + NEAR_REACH + ell)
     if not kind.straight:
         near_half_length = 0.5 * length  # fine wherever the capsule passes
-    return length, size_near, size_far, near_half_length
+    return length, size_near, size_far, near_half_length, ell
 
 
 def default_element_size(kind: ConduitKind) -> float:

@@ -119,9 +119,11 @@ class Scene:
             return None
         return min(b.gap(x) for b in self.boundaries)
 
-    def end_clearance(self, x: np.ndarray) -> float:
-        """How far the membranes' nodes x are from the end of what the boundaries model (inf without)."""
-        return min((b.end_clearance(x) for b in self.boundaries), default=float("inf"))
+    def end_clearance(self, x: np.ndarray) -> tuple[float, bool]:
+        """(how far the membranes' nodes x are from the end of what the boundaries model, inf without;
+        whether that end follows the capsules: a straight conduit's window, which they outgrew)."""
+        return min(((b.end_clearance(x), b.follows) for b in self.boundaries),
+                   default=(float("inf"), False))
 
     # ---- the bodies
     def meshed(self, base: str, level: int) -> tuple[np.ndarray, np.ndarray, int, "Scene"]:

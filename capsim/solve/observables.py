@@ -1266,9 +1266,10 @@ class StepObserver:
     def _end_clearance(self, row: dict, y: np.ndarray) -> None:
         """The private ``_end_clearance`` (never a column): how far the membranes are from the end of
         a conduit's meshed stretch (capsim.runs.stopping ends the run there)."""
-        clearance = self.model.scene.end_clearance(y)
+        clearance, follows = self.model.scene.end_clearance(y)
         if np.isfinite(clearance):
             row["_end_clearance"] = clearance
+            row["_end_follows"] = follows
 
     def _close_row(self, row: dict, work: dict[str, float]) -> dict:
         """The solve's and the cost's columns, the file's own columns only (an old run extended),
