@@ -9,6 +9,7 @@ first access; ``import capsim.campaigns`` loads no h5py, xarray or numba. (A con
 import each other by their full name.
 """
 
+from capsim._surface import lazy_surface
 
 #: module -> the names it gives the package's surface
 _SURFACE = {
@@ -20,20 +21,4 @@ _SURFACE = {
     "study": ("run_study analyse_study write_study format_study_table format_error_estimate error_estimate "
               "final_values richardson own_errors verdict check_run plot_pareto QUANTITIES"),
 }
-# name -> module that defines it; imported on first access (PEP 562)
-_LAZY = {name: f"{__name__}.{module}" for module, names in _SURFACE.items() for name in names.split()}
-__all__ = list(_LAZY)
-
-
-def __getattr__(name: str):
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+__all__, __getattr__, __dir__ = lazy_surface(__name__, _SURFACE)

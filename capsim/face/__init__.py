@@ -9,6 +9,7 @@ is reached as ``capsim.face.plot.plot``: the name is its module's.) The library'
 each other by their full name.
 """
 
+from capsim._surface import lazy_surface
 
 #: module -> the names it gives the package's surface
 _SURFACE = {
@@ -18,20 +19,4 @@ _SURFACE = {
              "rheology_figure trajectory_figure KINDS SCENE_KINDS SUMMARY_KINDS CLASS_COLOURS DPI FIGSIZE"),
     "export": "export_run export_to_dir snapshot_fields membrane_fields model_for",
 }
-# name -> module that defines it; imported on first access (PEP 562)
-_LAZY = {name: f"{__name__}.{module}" for module, names in _SURFACE.items() for name in names.split()}
-__all__ = list(_LAZY)
-
-
-def __getattr__(name: str):
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+__all__, __getattr__, __dir__ = lazy_surface(__name__, _SURFACE)

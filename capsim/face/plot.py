@@ -1063,13 +1063,7 @@ def steady_figure(source, theory: bool = True, x: str | None = None):
         if name not in ds.variables:
             raise ValueError(f"the summary has no '{name}' (is it a capsim summarize output?)")
     swept = _swept_fields(ds)
-    numeric = [f for f in swept if np.asarray(ds[f].values).dtype.kind in "iuf"]
-    if x is None:
-        x = "shear_rate_G" if "shear_rate_G" in numeric else (numeric[0] if numeric else None)
-        if x is None:
-            raise ValueError(f"the summary sweeps no numeric field to draw against (swept: {', '.join(swept) or 'none'})")
-    elif x not in numeric:
-        raise ValueError(f"--x {x!r}: not a numeric swept field of the summary (allowed: {', '.join(numeric) or 'none'})")
+    x = _summary_x(ds, swept, x)
     # the quantities the campaign's flow kinds define (Flow.steady_quantities: no θ, S*_xy or
     # tank-treading panel in extension, where symmetry fixes them or they mean nothing)
     kinds, first = _summary_scene(ds)
@@ -1228,6 +1222,19 @@ def _swept_fields(ds) -> list[str]:
     out += [n for n, c in ds.coords.items() if n not in dims and n not in _NOT_SWEPT and c.dims
             and set(c.dims) <= set(dims) and n not in out]
     return out
+
+
+def _summary_x(ds, swept: list[str], x: str | None) -> str:
+    """The swept field a summary figure draws against: ``x`` (checked numeric), else G, else the first
+    numeric one; ValueError in one line when there is none."""
+    numeric = [f for f in swept if np.asarray(ds[f].values).dtype.kind in "iuf"]
+    if x is None:
+        x = "shear_rate_G" if "shear_rate_G" in numeric else (numeric[0] if numeric else None)
+        if x is None:
+            raise ValueError(f"the summary sweeps no numeric field to draw against (swept: {', '.join(swept) or 'none'})")
+    elif x not in numeric:
+        raise ValueError(f"--x {x!r}: not a numeric swept field of the summary (allowed: {', '.join(numeric) or 'none'})")
+    return x
 
 
 def _summary_cells(ds, names: tuple[str, ...], swept: list[str]) -> list[dict]:
@@ -1652,13 +1659,7 @@ def conduit_figure(source, x: str | None = None):
         raise ValueError("the summary has no 'extra_pressure_drop': no run of its campaign was in a conduit "
                          "(conduit:, flow.kind conduit)")
     swept = _swept_fields(ds)
-    numeric = [f for f in swept if np.asarray(ds[f].values).dtype.kind in "iuf"]
-    if x is None:
-        x = "shear_rate_G" if "shear_rate_G" in numeric else (numeric[0] if numeric else None)
-        if x is None:
-            raise ValueError(f"the summary sweeps no numeric field to draw against (swept: {', '.join(swept) or 'none'})")
-    elif x not in numeric:
-        raise ValueError(f"--x {x!r}: not a numeric swept field of the summary (allowed: {', '.join(numeric) or 'none'})")
+    x = _summary_x(ds, swept, x)
     names = tuple(n for panel, _ in CONDUIT_PANELS for n in panel)
     cells = _summary_cells(ds, names, swept)
     fig = _figure(figsize=(FIGSIZE[0], FIGSIZE[1]))

@@ -20,27 +20,19 @@ from typing import Callable
 
 import numpy as np
 
+from capsim.numerics.mesh import SurfaceMesh
+
 SIDE, INLET, OUTLET = 0, 1, 2
 
 
 @dataclass(frozen=True)
-class ConduitMesh:
-    """Nodes (N, 3), 6-node elements (E, 6), the part of each element (0 side wall, 1 inlet cap at
-    x = −L/2, 2 outlet cap at x = +L/2) and the length L between the caps."""
+class ConduitMesh(SurfaceMesh):
+    """A capsule mesh's nodes (N, 3), 6-node elements (E, 6) and vertex count, with the part of each
+    element (0 side wall, 1 inlet cap at x = −L/2, 2 outlet cap at x = +L/2) and the length L
+    between the caps."""
 
-    positions: np.ndarray
-    elements: np.ndarray
-    n_vertices: int
-    part: np.ndarray
-    length: float
-
-    @property
-    def n_nodes(self) -> int:
-        return self.positions.shape[0]
-
-    @property
-    def n_elements(self) -> int:
-        return self.elements.shape[0]
+    part: np.ndarray = None  # type: ignore[assignment]
+    length: float = 0.0
 
 
 # ------------------------------------------------------------------ axial stations

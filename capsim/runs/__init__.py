@@ -8,6 +8,7 @@ stopping rules' and the benchmark's names apply the thread policy first); ``impo
 no numba. The library's own modules import each other by their full name.
 """
 
+from capsim._surface import lazy_surface
 
 #: module -> the names it gives the package's surface
 _SURFACE = {
@@ -16,24 +17,5 @@ _SURFACE = {
     "ladder": "run_measured",
     "benchmark": "bench_case bench_velocity split_lines SPLIT_STAGES",
 }
-# name -> module that defines it; imported on first access (PEP 562)
-_LAZY = {name: f"{__name__}.{module}" for module, names in _SURFACE.items() for name in names.split()}
-__all__ = list(_LAZY)
-#: the modules that load numba on import
-_NUMBA = {f"{__name__}.benchmark", f"{__name__}.runner", f"{__name__}.stopping"}
-
-
-def __getattr__(name: str):
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-    if module in _NUMBA:  # the module loads numba: the thread policy first (as capsim.RunResult)
-        importlib.import_module("capsim.numerics.threads").apply_policy()
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+#: the modules that load numba on import (their names apply the thread policy first)
+__all__, __getattr__, __dir__ = lazy_surface(__name__, _SURFACE, {'benchmark', 'runner', 'stopping'})

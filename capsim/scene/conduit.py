@@ -257,7 +257,11 @@ class Duct(ConduitKind):
 
 
 @register_conduit
-class Constriction(ConduitKind):
+class Constriction(Tube):
+    """A tube narrowed over a stretch: the tube's far-field flow, half-width and decay (beyond the
+    narrowing it is the tube), its own wall; its undisturbed flow is the tube's Poiseuille flow
+    plus the wall's response (RigidConduit.empty_flow_correction)."""
+
     name = "constriction"
     description = ("a circular tube of radius conduit.radius narrowing smoothly to conduit.throat_radius over |x| < "
                    "conduit.throat_length, r(x) = R − (R − R_c)(1 + cos(πx/ℓ))/2 (its flow computed once by the same "
@@ -265,10 +269,6 @@ class Constriction(ConduitKind):
                    "the meshed stretch")
     uses = ("radius", "throat_radius", "throat_length")
     straight = False
-
-    @property
-    def radius(self) -> float:
-        return float(self.section.radius)
 
     @property
     def throat_radius(self) -> float:
@@ -286,50 +286,12 @@ class Constriction(ConduitKind):
         x = np.asarray(x, dtype=np.float64)
         return np.where(np.abs(x) < ell, R - (R - Rc) * 0.5 * (1.0 + np.cos(np.pi * x / ell)), R)
 
-    @property
-    def half_width(self) -> float:
-        return self.radius
-
-    @property
-    def decay_rate(self) -> float:
-        return 2.5678 / self.radius  # the tube's slowest mode beyond the constriction
-
-    @property
-    def reach_y(self) -> float:
-        return self.radius
-
     def gap(self, x: np.ndarray) -> np.ndarray:
         # the radial distance to the wall, times the cosine of its slope (the normal distance to first order)
         R, Rc, ell = self.radius, self.throat_radius, self.throat_length
         xs = x[:, 0]
         slope = np.where(np.abs(xs) < ell, (R - Rc) * 0.5 * np.pi / ell * np.sin(np.pi * xs / ell), 0.0)
         return (self.radius_at(xs) - np.hypot(x[:, 1], x[:, 2])) / np.sqrt(1.0 + slope**2)
-
-    def velocity(self, x: np.ndarray) -> np.ndarray:
-        """The tube's Poiseuille flow (radius R): the constriction's own flow adds the wall's
-        response (RigidConduit.empty_flow_correction)."""
-        u = np.zeros_like(x)
-        u[:, 0] = _profiles().tube_velocity(x[:, 1], x[:, 2], self.radius)
-        return u
-
-    def gradient(self, point: np.ndarray) -> np.ndarray:
-        return _profiles().tube_gradient(np.asarray(point, dtype=np.float64).reshape(1, 3), self.radius)[0]
-
-    @property
-    def area(self) -> float:
-        return math.pi * self.radius ** 2
-
-    @property
-    def centerline_velocity(self) -> float:
-        return 2.0
-
-    @property
-    def wall_shear(self) -> float:
-        return float(_profiles().tube_wall_shear(self.radius))
-
-    @property
-    def pressure_gradient(self) -> float:
-        return 8.0 / self.radius ** 2
 
     def mesh(self, length: float, size_near: float, size_far: float, near_half_length: float):
         from capsim.numerics.conduit_mesh import axisymmetric_conduit_mesh, round_caps

@@ -10,6 +10,7 @@ numba (the solver's and the observables' names apply the thread policy first). T
 modules import each other by their full name.
 """
 
+from capsim._surface import lazy_surface
 
 #: module -> the names it gives the package's surface
 _SURFACE = {
@@ -26,24 +27,5 @@ _SURFACE = {
                     "THETA_UNDEFINED_GAP"),
     "accuracy": "observed_order LADDER_TWO_LEVEL_ORDER SAFETY_QUANTILE",
 }
-# name -> module that defines it; imported on first access (PEP 562)
-_LAZY = {name: f"{__name__}.{module}" for module, names in _SURFACE.items() for name in names.split()}
-__all__ = list(_LAZY)
-#: the modules that load numba on import
-_NUMBA = {f"{__name__}.observables", f"{__name__}.solver"}
-
-
-def __getattr__(name: str):
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-    if module in _NUMBA:  # the module loads numba: the thread policy first (as capsim.RunResult)
-        importlib.import_module("capsim.numerics.threads").apply_policy()
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+#: the modules that load numba on import (their names apply the thread policy first)
+__all__, __getattr__, __dir__ = lazy_surface(__name__, _SURFACE, {'observables', 'solver'})

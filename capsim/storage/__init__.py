@@ -8,6 +8,7 @@ One public surface: ``capsim.storage.<name>`` for every name of
 no h5py. The library's own modules import each other by their full name.
 """
 
+from capsim._surface import lazy_surface
 
 #: module -> the names it gives the package's surface
 _SURFACE = {
@@ -21,20 +22,4 @@ _SURFACE = {
                    "CheckpointError ResumeError"),
     "schedules": "SnapshotSchedule CheckpointSchedule end_tolerance",
 }
-# name -> module that defines it; imported on first access (PEP 562)
-_LAZY = {name: f"{__name__}.{module}" for module, names in _SURFACE.items() for name in names.split()}
-__all__ = list(_LAZY)
-
-
-def __getattr__(name: str):
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+__all__, __getattr__, __dir__ = lazy_surface(__name__, _SURFACE)
