@@ -307,7 +307,7 @@ def stresslet_observables(S_star: np.ndarray) -> dict:
 #: row columns that are NaN by definition in some states, not by failure: θ where the shape has
 #: no long axis in the plane (a sphere at rest: THETA_UNDEFINED_GAP), dissipation_ratio where the
 #: undisturbed flow has no rate of strain at the centroid (the Poiseuille axis, a stopped flow)
-MAY_BE_UNDEFINED = ("theta", "dissipation_ratio")
+MAY_BE_UNDEFINED = ("theta", "dissipation_ratio", "extra_pressure_drop")  # ΔP+: λ ≠ 1 in a constriction
 
 
 def dissipation_ratio(S_star: np.ndarray, E: np.ndarray) -> float:
