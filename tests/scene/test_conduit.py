@@ -119,24 +119,31 @@ def _last(path, *names):
         return [float(f[f"timeseries/{name}"][-1]) for name in names]
 
 
-def test_a_stiff_capsule_moves_as_the_rigid_sphere_at_any_viscosity_ratio(tmp_path):
+def test_a_stiff_capsule_moves_as_the_rigid_sphere(tmp_path):
     """A stiff capsule (G = 0.0005, a/R = 0.4) on the axis moves as the rigid sphere of the same wall
     and adds its pressure drop: level 2, speed 1.79074 and ΔP+ 0.066554 against the rigid sphere's
-    1.79087 and 0.066672. At λ = 5 the reciprocal theorem's (λ − 1) ∫u·σ∞·n term carries the inner
-    fluid's share while the membrane settles (0.045 of ΔP+ 0.045 at kt 0, 1e-5 of 0.0672 at kt 0.5):
-    level 1 at kt 0.4, ΔP+ 0.06716 and speed 1.78947 against λ = 1's 0.06713 and 1.78947."""
+    1.79087 and 0.066672."""
     sphere = rigid_sphere({"kind": "tube", "radius": 2.5})
-    runs = {}
-    for lam, level, t_end in ((1.0, 2, 0.05), (1.0, 1, 0.05), (5.0, 1, 0.4)):
-        d = _case(tmp_path, f"stiff{lam}-{level}", flow={"kind": "conduit", "G": 0.0005, "viscosity_ratio": lam},
-                  mesh={"level": level}, time={"t_end": t_end})
-        assert run_case(case_from_dict(d)).status == "completed"
-        runs[lam, level] = _last(d["output"]["path"], "centroid_velocity_x", "extra_pressure_drop", "axis_offset")
-    speed, dp, offset = runs[1.0, 2]
+    d = _case(tmp_path, "stiff", flow={"kind": "conduit", "G": 0.0005}, mesh={"level": 2}, time={"t_end": 0.05})
+    assert run_case(case_from_dict(d)).status == "completed"
+    speed, dp, offset = _last(d["output"]["path"], "centroid_velocity_x", "extra_pressure_drop", "axis_offset")
     assert speed == pytest.approx(sphere["speed"], rel=2e-4)
     assert dp == pytest.approx(sphere["extra_pressure_drop"], rel=4e-3)
     assert offset < 1e-9  # on the axis it stays there
-    np.testing.assert_allclose(runs[5.0, 1][:2], runs[1.0, 1][:2], rtol=2e-3)
+
+
+@pytest.mark.slow
+def test_a_stiff_capsule_of_any_viscosity_ratio_adds_the_same_pressure_drop(tmp_path):
+    """At λ = 5 the reciprocal theorem's (λ − 1) ∫u·σ∞·n term carries the inner fluid's share while
+    the membrane settles (0.045 of ΔP+ 0.045 at kt 0, 1e-5 of 0.0672 at kt 0.5): G = 0.0005, level 1 at
+    kt 0.4, ΔP+ 0.06716 and speed 1.78947 against λ = 1's 0.06713 and 1.78947 (slow: ~1 min)."""
+    runs = {}
+    for lam, t_end in ((1.0, 0.05), (5.0, 0.4)):
+        d = _case(tmp_path, f"stiff{lam}", flow={"kind": "conduit", "G": 0.0005, "viscosity_ratio": lam},
+                  mesh={"level": 1}, time={"t_end": t_end})
+        assert run_case(case_from_dict(d)).status == "completed"
+        runs[lam] = _last(d["output"]["path"], "centroid_velocity_x", "extra_pressure_drop")
+    np.testing.assert_allclose(runs[5.0], runs[1.0], rtol=2e-3)
 
 
 def test_the_window_follows_the_capsule_along_a_straight_conduit(tmp_path):
@@ -271,7 +278,8 @@ def test_the_empty_constrictions_flow_keeps_its_flux_and_is_fore_aft_symmetric()
     included), its centreline speed is the same at ±x (Stokes flow is reversible: to round-off)
     and, far upstream and downstream, the fully developed 2U; at the throat it rises towards the
     lubrication value 2U(R/R_c)² (a long gentle constriction's)."""
-    d = _case(conduit={"kind": "constriction", "radius": 1.6, "throat_radius": 1.1, "throat_length": 2.0},
+    d = _case(conduit={"kind": "constriction", "radius": 1.6, "throat_radius": 1.1, "throat_length": 2.0,
+                       "element_size": 0.5},
               initial_center=[-3.0, 0.0, 0.0])
     scene = Scene.of(case_from_dict(d))
     field, kind = scene.far_field, scene.boundaries[0].kind
@@ -291,12 +299,13 @@ def test_the_empty_constrictions_flow_keeps_its_flux_and_is_fore_aft_symmetric()
 
 
 def test_two_capsules_far_apart_in_a_tube_move_each_as_one_alone(tmp_path):
-    """Several capsules share one window (its length covers their spread): two capsules 8 a apart on a
+    """Several capsules share one window (its length covers their spread): two capsules 6 a apart on a
     tube's axis (R = 2 a) each move as the capsule alone, their disturbances decaying like
-    exp(−4.47 x/R) between them (measured: speed and ΔP+ within 1e-6)."""
-    one = _case(tmp_path, "one", conduit={"kind": "tube", "radius": 2.0}, time={"t_end": 0.2})
-    two = _case(tmp_path, "two", conduit={"kind": "tube", "radius": 2.0}, time={"t_end": 0.2},
-                capsules=[{"center": [-4.0, 0.0, 0.0]}, {"center": [4.0, 0.0, 0.0]}])
+    exp(−4.47 x/R) between them."""
+    tube = {"kind": "tube", "radius": 2.0, "truncation": 1e-3}
+    one = _case(tmp_path, "one", conduit=tube, time={"t_end": 0.2})
+    two = _case(tmp_path, "two", conduit=tube, time={"t_end": 0.2},
+                capsules=[{"center": [-3.0, 0.0, 0.0]}, {"center": [3.0, 0.0, 0.0]}])
     for d in (one, two):
         assert run_case(case_from_dict(d)).status == "completed"
     alone = _last(one["output"]["path"], "centroid_velocity_x", "extra_pressure_drop")
