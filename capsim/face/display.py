@@ -507,8 +507,9 @@ def _travel(summary: dict[str, Any]) -> str | None:
 
 
 def _in_conduit(summary: dict[str, Any]) -> bool:
-    """Whether the run's capsule flowed through a conduit (its summary has the conduit's numbers)."""
-    return isinstance(summary.get("extra_pressure_drop"), float) and math.isfinite(summary["extra_pressure_drop"])
+    """Whether the run's capsule flowed through a conduit (its summary has the conduit's numbers; ΔP+
+    may be NaN: λ ≠ 1 in a constriction)."""
+    return _finite(summary.get("axis_offset"))
 
 
 def _conduit_rows(summary: dict[str, Any]) -> list[tuple[str, str | None]]:

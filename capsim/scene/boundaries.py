@@ -87,6 +87,9 @@ class Boundary(Kind):
         (a conduit's meshed stretch; inf: everywhere)."""
         return float("inf")
 
+    #: whether :meth:`quantities` gives columns (the observer interpolates the load only for those that do)
+    reports_quantities: ClassVar[bool] = False
+
     def quantities(self, nodes: np.ndarray, points: np.ndarray, load_w: np.ndarray, u_points: np.ndarray,
                    normals_w: np.ndarray, center: np.ndarray, G: float, viscosity_ratio: float) -> dict:
         """The boundary's own columns of one capsule (a conduit's additional pressure drop), from

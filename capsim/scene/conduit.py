@@ -95,9 +95,13 @@ class ConduitKind(Kind):
         """The fully developed flow at the points (N, 3), mean velocity 1 along x."""
         raise NotImplementedError
 
-    def gradient(self, point: np.ndarray) -> np.ndarray:
-        """∂u_i/∂x_j of the fully developed flow at one point (3, 3)."""
+    def gradients(self, points: np.ndarray) -> np.ndarray:
+        """∂u_i/∂x_j of the fully developed flow at the points (N, 3, 3)."""
         raise NotImplementedError
+
+    def gradient(self, point: np.ndarray) -> np.ndarray:
+        """∂u_i/∂x_j at one point (3, 3)."""
+        return self.gradients(np.asarray(point, dtype=np.float64).reshape(1, 3))[0]
 
     @property
     def area(self) -> float:
@@ -106,12 +110,6 @@ class ConduitKind(Kind):
 
     @property
     def centerline_velocity(self) -> float:
-        raise NotImplementedError
-
-    @property
-    def wall_shear(self) -> float:
-        """The mean wall shear stress of the fully developed flow (units of μU/a): the pressure
-        gradient times area over perimeter."""
         raise NotImplementedError
 
     @property
@@ -158,8 +156,8 @@ class Tube(ConduitKind):
         u[:, 0] = _profiles().tube_velocity(x[:, 1], x[:, 2], self.radius)
         return u
 
-    def gradient(self, point: np.ndarray) -> np.ndarray:
-        return _profiles().tube_gradient(np.asarray(point, dtype=np.float64).reshape(1, 3), self.radius)[0]
+    def gradients(self, points: np.ndarray) -> np.ndarray:
+        return _profiles().tube_gradient(np.asarray(points, dtype=np.float64).reshape(-1, 3), self.radius)
 
     @property
     def area(self) -> float:
@@ -168,10 +166,6 @@ class Tube(ConduitKind):
     @property
     def centerline_velocity(self) -> float:
         return 2.0
-
-    @property
-    def wall_shear(self) -> float:
-        return float(_profiles().tube_wall_shear(self.radius))
 
     @property
     def pressure_gradient(self) -> float:
@@ -224,9 +218,9 @@ class Duct(ConduitKind):
         u[:, 0] = _profiles().duct_velocity(x[:, 1], x[:, 2], hy, hz)
         return u
 
-    def gradient(self, point: np.ndarray) -> np.ndarray:
+    def gradients(self, points: np.ndarray) -> np.ndarray:
         hy, hz = self.half_widths
-        return _profiles().duct_gradient(np.asarray(point, dtype=np.float64).reshape(1, 3), hy, hz)[0]
+        return _profiles().duct_gradient(np.asarray(points, dtype=np.float64).reshape(-1, 3), hy, hz)
 
     @property
     def area(self) -> float:
@@ -236,11 +230,6 @@ class Duct(ConduitKind):
     @property
     def centerline_velocity(self) -> float:
         return float(_profiles().duct_centerline_velocity(*self.half_widths))
-
-    @property
-    def wall_shear(self) -> float:
-        hy, hz = self.half_widths
-        return self.pressure_gradient * self.area / (4.0 * (hy + hz))
 
     @property
     def pressure_gradient(self) -> float:
@@ -361,6 +350,7 @@ class RigidConduit(Boundary):
     uses: ClassVar[tuple[str, ...]] = CONDUIT_FIELDS
     flows: ClassVar[tuple[str, ...]] = ("conduit",)
     label: ClassVar[str] = "conduit"
+    reports_quantities: ClassVar[bool] = True
 
     kind: ConduitKind
     length: float
@@ -420,6 +410,14 @@ class RigidConduit(Boundary):
         op = self.wall_operator()
         return rigid_surface.single_layer_at(np.ascontiguousarray(x), op.positions, op.elements, op.empty_density())
 
+    def __eq__(self, other: object) -> bool:
+        # one placement of one conduit: the solver's boundary_fine_rule cache then serves the single and
+        # the double layer (and each GMRES iteration) of one evaluation from one subdivided rule
+        return (isinstance(other, RigidConduit) and other.kind is self.kind and other.shift == self.shift
+                and other.length == self.length)
+
+    __hash__ = None  # type: ignore[assignment]
+
     def placed(self, x: np.ndarray) -> "RigidConduit":
         """The conduit as it lies for the capsules' nodes x: a straight one centred on their mean x."""
         if not self.kind.straight:
@@ -463,12 +461,6 @@ class RigidConduit(Boundary):
         band = np.concatenate([np.stack([xs, -ys - depth], 1), np.stack([xs[::-1], -ys[::-1]], 1)])
         return line, band
 
-    def patch(self, x: np.ndarray, margin: float = 2.0) -> np.ndarray:
-        xs = np.asarray(x, dtype=np.float64).reshape(-1, 3)
-        x0, x1 = xs[:, 0].min() - margin, xs[:, 0].max() + margin
-        h = self.kind.reach_y
-        return np.array([[x0, -h, 0.0], [x1, -h, 0.0], [x1, h, 0.0], [x0, h, 0.0]], dtype=np.float64)
-
     def drawing(self, x: np.ndarray, margin: float = 2.0) -> tuple[np.ndarray, list[tuple[str, np.ndarray]]]:
         """The conduit's side wall along the capsules' whole path (6-node triangles, margin a beyond)."""
         xs = np.asarray(x, dtype=np.float64).reshape(-1, 3)
@@ -505,10 +497,8 @@ class RigidConduit(Boundary):
         elif viscosity_ratio != 1.0:
             # σ∞ = −p∞ I + ∇u∞ + ∇u∞ᵀ, p∞ = −|dp/dx| x (a constant adds −p0 ∫u·n = 0: the volume is kept)
             p = -self.kind.pressure_gradient * (points[:, 0] - center[0])
-            traction = -p[:, None] * normals_w
-            for k in range(points.shape[0]):
-                L = self.kind.gradient(points[k])
-                traction[k] += (L + L.T) @ normals_w[k]
+            L = self.kind.gradients(points)
+            traction = -p[:, None] * normals_w + np.einsum("kij,kj->ki", L + L.transpose(0, 2, 1), normals_w)
             work += (viscosity_ratio - 1.0) * float(np.einsum("ij,ij->", u_points, traction))
         across = np.hypot(nodes[:, 1] - center[1], nodes[:, 2] - center[2])
         return {"extra_pressure_drop": work / self.kind.area,
@@ -537,7 +527,7 @@ TRUNCATION_DEFAULT = 1e-4
 TRUNCATION_AMPLITUDE = 1e-3
 
 
-def truncation_margin(kind: ConduitKind, truncation: float = TRUNCATION_DEFAULT) -> float:
+def truncation_margin(kind: ConduitKind, truncation: float) -> float:
     """ℓ: how far beyond the capsule's reach the ends lie for a truncation error (A exp(−k ℓ/h))."""
     return max(0.0, math.log(TRUNCATION_AMPLITUDE / truncation)) / kind.decay_rate
 

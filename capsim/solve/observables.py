@@ -1394,7 +1394,11 @@ class StepObserver:
 def boundary_quantities(model, nodes: np.ndarray, geometry, density: np.ndarray, weights: np.ndarray,
                         u: np.ndarray, elements: np.ndarray, center: np.ndarray, lam: float) -> dict:
     """The scene's boundaries' own columns of one capsule (capsim.scene.Boundary.quantities: a
-    conduit's additional pressure drop), from the capsule's load and velocity at its rule points."""
+    conduit's additional pressure drop), from the capsule's load and velocity at its rule points
+    (interpolated only where a boundary reports any: the plane wall does not)."""
+    reporting = [b for b in model.scene.boundaries if b.reports_quantities]
+    if not reporting:
+        return {}
     phi = model.disc.reg_phi
     df = interpolate(phi, density) if density.ndim == 3 else np.broadcast_to(density[:, None, :], geometry.points.shape)
     w = geometry.weights if weights is None else weights
@@ -1403,7 +1407,7 @@ def boundary_quantities(model, nodes: np.ndarray, geometry, density: np.ndarray,
     normals_w = (geometry.normals * geometry.weights[..., None]).reshape(-1, 3)
     points = geometry.points.reshape(-1, 3)
     row: dict = {}
-    for boundary in model.scene.boundaries:
+    for boundary in reporting:
         row.update(boundary.quantities(nodes, points, load_w, u_points, normals_w, center, model.shear_rate_G, lam))
     return row
 
@@ -1435,7 +1439,7 @@ def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarr
     gap = model.scene.boundary_gap(y)  # the scene's boundaries (a wall): the guard min_wall_gap reads it
     if gap is not None:
         row["wall_gap"] = gap
-        row.update(boundary_quantities(model, y, geometry, density, weights, u, elements, center, lam))
+    row.update(boundary_quantities(model, y, geometry, density, weights, u, elements, center, lam))
     S_star = particle_stresslet(
         geometry, density, u, elements, model.disc.reg_phi, center, row["volume"],
         model.shear_rate_G, lam, weights,
