@@ -1009,8 +1009,12 @@ class Accuracy(_Model):
 class Case(_Model):
     """One simulation: every knob that changes the result, nothing else.
 
-    Validated in order: the fields, then the cross-field checks below (the accuracy target and
-    time.rtol auto first: the others see the level and tolerance they choose)."""
+    Built in three steps: the fields, each validated alone; then the case resolved, once
+    (:meth:`_resolved`: the values capsim derives from what was given -- G from
+    flow.capillary_number or physical, λ, the bending modulus and the membrane viscosity from
+    physical -- and after them the mesh level and time.rtol the error model chooses, so that it
+    chooses for this case's G, λ and bending); then the cross-field checks, which only check (a
+    capsule's own G, a wall's clearance at the chosen level, a scene's symmetry)."""
 
     name: str = Field(
         min_length=1, max_length=NAME_MAX, pattern=r"^[A-Za-z0-9._-]+$",
@@ -1067,6 +1071,19 @@ class Case(_Model):
     )
 
     @model_validator(mode="after")
+    def _resolved(self) -> Case:
+        """The one resolving step (the first 'after' validator: pydantic runs them in the order defined).
+        The derived values first, each refusing a physical value it cannot take: G (capillary number or
+        physical block), λ, κ and Bq; then the level and rtol, whose error model reads G, λ and bending
+        (before issue 52 it chose them from the defaults of a case given in physical units or by Ca)."""
+        self._G_from_capillary_number()
+        self._G_from_physical()
+        self._lambda_from_physical()
+        self._bending_from_physical()
+        self._Bq_from_physical()
+        self._level_and_tolerance_from_the_error_model()
+        return self
+
     def _level_and_tolerance_from_the_error_model(self) -> Case:
         """The accuracy target's level and rtol, else time.rtol auto's rtol (capsim.solve.accuracy); a
         resolved case (a run file's) holds the choice and is taken as it is."""
@@ -1323,7 +1340,6 @@ class Case(_Model):
             raise _FieldProblem(*problem)
         return self
 
-    @model_validator(mode="after")
     def _G_from_capillary_number(self) -> Case:
         Ca = self.flow.capillary_number
         if Ca is None:
@@ -1405,7 +1421,6 @@ class Case(_Model):
                 f"with {self._physical_given(*(k for k in four if k != culprit))} gives G = mu k a / E_s = {G:.3g}, "
                 f"outside [{lo:g}, {hi:g}] (capsim is validated for G in [{vlo:g}, {vhi:g}]): check the units")
 
-    @model_validator(mode="after")
     def _bending_from_physical(self) -> Case:
         if self.physical is None or self.physical.bending_modulus is None:
             return self
@@ -1423,7 +1438,6 @@ class Case(_Model):
             self._set_derived("membrane", "bending_modulus", kappa)
         return self
 
-    @model_validator(mode="after")
     def _G_from_physical(self) -> Case:
         if self.physical is None:
             return self
@@ -1468,7 +1482,6 @@ class Case(_Model):
         norm = math.sqrt(sum(c * c for c in scaled))
         return tuple(c / norm for c in scaled)
 
-    @model_validator(mode="after")
     def _Bq_from_physical(self) -> Case:
         if self.physical is None or self.physical.membrane_viscosity is None:
             return self
@@ -1493,7 +1506,6 @@ class Case(_Model):
         object.__setattr__(self, "membrane", membrane)
         return self
 
-    @model_validator(mode="after")
     def _lambda_from_physical(self) -> Case:
         if self.physical is None or self.physical.inner_viscosity is None:
             return self
