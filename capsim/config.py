@@ -39,6 +39,7 @@ from capsim.scene.flows import (FLOW_FIELDS, FLOW_HISTORIES, FLOWS, HISTORY_FIEL
 from capsim.scene.conduit import CONDUIT_FIELDS, CONDUITS, TRUNCATION_DEFAULT
 from capsim.solve.timestepping import DEFAULT_SCHEME, SCHEMES
 from capsim.numerics.viscosity import VISCOSITY_MODELS
+from capsim.numerics.mesh import BICONCAVE_REDUCED_VOLUME
 from capsim.numerics.viscosity import is_active as is_viscous
 
 __all__ = [
@@ -297,6 +298,44 @@ class MembraneViscosity(_Model):
         return is_viscous(self.model_dump())
 
 
+class ReferenceShape(_Model):
+    """The membrane's stress-free shape, which its elastic and bending energies are measured from
+    (capsim.numerics.mesh.stress_free_positions; docs/laws.md, "The stress-free shape")."""
+
+    kind: Literal["rest", "sphere", "oblate", "biconcave"] = Field(
+        "rest",
+        description="rest: the initial shape itself (the default; no pre-stress); sphere, oblate, biconcave: another "
+        "surface on the same mesh (node k of both the image of one point of the unit sphere), scaled to the initial "
+        "shape's area: the membrane keeps its area and the cell differs from its stress-free state by its volume")
+    aspect_ratio: float = Field(
+        0.5, gt=0,
+        description="oblate only: polar / equatorial axis of the stress-free spheroid, in [0.05, 1) (Peng et al. "
+        "2014: a nearly spherical stress-free state, ~0.9-0.99)")
+    reduced_volume: Optional[float] = Field(
+        None,
+        description=f"biconcave only: the stress-free disk's reduced volume V / (4π/3 (S/4π)^3/2), in "
+        f"[{BICONCAVE_REDUCED_VOLUME[0]:g}, {BICONCAVE_REDUCED_VOLUME[1]:g}], reached by scaling the thickness of "
+        "the Evans-Fung profile (the rest shape's c0, c2, c4 when it is biconcave; unset: that profile as it is, "
+        "0.644 with the default coefficients)")
+
+    @model_validator(mode="after")
+    def _fields_of_the_kind(self) -> "ReferenceShape":
+        for name, kind in (("aspect_ratio", "oblate"), ("reduced_volume", "biconcave")):
+            if (name in self.model_fields_set and self.kind != kind
+                    and getattr(self, name) != type(self).model_fields[name].default):  # a dumped case holds defaults
+                raise _FieldProblem(name, getattr(self, name),
+                                    f"applies only to kind: {kind}, not to kind: {self.kind}; remove it")
+        if self.kind == "oblate" and not 0.05 <= self.aspect_ratio < 1:
+            raise _FieldProblem("aspect_ratio", self.aspect_ratio, "must be in [0.05, 1) for an oblate spheroid "
+                                "(kind: sphere for 1)")
+        lo, hi = BICONCAVE_REDUCED_VOLUME
+        if self.reduced_volume is not None and not lo <= self.reduced_volume <= hi:
+            raise _FieldProblem("reduced_volume", self.reduced_volume,
+                                f"must be in [{lo:g}, {hi:g}]: the biconcave family (its thickness scaled) reaches no "
+                                "other; a nearly spherical stress-free state is kind: oblate")
+        return self
+
+
 class Membrane(_Model):
     """Constitutive law of the membrane (docs/laws.md)."""
 
@@ -322,6 +361,10 @@ class Membrane(_Model):
         "(0: none, the seed's membrane); needs traction: galerkin; validated up to 1e-2 (a warning beyond; "
         "from physical.bending_modulus at most 1e3)",
     )
+    reference_shape: Optional[ReferenceShape] = Field(
+        None,
+        description="the stress-free shape the elastic and bending energies are measured from (none or kind rest: "
+        "the initial shape; shape.inflation is the other way to pre-stress, give one); every law but surface_tension")
     viscosity: Optional[MembraneViscosity] = Field(
         None,
         description="surface viscosity {model, shear, dilatational} as Boussinesq numbers (docs/viscous_membrane.md); "
@@ -336,6 +379,18 @@ class Membrane(_Model):
                 if self.law != law and name in self.model_fields_set and value != default:
                     raise _FieldProblem(name, value, f"applies only to law: {law}, not to law: {self.law}; remove it")
         return self
+
+    @model_validator(mode="after")
+    def _reference_shape_of_a_membrane(self):
+        if self.stress_free_differs and self.law == "surface_tension":
+            raise _FieldProblem("reference_shape.kind", self.reference_shape.kind,
+                                "a drop (law: surface_tension) has no membrane and no stress-free shape; remove it")
+        return self
+
+    @property
+    def stress_free_differs(self) -> bool:
+        """Whether the stress-free shape is another surface than the initial one."""
+        return self.reference_shape is not None and self.reference_shape.kind != "rest"
 
     @model_validator(mode="after")
     def _viscosity_needs_galerkin(self):
@@ -1204,6 +1259,18 @@ class Case(_Model):
                     raise _FieldProblem(f"{field}.inflation", shape.inflation,
                                         "pre-inflates a membrane, and membrane.law surface_tension (a drop) has "
                                         "none; remove it")
+        # two ways to a pre-stressed membrane: shape.inflation (the initial shape shrunk) or another
+        # stress-free shape (membrane.reference_shape); one capsule takes one
+        from capsim.scene import body_specs
+
+        for j, spec in enumerate(body_specs(self)):
+            membrane = spec.membrane or self.membrane
+            if spec.shape.inflation and membrane.stress_free_differs:
+                where = f"capsules[{j}]." if self.capsules else ""
+                raise _FieldProblem(f"{where}shape.inflation", spec.shape.inflation,
+                                    f"and membrane.reference_shape kind {membrane.reference_shape.kind} both set the "
+                                    "stress-free shape; give one (inflation α is a stress-free shape similar to the "
+                                    "initial one, smaller by 1 + α)")
         G, (glo, ghi), (llo, lhi) = (self.flow.shear_rate_G, VALIDATED_RANGES["flow.shear_rate_G"],
                                      VALIDATED_RANGES["flow.viscosity_ratio"])
         for i, capsule in enumerate(self.capsules or ()):

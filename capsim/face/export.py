@@ -71,10 +71,13 @@ def model_for(data: dict[str, Any]):
     from capsim.scene import reference_positions
 
     # the stored positions are the initial ones: the membrane's reference is each capsule's shrunk
-    # by its own shape.inflation about the centre it was placed at (one capsule: about case.center)
-    specs = model.scene.specs
-    if any(spec.shape.inflation for spec in specs):
-        rest = reference_positions(rest, model.bodies, specs)
+    # by its own shape.inflation about the centre it was placed at (one capsule: about case.center),
+    # or its membrane.reference_shape
+    case = case_of(data)
+    rest = reference_positions(rest, model.bodies, model.scene.specs, membrane=case.membrane,
+                               base=case.mesh.base, level=case.mesh.level)
+    if model.disc.symmetry != "none":  # as build_model made it: the symmetric nodes' images exactly
+        rest = model.disc.expand(np.ascontiguousarray(rest[model.disc.targets]))
     model.rest_positions = rest
     return model
 

@@ -252,3 +252,82 @@ def linear_subtriangles(elements: np.ndarray) -> np.ndarray:
         np.stack([v0, m01, m20], 1), np.stack([m01, v1, m12], 1),
         np.stack([m20, m12, v2], 1), np.stack([m01, m12, m20], 1),
     ])
+
+
+# ---------------------------------------------------------------- stress-free shapes (issue 55)
+#
+# A membrane's stress-free shape (membrane.reference_shape) is a second map of the same unit-sphere
+# mesh: node k of the stress-free surface and node k of the initial (rest) surface are the images
+# of one point of the sphere, so the membrane's strain at t = 0 is the map from one to the other.
+# The maps of REST_SHAPES change only the coordinate along the symmetry axis, as a function of
+# the distance from it, so the two surfaces' material points lie on one line parallel to the axis
+# (the parametrisation of Peng, Mashayekh & Zhu 2014 and Cordasco, Yazdani & Bagchi 2014, who map
+# a spheroidal stress-free state onto the biconcave cell). The stress-free surface is scaled to
+# the initial surface's area: a red cell's membrane keeps its area (its area modulus is 10^4 of
+# the shear modulus), so the stress-free state differs from the cell by its volume.
+
+#: the reduced volumes the biconcave stress-free family reaches: its thickness scaled by s in
+#: (0, 2]; the reduced volume peaks at 0.74 near s = 2 (flatter or fatter disks), and a nearly
+#: spherical state is an oblate spheroid (reference_shape kind oblate)
+BICONCAVE_REDUCED_VOLUME = (0.3, 0.72)
+
+
+def reduced_volume(volume: float, area: float) -> float:
+    """ν = V / (4π/3 (S/4π)^{3/2}): the volume over that of the sphere of the same area (1: a sphere)."""
+    return float(volume / (4.0 * np.pi / 3.0 * (area / (4.0 * np.pi)) ** 1.5))
+
+
+def _biconcave_profile_reduced_volume(scale: float, c0: float, c2: float, c4: float, n: int = 400) -> float:
+    """ν of the continuous Evans-Fung disk with its thickness scaled by `scale`: the meridian
+    r = sin t, y = ½ scale cos t (c0 + c2 r² + c4 r⁴), t in [0, π/2], is smooth in t (the rim's
+    infinite slope dy/dr is not), so Gauss-Legendre converges spectrally."""
+    g, w = np.polynomial.legendre.leggauss(n)
+    t = 0.25 * np.pi * (g + 1.0)
+    w = 0.25 * np.pi * w
+    r, dr = np.sin(t), np.cos(t)
+    h = c0 + c2 * r**2 + c4 * r**4
+    dh = (2.0 * c2 * r + 4.0 * c4 * r**3) * dr
+    y = 0.5 * scale * np.cos(t) * h
+    dy = 0.5 * scale * (-np.sin(t) * h + np.cos(t) * dh)
+    area = 2.0 * 2.0 * np.pi * np.sum(w * r * np.hypot(dr, dy))  # both faces
+    volume = 2.0 * 2.0 * np.pi * np.sum(w * r * y * dr)  # ∫ 2πr · y dr, both halves
+    return reduced_volume(volume, area)
+
+
+def biconcave_thickness_scale(target: float, c0: float = 0.207, c2: float = 2.003, c4: float = -1.123) -> float:
+    """The factor s on the Evans-Fung thickness that gives the disk the reduced volume `target`
+    (on its continuous surface; the mesh's differs by its discretisation error)."""
+    from scipy.optimize import brentq
+
+    lo, hi = BICONCAVE_REDUCED_VOLUME
+    if not lo <= target <= hi:
+        raise ValueError(f"reduced volume {target:g} outside [{lo:g}, {hi:g}], what the biconcave family reaches")
+    return float(brentq(lambda s: _biconcave_profile_reduced_volume(s, c0, c2, c4) - target, 0.05, 2.0, xtol=1e-14))
+
+
+def stress_free_positions(kind: str, base: str, level: int, area: float, *, tilt_deg: float = 0.0, axis=None,
+                          aspect_ratio: float = 1.0, reduced_volume_target: float | None = None,
+                          c0: float = 0.207, c2: float = 2.003, c4: float = -1.123) -> np.ndarray:
+    """A stress-free surface on the unit-sphere mesh (node k the image of the sphere's node k, as
+    in :func:`rest_shape_mesh`): a sphere, an oblate spheroid of `aspect_ratio`, or the Evans-Fung
+    disk of coefficients (c0, c2, c4) with its thickness scaled to `reduced_volume_target`; turned
+    as the rest shape is (`tilt_deg` or `axis`), centred at the origin, and scaled so that its
+    discretised area is `area`."""
+    from capsim.numerics.geometry import element_geometry, volume_area
+
+    sphere = unit_sphere_mesh(base, level)
+    if kind == "biconcave":
+        scale = 1.0 if reduced_volume_target is None else biconcave_thickness_scale(reduced_volume_target, c0, c2, c4)
+        x = _biconcave(sphere.positions, c0=c0, c2=c2, c4=c4)
+        x[:, 1] *= scale
+    elif kind in ("sphere", "oblate"):
+        x = _spheroid(sphere.positions, aspect_ratio=aspect_ratio)
+    else:
+        raise ValueError(f"unknown stress-free shape {kind!r} (allowed: sphere, oblate, biconcave)")
+    _, own = volume_area(element_geometry(x, sphere.elements, 6))
+    x *= np.sqrt(area / own)
+    if axis is not None:
+        if tilt_deg != 0.0:
+            raise ValueError("give tilt_deg or axis, not both")
+        return x @ rotation_onto(axis).T
+    return x @ rotation_about_z(np.deg2rad(tilt_deg)).T

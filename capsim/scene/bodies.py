@@ -202,16 +202,40 @@ def scene_mesh(specs: list[BodySpec], base: str, level: int) -> tuple[np.ndarray
     return positions, elements, bodies.count * nv, bodies
 
 
-def reference_positions(rest: np.ndarray, bodies: Bodies, specs: list[BodySpec]) -> np.ndarray:
-    """The membranes' stress-free shapes: each capsule's initial shape shrunk by 1 + α about the
-    centre it was placed at (its shape.inflation α; 0: the initial shape is stress-free)."""
-    if not any(spec.shape.inflation for spec in specs):
+def reference_positions(rest: np.ndarray, bodies: Bodies, specs: list[BodySpec], *, membrane: Any = None,
+                        base: str | None = None, level: int | None = None) -> np.ndarray:
+    """The membranes' stress-free shapes. Each capsule's: its membrane.reference_shape (another
+    surface on the same mesh, scaled to the capsule's initial area, turned as it is and placed at
+    its centre: capsim.numerics.mesh.stress_free_positions; `membrane` is the case's, for the
+    capsules without their own; `base` and `level` the mesh's), else its initial shape shrunk by
+    1 + α about the centre it was placed at (its shape.inflation α; 0: the initial shape is
+    stress-free)."""
+    def stress_free(spec: BodySpec):
+        own = spec.membrane if spec.membrane is not None else membrane
+        return own.reference_shape if own is not None and own.stress_free_differs else None
+
+    if not any(spec.shape.inflation or stress_free(spec) is not None for spec in specs):
         return rest
     out = rest.copy()
     for i, spec in enumerate(specs):
-        alpha = spec.shape.inflation
-        if alpha:
-            center = np.asarray(spec.center, dtype=np.float64)
+        alpha, shape = spec.shape.inflation, stress_free(spec)
+        center = np.asarray(spec.center, dtype=np.float64)
+        if shape is not None:
+            from capsim.numerics.geometry import element_geometry, volume_area
+            from capsim.numerics.mesh import stress_free_positions, unit_sphere_mesh
+
+            if base is None or level is None:
+                raise ValueError("a stress-free shape other than the rest shape needs the mesh's base and level")
+            elements = unit_sphere_mesh(base, level).elements  # the capsule's own mesh order
+            _, area = volume_area(element_geometry(np.ascontiguousarray(rest[bodies.nodes(i)]), elements, 6))
+            rest_shape = spec.shape
+            coefficients = ({"c0": rest_shape.c0, "c2": rest_shape.c2, "c4": rest_shape.c4}
+                            if rest_shape.kind == "biconcave" else {})
+            x = stress_free_positions(shape.kind, base, level, area, tilt_deg=spec.tilt_deg if spec.axis is None
+                                      else 0.0, axis=spec.axis, aspect_ratio=shape.aspect_ratio if shape.kind ==
+                                      "oblate" else 1.0, reduced_volume_target=shape.reduced_volume, **coefficients)
+            out[bodies.nodes(i)] = center + x
+        elif alpha:
             out[bodies.nodes(i)] = center + (rest[bodies.nodes(i)] - center) / (1.0 + alpha)
     return out
 

@@ -94,7 +94,7 @@ class Scene:
     def first_order_theory(self, case: Any) -> Any:
         """The first-order small-deformation theory of this scene (capsim.scene.small_deformation,
         ``Flow.first_order``) where its assumptions hold: one capsule, spherical and stress-free at
-        rest (no pre-inflation: a pre-stretched membrane is stiffer), a ν_s = 1/2 law without bending
+        rest (no pre-inflation, no other stress-free shape: a pre-stressed membrane is stiffer), a ν_s = 1/2 law without bending
         stiffness, of the case's modulus, in an unbounded flow of constant rate (no boundary, no
         history) whose kind derives one; else None. How small G must be is the caller's."""
         from capsim.scene.small_deformation import NU_HALF_LAWS
@@ -104,7 +104,8 @@ class Scene:
         spec = self.specs[0] if self.specs else None
         shape = spec.shape if spec is not None else case.shape
         membrane = spec.membrane if spec is not None and spec.membrane is not None else case.membrane
-        if shape.kind != "sphere" or shape.inflation or membrane.law not in NU_HALF_LAWS or membrane.bending_modulus:
+        if (shape.kind != "sphere" or shape.inflation or membrane.law not in NU_HALF_LAWS or membrane.bending_modulus
+                or getattr(membrane, "stress_free_differs", False)):  # another stress-free shape: pre-stressed
             return None
         if spec is not None and spec.modulus_ratio != 1.0:
             return None

@@ -990,9 +990,13 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
     if rest.shape != positions.shape:
         raise ValueError(f"rest positions of shape {rest.shape} for a mesh of {positions.shape[0]} nodes")
     law = get_law(case.membrane.law)
-    # shape.inflation α: the stress-free reference is the initial shape shrunk by 1 + α about its
-    # centre (the returned rest positions stay the initial ones: the run starts from them)
-    reference = reference_positions(rest, bodies, specs)
+    # the membrane's stress-free reference: shape.inflation α (the initial shape shrunk by 1 + α
+    # about its centre) or membrane.reference_shape (another surface on the same mesh); the returned
+    # rest positions stay the initial ones: the run starts from them
+    reference = reference_positions(rest, bodies, specs, membrane=case.membrane, base=case.mesh.base,
+                                    level=case.mesh.level)
+    if reference is not rest and disc.symmetry != "none":  # the symmetric nodes' images exactly (round-off)
+        reference = disc.expand(np.ascontiguousarray(reference[disc.targets]))
     material = materials(specs, bodies, case) if bodies.count > 1 else None  # capsules' own membranes, λ
     forces = MembraneForce(
         disc, reference, law, {p: getattr(case.membrane, p) for p in law.parameters},
