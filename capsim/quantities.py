@@ -133,6 +133,19 @@ _add("centroid_travel", "distance the centroid travelled", "1",
 _add("wall_gap", "gap between membrane and wall", "1",
      "smallest distance of a membrane node from the wall or the conduit's wall (runs with one only), in units "
      "of a", "a")
+# a run's summary (issue 54): the wall's gap and the migration across the flow, from start to end
+_add("wall_gap_initial", "gap between membrane and wall at the start", "1", "wall_gap at t = 0, in units of a", "a")
+_add("wall_gap_final", "gap between membrane and wall at the end", "1",
+     "wall_gap at the end of the run, in units of a", "a")
+_add("wall_gap_min", "smallest gap between membrane and wall", "1",
+     "the smallest wall_gap over the run, in units of a", "a")
+_add("centroid_y_initial", "y coordinate of the centroid at the start", "1",
+     "centroid_y at t = 0, in units of a", "a")
+_add("centroid_y_final", "y coordinate of the centroid at the end", "1",
+     "centroid_y at the end of the run, in units of a", "a")
+_add("migration_y", "migration across the flow", "1",
+     "centroid_y_final − centroid_y_initial: how far the centroid moved along y (the velocity gradient; away "
+     "from a wall, towards or away from the Poiseuille axis) over the run, in units of a", "a")
 # conduits (conduit:, capsim.scene.conduit): velocities in units of the mean velocity U (k = U/a)
 _add("extra_pressure_drop", "additional pressure drop", "1",
      "ΔP+, the pressure drop the capsule adds to the empty conduit's at the same flow rate, in units of μU/a "
@@ -525,6 +538,9 @@ _add("accuracy/values", "the target's quantity at t_end at each level", "1", "re
 _add("accuracy/errors", "error estimate of each level's run", "1", "|f_L − f_(L−1)| / (2^p − 1) (relative for D_xy, "
      "Sxy_star), p the observed order of the last two differences (at most 4; 1.5 from two levels), plus the "
      "predicted time error; where the levels do not converge, the larger difference; NaN at the first level")
+_add("accuracy/absolute_errors", "absolute error estimate of each level's run", "1",
+     "accuracy/errors times |the level's value| for a relative quantity (the same number for theta): the "
+     "statement that stands where the value is within its error of 0; NaN at the first level")
 _add("accuracy/orders", "order used for each level's estimate", "1", "log2(|d_(L−1)| / |d_L|) of the last two "
      "differences; 1.5 from two levels; NaN where not converging")
 _add("accuracy/evaluations", "velocity evaluations of each level's run", "1", "its run's velocity_evaluations")

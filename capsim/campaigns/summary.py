@@ -59,7 +59,10 @@ _FLOATS = ("D_xy", "theta", "ttf_ratio", "Sxy_star", "N1_star", "N2_star",
            "accuracy_target_met",
            # a capsule in a conduit (issue 53, _CONDUIT_FLOATS): its speed over U, ΔP+, migration, lengths
            "centroid_velocity_x", "centroid_velocity_x_std", "extra_pressure_drop", "extra_pressure_drop_std",
-           "axis_offset", "axis_offset_std", "length_along", "length_along_std", "width_across", "width_across_std")
+           "axis_offset", "axis_offset_std", "length_along", "length_along_std", "width_across", "width_across_std",
+           # a wall's gap and the migration across the flow, start to end (issue 54, _DRIFT_FLOATS)
+           "wall_gap_initial", "wall_gap_final", "wall_gap_min", "centroid_y_initial", "centroid_y_final",
+           "migration_y")
 _STRINGS = ("status", "status_reason", "motion")
 #: the numbers only a scene of several capsules has: left out of a campaign none of whose runs has them
 _SCENE_FLOATS = frozenset({"min_capsule_gap", "separation_y_initial", "separation_y_peak", "separation_y_final",
@@ -68,6 +71,10 @@ _SCENE_FLOATS = frozenset({"min_capsule_gap", "separation_y_initial", "separatio
 _CONDUIT_FLOATS = frozenset({"centroid_velocity_x", "centroid_velocity_x_std", "extra_pressure_drop",
                              "extra_pressure_drop_std", "axis_offset", "axis_offset_std", "length_along",
                              "length_along_std", "width_across", "width_across_std"})
+#: the numbers of a wall's gap and of the migration: left out of a campaign none of whose runs has them (no wall;
+#: run files written before issue 54)
+_DRIFT_FLOATS = frozenset({"wall_gap_initial", "wall_gap_final", "wall_gap_min", "centroid_y_initial",
+                           "centroid_y_final", "migration_y"})
 #: the context of a run from its resolved case: name -> (dtype, value for a run without a case)
 _CONTEXT = {"level": (np.int64, -1), "mesh_base": (np.int8, -1), "law": (object, ""),
             "skalak_c": (np.float64, np.nan), "psi": (np.float64, np.nan), "bending_modulus": (np.float64, np.nan),
@@ -294,7 +301,7 @@ def summarize_campaign(directory: str | os.PathLike, units: str = "capsim") -> x
 
     ds = xr.Dataset(
         {name: (dims, values, _attrs_for(name)) for name, values in data.items()
-         if not (name in (_SCENE_FLOATS | _CONDUIT_FLOATS) and np.isnan(values).all())},
+         if not (name in (_SCENE_FLOATS | _CONDUIT_FLOATS | _DRIFT_FLOATS) and np.isnan(values).all())},
         coords=coords,
     )
     if units == "physical":

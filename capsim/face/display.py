@@ -22,7 +22,7 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import Any, TextIO
 
 __all__ = ["PLAIN_INTERVAL_S", "RunProgress", "SweepProgress", "fmt", "format_duration", "is_terminal", "print_summary",
-           "print_table", "summary_rows", "summary_table"]
+           "print_table", "scene_features", "summary_rows", "summary_table"]
 
 #: seconds between two plain progress lines (a log is not a terminal)
 PLAIN_INTERVAL_S = 10.0
@@ -466,6 +466,7 @@ def summary_rows(summary: dict[str, Any], factors: Mapping[str, float] | None = 
          and period != summary.get("orbit_period") else None),
         *_orbit_rows(summary, factors),
         *_scene_rows(summary),
+        *_drift_rows(summary, factors),
         ("D_xy", _mean_std(summary, "D_xy")),
         ("theta/pi", _mean_std(summary, "theta", math.pi)),
         *(_conduit_rows(summary) if _in_conduit(summary) else (
@@ -541,6 +542,64 @@ def _scene_rows(summary: dict[str, Any]) -> list[tuple[str, str | None]]:
         rows.append(("cross-stream separation (a)",
                      f"{summary['separation_y_initial']:.4g} at the start, peak {summary['separation_y_peak']:.4g}, "
                      f"{summary['separation_y_final']:.4g} at the end (streamwise {summary['separation_x_final']:.4g})"))
+    return rows
+
+
+def scene_features(summary: Mapping[str, Any]) -> dict[str, bool]:
+    """What the run's scene has, for the rows only some scenes show: ``wall`` (a plane wall), ``conduit``,
+    ``varying_gradient`` (a far field whose rate varies across the stream, Poiseuille's: a capsule
+    migrates across it). From ``summary["scene"]`` where given, else the scene of the case stored in the
+    run file at ``summary["path"]`` (capsim.scene.Scene), else what the summary's own numbers show (a
+    wall's gap; the varying gradient is then not known, and not shown)."""
+    given = summary.get("scene")
+    if isinstance(given, Mapping):
+        return {k: bool(given.get(k, False)) for k in ("wall", "conduit", "varying_gradient")}
+    try:
+        from capsim.scene import Scene
+        from capsim.storage.store import read_case
+
+        scene = Scene.of(read_case(summary["path"]))
+    except Exception:  # noqa: BLE001 - no readable run file (a summary given by hand): its own numbers
+        conduit = _in_conduit(dict(summary))
+        return {"wall": _finite(summary.get("wall_gap_final")) and not conduit, "conduit": conduit,
+                "varying_gradient": False}
+    names = {b.name for b in scene.boundaries}
+    return {"wall": "plane_wall" in names, "conduit": bool(names - {"plane_wall"}),
+            "varying_gradient": not scene.uniform_gradient and not scene.has_boundary}
+
+
+def _drift_rows(summary: dict[str, Any], factors: Mapping[str, float] | None) -> list[tuple[str, str | None]]:
+    """A scene's drift across the flow (issue 54): with a wall, the lift and slip velocities (window mean
+    ± standard deviation) and the gap (start, smallest, end); in a flow whose rate varies across the stream
+    (Poiseuille's), the migration in y from start to end with its mean rate and its rate over the window.
+    Only where the scene has them (:func:`scene_features`)."""
+    scene = scene_features(summary)
+    f_v, u_v = _in("centroid_velocity_y", factors)
+    f_a, u_a = _in("wall_gap", factors)
+    f_t, u_t = _in("t", factors)
+    speed = u_v if factors is not None else "k a"
+    length = u_a if factors is not None else "a"
+    rows: list[tuple[str, str | None]] = []
+    if scene["wall"]:
+        rows.append((f"lift velocity, y ({speed})", _mean_std(summary, "centroid_velocity_y", 1.0 / f_v)))
+        rows.append((f"slip velocity, x ({speed})", _mean_std(summary, "slip_velocity_x", 1.0 / f_v)))
+        if all(_finite(summary.get(k)) for k in ("wall_gap_initial", "wall_gap_min", "wall_gap_final")):
+            rows.append((f"wall gap ({length})",
+                         f"{summary['wall_gap_initial'] * f_a:.4g} at the start, smallest "
+                         f"{summary['wall_gap_min'] * f_a:.4g}, {summary['wall_gap_final'] * f_a:.4g} at the end"))
+    if scene["varying_gradient"] and all(_finite(summary.get(k)) for k in ("centroid_y_initial", "centroid_y_final")):
+        y0, y1 = summary["centroid_y_initial"], summary["centroid_y_final"]
+        moved = summary.get("migration_y", y1 - y0)
+        t = summary.get("t")
+        text = f"{y0 * f_a:.4g} -> {y1 * f_a:.4g} ({moved * f_a:+.4g}"
+        if _finite(t) and t > 0:
+            unit = f" {u_v}" if factors is not None else " k a"
+            text += f" over {'t' if factors is not None else 'kt'} {t * f_t:.4g}: {moved / t * f_v:+.3g}{unit} on average"
+        text += ")"
+        now = _mean_std(summary, "centroid_velocity_y", 1.0 / f_v)
+        if now is not None:
+            text += f"; over the window {now}"
+        rows.append((f"migration in y ({length})", text))
     return rows
 
 

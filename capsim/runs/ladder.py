@@ -81,12 +81,14 @@ def _climb(case: Case, run_one: Callable, progress, out: Path, work: Path, lock,
 
     target = case.accuracy
     q = target.quantity
-    relative = q not in error_model.model()["absolute"]
-    entry, label = error_model.entry(case.error_model_features())
-    # the runs share one rtol: their differences are the mesh's; the time error is the model's, added
-    time_error = error_model.safety(q) * error_model.time_error(entry, q, case.time.rtol)
-    record: dict[str, Any] = {"level": [], "values": [], "errors": [], "orders": [], "evaluations": [],
-                              "wall_time_s": []}
+    relative = error_model.is_relative(q)
+    features = case.error_model_features()
+    entry, label = error_model.entry(features)
+    # the runs share one rtol: their differences are the mesh's; the time error is the model's (a scene
+    # quantity's: assumed, capsim.solve.accuracy.SCENE_TIME_ERROR), added
+    time_error = error_model.ladder_time_error(q, case.time.rtol, features)
+    record: dict[str, Any] = {"level": [], "values": [], "errors": [], "absolute_errors": [], "orders": [],
+                              "evaluations": [], "wall_time_s": []}
     kept, verdict, met = None, "", False
     for level in range(1, target.max_level + 1):
         # the level's plain case as the output will hold it; it runs into the hidden file beside
@@ -135,6 +137,9 @@ def _climb(case: Case, run_one: Callable, progress, out: Path, work: Path, lock,
         estimate = error_model.measured_error(record["values"], relative, PERIODS.get(q))
         error = estimate["error"] + time_error  # inf at the first level: no estimate
         record["errors"].append(float(error) if math.isfinite(error) else math.nan)
+        # the convention is relative, the absolute beside it (θ's is absolute: the same number)
+        absolute = error * abs(record["values"][-1]) if relative else error
+        record["absolute_errors"].append(float(absolute) if math.isfinite(absolute) else math.nan)
         record["orders"].append(float(estimate["order"]))
         met = estimate["converging"] and error <= target.target
         # each completed level replaces the one before at the output path, with the ladder so far:
@@ -199,12 +204,19 @@ def _give_output(work: Path, out: Path, plain: Case, lock) -> bool:
 
 
 def _final_value(path: Path, q: str) -> float:
-    """The quantity at t_end of a level's run file: several capsules, their mean (θ each unwrapped)."""
+    """The target's value of a level's run file: the model's quantities at t_end (several capsules,
+    their mean, θ each unwrapped); a scene quantity (capsim.solve.accuracy.SCENE_QUANTITIES: the lift's
+    window mean, the pair's final separation, the migration) from the run's summary, as the closing
+    table shows it (NaN where the summary has none)."""
     import h5py
 
+    from capsim.solve.accuracy import SCENE_QUANTITIES
     from capsim.solve.observables import capsule_mean
 
     with h5py.File(path, "r", locking=False) as f:
+        if q in SCENE_QUANTITIES:
+            summary = f.get("summary")
+            return float(summary[q][()]) if summary is not None and q in summary else math.nan
         return float(capsule_mean(f["timeseries"][q][()], angle=q in PERIODS)[-1])
 
 
@@ -218,9 +230,22 @@ def _verdict(q: str, target, case: Case, record: dict[str, Any], estimate: dict[
     if len(record["level"]) == 1:
         return (f"accuracy {q} {target.target:g}: level {level} at rtol {case.time.rtol:g} kept, its error not "
                 "estimated (one level): target NOT met")
+    from capsim.solve.accuracy import MEANINGLESS_RELATIVE, is_relative, short_name
+
     how = (f"order {estimate['order']:.2g} observed" if estimate["order_from_levels"] and estimate["converging"]
            else f"order {estimate['order']:.2g} assumed from two levels" if estimate["converging"]
            else "levels not yet converging: the larger difference")
-    return (f"accuracy {q} {target.target:g}: level {level} at rtol {case.time.rtol:g} kept, its error {error:.2g} "
+    relative = is_relative(q)
+    size = f"{error:.2g} relative, {record['absolute_errors'][-1]:.2g} absolute" if relative else f"{error:.2g}"
+    text = (f"accuracy {q} {target.target:g}: level {level} at rtol {case.time.rtol:g} kept, its error {size} "
             f"({how}; measured on levels {', '.join(map(str, record['level']))}, {sum(record['wall_time_s']):.1f} s "
             f"in all): target {'met' if met else 'NOT met'}")
+    value = record["values"][-1]
+    if not math.isfinite(value):  # a summary without it (a run file written before it was kept)
+        text += f"; the level-{level} run has no value of {short_name(q)}"
+    elif relative and not error < MEANINGLESS_RELATIVE:  # said, not hidden
+        # a value within its own error of 0 (a lift far from the wall): relative to it the error means nothing
+        text += (f"; {short_name(q)} = {value:.3g} is within its error of 0, where a relative error means nothing: "
+                 f"its absolute error {record['absolute_errors'][-1]:.2g} is the statement (no relative target can "
+                 "be met on a value near 0)")
+    return text

@@ -1099,6 +1099,7 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
         if s.size == t.size and np.isfinite(s).all() and t.size:
             out[name], out[f"{name}_std"] = window_stats(t, s, t0, t1)
     out["averaging_t_from"], out["averaging_t_to"] = t0, t1
+    out.update(_drift_summary(series, t))
     for key in ("period", "D_xy_mean", "D_xy_amplitude", "theta_mean", "theta_amplitude"):
         out[key] = motion[key]
     out["orbits_averaged"] = motion.get("orbits_averaged", 0.0)
@@ -1111,6 +1112,25 @@ def run_summary(series: dict[str, np.ndarray], **classifier_options) -> dict:
         out.update(orbit)
         if not motion.get("turning"):
             out["orbit_period"] = float("nan")  # passages of a swinging or still axis are no orbit
+    return out
+
+
+def _drift_summary(series: dict[str, np.ndarray], t: np.ndarray) -> dict:
+    """The scene's own numbers of one capsule (issue 54): the wall's gap at the start, at the end and its
+    smallest (a run with a wall or a conduit); the centroid's y at the start and the end and its
+    migration across the flow, the difference (rows written before these columns were kept: none)."""
+    out: dict = {}
+    for name, keys in (("wall_gap", ("wall_gap_initial", "wall_gap_final", "wall_gap_min")),
+                       ("centroid_y", ("centroid_y_initial", "centroid_y_final", None))):
+        s = np.asarray(series.get(name, ()), float)
+        if not (t.size and s.size == t.size and np.isfinite(s).all()):
+            continue
+        first, last, third = keys
+        out[first], out[last] = float(s[0]), float(s[-1])
+        if third:
+            out[third] = float(s.min())
+        else:
+            out["migration_y"] = float(s[-1] - s[0])
     return out
 
 
@@ -1169,7 +1189,9 @@ HISTORY_COLUMNS = ("t", "dt", "tt_angle", *SUMMARY_QUANTITIES, "director_x", "di
                    "long_axis_x", "long_axis_y", "long_axis_z", "short_axis_x", "short_axis_y", "short_axis_z",
                    "ellipsoid_a", "ellipsoid_b", "ellipsoid_c",
                    # the body's drift across and along the flow (issues 41, 42): lift or migration, slip
-                   "centroid_velocity_y", "slip_velocity_x", "dissipation_ratio", *CONDUIT_COLUMNS)
+                   "centroid_velocity_y", "slip_velocity_x", "dissipation_ratio", *CONDUIT_COLUMNS,
+                   # a wall's gap and the migration across the flow, from start to end (issue 54)
+                   "wall_gap", "centroid_y")
 #: several capsules: the scene's columns the summary reads back (a pair's relative trajectory)
 SCENE_HISTORY_COLUMNS = ("min_capsule_gap", "separation_x", "separation_y", "separation_z")
 
