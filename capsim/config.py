@@ -1044,8 +1044,12 @@ class Accuracy(_Model):
     the least cost from the error model (docs/benchmarks.md, "Error model"), or measured on the
     case's own levels 1, 2, ... (capsim.runs.ladder)."""
 
-    quantity: Literal["D_xy", "theta", "Sxy_star"] = Field(
-        ..., description="the value at t_end the target is for: D_xy, theta (θ) or Sxy_star (S*_xy)")
+    quantity: str = Field(
+        ..., description="the value the target is for: D_xy, theta (θ) or Sxy_star (S*_xy) at t_end (the error "
+        "model's: predicted or measured), or the scene's own, always measured by the ladder: lift and slip (a wall "
+        "run's window means), gap (the final wall gap), separation (a pair's final cross-stream separation), "
+        "migration (the centroid's drift across a Poiseuille flow); stored as the column it names "
+        "(capsim.solve.accuracy.SCENE_QUANTITIES)")
     target: float = Field(
         ..., gt=0, lt=1,
         description="its largest error: relative (a fraction of the value) for D_xy and Sxy_star, in rad for theta")
@@ -1059,6 +1063,18 @@ class Accuracy(_Model):
     choice: Optional[str] = Field(
         None, description="set by capsim, not a setting: the level and rtol chosen, the predicted error and cost, "
         "or the ladder to run")
+
+    @field_validator("quantity", mode="before")
+    @classmethod
+    def _a_quantity_capsim_reports(cls, v: Any) -> Any:
+        if not isinstance(v, str):
+            return v  # the strict check names the type
+        from capsim.solve.accuracy import AccuracyError, canonical  # numpy and the model's JSON only
+
+        try:
+            return canonical(v)
+        except AccuracyError as exc:
+            raise ValueError(str(exc).split(": ", 1)[1]) from None
 
 
 class Case(_Model):
