@@ -522,7 +522,7 @@ for _name in _STUDIED:
 
 # ---------------------------------------------------------------- accuracy/ (a measured accuracy target: capsim.runs.ladder)
 
-_add("accuracy/quantity", "quantity of the accuracy target", "", "D_xy, theta or Sxy_star at t_end")
+_add("accuracy/quantity", "quantity of the accuracy target", "", "D_xy, theta or Sxy_star at t_end, or a scene quantity's column (centroid_velocity_y for lift, slip_velocity_x, wall_gap_final, separation_y_final, migration_y)")
 _add("accuracy/target", "accuracy target", "1", "the largest error asked for: relative for D_xy and Sxy_star, "
      "in rad for theta")
 _add("accuracy/rtol", "time tolerance of the ladder's runs", "1", "capsim.solve.accuracy.ladder_rtol: its predicted time "
