@@ -56,3 +56,17 @@ def test_a_resolved_case_reloads_to_itself():
     case = Case(name="u", physical=PHYSICAL, accuracy={"quantity": "D_xy", "target": 1e-2})
     again = case_from_dict(case.model_dump(mode="json"))
     assert again.model_dump(mode="json") == case.model_dump(mode="json")
+
+
+def test_a_scene_quantity_target_resolves_to_the_ladder():
+    """accuracy: {quantity: lift} in a case file: stored as the column it names, measured (the error
+    model has no training case for it), refused in one line where the scene has no wall."""
+    case = case_from_dict({"name": "w", "wall": {"distance": 3.0}, "time": {"t_end": 2.0},
+                           "accuracy": {"quantity": "lift", "target": 0.05}})
+    assert case.accuracy.quantity == "centroid_velocity_y"
+    assert (case.accuracy.method, case.mesh.level) == ("measure", 1)
+    assert case_from_dict(case.model_dump(mode="json")).accuracy.choice == case.accuracy.choice
+    with pytest.raises(ConfigError, match=r"accuracy\.quantity.*needs a plane wall"):
+        case_from_dict({"name": "u", "accuracy": {"quantity": "lift", "target": 0.05}})
+    with pytest.raises(ConfigError, match=r"accuracy\.quantity = 'lifts'.*allowed: D_xy, theta, Sxy_star"):
+        case_from_dict({"name": "u", "accuracy": {"quantity": "lifts", "target": 0.05}})
