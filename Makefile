@@ -97,6 +97,12 @@ bench-auto: venv
 bench-scenes: venv
 	PYTHONPATH=. $(BIN)/python benchmarks/scenes.py
 
+# the bending trade (issue 54): a sphere's steady D_xy and its compressed membrane against the
+# bending modulus at small G, levels 2 and 3 (a few minutes): writes benchmarks/bending_trade.md/.json
+.PHONY: bench-bending
+bench-bending: venv
+	PYTHONPATH=. $(BIN)/python benchmarks/bending_trade.py
+
 .PHONY: bench-pair
 bench-pair: venv
 	$(BIN)/capsim sweep campaigns/pair-collision.yaml --workers 2
