@@ -17,7 +17,10 @@ digitised tables hold the young fraction; the paper's old-cell columns are not u
 GROUP: main (their mu_s), elastic (none), sensitivity (mu_s x0.7, x1.3, G_s x2, level 1),
 extra (mu_s x1.7, the same shape at their area), shape (their reduced volume, G_s x0.5),
 hardening (Skalak C = 100 at every rate), soft (G_s 1.25 uN/m and C = 100 at every rate),
-level3 (level 3 at 28.6 1/s: ~6 min; not run for the docs).
+level3 (level 3 at 28.6 1/s: ~6 min; not run for the docs), stressfree (issue 55: the case with a
+stress-free oblate spheroid of aspect 0.9, and a sphere, at 28.6, 57.1 and 171.4 1/s), fischer (issue 55:
+the case in Fischer & Korzeniewski 2015's 28.9 mPa s at the six shear rates of their 225 cells,
+benchmarks/data/fischer2015_ttf_eta28.9.csv, with the mean of Table III's μ_s).
 
 `run` appends each finished run to benchmarks/tran_son_tay.json (a run already there is not
 repeated; one run at level 2 takes 1-3 min on one core); `report` writes
@@ -73,6 +76,12 @@ SENSITIVITY_RATE = 28.6   # the shear rate of the sensitivity table and of tests
 MAIN_LEVEL = 2
 #: the Evans-Fung coefficients times 1.3215: the sphericity of their young cells, 0.792
 THICK = (0.2736, 2.647, -1.4841)
+#: issue 55: the stress-free shapes tried (membrane.reference_shape) and at which of Table I's rates
+STRESS_FREE_SHAPES = (("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9}), ("sphere", {"kind": "sphere"}))
+STRESS_FREE_RATES = (28.6, 57.1, 171.4)
+#: Fischer & Korzeniewski 2015 (Biophys. J., Fig. S11): f/k of 225 cells in 28.9 mPa s (benchmarks/data/README.md)
+FISCHER_DATA = ROOT / "benchmarks" / "data" / "fischer2015_ttf_eta28.9.csv"
+FISCHER_VISCOSITY_MPAS = 28.9
 
 
 def load_base(path: Path) -> tuple[dict, dict]:
@@ -218,7 +227,42 @@ def jobs() -> dict[str, list[tuple[str, dict, dict]]]:
         soft["physical"]["shear_modulus"] = "1.25 uN/m"
         out["soft"].append((f"sens G_s 1.25 C 100 k={rate_of(soft)} L{MAIN_LEVEL}", soft, {}))
     out["level3"] = [(f"viscous k={SENSITIVITY_RATE} L3", base, {"level": 3})]
+    # issue 55: the stress-free shape (membrane.reference_shape) other than the cell's own disk
+    out["stressfree"] = []
+    for c in main:
+        if rate_of(c) not in STRESS_FREE_RATES:
+            continue
+        for tag, reference in STRESS_FREE_SHAPES:
+            d = json.loads(json.dumps(c))
+            d["membrane"]["reference_shape"] = reference
+            out["stressfree"].append((f"stress-free {tag} k={rate_of(c)} L{MAIN_LEVEL}", d, {}))
+    # issue 55: Fischer & Korzeniewski 2015's cells at 28.9 mPa s, their six shear rates
+    out["fischer"] = []
+    for k, _, _, _ in fischer_groups():
+        d = json.loads(json.dumps(base))
+        d["physical"].update(shear_rate=f"{k:.4g} 1/s", viscosity=f"{FISCHER_VISCOSITY_MPAS} mPa*s",
+                             membrane_viscosity=f"{sum(TABLE_III_MU) / len(TABLE_III_MU):.3g}e-7 N*s/m")
+        out["fischer"].append((f"fischer k={k:.4g} L{MAIN_LEVEL}", d, {}))
     return out
+
+
+def fischer_groups() -> list[tuple[float, float, float, int]]:
+    """Fischer & Korzeniewski 2015's 225 cells in their six groups of shear rate (k within a
+    factor 1.3 of each other): (mean k in 1/s, mean f/k, its SD over the cells, the count); their
+    f/k is the frequency in revolutions per second over k, so ω/k = 2π f/k (ω/k ≤ 1/2, the
+    vorticity's, for any tank-treading cell; 4π f/k would pass it at their lowest rates)."""
+    import numpy as np
+
+    data = np.genfromtxt(FISCHER_DATA, delimiter=",", names=True)
+    k, ratio = data["shear_rate_1_per_s"], data["ttf_over_shear_rate"]
+    order = np.argsort(k)
+    groups, start = [], 0
+    for i in range(1, len(order) + 1):
+        if i == len(order) or k[order[i]] > 1.3 * k[order[start]]:
+            idx = order[start:i]
+            groups.append((float(k[idx].mean()), float(ratio[idx].mean()), float(ratio[idx].std(ddof=1)), len(idx)))
+            start = i
+    return groups
 
 
 def run(groups: list[str]) -> None:
@@ -315,8 +359,49 @@ def report() -> None:
         rel = f"{100 * (r['f_rad_s'] / base['f_rad_s'] - 1):+.1f} %" if base else "—"
         lines.append(f"| {name} | {r['f_rad_s']:.3g} | {rel} | {100 * (r['f_rad_s'] / f_meas - 1):+.0f} % | "
                      f"{r['motion']} |")
+    lines += stress_free_lines(rows) + fischer_lines(rows)
     TABLE.write_text("\n".join(lines) + "\n")
     figure(rows)
+
+
+def stress_free_lines(rows: dict) -> list[str]:
+    """Issue 55: the frequency and the shape with another stress-free shape, against Tables I and II."""
+    lines = ["", "The stress-free shape (`membrane.reference_shape`; the case's is the cell's own disk): f (rad/s) "
+             "and the ellipsoid's a, b (µm) and θ (deg) against Table I's f and Table II's a, b, θ (their μ_s):", "",
+             "| k (1/s) | stress-free shape | f capsim / measured | a: capsim / Table II | b: capsim / Table II | "
+             "θ: capsim / Table II | motion |", "|---|---|---|---|---|---|---|"]
+    for (k, _, _, _, _, f, sd), (_, a, b, c, th) in zip(TABLE_I, TABLE_II):
+        if k not in STRESS_FREE_RATES:
+            continue
+        for tag, label in (("the disk (the case)", f"viscous k={k} L{MAIN_LEVEL}"),
+                           *((t, f"stress-free {t} k={k} L{MAIN_LEVEL}") for t, _ in STRESS_FREE_SHAPES)):
+            r = rows.get(label)
+            if r is None:
+                lines.append(f"| {k:g} | {tag} | not run | — | — | — | — |")
+                continue
+            A, _, S = r["axes_um"]
+            lines.append(f"| {k:g} | {tag} | {r['f_rad_s']:.3g} / {f:.3g} ({100 * (r['f_rad_s'] / f - 1):+.0f} %) | "
+                         f"{A:.2f} / {a} | {S:.2f} / {b} | {r['theta_deg']:.1f} / {th} | {r['motion']} |")
+    return lines
+
+
+def fischer_lines(rows: dict) -> list[str]:
+    """Issue 55: Fischer & Korzeniewski 2015's frequencies against the rate (28.9 mPa s)."""
+    lines = ["", f"Fischer & Korzeniewski (2015), {FISCHER_VISCOSITY_MPAS} mPa s, the case's cell (G_s 2.5 µN/m, "
+             "C = 10, cytoplasm 10 mPa s as in the case, μ_s the mean of Table III, 0.66e-7 N s/m): ω/k, the "
+             "membrane's angular frequency over the shear rate (theirs: 2π × their f/k, mean ± SD over the cells "
+             "of each group of rates):", "",
+             "| k (1/s) | cells | ω/k measured | ω/k capsim | error | G | motion |", "|---|---|---|---|---|---|---|"]
+    for k, ratio, sd, n in fischer_groups():
+        measured = 2 * math.pi * ratio
+        r = rows.get(f"fischer k={k:.4g} L{MAIN_LEVEL}")
+        if r is None:
+            lines.append(f"| {k:.3g} | {n} | {measured:.3f} ± {2 * math.pi * sd:.3f} | not run | — | — | — |")
+            continue
+        mine = r["f_rad_s"] / k
+        lines.append(f"| {k:.3g} | {n} | {measured:.3f} ± {2 * math.pi * sd:.3f} | {mine:.3f} | "
+                     f"{100 * (mine / measured - 1):+.0f} % | {r['G']:.3g} | {r['motion']} |")
+    return lines
 
 
 def figure(rows: dict) -> None:

@@ -20,6 +20,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Sequence
 
+import math
+
 import numpy as np
 
 from capsim.config import Guards, Time
@@ -54,15 +56,28 @@ def step_collapse(dts: Sequence[float], min_fraction: float, window: int = 200, 
 MAX_CENTROID_COORDINATE = 1e9
 
 
+def _all_finite(row: dict) -> bool:
+    """Whether every value of the row is finite: the common case, asked once per accepted step (a
+    float by math.isfinite, 40 times cheaper than numpy's reduction on a scalar)."""
+    for value in row.values():
+        if type(value) is float:
+            if not math.isfinite(value):
+                return False
+        elif not np.all(np.isfinite(value)):
+            return False
+    return True
+
+
 def guard_violation(row: dict, row0: dict, guards: Guards) -> str | None:
     """The first stability guard an accepted step crosses, as 'guard NAME: value', or None."""
     # a column the observer may leave undefined (NaN: observables.MAY_BE_UNDEFINED) is a property of
     # the state, not a failure, as long as D_xy itself is finite
     # (several capsules: a per-capsule column is an array, its worst capsule decides)
-    bad = [key for key, value in row.items()
-           if not np.all(np.isfinite(value))
-           and not (key in MAY_BE_UNDEFINED and np.all(np.isnan(value) | np.isfinite(value))
-                    and np.all(np.isfinite(row.get("D_xy", np.nan))))]
+    bad = [] if _all_finite(row) else [key for key, value in row.items()
+                                       if not np.all(np.isfinite(value))
+                                       and not (key in MAY_BE_UNDEFINED
+                                                and np.all(np.isnan(value) | np.isfinite(value))
+                                                and np.all(np.isfinite(row.get("D_xy", np.nan))))]
     if bad:
         value = np.asarray(row[bad[0]])
         shown = value if value.ndim == 0 else value[~np.isfinite(value)][0]
