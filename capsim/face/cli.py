@@ -39,7 +39,7 @@ app = typer.Typer(
 # plot kinds capsim.face.plot.KINDS, export formats capsim.face.export.FORMATS, study references
 # capsim.campaigns.study.REFERENCES, figure formats capsim.face.plot.FIGURE_FORMATS.
 _PLOT_KINDS = ("deformation", "inclination", "contour", "trajectory", "separation", "tensions", "rheology", "steady",
-               "orbit", "orbit_map", "conduit")
+               "orbit", "orbit_map", "conduit", "lift", "migration")
 _EXPORT_FORMATS = ("xdmf", "vtu")
 _STUDY_REFERENCES = ("finest", "richardson")
 _FIGURE_FORMATS = ("png", "pdf", "svg")
@@ -445,8 +445,8 @@ def summarize(
 def plot(
     paths: list[Path] = typer.Argument(
         ..., metavar="PATH...",
-        help="run file (.h5), several for deformation/inclination (overlaid), or campaign summary (.nc) for --kind "
-             "steady, orbit_map and conduit",
+        help="run file (.h5), several for deformation, inclination, separation, migration and lift (overlaid), or "
+             "campaign summary (.nc) for --kind steady, orbit_map, conduit and lift",
     ),
     kind: PlotKind = typer.Option(..., "--kind", "-k", help="what to draw"),
     output: Optional[Path] = typer.Option(
@@ -460,10 +460,10 @@ def plot(
     x: Optional[str] = typer.Option(None, "--x", help="steady, orbit_map, conduit: the swept field on the axis (default shear_rate_G, else the first numeric one)"),
     y: Optional[str] = typer.Option(None, "--y", help="orbit_map: the second swept field (default viscosity_ratio, else the next one)"),
     size: Optional[str] = typer.Option(None, "--size", metavar="W,H", help="figure size in inches, e.g. 3.3,2.5 (default 6.4,4.8)"),
-    labels: Optional[list[str]] = typer.Option(None, "--label", help="legend label of each overlaid run, once per PATH in order"),
+    labels: Optional[list[str]] = typer.Option(None, "--label", help="legend label of each overlaid run, once per PATH in order (lift: per G)"),
     units: UnitSystem = typer.Option("capsim", "--units", help="the axes' units (--time stays kt): " + _UNITS_HELP),
 ) -> None:
-    """Write a figure (PNG, PDF or SVG) of a run, or of a campaign summary for --kind steady, orbit_map and conduit.
+    """Write a figure (PNG, PDF or SVG) of a run, or of a campaign summary for --kind steady, orbit_map, conduit, lift.
 
     Examples:
 

@@ -1,8 +1,10 @@
 """Figures of the seed's kinds, as PNG, PDF or SVG, without a display.
 
 ``capsim plot PATH --kind KIND [-o FILE.png|.pdf|.svg] [--dpi N]``; PATH is a
-run file (.h5) for every kind but ``steady`` and ``orbit_map``, which take a
-campaign summary (netCDF from ``capsim summarize``). Every ``*_figure`` function returns a
+run file (.h5) for every kind but ``steady``, ``orbit_map`` and ``conduit``, which take a
+campaign summary (netCDF from ``capsim summarize``), and ``lift``, which takes either (a summary
+over the wall's distance, or several wall runs). The scenes' kinds ``lift``, ``migration`` and
+``separation`` are the scenes' (issue 54; their section below). Every ``*_figure`` function returns a
 :class:`matplotlib.figure.Figure` (no pyplot, no global state);
 :func:`plot` draws one and saves it in the format its file suffix names.
 
@@ -53,7 +55,8 @@ __all__ = [
     "DPI", "FIGSIZE", "FIGURE_FORMATS", "FIRST_ORDER_G_MAX", "KINDS", "contour_figure", "orbit_figure", "orbit_map_figure", "deformation_figure", "inclination_figure",
     "plot", "relaxation_time", "rheology_figure", "steady_figure", "tensions_figure",
     "section_loops", "trajectory_figure", "xy_section", "separation_figure", "capsule_count", "scene_bodies",
-    "capsule_sections", "first_order_theory",
+    "capsule_sections", "first_order_theory", "lift_figure", "migration_figure", "OVERLAY_KINDS", "lift_law",
+    "slip_law", "stresslet_yy",
 ]
 
 FIGSIZE = (6.4, 4.8)  # inches
@@ -944,46 +947,407 @@ def trajectory_figure(source, node: int | None = None, direction: Sequence[float
     return fig
 
 
-def separation_figure(source):
-    """The capsules' paths (issue 43). A pair: its relative trajectory, the cross-stream
-    separation ``separation_y`` against the streamwise ``separation_x`` (capsule 1's centroid
-    less capsule 0's, at every step), from its start (open circle) to its end (square). More
-    than two capsules: each capsule's centroid path in the xy-plane, in its colour. A run of
-    one capsule is refused (a material point's path: ``trajectory``)."""
-    data = _load_run(source)
-    info = _case_info(data)
-    k = capsule_count(data)
-    if k < 2:
-        raise ValueError("--kind separation draws the paths of several capsules, and the run holds one "
-                         "(a material point's path: --kind trajectory)")
+# ------------------------------------------------------------ scenes (issue 54): lift, migration, separation
+#
+# lift: a capsule near a plane wall, its lift V_y and its slip against the wall distance h (log-log),
+# one curve per G, from a campaign summary or from several run files, with the far-field laws of the
+# run's own stresslet S beside them (docs/known_answers.md, "A capsule near a wall"; Blake's image of
+# the force dipole at the capsule's centre, S in units μka³): V_y = −(9/64π) S_yy/h² (Smart &
+# Leighton 1991) and V_x − u∞ = −(3/32π) S_xy/h² (for a rigid sphere, S_xy = (10π/3) μka³, Goldman,
+# Cox & Brenner 1967's −(5/16) k a³/h²), with S_yy = (5/2) V (N2* − N1*)/3 of the traceless stresslet
+# and S_xy = (5/2) V S*_xy. migration: the cross-stream position against kt, several runs overlaid
+# (near a wall the height above it with the far-field law integrated along the run's own stresslet,
+# h³(t) = h³(0) + 3 ∫ −(9/64π) S_yy dt; in Poiseuille flow the distance from the centreline; in a
+# conduit axis_offset; else centroid_y). separation: a pair's Δy against Δx and against kt, several
+# pairs overlaid; more than two capsules: each centroid's path.
+
+#: where the far-field laws come from (legend text)
+LIFT_SOURCE = "Smart & Leighton 1991"
+#: the slip's coefficient is the image system's (checked against capsim's kernel); for a rigid sphere
+#: it is Goldman, Cox & Brenner's far field
+SLIP_SOURCE = "Goldman, Cox & Brenner 1967"
+#: the volume of every rest shape in units of a³ (a is the equal-volume radius)
+REST_VOLUME = 4.0 * math.pi / 3.0
+
+
+def stresslet_yy(N1_star, N2_star, volume=REST_VOLUME):
+    """S_yy of the traceless stresslet in units μka³, from N1* = (S_xx − S_yy)/((5/2)μkV) and N2*."""
+    return 2.5 * np.asarray(volume) * (np.asarray(N2_star) - np.asarray(N1_star)) / 3.0
+
+
+def lift_law(h, N1_star, N2_star, volume=REST_VOLUME):
+    """The far-field lift V_y/(ka) = −(9/64π) S_yy/h² of a capsule h above the wall."""
+    return -9.0 / (64.0 * math.pi) * stresslet_yy(N1_star, N2_star, volume) / np.asarray(h, float) ** 2
+
+
+def slip_law(h, Sxy_star, volume=REST_VOLUME):
+    """The far-field slip (V_x − u∞)/(ka) = −(3/32π) S_xy/h², S_xy = (5/2) V S*_xy."""
+    return -3.0 / (32.0 * math.pi) * 2.5 * np.asarray(volume) * np.asarray(Sxy_star) / np.asarray(h, float) ** 2
+
+
+# ------------------------------------------------------------ lift
+
+
+def _plane_wall(info: dict[str, Any]):
+    """The scene's boundary of kind plane_wall (its ``height`` along y), or None: the far-field laws are a plane's."""
+    return next((b for b in info.get("boundaries", ()) if getattr(b, "name", "") == "plane_wall"), None)
+
+
+def _is_summary(source) -> bool:
+    try:
+        import xarray as xr
+
+        if isinstance(source, xr.Dataset):
+            return True
+    except ImportError:  # pragma: no cover - xarray is a dependency
+        pass
+    if isinstance(source, (str, os.PathLike)):
+        from capsim.storage.store import is_run_file
+
+        return not is_run_file(source)
+    return False
+
+
+def _lift_records_from_summary(ds) -> tuple[list[dict], str, list[str]]:
+    """(one record per completed run, the caption, what was left out) of a summary."""
+    if "centroid_velocity_y" not in ds.variables:
+        raise ValueError("the summary has no 'centroid_velocity_y' (is it a capsim summarize output?)")
+    swept = _swept_fields(ds)
+    # the swept coordinate of the wall's distance (wall: {distance: h}), named by its last part
+    h_field = next((f for f in swept if f == "distance" or str(ds[f].attrs.get("case_field", f)).split(".")[-1]
+                    == "distance"), None)
+    if h_field is None:
+        raise ValueError(f"--kind lift draws against the wall distance, and the summary sweeps none (wall: {{distance: h}}) "
+                         f"(swept: {', '.join(swept) or 'none'})")
+    names = ("centroid_velocity_y", "slip_velocity_x", "N1_star", "N2_star", "Sxy_star", "volume_drift",
+             "centroid_velocity_y_std", "slip_velocity_x_std")
+    names = tuple(n for n in names if n in ds.variables)
+    others = [f for f in swept if f != h_field]
+    records, left = [], []
+    for cell in _summary_cells(ds, names, swept):
+        status = cell["why"] if cell["why"] and not cell["why"].endswith(" motion") else "completed"
+        if status != "completed":
+            left.append(status)
+            continue
+        v = cell["values"]
+        drift = v.get("volume_drift", float("nan"))
+        records.append({
+            "h": float(cell["swept"][h_field]),
+            "group": ", ".join(f"{_short(f)} = {_shown(cell['swept'][f])}" for f in others) or "capsim",
+            "lift": v["centroid_velocity_y"], "slip": v.get("slip_velocity_x", float("nan")),
+            "lift_std": v.get("centroid_velocity_y_std", float("nan")),
+            "slip_std": v.get("slip_velocity_x_std", float("nan")),
+            "N1": v["N1_star"], "N2": v["N2_star"], "Sxy": v["Sxy_star"],
+            "V": REST_VOLUME * (1.0 + (drift if math.isfinite(drift) else 0.0)),
+        })
+    context = _summary_context(ds)
+    title = str(ds.attrs.get("title", ""))
+    parts = [context[k] for k in ("shape", "law", "lam", "mesh") if context.get(k)]
+    return records, (f"{title}: " if title else "") + ", ".join(parts), left
+
+
+def _lift_records_from_runs(sources) -> tuple[list[dict], list[dict], list[str]]:
+    """(one record per run, their case infos, nothing left out) of run files beside a wall."""
+    from capsim.face.export import case_of
+
+    records, infos = [], []
+    for run in _sources(sources):
+        data = _load_run(run)
+        case = case_of(data)
+        name = Path(str(run)).name if not isinstance(run, dict) else "the run"
+        wall = _plane_wall(info := _case_info(data))
+        if wall is None:
+            raise ValueError(f"--kind lift draws a capsule near a wall, and {name} has none (wall: {{distance: h}})")
+        if capsule_count(data) > 1:
+            raise ValueError(f"--kind lift draws one capsule near a wall, and {name} holds {capsule_count(data)}")
+        summary = data.get("summary") or {}
+        ts = data["timeseries"]
+
+        def value(key):
+            v = summary.get(key)
+            if isinstance(v, (int, float)) and math.isfinite(v):
+                return float(v)
+            return float(np.asarray(ts[key])[-1]) if key in ts else float("nan")
+
+        infos.append(info)
+        volume = np.asarray(ts.get("volume", [REST_VOLUME]), float)
+        records.append({
+            "h": float(case.center[1]) - wall.height, "group": _run_label(info, shape_in_caption=True),
+            "lift": value("centroid_velocity_y"), "slip": value("slip_velocity_x"),
+            "lift_std": float(summary.get("centroid_velocity_y_std", float("nan")) or float("nan")),
+            "slip_std": float(summary.get("slip_velocity_x_std", float("nan")) or float("nan")),
+            "N1": value("N1_star"), "N2": value("N2_star"), "Sxy": value("Sxy_star"), "V": float(volume[-1]),
+        })
+    return records, infos, []
+
+
+def lift_figure(source, theory: bool = True, labels: Sequence[str] | None = None):
+    """Lift V_y/(ka) (top) and slip −(V_x − u∞)/(ka) (bottom) against h/a, the wall's distance
+    below the capsule's initial centre, one curve per G (per combination of the other swept
+    values), from a campaign summary or from run files (a list); the far-field laws of each
+    run's own stresslet dashed beside them. Log axes where every drawn value is positive.
+    ``fig.lift_curves``: {group: {"h", "lift", "slip", "lift_law", "slip_law"}} for callers."""
+    if _is_summary(source) and not isinstance(source, (list, tuple)):
+        import xarray as xr
+
+        ds = source if isinstance(source, xr.Dataset) else xr.load_dataset(source)
+        records, caption, left = _lift_records_from_summary(ds)
+        infos = None
+    else:
+        records, infos, left = _lift_records_from_runs(source)
+        caption = ""
+    if not records:
+        raise ValueError("--kind lift: no completed run to draw" + (f" ({len(left)} not completed)" if left else ""))
+    groups: dict[str, list[dict]] = {}
+    for r in records:
+        groups.setdefault(r["group"], []).append(r)
+    if labels is not None:
+        if len(labels) != len(groups):
+            raise ValueError(f"--label given {len(labels)} times for {len(groups)} curves (one per G): give one each")
+        groups = dict(zip(labels, groups.values()))
+    fig = _figure(figsize=(FIGSIZE[0], 1.25 * FIGSIZE[1]))
+    ax_l, ax_s = fig.subplots(2, 1, sharex=True)
+    curves = {}
+    for j, (label, members) in enumerate(groups.items()):
+        members = sorted(members, key=lambda r: r["h"])
+        h = np.array([r["h"] for r in members])
+        lift = np.array([r["lift"] for r in members])
+        lag = -np.array([r["slip"] for r in members])  # the slip is negative: the capsule lags the shear
+        color = f"C{j % 10}"
+        ax_l.plot(h, lift, "o-", color=color, ms=4, label=label)
+        ax_s.plot(h, lag, "s-", color=color, ms=4)  # the top panel's legend names the curves
+        for ax, key, sign in ((ax_l, "lift_std", 1.0), (ax_s, "slip_std", -1.0)):
+            err = np.array([r[key] for r in members])
+            if np.isfinite(err).any():
+                y = lift if ax is ax_l else lag
+                ax.errorbar(h, y, yerr=np.where(np.isfinite(err), err, 0.0), fmt="none", ecolor=color,
+                            elinewidth=0.8, capsize=2)
+        law_l = lift_law(h, [r["N1"] for r in members], [r["N2"] for r in members], [r["V"] for r in members])
+        law_s = slip_law(h, [r["Sxy"] for r in members], [r["V"] for r in members])
+        curves[label] = {"h": h, "lift": lift, "slip": -lag, "lift_law": law_l, "slip_law": law_s}
+    if theory:  # after the data: the legend lists the curves first
+        for j, c in enumerate(curves.values()):
+            color = f"C{j % 10}"
+            ax_l.plot(c["h"], c["lift_law"], "--", color=color, lw=1,
+                      label=f"far field ({LIFT_SOURCE})" if j == 0 else None)
+            ax_s.plot(c["h"], -c["slip_law"], "--", color=color, lw=1,
+                      label=f"far field ({SLIP_SOURCE})" if j == 0 else None)
+    for ax, key in ((ax_l, "lift"), (ax_s, "slip")):
+        drawn = np.concatenate([np.concatenate([c[key] * (1 if key == "lift" else -1),
+                                                (c[f"{key}_law"] * (1 if key == "lift" else -1)) if theory else []])
+                                for c in curves.values()])
+        if drawn.size and np.all(np.isfinite(drawn) & (drawn > 0)):
+            ax.set_yscale("log")
+    hs = np.concatenate([c["h"] for c in curves.values()])
+    if np.all(hs > 0) and len(np.unique(hs)) > 1:  # log-log: the laws are straight lines of slope −2
+        ax_s.set_xscale("log")
+        from matplotlib.ticker import NullFormatter, ScalarFormatter
+
+        ax_s.set_xticks(np.unique(hs))
+        ax_s.xaxis.set_major_formatter(ScalarFormatter())
+        ax_s.xaxis.set_minor_formatter(NullFormatter())
+    ax_l.set_ylabel(r"lift $V_y/(ka)$")
+    ax_s.set_ylabel(r"slip $-(V_x - u^\infty)/(ka)$")
+    ax_s.set_xlabel(r"$h/a$ (wall to the capsule's initial centre)")
+    _legend(ax_l)
+    _legend(ax_s)
+    note = ("points: each run's window mean ± its standard deviation; dashed: the far-field laws of each run's own "
+            "stresslet S (units μka³), lift −(9/64π) S_yy/h², slip −(3/32π) S_xy/h²")
+    if left:
+        note += f"; {len(left)} run(s) not completed left out ({', '.join(sorted(set(left)))})"
+    if infos is not None:
+        _caption(fig, infos, extra=note)
+    else:
+        _supxlabel(fig, "\n".join(t for t in (caption, note) if t))
+    fig.lift_curves = curves
+    return fig
+
+
+# ------------------------------------------------------------ migration
+
+
+def _cross_stream(data: dict[str, Any], case) -> tuple[np.ndarray, str, str]:
+    """(the cross-stream position at every row, its kind, the axis label) of one run."""
     ts = data["timeseries"]
-    t = _series(data, "t")
-    if len(t) == 0:
-        raise ValueError("the run has no time series")
+    cy = np.asarray(ts["centroid_y"], float)
+    if "axis_offset" in ts:
+        return np.asarray(ts["axis_offset"], float), "conduit", r"distance from the axis $r_c/a$"
+    wall = _plane_wall(_case_info(data))
+    if wall is not None:
+        return cy - wall.height, "wall", r"height above the wall $(y_c - y_w)/a$"
+    if case.flow.kind == "poiseuille":
+        cz = np.asarray(ts["centroid_z"], float)
+        return np.hypot(cy, cz), "poiseuille", r"distance from the centreline $r_c/a$"
+    return cy, "other", r"$y_c/a$"
+
+
+def _wall_law_height(data: dict[str, Any], height: np.ndarray) -> np.ndarray:
+    """h(t) from the far-field lift of the run's own stresslet at every row, integrated from h(0):
+    dh/dt = c(t)/h², c = −(9/64π) S_yy, so h³ = h(0)³ + 3 ∫ c dt (trapezoids)."""
+    ts = data["timeseries"]
+    t = np.asarray(ts["t"], float)
+    volume = np.asarray(ts.get("volume", np.full(t.shape, REST_VOLUME)), float)
+    c = lift_law(1.0, np.asarray(ts["N1_star"], float), np.asarray(ts["N2_star"], float), volume)
+    integral = np.concatenate([[0.0], np.cumsum(0.5 * (c[1:] + c[:-1]) * np.diff(t))])
+    return np.cbrt(height[0] ** 3 + 3.0 * integral)
+
+
+def migration_figure(source, theory: bool = True, labels: Sequence[str] | None = None):
+    """The capsule's cross-stream position against kt, several runs (a list) overlaid: near a
+    wall the centroid's height above it (with the far-field lift of the run's own stresslet,
+    integrated, dashed), in Poiseuille flow its distance from the centreline, in a conduit from
+    the axis, else centroid_y. A run of several capsules: one line per capsule."""
+    from capsim.face.export import case_of
+
+    runs = _sources(source)
+    loaded = [_load_run(run) for run in runs]
+    infos = [_case_info(data) for data in loaded]
+    if labels is not None and len(labels) != len(runs):
+        raise ValueError(f"--label given {len(labels)} times for {len(runs)} runs: give one per PATH, in order")
+    single = len(runs) == 1
+    names = list(labels) if labels is not None else (
+        ["capsim"] if single else _overlay_labels(loaded, infos, runs))
     fig = _figure()
     ax = fig.add_subplot()
-    if k == 2 and "separation_x" in ts and "separation_y" in ts:
+    kinds, ylabels = set(), set()
+    laws = []
+    for i, (data, info) in enumerate(zip(loaded, infos)):
+        case = case_of(data)
+        t = _series(data, "t")
+        y, kind, ylabel = _cross_stream(data, case)
+        kinds.add(kind)
+        ylabels.add(ylabel)
+        color = "k" if single else f"C{i % 10}"
+        if y.ndim == 2:  # several capsules: one line each
+            for j, (look, name) in enumerate(_capsule_looks(y.shape[1])):
+                ax.plot(t, y[:, j], _CAPSULE_STYLES[j % 4] if not single else "-",
+                        color=color if not single else look,
+                        label=None if name is None else (name if single else f"{names[i]}, {name}"))
+            continue
+        ax.plot(t, y, "-", color=color, label=names[i])
+        if theory and kind == "wall" and "N1_star" in data["timeseries"]:
+            laws.append((t, _wall_law_height(data, y), color))
+    for k, (t, h, color) in enumerate(laws):  # after the data: the legend lists the runs first
+        ax.plot(t, h, "--", color=color, lw=1, label=f"far field ({LIFT_SOURCE})" if k == 0 else None)
+    ax.set_xlabel(r"$kt$")
+    ax.set_ylabel(ylabels.pop() if len(ylabels) == 1 else r"cross-stream position $/a$")
+    _tag(ax, x=("t", "$t$"), y=("centroid_y", "cross-stream position"))
+    extra = "dashed: dh/dt = −(9/64π) S_yy/h² of the run's own stresslet, integrated from h(0)" if laws else ""
+    if len(kinds) > 1:
+        extra = "; ".join(e for e in (extra, "cross-stream position: near a wall the height above it, in "
+                                      "Poiseuille flow or a conduit the distance from the axis") if e)
+    _caption(fig, infos, extra=extra)
+    _legend(ax)
+    return fig
+
+
+def _overlay_labels(loaded: list[dict], infos: list[dict], runs: list) -> list[str]:
+    """Labels of overlaid runs: G and λ (and what else differs: the wall distance, the initial offset
+    of a pair, the law, the mesh), else the file's name."""
+    from capsim.face.export import case_of
+
+    parts = []
+    for data, info in zip(loaded, infos):
+        case = case_of(data)
+        p = {"G": f"G = {info['G']:g}" if info else "", "lam": f"λ = {info['lam']:g}" if info else ""}
+        wall = _plane_wall(info)
+        if wall is not None:
+            p["h"] = f"h = {float(case.center[1]) - wall.height:g} a"
+        p["flow"] = str(case.flow.kind).replace("_", " ")
+        ts = data["timeseries"]
+        if "separation_y" in ts and len(np.asarray(ts["separation_y"])):
+            p["dy0"] = f"Δy₀ = {float(np.asarray(ts['separation_y'])[0]):.3g} a"
+        p["center"] = "centre (" + ", ".join(f"{v:g}" for v in case.center) + ")"
+        if info:
+            p.update({k: v for k, v in _caption_parts(info) if k in ("law", "mesh", "shape")})
+        parts.append(p)
+    def differ(names):
+        return [k for k in names if len({p.get(k, "") for p in parts}) > 1]
+
+    # the initial centre only where nothing else tells the runs apart (a pair's is in its Δy₀)
+    keys = differ(("G", "lam", "h", "dy0", "flow", "law", "shape", "mesh")) or differ(("center",))
+    out = [", ".join(p[k] for k in keys if p.get(k)) or "capsim" for p in parts]
+    if len(set(out)) < len(out):
+        out = [f"{o} ({Path(str(r)).stem})" if not isinstance(r, dict) else o for o, r in zip(out, runs)]
+    return out
+
+
+# ------------------------------------------------------------ separation
+
+
+def separation_figure(source, labels: Sequence[str] | None = None):
+    """A pair's separation (issue 43; issue 54): the cross-stream Δy against the streamwise Δx
+    (left: the relative trajectory, capsule 1's centroid less capsule 0's, at every step, from its
+    start, open circle, to its end, square) and against kt (right), several runs (a list) overlaid
+    with labels that tell them apart. One run of more than two capsules: each capsule's centroid
+    path in the xy-plane. A run of one capsule is refused (a material point's path: trajectory)."""
+    runs = _sources(source)
+    loaded = [_load_run(run) for run in runs]
+    for run, data in zip(runs, loaded):
+        if capsule_count(data) < 2:
+            raise ValueError("--kind separation draws the paths of several capsules, and the run holds one "
+                             "(a material point's path: --kind trajectory)")
+        if len(_series(data, "t")) == 0:
+            raise ValueError("the run has no time series")
+    if len(loaded) == 1 and not _is_pair(loaded[0]):
+        return _centroid_paths(loaded[0])
+    if not all(_is_pair(d) for d in loaded):
+        raise ValueError("--kind separation overlays pairs (runs of two capsules) only; draw a run of more "
+                         "capsules alone (its centroid paths)")
+    infos = [_case_info(data) for data in loaded]
+    if labels is not None and len(labels) != len(runs):
+        raise ValueError(f"--label given {len(labels)} times for {len(runs)} runs: give one per PATH, in order")
+    single = len(runs) == 1
+    names = list(labels) if labels is not None else (
+        ["relative trajectory"] if single else _overlay_labels(loaded, infos, runs))
+    fig = _figure(figsize=(1.7 * FIGSIZE[0], FIGSIZE[1]))
+    ax, ax_t = fig.subplots(1, 2)
+    for i, data in enumerate(loaded):
+        t = _series(data, "t")
         dx, dy = _series(data, "separation_x"), _series(data, "separation_y")
-        ax.plot(dx, dy, "C3-", label="relative trajectory")
-        ax.plot(dx[:1], dy[:1], "C3o", mfc="none", ms=9, label=f"kt = {t[0]:.3g}")
-        ax.plot(dx[-1:], dy[-1:], "C3s", ms=5, label=f"kt = {t[-1]:.3g}")
-        ax.set_xlabel(r"$\Delta x/a$")
-        ax.set_ylabel(r"$\Delta y/a$")
-        _tag(ax, x=("separation_x", r"$\Delta x$"), y=("separation_y", r"$\Delta y$"))
-        extra = "Δx, Δy: capsule 1's centroid less capsule 0's"
-    else:
-        cx, cy = _series(data, "centroid_x"), _series(data, "centroid_y")
-        for j, (color, label) in enumerate(_capsule_looks(k)):
-            ax.plot(cx[:, j], cy[:, j], "-", color=color, label=label)
-            ax.plot(cx[:1, j], cy[:1, j], "o", color=color, mfc="none", ms=7)
-            ax.plot(cx[-1:, j], cy[-1:, j], "s", color=color, ms=4)
-        _draw_wall(ax, info)
-        ax.set_aspect("equal", adjustable="datalim")
-        ax.set_xlabel(r"$x/a$")
-        ax.set_ylabel(r"$y/a$")
-        _tag(ax, x=("centroid_x", "$x$"), y=("centroid_y", "$y$"))
-        extra = f"centroid paths from kt = {t[0]:.3g} (circle) to {t[-1]:.3g} (square)"
-    _caption(fig, [info], extra=extra)
+        color = "C3" if single else f"C{i % 10}"
+        ax.plot(dx, dy, "-", color=color, label=names[i])
+        ax.plot(dx[:1], dy[:1], "o", color=color, mfc="none", ms=8,
+                label=f"kt = {t[0]:.3g}" if single else None)
+        ax.plot(dx[-1:], dy[-1:], "s", color=color, ms=4, label=f"kt = {t[-1]:.3g}" if single else None)
+        ax_t.plot(t, dy, "-", color=color, label=names[i] if not single else None)
+    ax.set_xlabel(r"$\Delta x/a$")
+    ax.set_ylabel(r"$\Delta y/a$")
+    _tag(ax, x=("separation_x", r"$\Delta x$"), y=("separation_y", r"$\Delta y$"))
+    ax_t.set_xlabel(r"$kt$")
+    ax_t.set_ylabel(r"$\Delta y/a$")
+    _tag(ax_t, x=("t", "$t$"), y=("separation_y", r"$\Delta y$"))
+    extra = "Δx, Δy: capsule 1's centroid less capsule 0's"
+    if not single:
+        extra += "; circles: the start, squares: the end"
+    _caption(fig, infos, extra=extra)
+    _legend(ax)
+    _legend(ax_t)
+    return fig
+
+
+def _is_pair(data: dict[str, Any]) -> bool:
+    ts = data["timeseries"]
+    return capsule_count(data) == 2 and "separation_x" in ts and "separation_y" in ts
+
+
+def _centroid_paths(data: dict[str, Any]):
+    """More than two capsules: each capsule's centroid path in the xy-plane, in its colour."""
+    info = _case_info(data)
+    t = _series(data, "t")
+    fig = _figure()
+    ax = fig.add_subplot()
+    cx, cy = _series(data, "centroid_x"), _series(data, "centroid_y")
+    for j, (color, label) in enumerate(_capsule_looks(capsule_count(data))):
+        ax.plot(cx[:, j], cy[:, j], "-", color=color, label=label)
+        ax.plot(cx[:1, j], cy[:1, j], "o", color=color, mfc="none", ms=7)
+        ax.plot(cx[-1:, j], cy[-1:, j], "s", color=color, ms=4)
+    _draw_wall(ax, info)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel(r"$x/a$")
+    ax.set_ylabel(r"$y/a$")
+    _tag(ax, x=("centroid_x", "$x$"), y=("centroid_y", "$y$"))
+    _caption(fig, [info], extra=f"centroid paths from kt = {t[0]:.3g} (circle) to {t[-1]:.3g} (square)")
     _legend(ax)
     return fig
 
@@ -1624,6 +1988,15 @@ def to_physical(fig, factors: dict[str, float]) -> None:
             line.set_xdata(np.asarray(line.get_xdata(), float) * sx)
             line.set_ydata(np.asarray(line.get_ydata(), float) * sy)
             line.set_label(kt_text(getattr(line, "physical_label", line.get_label())))
+        # the wall's hatched band (a patch) and the capsule numbers (texts) are data too (issue 54:
+        # the band stayed at its height in units of a)
+        for patch in ax.patches:
+            if patch.get_transform() == ax.transData and hasattr(patch, "get_xy"):
+                patch.set_xy(np.asarray(patch.get_xy(), float) * [fx, fy])
+        for text in ax.texts:
+            if text.get_transform() == ax.transData:
+                px, py = text.get_position()
+                text.set_position((px * fx, py * fy))
         legend = ax.get_legend()
         if legend is not None:  # the same entries, their texts in physical units
             for text, label in zip(legend.get_texts(), ax.get_legend_handles_labels()[1]):
@@ -1634,8 +2007,17 @@ def to_physical(fig, factors: dict[str, float]) -> None:
             ax.set_xlabel(f"{x[1]} ({ux})")
         if y:
             ax.set_ylabel(f"{y[1]} ({uy})")
+        # limits a figure fixed (the wall's line spans the x-range it set) are scaled with the data;
+        # autoscaling them anew would keep them in units of a (issue 54: snapshots downstream of a wall
+        # fell out of view and out of the legend)
+        fixed = {"x": None if ax.get_autoscalex_on() else ax.get_xlim(),
+                 "y": None if ax.get_autoscaley_on() else ax.get_ylim()}
         ax.relim()
         ax.autoscale_view()
+        if fixed["x"] is not None:
+            ax.set_xlim(fixed["x"][0] * fx, fixed["x"][1] * fx)
+        if fixed["y"] is not None:
+            ax.set_ylim(fixed["y"][0] * fy, fixed["y"][1] * fy)
     if getattr(fig, "caption", ""):
         _supxlabel(fig, kt_text(fig.caption))
 
@@ -1713,8 +2095,8 @@ def conduit_figure(source, x: str | None = None):
 
 # ------------------------------------------------------------ dispatcher
 
-# kinds that overlay several runs when given a list of them
-OVERLAY_KINDS = ("deformation", "inclination")
+# kinds that overlay several runs when given a list of them (lift: one curve per G of several wall runs)
+OVERLAY_KINDS = ("deformation", "inclination", "separation", "migration", "lift")
 # kinds drawn from a campaign summary (netCDF of capsim summarize), not from a run file
 SUMMARY_KINDS = ("steady", "orbit_map", "conduit")
 # kinds drawn from a run of several capsules only (capsules:, issue 43); a one-capsule run is refused
@@ -1732,6 +2114,8 @@ KINDS: dict[str, Callable[..., Any]] = {
     "orbit": orbit_figure,
     "orbit_map": orbit_map_figure,
     "conduit": conduit_figure,
+    "lift": lift_figure,
+    "migration": migration_figure,
 }
 
 
@@ -1769,6 +2153,9 @@ def plot(source, kind: str, output: str | os.PathLike | None = None, *, dpi: flo
         raise ValueError(f"--units {units!r}: must be one of {', '.join(UNIT_SYSTEMS)}")
     factors = None
     if units == "physical":
+        if kind == "lift":
+            raise ValueError("--units physical: --kind lift draws the lift and slip in units of ka against h/a, the "
+                             "scales of its far-field laws; allowed: --units capsim")
         if kind in SUMMARY_KINDS:
             raise ValueError(f"--units physical: --kind {kind} draws ratios (D_xy, θ/π, TTF/f_s, S*) against the swept "
                              "field, whose physical values are SI already; allowed: --units capsim (capsim summarize "
@@ -1933,7 +2320,7 @@ def write_figure(paths: Sequence[str | os.PathLike], kind: str, output: str | os
     check_writable(out)
     guard_output(out, paths, overwrite, ours=starts_with(FIGURE_MAGIC[fmt]))
     options: dict[str, Any] = {}
-    if kind in ("deformation", "inclination", "rheology", "steady"):
+    if kind in ("deformation", "inclination", "rheology", "steady", "lift", "migration"):
         options["theory"] = theory
     if kind == "inclination" and unwrap:
         options["unwrap"] = True
@@ -1946,7 +2333,7 @@ def write_figure(paths: Sequence[str | os.PathLike], kind: str, output: str | os
     if labels:
         if kind not in OVERLAY_KINDS:
             raise FigureError(f"--label: only for runs overlaid by --kind {' or '.join(OVERLAY_KINDS)}, not {kind}")
-        if len(labels) != len(paths):
+        if len(labels) != len(paths) and kind != "lift":  # lift: one label per curve (per G), checked there
             raise FigureError(f"--label given {len(labels)} times for {len(paths)} runs: give one per PATH, in order")
         options["labels"] = list(labels)
     figure_size = None
