@@ -12,6 +12,7 @@ one-line errors, but returns Python objects instead of printing:
 | [`study`][capsim.api.study] | `capsim study` | an `xarray.Dataset` (written when `output` is given) |
 | [`open_run`][capsim.api.open_run] | (none) | an `xarray.DataTree` of a run file |
 | [`warm_up`][capsim.api.warm_up] | `capsim warm-up [CASE]` | the seconds spent compiling or loading kernels |
+| [`fit`][capsim.api.fit] | `capsim fit FIT` | a `capsim.campaigns.fit.FitResult` (also written as fit.json) |
 
 Nothing here imports numba at import time: `run`, `sweep` and `study` first apply
 the thread policy (`capsim.numerics.threads.apply_policy`, the same one the CLI applies), then
@@ -58,7 +59,7 @@ if TYPE_CHECKING:  # pragma: no cover - types only
     from capsim.config import Case
     from capsim.runs.runner import RunResult
 
-__all__ = ["load_case", "load_campaign", "run", "sweep", "summarize", "study", "open_run", "warm_up"]
+__all__ = ["load_case", "load_campaign", "run", "sweep", "summarize", "study", "open_run", "warm_up", "fit"]
 
 PathLike = str | os.PathLike
 #: `progress=` of `run`, `sweep`, `study`: False (silent), True (the CLI's display on
@@ -267,6 +268,41 @@ def study(case: "PathLike | Mapping[str, Any] | Case", levels: "int | Sequence[i
     from capsim.campaigns.study import study as _study
 
     return _study(case, levels, rtols, **options)
+
+
+def fit(spec: "PathLike | Mapping[str, Any]", *, workers: int | None = 1, progress: bool = False) -> Any:
+    """Infer case fields from measured run outputs; what `capsim fit` does (docs/fit.md).
+
+    `spec` is a fit file (its `data` CSV relative to the file) or a dict of the same
+    fields (`data` relative to the working directory). Weighted least squares, one run per
+    distinct data row per evaluation through the campaign runner in `<output.dir>/runs`
+    (runs that exist are reused); `workers` local processes. `progress=True` prints the
+    plan (the runs it costs), one line per evaluation and the closing table on stderr.
+    Returns a `capsim.campaigns.fit.FitResult` (estimates, intervals,
+    correlations, residuals, `n_runs`), also written to `<output.dir>/fit.json`. A bad
+    spec or data file raises a one-line `capsim.config.ConfigError` before any run;
+    a run that does not complete raises `capsim.campaigns.fit.FitError`.
+    """
+    from capsim.campaigns.executor import check_workers, refuse_in_spawned_import_of_main
+    from capsim.campaigns.fit import fit_from_dict, load_fit, run_fit
+
+    refuse_in_spawned_import_of_main("capsim.fit")
+    workers = check_workers(workers)
+    if isinstance(spec, Mapping):
+        loaded = fit_from_dict(dict(spec), source="<fit>")
+    elif isinstance(spec, (str, os.PathLike)):
+        loaded = load_fit(spec)
+    else:
+        from capsim.config import ConfigError
+        from capsim.errors import bounded_repr
+
+        raise ConfigError(f"spec = {bounded_repr(spec)}: a fit file or a mapping of its fields is expected")
+    _apply_thread_policy()
+    return run_fit(loaded, workers=workers, log=None if not progress else _stderr_line)
+
+
+def _stderr_line(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
 
 
 def open_run(path: PathLike):

@@ -1,0 +1,159 @@
+"""capsim fit: a known G recovered from capsim's own D_xy plus noise, the refusals, a refit's reuse."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+import capsim
+from capsim.campaigns.fit import FitError, fit_from_dict, load_fit, run_fit  # noqa: F401
+from capsim.config import ConfigError
+
+G_TRUE = 0.01
+LAMBDAS = (0.5, 1.0, 2.0)
+REL_SD = 0.01  # the synthetic noise: 1 % of D_xy
+BASE = {"shape": {"kind": "sphere"}, "mesh": {"level": 1}, "time": {"t_end": 2.0}}
+
+
+def _truth(tmp_path):
+    """D_xy at G_TRUE for each λ, run by capsim at the fit's own level (the model is exact at the truth)."""
+    out = []
+    for lam in LAMBDAS:
+        case = {**BASE, "name": "truth", "flow": {"G": G_TRUE, "viscosity_ratio": lam},
+                "output": {"path": str(tmp_path / f"truth-{lam}.h5")}}
+        result = capsim.run(case, overwrite=True)
+        assert result.status == "completed"
+        out.append(float(result["D_xy"]))
+    return np.array(out)
+
+
+def _spec(tmp_path, rows, **changes):
+    csv = tmp_path / "data.csv"
+    header = "flow.viscosity_ratio,D_xy,D_xy_sd"
+    csv.write_text("# synthetic: capsim level 1 at G = 0.01 plus N(0, sd)\n" + header + "\n"
+                   + "".join(f"{lam},{float(d)!r},{float(sd)!r}\n" for lam, d, sd in rows))
+    spec = {"name": "fit-test", "base": BASE,
+            "parameters": {"flow.G": {"bounds": [0.002, 0.05], "initial": 0.02, "log": True}},
+            "data": str(csv), "output": {"dir": str(tmp_path / "out"), "figure": False}}
+    spec.update(changes)
+    return spec
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    tmp_path = tmp_path_factory.mktemp("fit")
+    D = _truth(tmp_path)
+    rng = np.random.default_rng(56)
+    sd = REL_SD * D
+    noisy = D + rng.normal(0.0, sd)
+    rows = list(zip(LAMBDAS, noisy, sd))
+    lines = []
+    fit = fit_from_dict(_spec(tmp_path, rows), source="fit-test.yaml")
+    result = run_fit(fit, workers=1, log=lines.append)
+    return tmp_path, D, noisy, sd, fit, result, lines
+
+
+def test_recovers_G_within_its_interval_and_the_first_order_inverse(fitted):
+    tmp_path, D, noisy, sd, fit, result, lines = fitted
+    G = result.estimates["flow.G"]
+    lo, hi = result.intervals["flow.G"]
+    assert result.success and result.n_points == 3 and result.dof == 2
+    assert lo < G_TRUE < hi  # the 95 % interval covers the truth (seed 56)
+    assert hi / lo < 1.05  # 1 % noise on three points: an interval of a few per cent, not a shrug
+    # the interval is the noise propagated: D ≈ c_i G near the truth, so σ_G ≈ 1 / sqrt(Σ (D_i/G)² / sd_i²)
+    propagated = 1.0 / math.sqrt(np.sum((D / G_TRUE) ** 2 / sd ** 2))
+    assert result.std_errors["flow.G"] == pytest.approx(propagated, rel=0.2)
+    # First-order theory D = (25/4) G inverted point by point: level 1 gives D/(25G/4) = 0.98-1.0 at
+    # G = 0.01 for λ = 0.5-2 (measured), so the inverse agrees with the fit within 3 %.
+    inverse = float(np.mean(4 * noisy / 25))
+    assert G == pytest.approx(inverse, rel=0.03)
+    # residuals per point, normalised by σ = sqrt(sd² + run error²) (these runs have no error estimate)
+    assert [p["row"] for p in result.residuals] == [1, 2, 3]
+    for p, d, s in zip(result.residuals, noisy, sd):
+        assert p["residual"] == pytest.approx((p["model"] - d) / s, rel=1e-9)
+        assert p["run_error"] is None
+    assert result.chi2 == pytest.approx(sum(p["residual"] ** 2 for p in result.residuals), rel=1e-9)
+    # the cost: said before it starts, and counted
+    assert lines[0].startswith("fit fit-test: 3 data points, 1 parameter; 3 runs per evaluation")
+    assert result.runs_per_evaluation == 3 and result.n_runs == 3 * result.n_evaluations
+    assert result.n_runs_executed == result.n_runs
+    assert f"{result.n_runs} runs (3 per evaluation" in lines[-1]
+    written = json.loads((tmp_path / "out" / "fit.json").read_text())
+    assert written["estimates"]["flow.G"] == G and written["n_runs"] == result.n_runs
+    assert (tmp_path / "out" / "summary.nc").exists()
+
+
+def test_a_refit_runs_nothing(fitted):
+    tmp_path, D, noisy, sd, fit, result, lines = fitted
+    again = run_fit(load_fit_dict(fit), workers=1, log=None)
+    assert again.n_runs_executed == 0
+    assert again.n_runs == result.n_runs
+    assert again.estimates == result.estimates
+
+
+def load_fit_dict(fit):
+    return fit_from_dict(fit.spec.model_dump(mode="json"), source="again.yaml")
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"parameters": {"flow.shear_rat": {"bounds": [0.01, 0.1], "initial": 0.02}}},
+     "fit.yaml: parameters: 'flow.shear_rat' is not a case field (flow has: "),
+    ({"parameters": {"flow.G": {"bounds": [0.01, 0.1], "initial": 0.5}}},
+     "initial = 0.5: must be within bounds [0.01, 0.1]"),
+    ({"parameters": {"physical.shear_modulus": {"bounds": [1, 10], "initial": 2}}},
+     "parameters.physical.shear_modulus.unit: missing"),
+    ({"parameters": {"flow.G": {"bounds": [0.002, 0.05], "initial": 0.02},
+                     "flow.viscosity_ratio": {"bounds": [0.1, 10], "initial": 1}}},
+     "column 'flow.viscosity_ratio' is a parameter of the fit"),
+    ({"parameters": {"flow.G": {"bounds": [0.002, 0.05], "initial": 0.02},
+                     "membrane.skalak_c": {"bounds": [0.1, 10], "initial": 1}},
+      "base": {**BASE, "membrane": {"law": "skalak"}}},
+     "data: 1 data point for 2 parameters: at least 2 needed"),
+])
+def test_refusals_are_one_line(tmp_path, change, message):
+    with pytest.raises(ConfigError) as info:
+        fit_from_dict(_spec(tmp_path, [(1.0, 0.06, 0.001)], **change), source="fit.yaml")
+    assert message in str(info.value)
+    assert "\n" not in str(info.value)
+    assert not (tmp_path / "out").exists()  # refused before anything is run or written
+
+
+@pytest.mark.parametrize("header, message", [
+    ("flow.viscosity_ratio,Dxy,Dxy_sd", "column 'Dxy' names no run output and no case field"),
+    ("flow.viscosity_rat,D_xy,D_xy_sd", "'flow.viscosity_rat' is not a case field"),
+    ("flow.viscosity_ratio,D_xy,theta_sd", "column 'theta_sd' names no run output"),
+])
+def test_data_column_refusals(tmp_path, header, message):
+    spec = _spec(tmp_path, [(1.0, 0.06, 0.001)])
+    (tmp_path / "data.csv").write_text(header + "\n1.0,0.06,0.001\n")
+    with pytest.raises(ConfigError) as info:
+        fit_from_dict(spec, source="fit.yaml")
+    assert message in str(info.value) and "\n" not in str(info.value)
+
+
+def test_without_sd_needs_one_point_more(tmp_path):
+    spec = _spec(tmp_path, [])
+    (tmp_path / "data.csv").write_text("flow.viscosity_ratio,D_xy\n1.0,0.06\n")
+    with pytest.raises(ConfigError, match=r"1 data point for 1 parameter: at least 2 needed \(no sd columns"):
+        fit_from_dict(spec, source="fit.yaml")
+
+
+def test_an_output_dir_of_another_fit_is_refused(tmp_path):
+    fit = fit_from_dict(_spec(tmp_path, [(1.0, 0.06, 0.001)]), source="fit.yaml")
+    (tmp_path / "out" / "runs").mkdir(parents=True)
+    (tmp_path / "out" / "runs" / "campaign.yaml").write_text("name: other\n")
+    with pytest.raises(ConfigError, match=r"its runs/ holds 'other', not the fit 'fit-test'; use another output.dir"):
+        run_fit(fit, log=None)
+    assert sorted(p.name for p in (tmp_path / "out" / "runs").iterdir()) == ["campaign.yaml"]  # nothing run
+
+
+@pytest.mark.parametrize("spec, workers, message", [
+    (42, 1, "spec = 42: a fit file or a mapping of its fields is expected"),
+    ({}, 0, "workers = 0: must be a whole number >= 1"),
+])
+def test_api_fit_refusals(spec, workers, message):
+    from capsim.api import fit
+
+    with pytest.raises(ConfigError, match=message):
+        fit(spec, workers=workers)
