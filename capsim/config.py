@@ -1231,7 +1231,8 @@ class Case(_Model):
                     "viscosity_ratio": float(max(self.viscosity_ratios, key=lambda v: abs(math.log(v)))),
                     "bending": membrane.bending_modulus > 0,
                     "flow": scene.flow_kind, "history": history.kind if acting else "steady",
-                    "wall": scene.has_boundary, "capsules": scene.body_count}
+                    "wall": scene.has_boundary, "capsules": scene.body_count,
+                    "prestress": bool(first.shape.inflation) or membrane.stress_free_differs}
         if self.flow.kind in ("poiseuille", "conduit"):  # the axis is x: the distance in y and z
             features["axis_offset"] = float(math.hypot(self.center[1], self.center[2]))
         return features

@@ -197,10 +197,12 @@ DEFAULT_FEATURES = {"shape": "sphere", "aspect_ratio": 1.0, "law": "thin_shell",
 #: one the model has never seen (issue 51: its shear-only errors were 3.5-180x off in planar extension,
 #: on the Poiseuille axis and after the flow stops), so nothing is predicted for it: method auto
 #: measures it (the ladder), method predict is refused (:func:`scene_outside`)
-TRAINED_SCENE = {"flow": "simple_shear", "history": "steady", "wall": False, "capsules": 1}
+TRAINED_SCENE = {"flow": "simple_shear", "history": "steady", "wall": False, "capsules": 1, "prestress": False}
 #: how each scene feature that differs from the training's is named (to the user: the field that sets it)
 SCENE_NAMES = {"flow": "flow.kind {v}", "history": "flow.history.kind {v} (the rate changes before t_end)",
-               "wall": "a wall or a conduit", "capsules": "{v} capsules"}
+               "wall": "a wall or a conduit", "capsules": "{v} capsules",
+               # every training membrane was stress-free at rest (issue 55: another stress-free shape pre-stresses it)
+               "prestress": "a pre-stressed membrane (shape.inflation or membrane.reference_shape)"}
 
 
 def scene_outside(features: dict[str, Any] | None) -> str:

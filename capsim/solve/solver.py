@@ -112,6 +112,20 @@ def _symmetry_table(positions: np.ndarray, generators: list[np.ndarray]):
     return targets, source, signs, zero, perms
 
 
+def _keeps(positions: np.ndarray, other: np.ndarray, generators: list[np.ndarray]) -> bool:
+    """Whether the group that maps the nodes ``positions`` onto each other (``_symmetry_table``) maps
+    the nodal vectors ``other`` (the stress-free reference) as positions, to 1e-9 of their size.
+    True where the positions have no such symmetry (the search then finds none anyway)."""
+    table = _symmetry_table(positions, generators)
+    if table is None:
+        return True
+    group = [np.ones(3)]
+    for g in generators:
+        group += [h * g for h in group]
+    tol = 1e-9 * np.abs(other).max()
+    return all(np.abs(other[perm] - other * g).max() <= tol for g, perm in zip(group, table[4]))
+
+
 def _element_orbits(elements: np.ndarray, perms: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """(one element of each orbit under the node permutations ``perms``, the orbit's size)."""
     index = {tuple(sorted(e)): i for i, e in enumerate(elements.tolist())}
@@ -977,10 +991,18 @@ def build_model(case: Case, rest_positions: np.ndarray | None = None, *,
     )
     # a body placed away from the origin keeps fewer symmetries: mesh.symmetry auto finds which
     far_field = scene.far_field  # the flow, vanishing on the wall when there is one
+    # the membranes' stress-free reference (shape.inflation, membrane.reference_shape): a symmetry
+    # must map it as it maps the positions (a pair of capsules of different inflations is point-
+    # symmetric in its positions, not in its pre-stress: before, the rotation took one's pre-stress
+    # for the other's)
+    stress_free = reference_positions(positions, bodies, specs, membrane=case.membrane, base=case.mesh.base,
+                                      level=case.mesh.level)
     if mode != "none":
         allowed = set(symmetries_kept(far_field))
         if bodies.count > 1:  # a symmetry maps a capsule onto one of the same membrane and λ
             allowed &= groups_keeping_materials(specs, SYMMETRY_GROUPS)
+        if stress_free is not positions:
+            allowed = {name for name in allowed if _keeps(positions, stress_free, SYMMETRY_GROUPS[name])}
         symmetric = disc.enable_symmetry(positions, mode=mode, allowed=tuple(allowed))
         if symmetric is not None:
             positions = symmetric
