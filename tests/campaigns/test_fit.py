@@ -58,6 +58,8 @@ def test_recovers_G_within_its_interval_and_the_first_order_inverse(fitted):
     tmp_path, D, noisy, sd, fit, result, lines = fitted
     G = result.estimates["flow.G"]
     lo, hi = result.intervals["flow.G"]
+    print(f"G {G:.6g} [{lo:.6g}, {hi:.6g}], inverse {float(np.mean(4 * noisy / 25)):.6g}, std error "
+          f"{result.std_errors['flow.G']:.3g}, {result.n_evaluations} evaluations, {result.n_runs} runs")
     assert result.success and result.n_points == 3 and result.dof == 2
     assert lo < G_TRUE < hi  # the 95 % interval covers the truth (seed 56)
     assert hi / lo < 1.05  # 1 % noise on three points: an interval of a few per cent, not a shrug
