@@ -165,7 +165,7 @@ def physical_sweep(tmp_path_factory):
 
 
 def test_summary_in_physical_units_is_cf_clean(physical_sweep, tmp_path):
-    from test_results import _cf_counts
+    from cf_checks import cf_counts as _cf_counts
 
     plain = summarize_campaign(physical_sweep / "phys")
     ds = summarize_campaign(physical_sweep / "phys", units="physical")

@@ -87,7 +87,7 @@ def test_a_sphere_run_stores_nan_theta_at_rest_and_everything_downstream_works(s
 
 
 def test_cf_check_of_a_run_with_nan_theta(sphere_run, tmp_path):
-    from test_results import _cf_counts
+    from cf_checks import cf_counts as _cf_counts
 
     tmp, _ = sphere_run
     counts = _cf_counts(tmp / "s.h5", tmp_path)
