@@ -14,7 +14,7 @@ see :mod:`capsim.api`.
 
 from capsim._version import __version__
 
-__all__ = ["__version__", "load_case", "load_campaign", "run", "sweep", "summarize", "study", "open_run",
+__all__ = ["__version__", "load_case", "load_campaign", "run", "sweep", "summarize", "study", "fit", "open_run",
            "warm_up", "Case", "RunResult"]
 
 # name -> module that defines it; imported on first access (PEP 562)
@@ -25,6 +25,7 @@ _LAZY = {
     "sweep": "capsim.api",
     "summarize": "capsim.api",
     "study": "capsim.api",
+    "fit": "capsim.api",
     "open_run": "capsim.api",
     "warm_up": "capsim.api",
     "Case": "capsim.config",

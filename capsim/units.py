@@ -109,6 +109,27 @@ def parse(text: Any, kind: str) -> float:
     return value
 
 
+def check_given(given: dict[str, Any]) -> None:
+    """`capsim units`'s values without the capillary number: shear rate, viscosity, radius and one of
+    the two moduli, each parsed in its own units; UnitsError names the options missing or the value
+    that does not parse (as --the-option)."""
+    def option(kind: str) -> str:
+        return "--" + kind.replace("_", "-")
+
+    missing = [option(k) for k in ("shear_rate", "viscosity", "radius") if given.get(k) is None]
+    surface, shear = given.get("surface_modulus"), given.get("shear_modulus")
+    if (surface is None) == (shear is None):
+        missing.append("--surface-modulus or --shear-modulus (one of the two)" if surface is None
+                       else "only one of --surface-modulus and --shear-modulus")
+    if missing:
+        raise UnitsError(f"give {', '.join(missing)} (quantities with units, e.g. --radius '2.8 um')")
+    for kind, value in ((k, v) for k, v in given.items() if v is not None):
+        try:
+            parse(value, kind)
+        except UnitsError as exc:
+            raise UnitsError(f"{option(kind)}: {exc}") from None
+
+
 def conversion(shear_rate: Any, viscosity: Any, radius: Any, surface_modulus: Any = None,
                shear_modulus: Any = None, membrane_viscosity: Any = None, inner_viscosity: Any = None) -> dict[str, float]:
     """G = μ k a / E_s, Ca = μ k a / G_s = 3 G and the time unit 1/k (s) from physical values.

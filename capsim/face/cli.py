@@ -94,12 +94,13 @@ def _factors(case, what: str) -> dict:
 
 
 def _files_call(fn, *args, **kwargs):
-    """A capsim.storage.files guard or writer; its OutputError/StorageError is a one-line user error."""
+    """A library call: its user errors (a bad case or campaign, a file it may not write or take) one line, exit 2."""
+    from capsim.config import ConfigError
     from capsim.storage.files import LockedError, OutputError, StorageError
 
     try:
         return fn(*args, **kwargs)
-    except (OutputError, StorageError, LockedError) as exc:
+    except (ConfigError, OutputError, StorageError, LockedError) as exc:
         raise _user_error(str(exc)) from None
 
 
@@ -137,8 +138,7 @@ def run(
     """
     from capsim import api
     from capsim.storage.checkpoint import ResumeError
-    from capsim.config import ConfigError
-    from capsim.storage.files import LockedError, OutputError, StorageError, is_hdf5
+    from capsim.storage.files import is_hdf5
 
     quantity, target = _accuracy_option(accuracy)
     case = _load(case_path, sets, **{"output.path": str(output) if output is not None else None,
@@ -148,11 +148,10 @@ def run(
         typer.echo(case.accuracy.choice, err=True)  # (an extension's was for the t_end the run had then)
     factors = _factors(case, str(case_path)) if units.value == "physical" else None  # refused before the run
     try:
-        summary = api.run(case, inputs=[] if is_hdf5(case_path) else [case_path], overwrite=overwrite, resume=resume, progress=not quiet)
+        summary = _files_call(api.run, case, inputs=[] if is_hdf5(case_path) else [case_path], overwrite=overwrite,
+                              resume=resume, progress=not quiet)
     except ResumeError as exc:
         raise _user_error(f"cannot resume: {exc}") from None
-    except (ConfigError, OutputError, LockedError, StorageError) as exc:
-        raise _user_error(str(exc)) from None
     except OSError as exc:
         raise _user_error(f"cannot write {case.output.path}: {exc.strerror or exc}") from None
     except KeyboardInterrupt:
@@ -205,6 +204,30 @@ def bench(
 
     typer.echo(key_value_lines({k: v for k, v in result.items() if k != "split_s"}))
     typer.echo(split_lines(result))
+
+
+@app.command()
+def fit(fit_path: Path = typer.Argument(..., metavar="FIT.yaml", help="fit file (docs/fit.md)"),
+        workers: int = typer.Option(1, "--workers", min=1, help="local worker processes per evaluation"),
+        quiet: bool = typer.Option(False, "--quiet", "-q", help="only the closing table")) -> None:
+    """Infer case fields from measured run outputs: least squares over cached runs (a refit or a
+    resumed fit reuses them); writes fit.json, summary.nc and fit.png in the fit's output dir.
+
+    Examples:
+
+    capsim fit campaigns/fit-modulus-shear.yaml
+    """
+    from capsim import api
+    from capsim.campaigns.fit import FitError
+
+    try:
+        result = _files_call(api.fit, fit_path, workers=workers, progress=not quiet)
+    except (FitError, KeyboardInterrupt) as exc:  # finished runs are kept: capsim fit again resumes
+        typer.echo(f"error: {exc or 'interrupted'}; finished runs are kept, capsim fit again resumes", err=True)
+        raise typer.Exit(code=1) from None
+    if quiet:
+        typer.echo(result.table())
+    raise typer.Exit(code=0 if result.success else 1)
 
 
 @app.command("warm-up")
@@ -273,11 +296,6 @@ def _load_campaign(path: Path, sets: list[str] | None, max_runs: int, data: Any 
         raise _user_error(str(exc)) from None
 
 
-def _option(name: str) -> str:
-    """--the-option of a parameter name."""
-    return "--" + "-".join(name.split("_"))
-
-
 @app.command()
 def units(
     shear_rate: Optional[str] = typer.Option(None, "--shear-rate", help="shear rate k, e.g. '100 1/s'"),
@@ -302,7 +320,7 @@ def units(
 
     capsim units --capillary-number 0.1 --viscosity '1.2 mPa*s' --radius '2.8 um' --shear-modulus '6 uN/m'
     """
-    from capsim.units import UnitsError, conversion, describe_capillary, describe_conversion, from_capillary_number, parse
+    from capsim.units import check_given, conversion, describe_capillary, describe_conversion, from_capillary_number
 
     given = {"shear_rate": shear_rate, "viscosity": viscosity, "radius": radius,
              "surface_modulus": surface_modulus, "shear_modulus": shear_modulus,
@@ -311,17 +329,7 @@ def units(
         out = _units_call(from_capillary_number, capillary_number, given)
         typer.echo(json.dumps(out) if as_json else describe_capillary(out))
         return
-    missing = [_option(k) for k in ("shear_rate", "viscosity", "radius") if given[k] is None]
-    if (surface_modulus is None) == (shear_modulus is None):
-        missing.append("--surface-modulus or --shear-modulus (one of the two)" if surface_modulus is None
-                       else "only one of --surface-modulus and --shear-modulus")
-    if missing:
-        raise _user_error(f"units: give {', '.join(missing)} (quantities with units, e.g. --radius '2.8 um')")
-    for kind, value in ((k, v) for k, v in given.items() if v is not None):
-        try:
-            parse(value, kind)
-        except UnitsError as exc:
-            raise _user_error(f"units: {_option(kind)}: {exc}") from None
+    _units_call(check_given, given)  # every value needed, each in its own units
     # values that overflow together (G = inf): one line, never Infinity in the JSON
     out = _units_call(conversion, shear_rate, viscosity, radius, surface_modulus, shear_modulus, membrane_viscosity)
     typer.echo(json.dumps(out) if as_json else describe_conversion(out))
@@ -397,15 +405,11 @@ def sweep(
     capsim sweep campaigns/fig4-spheres-lambda1.0.yaml --set time.scheme=rkc --set mesh.level=2
     """
     from capsim import api
-    from capsim.config import ConfigError
-    from capsim.storage.files import LockedError, StorageError
 
     campaign = _load_campaign(campaign_path, sets, max_runs)
     try:
-        result = api.sweep(campaign, workers=workers, scheduler=scheduler, resume=not no_resume,
-                           overwrite=overwrite, progress=not quiet)
-    except (ConfigError, LockedError, StorageError) as exc:
-        raise _user_error(str(exc)) from None
+        result = _files_call(api.sweep, campaign, workers=workers, scheduler=scheduler, resume=not no_resume,
+                             overwrite=overwrite, progress=not quiet)
     except KeyboardInterrupt:  # outside the batch (its stop is its own): before the runs, or as the index is written
         typer.echo("\ninterrupted: the run files keep each run's status; capsim sweep again resumes", err=True)
         raise typer.Exit(code=1) from None
@@ -569,7 +573,6 @@ def study(
     capsim study configs/sphere.yaml --levels 1,2,3 --reference richardson --set time.scheme=rkc
     """
     from capsim import api
-    from capsim.config import ConfigError
     from capsim.campaigns.study import format_study_table
 
     level_list = _number_list(levels, int, "--levels")
@@ -584,10 +587,7 @@ def study(
     try:
         ds = _files_call(api.study, case, level_list, rtol_list, quad=quad_list, reference=reference.value,
                          workers=workers, output=output, runs_dir=runs_dir, overwrite=overwrite, progress=report,
-                         quantity=quantity,
-                         inputs=[case_path])
-    except ConfigError as exc:
-        raise _user_error(str(exc)) from None
+                         quantity=quantity, inputs=[case_path])
     except KeyboardInterrupt:
         typer.echo("\ninterrupted", err=True)
         raise typer.Exit(code=1) from None
