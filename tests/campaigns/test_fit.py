@@ -159,3 +159,20 @@ def test_api_fit_refusals(spec, workers, message):
 
     with pytest.raises(ConfigError, match=message):
         fit(spec, workers=workers)
+
+
+def test_the_cli_refuses_a_bad_fit_in_one_line(tmp_path):
+    """capsim fit FIT.yaml: a parameter that is not a case field is one line on stderr, exit 2, nothing written."""
+    import yaml
+    from typer.testing import CliRunner
+
+    from capsim.face.cli import app
+
+    spec = _spec(tmp_path, [(1.0, 0.06, 0.001)], parameters={"flow.Gee": {"bounds": [0.002, 0.05], "initial": 0.02}})
+    path = tmp_path / "fit.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    result = CliRunner().invoke(app, ["fit", str(path)])
+    assert result.exit_code == 2, result.output
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: ") and "flow.Gee" in lines[0], result.output
+    assert not (tmp_path / "out").exists()
