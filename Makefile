@@ -103,6 +103,13 @@ bench-scenes: venv
 bench-bending: venv
 	PYTHONPATH=. $(BIN)/python benchmarks/bending_trade.py
 
+# the red cell's tumbling-tank-treading transition against Fischer & Korzeniewski 2013's threshold stress
+# (issue 55): rates around it at three viscosities, two stress-free shapes, level 1 (about 30 min on one
+# core; runs in benchmarks/tumbling_transition.json are kept): writes benchmarks/tumbling_transition.md
+.PHONY: bench-transition
+bench-transition: venv
+	$(BIN)/python benchmarks/tumbling_transition.py run
+
 .PHONY: bench-pair
 bench-pair: venv
 	$(BIN)/capsim sweep campaigns/pair-collision.yaml --workers 2
