@@ -27,7 +27,7 @@ _SURFACE = {
                  "principal_tensions tension_tensor TRACTION_METHODS"),
     "viscosity": "VISCOSITY_MODELS build is_active",
     "linearization": "StageSolver",
-    "krylov": "gmres LinearSolveFailed",
+    "krylov": "gmres LinearSolveFailed SolverDivergence",
     "threads": ("apply_policy set_run_threads usable_cores threads_for_work available_layers policy_attrs "
                 "ThreadsError ENV_THREADS ENV_LAYER ENV_WAIT ENV_BLAS_TIMEOUT"),
 }

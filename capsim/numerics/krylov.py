@@ -15,6 +15,12 @@ import numpy as np
 class LinearSolveFailed(RuntimeError):
     """A stage solver missed its tolerance within its iterations (the step is retried smaller)."""
 
+
+class SolverDivergence(RuntimeError):
+    """The λ ≠ 1 (or viscous-membrane) velocity solve missed its tolerance. At a trial state the
+    integrator rejects the step and retries it smaller (capsim.solve.timestepping.Integrator.attempt);
+    at the run's first state the run ends unstable, saying so."""
+
 __all__ = ["gmres"]
 
 

@@ -30,6 +30,7 @@ from capsim.numerics.mesh import SurfaceMesh, rest_shape_attributes
 from capsim.scene import body_axis, body_specs
 from capsim.solve.observables import StepObserver, centroid_travel, relaxation_summary, run_summary, scene_summary
 from capsim.storage.schedules import CheckpointSchedule, SnapshotSchedule
+from capsim.numerics.krylov import SolverDivergence
 from capsim.solve.solver import build_model
 from capsim.numerics.threads import set_run_threads
 from capsim.runs.stopping import LoopState, Stop, end_tolerance, stop_reason
@@ -244,6 +245,9 @@ def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool 
             return RunResult("interrupted", f"interrupted by {stop.name or 'SIGINT'} during set-up, before the "
                              "first step: nothing was computed or written; run it again (a sweep's --resume does)",
                              str(case.output.path))
+        except SolverDivergence as exc:  # the automatic scheme's probe of the first state
+            return RunResult("unstable", f"guard solver: during set-up (the automatic scheme's probe of the first "
+                             f"state) {exc}; nothing was written", str(case.output.path))
         return run.execute()
 
 
@@ -487,6 +491,8 @@ class _Run:
                     raise
                 suffix = f" ({type(exc).__name__})" if isinstance(exc, SystemError) else ""
                 outcome = Stop("interrupted", f"interrupted by {self.stop.name or 'SIGINT'}{suffix}")
+            except SolverDivergence as exc:  # at the first state (a trial's is rejected by the integrator)
+                outcome = Stop("unstable", f"guard solver: at kt = {self.integrator.t:.6g} {exc}")
             except Exception as exc:  # keep what was computed, say why it stopped
                 self._fail(exc)
                 raise

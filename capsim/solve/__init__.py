@@ -14,7 +14,7 @@ from capsim._surface import lazy_surface
 
 #: module -> the names it gives the package's surface
 _SURFACE = {
-    "solver": "build_model CapsuleModel Discretization SolverDivergence shear_flow",
+    "solver": "build_model CapsuleModel Discretization shear_flow",
     "timestepping": ("build_integrator make_integrator Integrator SCHEMES DEFAULT_SCHEME Automatic "
                      "EmbeddedRungeKutta LinearlyImplicit RungeKuttaChebyshev RKF23 ROSENBROCK"),
     "scheme_cost": "costs_for run_counts OPERATIONS",

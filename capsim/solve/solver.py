@@ -31,7 +31,7 @@ from capsim.scene.flows import (  # noqa: F401
     symmetries_kept,
 )
 from capsim.numerics.geometry import ElementGeometry, element_geometry, interpolate, shape_functions
-from capsim.numerics.krylov import gmres
+from capsim.numerics.krylov import SolverDivergence, gmres  # noqa: F401 (SolverDivergence re-exported)
 from capsim.numerics.membrane import TRACTION_METHODS, MembraneForce, MembraneState, get_law  # noqa: F401 (re-exported)
 from capsim.numerics.mesh import node_element_incidence, rest_shape_mesh
 from capsim.numerics.quadrature import NODE_XI, NODE_ETA, gauss_legendre_01, singular_rules, subdivided_rule, triangle_rule
@@ -956,10 +956,6 @@ class CapsuleModel:
 
 
 SOLVER_METHODS = ("gmres", "substitution")
-
-
-class SolverDivergence(RuntimeError):
-    """The λ ≠ 1 velocity solve missed its tolerance."""
 
 
 def build_model(case: Case, rest_positions: np.ndarray | None = None, *,

@@ -51,7 +51,7 @@ from typing import Any, Callable, ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
-from capsim.numerics.krylov import LinearSolveFailed
+from capsim.numerics.krylov import LinearSolveFailed, SolverDivergence
 
 #: rhs(y) -> (velocity, auxiliary state of that evaluation, e.g. the membrane state)
 RightHandSide = Callable[[np.ndarray], tuple[np.ndarray, Any]]
@@ -358,6 +358,8 @@ class Integrator:
         self.rejected = 0
         self.evaluations = 0  # every velocity evaluation: stages, rejected attempts, probes
         self.last_stages = 0
+        self.failed_velocity_solves = 0  # trial states whose velocity solve missed its tolerance (rejected)
+        self.last_divergence = ""
 
     # -- evaluations -----------------------------------------------------
     def evaluate(self, y: np.ndarray) -> tuple[np.ndarray, Any]:
@@ -388,7 +390,15 @@ class Integrator:
     # -- one step ---------------------------------------------------------
     def attempt(self, t_stop: float) -> Trial:
         h = min(self.dt, t_stop - self.t)
-        trial, y_new, cap = self._try(h)
+        try:
+            trial, y_new, cap = self._try(h)
+        except SolverDivergence as exc:
+            # the velocity solve at a trial state missed its tolerance (a state the step should not
+            # reach): rejected and retried smaller, as a failed stage solve; the dt guard ends a run
+            # whose steps collapse on it (before: the run ended in a traceback)
+            self.failed_velocity_solves += 1
+            self.last_divergence = str(exc)
+            trial, y_new, cap = Trial(False, True, h, math.inf, 0), self.y, False
         if not trial.finite:
             return trial
         clipped = h < self.dt or cap
@@ -417,7 +427,10 @@ class Integrator:
 
     def note(self) -> str:
         """What the run's status should say about the scheme ('' if nothing)."""
-        return ""
+        if not self.failed_velocity_solves:
+            return ""
+        return (f"{self.failed_velocity_solves} trial steps rejected: their velocity solve missed its tolerance "
+                f"(last: {self.last_divergence})")
 
     # -- checkpoints -------------------------------------------------------
     _STATE_ARRAYS: ClassVar[tuple[str, ...]] = ("y", "u")
@@ -609,10 +622,9 @@ class RungeKuttaChebyshev(Integrator):
     _STATE_SCALARS = Integrator._STATE_SCALARS + ("rho", "rho_age", "rho_evaluations", "stage_bound_hits")
 
     def note(self) -> str:
-        if not self.stage_bound_hits:
-            return ""
-        return (f"rkc: {self.stage_bound_hits} steps shortened to the stability limit of "
-                f"time.max_stages = {self.max_stages} stages")
+        notes = [super().note()] + ([f"rkc: {self.stage_bound_hits} steps shortened to the stability limit of "
+                                     f"time.max_stages = {self.max_stages} stages"] if self.stage_bound_hits else [])
+        return "; ".join(n for n in notes if n)
 
     def spectral_radius(self) -> float:
         """Nonlinear power iteration on v ↦ u(y + v) − u(y), warm-started from
@@ -905,9 +917,9 @@ class LinearlyImplicit(Integrator):
         self.stage_solver.restore({k.removeprefix("stage."): v for k, v in state.items() if k.startswith("stage.")})
 
     def note(self) -> str:
-        if not self.failed_solves:
-            return ""
-        return f"linearly_implicit: {self.failed_solves} stage solves missed their tolerance (steps retried smaller)"
+        notes = [super().note()] + ([f"linearly_implicit: {self.failed_solves} stage solves missed their tolerance "
+                                     "(steps retried smaller)"] if self.failed_solves else [])
+        return "; ".join(n for n in notes if n)
 
     def _try(self, h: float) -> tuple[Trial, np.ndarray, bool]:
         tab, y0 = self.tableau, self.y
