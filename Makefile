@@ -110,6 +110,12 @@ bench-bending: venv
 bench-transition: venv
 	$(BIN)/python benchmarks/tumbling_transition.py run
 
+# capsim fit's intervals against the truth over repeated noise draws (issue 56): flow.G from D_xy, level 1,
+# 20 draws (about 15 min on one core; FITS=G Gs-lambda DRAWS=20 8): writes benchmarks/fit_coverage.md/.json
+.PHONY: bench-fit
+bench-fit: venv
+	PYTHONPATH=. $(BIN)/python benchmarks/fit_coverage.py $(if $(FITS),--fits $(FITS)) $(if $(DRAWS),--draws $(DRAWS))
+
 .PHONY: bench-pair
 bench-pair: venv
 	$(BIN)/capsim sweep campaigns/pair-collision.yaml --workers 2
