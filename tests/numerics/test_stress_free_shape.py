@@ -160,3 +160,68 @@ def test_a_symmetry_that_does_not_keep_the_pre_stress_is_not_used(data):
     auto, u_auto = _velocity(data, "auto")
     none, u_none = _velocity(data, "none")
     np.testing.assert_allclose(u_auto, u_none, rtol=0, atol=1e-9 * np.abs(u_none).max())
+
+
+# ---- issue 55's known answers through a case (every elastic law)
+
+LAW_PARAMS = {"thin_shell": {}, "neo_hookean": {}, "mooney_rivlin": {"psi": 0.3}, "skalak": {"skalak_c": 10.0}}
+
+
+def _isotropic_tension(name, params, s):
+    """The closed-form isotropic tension of a uniform stretch s, in E_s (docs/laws.md)."""
+    if name == "thin_shell":
+        return (s * s - 1 + 4 * np.log(s)) / (3 * s * s)
+    if name in ("neo_hookean", "mooney_rivlin"):
+        psi = params.get("psi", 0.0)
+        return (1 - psi) * (1 - s**-6) / 3 + psi * (s * s - s**-4) / 3
+    c = params["skalak_c"]
+    return (s * s - 1 + c * s * s * (s**4 - 1)) / 3
+
+
+def _case_model(law, shape=None, reference=None, **case):
+    membrane = {"law": law, **LAW_PARAMS[law]}
+    if reference is not None:
+        membrane["reference_shape"] = reference
+    data = {"name": "k", "shape": shape or {"kind": "sphere"}, "membrane": membrane,
+            "mesh": {"level": LEVEL, "symmetry": "none"}, **case}
+    return build_model(case_from_dict(data))
+
+
+@pytest.mark.parametrize("law", sorted(LAW_PARAMS))
+def test_a_sphere_stress_free_and_at_rest_carries_no_stress(law):
+    model, X = _case_model(law, reference={"kind": "sphere"})
+    state = model.membrane(X)
+    assert np.abs(state.tension).max() < 1e-10
+    assert np.abs(model.membrane.energy_gradient(X)).max() < 1e-12
+
+
+@pytest.mark.parametrize("law", sorted(LAW_PARAMS))
+def test_a_cell_inflated_from_a_smaller_sphere_carries_the_laws_isotropic_tension(law):
+    """shape.inflation α: the stress-free sphere is the initial one shrunk by 1 + α, so the membrane
+    is stretched by s = 1 + α in every direction and its tension is the law's τ(s) times the surface
+    projector (at every vertex, to round-off: the map is exactly a scaling)."""
+    alpha = 0.05
+    model, X = _case_model(law, shape={"kind": "sphere", "inflation": alpha})
+    state = model.membrane(X)
+    tau = _isotropic_tension(law, LAW_PARAMS[law], 1.0 + alpha)
+    n = state.strain.normals
+    P = np.eye(3)[None] - n[:, :, None] * n[:, None, :]
+    assert np.abs(state.tension - tau * P).max() < 1e-9 * abs(tau)
+
+
+@pytest.mark.parametrize("law", sorted(LAW_PARAMS))
+@pytest.mark.parametrize("reference", [None, {"kind": "sphere"}])
+def test_the_energy_is_least_at_the_stress_free_shape(law, reference):
+    """Zero gradient at the stress-free shape, and the energy rises along any path away from it: for a
+    small displacement εv, ∇E(X_sf + εv)·v = ε vᵀHv + O(ε²) > 0 (the hinge bending included). X_sf is
+    the oblate rest shape (reference none) or, for an oblate cell, its stress-free sphere."""
+    model, _ = _case_model(law, shape={"kind": "oblate", "aspect_ratio": 0.8}, reference=reference)
+    stress_free = model.membrane.rest_positions
+    assert np.abs(model.membrane.energy_gradient(stress_free)).max() < 1e-11
+    rng = np.random.default_rng(55)
+    for _ in range(3):
+        v = rng.normal(size=stress_free.shape)
+        v -= v.mean(axis=0)  # no translation (the energy does not see it)
+        eps = 1e-4 * np.abs(stress_free).max() / np.abs(v).max()
+        rise = float(np.sum(model.membrane.energy_gradient(stress_free + eps * v) * v))
+        assert rise > 0.0
