@@ -116,6 +116,12 @@ bench-transition: venv
 bench-fit: venv
 	PYTHONPATH=. $(BIN)/python benchmarks/fit_coverage.py $(if $(FITS),--fits $(FITS)) $(if $(DRAWS),--draws $(DRAWS))
 
+# the red cell at 0.1-50 Pa in 30 mPa s (issue 55): the area modulus C = 10, 100, 1000 at level 2, C = 1000 at
+# level 3 (about 20 min on one core; rows in benchmarks/rbc_high_stress.json are kept): writes benchmarks/rbc_high_stress.md
+.PHONY: bench-rbc-stress
+bench-rbc-stress: venv
+	$(BIN)/python benchmarks/rbc_high_stress.py run
+
 .PHONY: bench-pair
 bench-pair: venv
 	$(BIN)/capsim sweep campaigns/pair-collision.yaml --workers 2

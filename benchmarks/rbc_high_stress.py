@@ -1,0 +1,138 @@
+"""The red cell at high shear stress (issue 55, item 4): what it takes to run from 0.1 to 50 Pa.
+
+The default red cell (configs/rbc.yaml: Evans-Fung disk, a = 2.8 um, Skalak, G_s 2.5 uN/m,
+κ 1.8e-19 J) in a viscous medium as an ektacytometer uses (30 mPa s; the cytoplasm's 6 mPa s: λ = 0.2)
+at shear stresses τ = μk of 0.1, 1, 10 and 50 Pa (G = τa/E_s = 0.037 ... 18.7), for three area
+moduli, Skalak's C = 10 (the configuration's), 100 and 1000 (K_s/G_s = 1 + 2C; a real membrane's is
+~1e5), at mesh level 2, kt 10, and at level 3 for the configuration chosen (its mesh error).
+Each run: its status and, where it stopped, why; the membrane's area change; the elongation index of
+an ektacytometer's diffraction pattern, EI = (L - W)/(L + W) of the equivalent ellipsoid's axis along
+the flow and along the vorticity (capsim's axis_L and axis_W, window means); the compressed vertices.
+
+    python benchmarks/rbc_high_stress.py run [GROUP ...]   # resumable: rows kept in the JSON
+    python benchmarks/rbc_high_stress.py report
+
+GROUP: c10, c100, c1000 (level 2), level3 (C = 1000 at level 3).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
+
+ROOT = Path(__file__).resolve().parents[1]
+JSON = ROOT / "benchmarks" / "rbc_high_stress.json"
+TABLE = ROOT / "benchmarks" / "rbc_high_stress.md"
+VISCOSITY_MPAS, INNER_MPAS = 30.0, 6.0
+STRESSES_PA = (0.1, 1.0, 10.0, 50.0)
+GROUPS = {"c10": (10.0, 2), "c100": (100.0, 2), "c1000": (1000.0, 2), "level3": (1000.0, 3)}
+T_END = 10.0
+
+
+def case_for(stress: float, C: float, level: int) -> dict:
+    import yaml
+
+    case = yaml.safe_load((ROOT / "configs" / "rbc.yaml").read_text())
+    case["flow"] = {}  # λ from the physical viscosities
+    case["membrane"]["skalak_c"] = C
+    case["physical"].update(viscosity=f"{VISCOSITY_MPAS:g} mPa*s", inner_viscosity=f"{INNER_MPAS:g} mPa*s",
+                            shear_rate=f"{stress / (VISCOSITY_MPAS * 1e-3):.6g} 1/s")
+    case["mesh"]["level"] = level
+    case["time"] = {"t_end": T_END, "rtol": 1.0e-4}
+    return case
+
+
+def run_one(stress: float, C: float, level: int) -> dict:
+    import numpy as np
+
+    from capsim.config import case_from_dict
+    from capsim.runs.runner import run_case
+    from capsim.storage.store import read_trajectory
+
+    d = case_for(stress, C, level)
+    with tempfile.TemporaryDirectory() as tmp:
+        d["name"] = "rbc-stress"
+        d["output"] = {"path": f"{tmp}/run.h5", "snapshot_every": T_END}
+        case = case_from_dict(d)
+        result = run_case(case)
+        ts = read_trajectory(case.output.path)["timeseries"]
+    s = dict(result.summary)
+    t = np.asarray(ts["t"], float)
+    lo, hi = s.get("averaging_t_from"), s.get("averaging_t_to")
+    sel = (t >= lo) & (t <= hi) if lo is not None and np.isfinite(lo) else t >= t[-1]
+    L = float(np.mean(np.asarray(ts["axis_L"], float)[sel]))
+    W = float(np.mean(np.asarray(ts["axis_W"], float)[sel]))
+    area = np.asarray(ts["area"], float)
+    return {"stress_Pa": stress, "skalak_c": C, "level": level, "G": case.flow.shear_rate_G,
+            "viscosity_ratio": case.flow.viscosity_ratio, "status": result.status, "reason": result.status_reason,
+            "t": result.t, "motion": s.get("motion"), "EI": (L - W) / (L + W), "L": L, "W": W,
+            "D_xy": s.get("D_xy"), "area_change_max": float(np.max(np.abs(area / area[0] - 1.0))),
+            "compressed_fraction": float(np.asarray(ts["compressed_fraction"], float)[-1]),
+            "min_element_quality": float(np.min(np.asarray(ts["min_element_quality"], float))),
+            "evaluations": int(result.velocity_evaluations or 0), "wall_time_s": result.wall_time_s}
+
+
+def load() -> list[dict]:
+    return json.loads(JSON.read_text()) if JSON.exists() else []
+
+
+def run(groups: list[str]) -> None:
+    from capsim.numerics.threads import apply_policy
+
+    apply_policy(1)
+    rows = load()
+    for group in groups:
+        C, level = GROUPS[group]
+        for stress in STRESSES_PA:
+            if any(r["stress_Pa"] == stress and r["skalak_c"] == C and r["level"] == level for r in rows):
+                continue
+            rows.append(run_one(stress, C, level))
+            JSON.write_text(json.dumps(rows, indent=1) + "\n")
+            r = rows[-1]
+            print(f"{stress:g} Pa C {C:g} L{level}: {r['status']} at kt {r['t']:.3g}, EI {r['EI']:.3f}, "
+                  f"area {100 * r['area_change_max']:.1f} %, {r['wall_time_s']:.0f} s", flush=True)
+    report()
+
+
+def measured_ei(stress: float) -> float | None:
+    """The healthy cells' EI at `stress`, log-linearly interpolated in the stress (benchmarks/data/
+    iuq_ektacytometry_healthy.csv, 0.3-60 Pa; its source, caveats and definition in benchmarks/data/README.md);
+    None outside its range."""
+    import numpy as np
+
+    d = np.genfromtxt(ROOT / "benchmarks" / "data" / "iuq_ektacytometry_healthy.csv", delimiter=",", names=True)
+    tau, ei = d["shear_stress_Pa"], d["elongation_index"]
+    if not tau.min() <= stress <= tau.max():
+        return None
+    return float(np.interp(np.log(stress), np.log(tau), ei))
+
+
+def report() -> None:
+    rows = load()
+    lines = [__doc__.split("\n\n")[0] + " The default red cell (configs/rbc.yaml) in 30 mPa s, kt 10, "
+             "`make bench-rbc-stress`; EI measured: healthy cells by ektacytometry, interpolated in log τ "
+             "(benchmarks/data/iuq_ektacytometry_healthy.csv: its paper unconfirmed, its medium's viscosity not given; "
+             "capsim's EI is the equivalent ellipsoid's, not a diffraction pattern's):", "",
+             "| τ (Pa) | G | C | level | status | EI = (L − W)/(L + W) | EI measured | largest area change | smallest "
+             "element quality | compressed at the end |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in sorted(rows, key=lambda r: (r["level"], r["skalak_c"], r["stress_Pa"])):
+        status = r["status"] if r["status"] == "completed" else f"{r['status']} at kt {r['t']:.3g} ({r['reason'].split(':')[0]})"
+        ei = measured_ei(r["stress_Pa"])
+        lines.append(f"| {r['stress_Pa']:g} | {r['G']:.3g} | {r['skalak_c']:g} | {r['level']} | {status} | "
+                     f"{r['EI']:.3f} | {'—' if ei is None else f'{ei:.3f}'} | {100 * r['area_change_max']:.1f} % | {r['min_element_quality']:.2f} | "
+                     f"{100 * r['compressed_fraction']:.0f} % |")
+    TABLE.write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    if len(sys.argv) > 1 and sys.argv[1] == "run":
+        run(sys.argv[2:] or list(GROUPS))
+    else:
+        report()
