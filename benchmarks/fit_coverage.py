@@ -19,7 +19,8 @@ its own output directory in a temporary directory (the runs of one draw are reus
 a parameter point met twice is run once); across draws the points differ, except the first
 iteration's (the initial value and its forward-difference steps, the same for every draw): those
 runs are made once and linked into each draw's runs/ (the campaign runner skips a completed
-run), the rest are run anew.
+run), the rest are run anew. (The committed table's run reused only the initial point's runs, 3
+of about 36 a draw: the step was then taken as absolute in u; see _first_iteration_runs.)
 
 Writes benchmarks/fit_coverage.md (the table docs/fit.md includes) and benchmarks/fit_coverage.json.
 
@@ -99,16 +100,20 @@ def _fit(name: str, cfg: dict, level: int, work: Path, values: dict, sds: dict):
 
 
 def _first_iteration_runs(fit) -> list[Path]:
-    """The run files of the initial point and its forward-difference steps (scipy's 2-point scheme:
-    u0 + diff_step, or − where that leaves [0, 1]), the same for every draw."""
+    """The run files of the initial point and its forward-difference steps, the same for every draw.
+
+    scipy's 2-point step with ``diff_step`` is relative to the variable, h = diff_step · |u| (scipy
+    1.17; measured: u0 = 0.715 is stepped to 0.72215), not an absolute step in u; both candidates are
+    listed (a point never run is simply not linked), − where + leaves [0, 1]."""
     pars = list(fit.spec.parameters.values())
     u0 = np.array([_to_unit(p, p.initial) for p in pars])
-    h = fit.spec.method.diff_step
+    rel = fit.spec.method.diff_step
     points = [u0]
     for j in range(len(pars)):
-        u = u0.copy()
-        u[j] = u0[j] + h if u0[j] + h <= 1.0 else u0[j] - h
-        points.append(u)
+        for h in (rel * abs(u0[j]) or rel, rel):
+            u = u0.copy()
+            u[j] = u0[j] + h if u0[j] + h <= 1.0 else u0[j] - h
+            points.append(u)
     xs = [[_from_unit(p, ui) for p, ui in zip(pars, u)] for u in points]
     specs = expand_campaign(_campaign(fit, [_point(fit, x) for x in xs]))
     return [Path(s.path) for s in specs]
@@ -204,17 +209,38 @@ def stats(rows: list[dict], names: list[str], truth: dict, log: dict) -> dict:
     return out
 
 
+def _verdict(res: dict) -> str:
+    """Each parameter's rates against their nominal within twice the binomial error, said in words."""
+    s, out = res["stats"], []
+    for p in res["truth"]:
+        q = s[p]
+        ok68 = abs(q["coverage68"] - NOMINAL68) <= 2 * q["coverage68_se"]
+        ok95 = abs(q["coverage95"] - 0.95) <= 2 * q["coverage95_se"]
+        ok_sd = abs(q["sd_over_se"] - 1) <= 2 * q["sd_over_se"] * q["sd_over_se_rel_error"]
+        words = "within" if ok68 and ok95 and ok_sd else "NOT within"
+        out.append(f"{res['fit']}, `{p}`: both rates and SD/SE are {words} twice their errors of the nominal "
+                   f"(with {s['draws']} draws that resolves a 95 % rate to ±{200 * q['coverage95_se']:.0f} points "
+                   "only: a coarse check, not a proof).")
+    return " ".join(out)
+
+
 def table(results: list[dict]) -> str:
     head = results[0]
     text = (f"How often `capsim fit`'s intervals contain the truth over repeated noise draws (issue 56): synthetic "
             f"data made by capsim itself (the fit's own model at the true parameters, mesh level {head['level']}, "
-            "sphere, neo-Hookean, kt = 2) plus Gaussian noise of known sd (given in the sd columns), "
+            "sphere, neo-Hookean, kt = 2; "
+            + "; ".join(f"{res['fit']}: {res['title']}, from the start "
+                        + ", ".join(f"{k} = {v['initial']:g}" for k, v in res["parameters"].items())
+                        for res in results)
+            + ") plus Gaussian noise of known sd (given in the sd columns), "
             "each draw fitted by `run_fit` with the default method (diff_step 0.01, xtol 1e-4). The 68.3 % interval "
             "is ±1 reported standard error in the fitted scale (log10 for `log: true`), the 95 % one is the fit's "
             "own; the rate's error is the binomial standard error at the nominal rate. SD/SE: the standard "
             "deviation of the estimates over the draws against the mean reported standard error, in the fitted "
             f"scale (1 when the covariance is right; its own relative error 1/sqrt(2(N−1))). Seed {head['seed']}, "
-            "draw k seeded [56, k]. `make bench-fit`.")
+            "draw k seeded [56, k]; draw 0 without noise returns "
+            + ", ".join(f"{k} = {v['estimate']:.6g}" for res in results for k, v in res["noise_free"].items())
+            + ". " + " ".join(_verdict(res) for res in results) + " `make bench-fit`.")
     lines = [text, "", "| fit | noise | draws | parameter | truth | mean estimate | 68.3 % coverage | 95 % coverage "
              "| mean SE | SD of estimates | SD/SE | mean χ² (dof) | runs made / used per fit |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
