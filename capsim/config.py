@@ -594,6 +594,10 @@ BASE_FACES = {"octahedron": 8, "icosahedron": 20}
 #: mesh.symmetry: the point inversion x -> -x (half) holds for every orientation; the quarter
 #: (mirror z -> -z and rotation by pi about z) only for an axis in the shear plane or along z
 SYMMETRY_MODES = ("auto", "quarter", "half", "none")
+#: a Skalak membrane above this G with skalak_c below SKALAK_HIGH_STRESS_C is warned of its area's growth
+#: (benchmarks/rbc_high_stress.md: the red cell in 30 mPa s at 0.1-50 Pa against C)
+SKALAK_SOFT_AREA_G = 1.0
+SKALAK_HIGH_STRESS_C = 1000.0
 #: the old boolean mesh.symmetry, still read
 _SYMMETRY_FROM_BOOL = {True: "auto", False: "none"}
 
@@ -1374,6 +1378,19 @@ class Case(_Model):
                                     f"reaches {-clearance:.4g} a beyond the wall; place it inside")
             raise _FieldProblem(field, value, f"leaves the capsule {clearance:.4g} a from the {kind.describe()}'s "
                                 f"wall: it must clear it by guards.min_wall_gap = {gap:g}")
+        return self
+
+    @model_validator(mode="after")
+    def _an_area_modulus_for_the_stress(self) -> Case:
+        """A Skalak membrane far above G 1 with a soft area modulus grows in area and collapses onto
+        itself (benchmarks/rbc_high_stress.md: the red cell with C = 10 stops unstable at G 3.7, its area
+        +17 %; C = 1000 ran to G 18.7 within 8 %): said before the run, which goes ahead."""
+        m, G = self.membrane, self.flow.shear_rate_G
+        if m.law == "skalak" and G > SKALAK_SOFT_AREA_G and m.skalak_c < SKALAK_HIGH_STRESS_C:
+            _case_warning(f"membrane.skalak_c = {m.skalak_c:g} at G = {G:.3g}: above G {SKALAK_SOFT_AREA_G:g} "
+                          f"the membrane's area grows (the red cell with C 10: +17 % at G 3.7, then an unstable "
+                          f"stop; C 100: +8 %, unstable at G 18.7); C >= {SKALAK_HIGH_STRESS_C:g} ran to G 18.7 "
+                          "within 8 % (benchmarks/rbc_high_stress.md; a real membrane's C is ~1e5)")
         return self
 
     @model_validator(mode="after")

@@ -25,8 +25,8 @@ estimate of that observable where its file has one (``--error-estimate`` or a me
 accuracy target): the discretisation error is treated as one more independent error of
 the point. The parameters are optimised as unit variables ``u`` in [0, 1] across their
 bounds (on log10 of the value for ``log: true``), so ``x_scale = 1`` makes every
-parameter's step comparable, and ``diff_step`` (default 0.01, an absolute step in u: 1 %
-of the bound range) is far larger than the adaptive time stepping's noise in an output
+parameter's step comparable, and ``diff_step`` (default 0.01: scipy's step is relative to
+the variable, so u is optimised as 1 + u and the step is 1-2 % of the bound range) is far larger than the adaptive time stepping's noise in an output
 (about rtol relative, a step sequence changing with the parameter), so that the forward
 differences measure the slope and not that noise. The covariance is ``(JᵀJ)⁻¹`` with
 the weighted J when the data have sd columns (absolute errors: intervals from the normal
@@ -543,18 +543,21 @@ def run_fit(fit: Fit, *, workers: int | None = 1, log: Callable[[str], None] | N
     pars = list(spec.parameters.values())
     model = _Evaluator(fit, workers, log)
 
-    def residuals(u: np.ndarray) -> np.ndarray:
-        x = [_from_unit(p, ui) for p, ui in zip(pars, u)]
+    # scipy's diff_step is relative to the variable (its step is diff_step·|v|): optimised as v = 1 + u in
+    # [1, 2], the step is 1-2 % of each bound range and never shrinks towards the time stepping's noise
+    # near a lower bound (u → 0, where a step relative to u would vanish)
+    def residuals(v: np.ndarray) -> np.ndarray:
+        x = [_from_unit(p, vi - 1.0) for p, vi in zip(pars, v)]
         values, err, _ = model(x)
         return (values - data.values) / _sigma(data, err)
 
     u0 = np.array([_to_unit(p, p.initial) for p in pars])
     m = spec.method
-    # trf honours the bounds; the unit variables make x_scale = 1 and diff_step an absolute step in u
-    res = optimize.least_squares(residuals, u0, jac="2-point", bounds=(0.0, 1.0), method="trf", x_scale=1.0,
+    # trf honours the bounds; the unit variables make x_scale = 1 (a shift does not change the Jacobian)
+    res = optimize.least_squares(residuals, u0 + 1.0, jac="2-point", bounds=(1.0, 2.0), method="trf", x_scale=1.0,
                                  diff_step=m.diff_step, xtol=m.xtol, ftol=1e-6, gtol=1e-8,
                                  max_nfev=m.max_evaluations)
-    x = [_from_unit(p, ui) for p, ui in zip(pars, res.x)]
+    x = [_from_unit(p, vi - 1.0) for p, vi in zip(pars, res.x)]
     values, err, ids = model(x)
     sigma = _sigma(data, err)
     r = (values - data.values) / sigma
