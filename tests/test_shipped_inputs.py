@@ -32,3 +32,12 @@ def test_campaign_within_the_input_limits(path):
     specs = expand_campaign(campaign)
     assert count_runs(campaign) == len(specs) <= MAX_RUNS
     assert max(len(s.run_id) for s in specs) <= NAME_MAX
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "fits").glob("*.yaml")), ids=lambda p: p.name)
+def test_fit_loads_with_its_data(path):
+    """Every fit shipped in fits/ validates with its CSV (capsim fit refuses a bad one before any run)."""
+    from capsim.campaigns.fit import load_fit
+
+    fit = load_fit(path)
+    assert fit.data.n_points >= len(fit.spec.parameters)

@@ -215,7 +215,7 @@ def fit(fit_path: Path = typer.Argument(..., metavar="FIT.yaml", help="fit file 
 
     Examples:
 
-    capsim fit campaigns/fit-modulus-shear.yaml
+    capsim fit fits/fit-modulus-shear.yaml
     """
     from capsim import api
     from capsim.campaigns.fit import FitError

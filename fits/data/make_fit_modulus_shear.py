@@ -1,11 +1,11 @@
-"""Make campaigns/data/fit-modulus-shear.csv: synthetic D_xy of a capsule in shear, made by capsim.
+"""Make fits/data/fit-modulus-shear.csv: synthetic D_xy of a capsule in shear, made by capsim.
 
 A sphere (neo-Hookean thin shell, the default law) of radius 50 um in a 1 mPa*s fluid with a
 surface shear modulus G_s = 5 uN/m (the truth a fit should recover), run at level 1 to kt = 2 at
 shear rates 1-4 1/s (G = mu k a / (3 G_s) = 0.0033-0.013, small deformation), plus Gaussian noise
 of 2 % of each D_xy (seed 56). Run from the repository root:
 
-    .venv/bin/python campaigns/data/make_fit_modulus_shear.py
+    .venv/bin/python fits/data/make_fit_modulus_shear.py
 """
 
 from pathlib import Path
@@ -24,7 +24,7 @@ OUT = Path(__file__).with_name("fit-modulus-shear.csv")
 def main() -> None:
     rng = np.random.default_rng(56)
     lines = [f"# synthetic: capsim level 1, kt = 2, physical.shear_modulus = {TRUTH}, plus N(0, sd), sd = "
-             f"{REL_SD:g} D_xy, seed 56 (campaigns/data/make_fit_modulus_shear.py); not a measurement",
+             f"{REL_SD:g} D_xy, seed 56 (fits/data/make_fit_modulus_shear.py); not a measurement",
              "physical.shear_rate,D_xy,D_xy_sd"]
     with tempfile.TemporaryDirectory() as tmp:
         for rate in RATES:
