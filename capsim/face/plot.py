@@ -1202,11 +1202,8 @@ def migration_figure(source, theory: bool = True, labels: Sequence[str] | None =
     runs = _sources(source)
     loaded = [_load_run(run) for run in runs]
     infos = [_case_info(data) for data in loaded]
-    if labels is not None and len(labels) != len(runs):
-        raise ValueError(f"--label given {len(labels)} times for {len(runs)} runs: give one per PATH, in order")
     single = len(runs) == 1
-    names = list(labels) if labels is not None else (
-        ["capsim"] if single else _overlay_labels(loaded, infos, runs))
+    names = _overlay_names(labels, loaded, infos, runs, "capsim")
     fig = _figure()
     ax = fig.add_subplot()
     kinds, ylabels = set(), set()
@@ -1239,6 +1236,17 @@ def migration_figure(source, theory: bool = True, labels: Sequence[str] | None =
     _caption(fig, infos, extra=extra)
     _legend(ax)
     return fig
+
+
+def _overlay_names(labels: Sequence[str] | None, loaded: list[dict], infos: list[dict], runs: list,
+                   alone: str) -> list[str]:
+    """The legend's names of the runs drawn: the --label texts (one per run), else `alone` for one run
+    and :func:`_overlay_labels` for several."""
+    if labels is not None and len(labels) != len(runs):
+        raise ValueError(f"--label given {len(labels)} times for {len(runs)} runs: give one per PATH, in order")
+    if labels is not None:
+        return list(labels)
+    return [alone] if len(runs) == 1 else _overlay_labels(loaded, infos, runs)
 
 
 def _overlay_labels(loaded: list[dict], infos: list[dict], runs: list) -> list[str]:
@@ -1295,11 +1303,8 @@ def separation_figure(source, labels: Sequence[str] | None = None):
         raise ValueError("--kind separation overlays pairs (runs of two capsules) only; draw a run of more "
                          "capsules alone (its centroid paths)")
     infos = [_case_info(data) for data in loaded]
-    if labels is not None and len(labels) != len(runs):
-        raise ValueError(f"--label given {len(labels)} times for {len(runs)} runs: give one per PATH, in order")
     single = len(runs) == 1
-    names = list(labels) if labels is not None else (
-        ["relative trajectory"] if single else _overlay_labels(loaded, infos, runs))
+    names = _overlay_names(labels, loaded, infos, runs, "relative trajectory")
     fig = _figure(figsize=(1.7 * FIGSIZE[0], FIGSIZE[1]))
     ax, ax_t = fig.subplots(1, 2)
     for i, data in enumerate(loaded):
