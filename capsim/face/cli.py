@@ -450,7 +450,7 @@ def plot(
     paths: list[Path] = typer.Argument(
         ..., metavar="PATH...",
         help="run file (.h5), several for deformation, inclination, separation, migration and lift (overlaid), or "
-             "campaign summary (.nc) for --kind steady, orbit_map, conduit and lift",
+             "campaign summary (.nc) or a campaign's output directory for --kind steady, orbit_map, conduit and lift",
     ),
     kind: PlotKind = typer.Option(..., "--kind", "-k", help="what to draw"),
     output: Optional[Path] = typer.Option(

@@ -2150,6 +2150,12 @@ def plot(source, kind: str, output: str | os.PathLike | None = None, *, dpi: flo
         raise ValueError(f"--dpi {dpi:g}: must be in [10, 2400]")
     if size is not None:
         size = parse_size(size)
+    if kind in SUMMARY_KINDS + ("lift",) and isinstance(source, (str, os.PathLike)) and Path(source).is_dir():
+        # a campaign's output directory: its summary, made here (nothing written), so that one
+        # command draws a swept campaign (capsim plot runs/wall-lift --kind lift)
+        from capsim.campaigns.summary import summarize_campaign
+
+        source = summarize_campaign(source)
     if kind in SUMMARY_KINDS:
         _refuse_run_file(source, kind)
     from capsim.quantities import UNIT_SYSTEMS
@@ -2311,8 +2317,9 @@ def write_figure(paths: Sequence[str | os.PathLike], kind: str, output: str | os
     for path in paths:
         if not path.exists():
             raise FigureError(f"{path}: no such file")
-        if path.is_dir():
-            raise FigureError(f"{path}: is a directory; give a run file (.h5) or a summary (.nc)")
+        if path.is_dir() and not (kind in SUMMARY_KINDS + ("lift",) and len(paths) == 1):
+            raise FigureError(f"{path}: is a directory; give a run file (.h5) or a summary (.nc) (a campaign's "
+                              f"output directory is drawn by --kind {', '.join(SUMMARY_KINDS + ('lift',))})")
     if dpi is not None and not (math.isfinite(dpi) and 10 <= dpi <= 2400):
         raise FigureError(f"--dpi {dpi:g}: must be in [10, 2400]")
     path = paths[0]

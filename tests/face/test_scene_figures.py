@@ -218,3 +218,22 @@ def test_contour_in_physical_units_next_to_a_wall_keeps_every_snapshot_and_the_w
     assert band[:, 1].max() == pytest.approx(-3.0 * a) and band[:, 1].min() == pytest.approx(-3.15 * a)
     plt.close(fig)
     plt.close(plain)
+
+
+def test_one_command_draws_a_campaigns_directory(lift_campaign, tmp_path):
+    """capsim plot runs/<campaign> --kind lift: the directory's summary made on the fly (nothing written
+    there), the same curves as from summary.nc."""
+    summary, _ = lift_campaign
+    directory = summary.parent
+    before = sorted(p.name for p in directory.iterdir())
+    out = tmp_path / "lift-dir.png"
+    result = CliRunner().invoke(app, ["plot", str(directory), "--kind", "lift", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert out.read_bytes()[:4] == b"\x89PNG"
+    assert sorted(p.name for p in directory.iterdir()) == before
+    from capsim.face.plot import plot
+
+    a, b = plot(directory, "lift"), plot(summary, "lift")
+    for ax_a, ax_b in zip(a.axes, b.axes):
+        for la, lb in zip(ax_a.get_lines(), ax_b.get_lines()):
+            np.testing.assert_array_equal(la.get_ydata(), lb.get_ydata())
