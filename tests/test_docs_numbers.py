@@ -61,3 +61,15 @@ def test_the_bending_trade_the_user_guide_states_is_the_benchmarks():
         assert off(by[0.0]) > 5.0  # the buckled membrane overshoots
     bare = {r["level"]: r["D_xy"] for r in small if r["kappa"] == 0.0}
     assert bare[3] > bare[2]  # and grows with the level: no converged value
+
+
+def test_the_tran_son_tay_fit_the_validation_page_states_is_the_stored_one():
+    fit = json.loads((ROOT / "benchmarks" / "fit_tran_son_tay.json").read_text())
+    text = _validation_prose()
+    mu = fit["estimates"]["physical.membrane_viscosity"]
+    lo, hi = fit["intervals"]["physical.membrane_viscosity"]
+    assert f"μ_s = {mu / 1e-7:.2f} × 10⁻⁷ N s/m, 95 % interval {lo / 1e-7:.2f}–{hi / 1e-7:.2f} × 10⁻⁷" in text
+    assert f"χ² = {fit['chi2']:.0f} on {fit['dof']} degrees of freedom" in text
+    r = [p["residual"] for p in fit["residuals"]]
+    assert f"from +{r[0]:.1f} SD at 28.6 s⁻¹ to {r[-1]:.1f} at 171.4 s⁻¹".replace("-", "−") in text
+    assert f"level 1, {fit['n_runs']} runs" in text
