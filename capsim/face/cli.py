@@ -251,11 +251,11 @@ def warm_up(
 
 @app.command()
 def validate(
-    case_path: Path = typer.Argument(..., metavar="CASE.yaml|CAMPAIGN.yaml", help="case or campaign file"),
+    case_path: Path = typer.Argument(..., metavar="CASE.yaml|CAMPAIGN.yaml|FIT.yaml", help="case, campaign or fit file"),
     sets: Optional[list[str]] = typer.Option(None, "--set", metavar="FIELD=VALUE", help=_SET_HELP),
     max_runs: int = typer.Option(10_000, "--max-runs", help="a campaign: refuse more runs than this"),
 ) -> None:
-    """Check a case file (print it resolved) or dry-run a campaign (list its runs).
+    """Check a case file (print it resolved), dry-run a campaign (list its runs) or a fit (its plan).
 
     A case is printed with every default filled in; a campaign run by run: its id, what a sweep
     would do (run, skip it completed, extend it to a later t_end), its path and swept values.
@@ -265,24 +265,12 @@ def validate(
     capsim validate configs/sphere.yaml --set mesh.level=2
 
     capsim validate campaigns/smoke.yaml
+
+    capsim validate fits/fit-modulus-shear.yaml
     """
-    from capsim.config import ConfigError, read_yaml
+    from capsim.campaigns.inputs import describe
 
-    try:
-        data = read_yaml(case_path)
-    except ConfigError as exc:
-        raise _user_error(str(exc)) from None
-    if not _is_campaign(data):
-        typer.echo(_load(case_path, sets).to_yaml(user_names=True), nl=False)  # flow.G, as a case writes it
-        return
-    from capsim.campaigns.campaign import plan_lines
-
-    typer.echo("\n".join(plan_lines(_load_campaign(case_path, sets, max_runs, data=data), source=str(case_path))))
-
-
-def _is_campaign(data: Any) -> bool:
-    """A campaign file's top level (base, sweep or zip); a case has none of them."""
-    return isinstance(data, dict) and any(key in data for key in ("base", "sweep", "zip"))
+    typer.echo(_files_call(describe, case_path, sets, max_runs=max_runs), nl=False)
 
 
 def _load_campaign(path: Path, sets: list[str] | None, max_runs: int, data: Any = None):

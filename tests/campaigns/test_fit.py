@@ -176,3 +176,23 @@ def test_the_cli_refuses_a_bad_fit_in_one_line(tmp_path):
     lines = [line for line in result.output.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith("error: ") and "flow.Gee" in lines[0], result.output
     assert not (tmp_path / "out").exists()
+
+
+def test_validate_reads_a_fit_file_and_says_its_plan(tmp_path):
+    """capsim validate FIT.yaml: the fit's plan (its data checked, its cost in runs), nothing run; a bad fit
+    file is one line, exit 2 (before: read as a campaign, 'unknown field parameters')."""
+    import yaml
+    from typer.testing import CliRunner
+
+    from capsim.face.cli import app
+
+    path = tmp_path / "fit.yaml"
+    path.write_text(yaml.safe_dump(_spec(tmp_path, [(1.0, 0.06, 0.001), (2.0, 0.07, 0.001)])))
+    result = CliRunner().invoke(app, ["validate", str(path)])
+    assert result.exit_code == 0, result.output
+    assert result.output.startswith("fit fit-test: 2 data points, 1 parameter; 2 runs per evaluation")
+    assert not (tmp_path / "out").exists()
+    path.write_text(yaml.safe_dump(_spec(tmp_path, [(1.0, 0.06, 0.001)], parameters={"flow.Gee": {
+        "bounds": [0.002, 0.05], "initial": 0.02}})))
+    result = CliRunner().invoke(app, ["validate", str(path)])
+    assert result.exit_code == 2 and result.output.startswith("error: ") and "flow.Gee" in result.output
