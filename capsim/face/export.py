@@ -58,27 +58,23 @@ def case_of(data: dict[str, Any]):
 
 
 def model_for(data: dict[str, Any]):
-    """The run's CapsuleModel, with the stored rest shape as reference."""
+    """The run's CapsuleModel, its membranes' stress-free reference made from the stored rest shape
+    (the initial positions) as the run made it (capsim.solve.solver.build_model: shape.inflation,
+    membrane.reference_shape)."""
     from capsim.runs.runner import build_model
 
-    model, X = build_model(case_of(data))
     rest = np.asarray(data["rest_positions"], dtype=np.float64)
-    if X.shape != rest.shape or not np.array_equal(model.disc.elements, data["elements"]):
-        raise ValueError(
-            f"the stored mesh ({rest.shape[0]} nodes) does not match the mesh rebuilt from the case "
-            f"({X.shape[0]} nodes)"
-        )
-    from capsim.scene import reference_positions
-
-    # the stored positions are the initial ones: the membrane's reference is each capsule's shrunk
-    # by its own shape.inflation about the centre it was placed at (one capsule: about case.center),
-    # or its membrane.reference_shape
-    case = case_of(data)
-    rest = reference_positions(rest, model.bodies, model.scene.specs, membrane=case.membrane,
-                               base=case.mesh.base, level=case.mesh.level)
-    if model.disc.symmetry != "none":  # as build_model made it: the symmetric nodes' images exactly
-        rest = model.disc.expand(np.ascontiguousarray(rest[model.disc.targets]))
-    model.rest_positions = rest
+    try:
+        model, X = build_model(case_of(data), rest_positions=rest)
+        matches = np.array_equal(model.disc.elements, data["elements"])
+    except ValueError as exc:  # the stored rest shape has another node count
+        if not str(exc).startswith("rest positions of shape"):
+            raise
+        matches, X = False, None
+    if not matches:
+        rebuilt = f"{X.shape[0]} nodes" if X is not None else "another node count"
+        raise ValueError(f"the stored mesh ({rest.shape[0]} nodes) does not match the mesh rebuilt from the case "
+                         f"({rebuilt})")
     return model
 
 
