@@ -2245,6 +2245,17 @@ def _describe(err: dict, root: type[BaseModel] | None = None) -> str:
     return f"{dotted} = {_show(err.get('input'))}: {what}"
 
 
+def model_from_mapping(model: type[BaseModel], d: Any, source: str) -> Any:
+    """A schema other than the case's (a campaign, a fit) validated from a plain mapping; a mistake
+    is a one-line ConfigError naming the field, as a case's."""
+    if not isinstance(d, Mapping):
+        raise ConfigError(f"{source}: top level must be a mapping of fields, got {type(d).__name__}")
+    try:
+        return model.model_validate(dict(d))
+    except ValidationError as exc:
+        raise ConfigError(format_validation_error(exc, source, root=model)) from None
+
+
 def format_validation_error(exc: ValidationError, source: str, root: type[BaseModel] | None = None) -> str:
     """The one line of every schema error (a case's, a campaign's: `root`), at most three problems."""
     errors = exc.errors(include_url=False)

@@ -59,14 +59,14 @@ import os
 import re
 import sys
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from capsim.config import NAME_MAX, Case, ConfigError, StrictModel, case_from_dict, format_validation_error, read_yaml, section_model
+from capsim.config import NAME_MAX, Case, ConfigError, StrictModel, case_from_dict, model_from_mapping, read_yaml, section_model
 from capsim.errors import bounded_repr, first_line
 from capsim.campaigns.executor import WORKER_DIED, SigtermAsInterrupt, one_line, run_batch
 from capsim.storage.files import write_durably
@@ -214,12 +214,7 @@ def campaign_from_dict(d: Any, source: str = "<campaign>", max_runs: int = MAX_R
     A campaign of more than ``max_runs`` runs is refused from its size alone,
     before any case is built.
     """
-    if not isinstance(d, Mapping):
-        raise ConfigError(f"{source}: top level must be a mapping of fields, got {type(d).__name__}")
-    try:
-        campaign = Campaign.model_validate(dict(d))
-    except ValidationError as exc:
-        raise ConfigError(format_validation_error(exc, source, root=Campaign)) from None
+    campaign = model_from_mapping(Campaign, d, source)
     n_runs = count_runs(campaign)
     if n_runs > max_runs:
         sizes = " x ".join(

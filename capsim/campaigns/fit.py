@@ -47,12 +47,12 @@ from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, model_validator
 
 from capsim.campaigns.campaign import (
     CAMPAIGN_FILE, Campaign, _check_dotted, campaign_from_dict, canonical_field, expand_campaign, run_campaign,
 )
-from capsim.config import ConfigError, StrictModel, format_validation_error, read_yaml
+from capsim.config import ConfigError, StrictModel, model_from_mapping, read_yaml
 from capsim.errors import bounded_repr
 
 __all__ = ["FitSpec", "FitError", "FitResult", "OBSERVABLES", "fit_from_dict", "load_fit", "plan_line", "run_fit",
@@ -195,12 +195,7 @@ def fit_from_dict(d: Any, source: str = "<fit>", base_dir: str | os.PathLike = "
     """Validate a fit, its data and every case its first evaluation runs (before any run starts)."""
     if isinstance(d, Fit):
         return d
-    if not isinstance(d, Mapping):
-        raise ConfigError(f"{source}: top level must be a mapping of fields, got {type(d).__name__}")
-    try:
-        spec = FitSpec.model_validate(dict(d))
-    except ValidationError as exc:
-        raise ConfigError(format_validation_error(exc, source, root=FitSpec)) from None
+    spec = model_from_mapping(FitSpec, d, source)
     if "name" in spec.base or isinstance(spec.base.get("output"), dict) and "path" in spec.base["output"]:
         raise ConfigError(f"{source}: base: name and output.path are set per run by the fit; remove them")
     fields: dict[str, str] = {}
