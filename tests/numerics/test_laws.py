@@ -11,6 +11,7 @@ from capsim.numerics.membrane import LAWS, MembraneForce, get_law, law_attribute
 from capsim.numerics.mesh import unit_sphere_mesh
 from capsim.runs.runner import run_case
 from capsim.solve.solver import Discretization
+from law_tensions import inflation_tension
 
 # every law with a non-trivial parameter, and the documented moduli (units of E_s)
 CASES = [
@@ -77,19 +78,6 @@ def test_derivatives_are_those_of_the_energy(name, params, g_s, k_s):
     n2 = (law.energy(l1, l2 + h, **params) - law.energy(l1, l2 - h, **params)) / (2 * h)
     assert np.allclose(w1, n1, rtol=1e-7, atol=1e-8)
     assert np.allclose(w2, n2, rtol=1e-7, atol=1e-8)
-
-
-def inflation_tension(name, params, s):
-    """Closed-form isotropic tension of a uniform stretch s (docs/laws.md)."""
-    if name == "thin_shell":
-        return (s * s - 1 + 4 * np.log(s)) / (3 * s * s)
-    if name in ("neo_hookean", "mooney_rivlin"):
-        psi = params.get("psi", 0.0)
-        return (1 - psi) * (1 - s**-6) / 3 + psi * (s * s - s**-4) / 3
-    if name == "skalak":
-        c = params["skalak_c"]
-        return (s * s - 1 + c * s * s * (s**4 - 1)) / 3
-    raise AssertionError(name)
 
 
 @pytest.mark.parametrize("name,params,g_s,k_s", CASES, ids=IDS)

@@ -14,6 +14,7 @@ from capsim.numerics.geometry import element_geometry, volume_area
 from capsim.numerics.mesh import (_biconcave_profile_reduced_volume, biconcave_thickness_scale, reduced_volume,
                                   stress_free_positions, unit_sphere_mesh)
 from capsim.runs.runner import build_model
+from law_tensions import inflation_tension
 
 LEVEL = 2
 
@@ -167,17 +168,6 @@ def test_a_symmetry_that_does_not_keep_the_pre_stress_is_not_used(data):
 LAW_PARAMS = {"thin_shell": {}, "neo_hookean": {}, "mooney_rivlin": {"psi": 0.3}, "skalak": {"skalak_c": 10.0}}
 
 
-def _isotropic_tension(name, params, s):
-    """The closed-form isotropic tension of a uniform stretch s, in E_s (docs/laws.md)."""
-    if name == "thin_shell":
-        return (s * s - 1 + 4 * np.log(s)) / (3 * s * s)
-    if name in ("neo_hookean", "mooney_rivlin"):
-        psi = params.get("psi", 0.0)
-        return (1 - psi) * (1 - s**-6) / 3 + psi * (s * s - s**-4) / 3
-    c = params["skalak_c"]
-    return (s * s - 1 + c * s * s * (s**4 - 1)) / 3
-
-
 def _case_model(law, shape=None, reference=None, **case):
     membrane = {"law": law, **LAW_PARAMS[law]}
     if reference is not None:
@@ -203,7 +193,7 @@ def test_a_cell_inflated_from_a_smaller_sphere_carries_the_laws_isotropic_tensio
     alpha = 0.05
     model, X = _case_model(law, shape={"kind": "sphere", "inflation": alpha})
     state = model.membrane(X)
-    tau = _isotropic_tension(law, LAW_PARAMS[law], 1.0 + alpha)
+    tau = inflation_tension(law, LAW_PARAMS[law], 1.0 + alpha)
     n = state.strain.normals
     P = np.eye(3)[None] - n[:, :, None] * n[:, None, :]
     assert np.abs(state.tension - tau * P).max() < 1e-9 * abs(tau)
