@@ -305,17 +305,16 @@ def biconcave_thickness_scale(target: float, c0: float = 0.207, c2: float = 2.00
     return float(brentq(lambda s: _biconcave_profile_reduced_volume(s, c0, c2, c4) - target, 0.05, 2.0, xtol=1e-14))
 
 
-def stress_free_positions(kind: str, base: str, level: int, area: float, *, tilt_deg: float = 0.0, axis=None,
+def stress_free_positions(kind: str, area: float, sphere: SurfaceMesh, *, tilt_deg: float = 0.0, axis=None,
                           aspect_ratio: float = 1.0, reduced_volume_target: float | None = None,
                           c0: float = 0.207, c2: float = 2.003, c4: float = -1.123) -> np.ndarray:
-    """A stress-free surface on the unit-sphere mesh (node k the image of the sphere's node k, as
-    in :func:`rest_shape_mesh`): a sphere, an oblate spheroid of `aspect_ratio`, or the Evans-Fung
-    disk of coefficients (c0, c2, c4) with its thickness scaled to `reduced_volume_target`; turned
-    as the rest shape is (`tilt_deg` or `axis`), centred at the origin, and scaled so that its
-    discretised area is `area`."""
+    """A stress-free surface on the unit-sphere mesh `sphere` (:func:`unit_sphere_mesh`; node k the
+    image of the sphere's node k, as in :func:`rest_shape_mesh`): a sphere, an oblate spheroid of
+    `aspect_ratio`, or the Evans-Fung disk of coefficients (c0, c2, c4) with its thickness scaled to
+    `reduced_volume_target`; turned as the rest shape is (`tilt_deg` or `axis`), centred at the
+    origin, and scaled so that its discretised area is `area`."""
     from capsim.numerics.geometry import element_geometry, volume_area
 
-    sphere = unit_sphere_mesh(base, level)
     if kind == "biconcave":
         scale = 1.0 if reduced_volume_target is None else biconcave_thickness_scale(reduced_volume_target, c0, c2, c4)
         x = _biconcave(sphere.positions, c0=c0, c2=c2, c4=c4)

@@ -210,34 +210,44 @@ def reference_positions(rest: np.ndarray, bodies: Bodies, specs: list[BodySpec],
     capsules without their own; `base` and `level` the mesh's), else its initial shape shrunk by
     1 + α about the centre it was placed at (its shape.inflation α; 0: the initial shape is
     stress-free)."""
-    def stress_free(spec: BodySpec):
-        own = spec.membrane if spec.membrane is not None else membrane
-        return own.reference_shape if own is not None and own.stress_free_differs else None
-
-    if not any(spec.shape.inflation or stress_free(spec) is not None for spec in specs):
+    shapes = [_stress_free_shape(spec, membrane) for spec in specs]
+    if not any(spec.shape.inflation or shape is not None for spec, shape in zip(specs, shapes)):
         return rest
-    out = rest.copy()
-    for i, spec in enumerate(specs):
-        alpha, shape = spec.shape.inflation, stress_free(spec)
-        center = np.asarray(spec.center, dtype=np.float64)
-        if shape is not None:
-            from capsim.numerics.geometry import element_geometry, volume_area
-            from capsim.numerics.mesh import stress_free_positions, unit_sphere_mesh
+    sphere = None
+    if any(shape is not None for shape in shapes):
+        from capsim.numerics.mesh import unit_sphere_mesh
 
-            if base is None or level is None:
-                raise ValueError("a stress-free shape other than the rest shape needs the mesh's base and level")
-            elements = unit_sphere_mesh(base, level).elements  # the capsule's own mesh order
-            _, area = volume_area(element_geometry(np.ascontiguousarray(rest[bodies.nodes(i)]), elements, 6))
-            rest_shape = spec.shape
-            coefficients = ({"c0": rest_shape.c0, "c2": rest_shape.c2, "c4": rest_shape.c4}
-                            if rest_shape.kind == "biconcave" else {})
-            x = stress_free_positions(shape.kind, base, level, area, tilt_deg=spec.tilt_deg if spec.axis is None
-                                      else 0.0, axis=spec.axis, aspect_ratio=shape.aspect_ratio if shape.kind ==
-                                      "oblate" else 1.0, reduced_volume_target=shape.reduced_volume, **coefficients)
-            out[bodies.nodes(i)] = center + x
-        elif alpha:
-            out[bodies.nodes(i)] = center + (rest[bodies.nodes(i)] - center) / (1.0 + alpha)
+        if base is None or level is None:
+            raise ValueError("a stress-free shape other than the rest shape needs the mesh's base and level")
+        sphere = unit_sphere_mesh(base, level)  # every capsule's own mesh order, made once
+    out = rest.copy()
+    for i, (spec, shape) in enumerate(zip(specs, shapes)):
+        center, part = np.asarray(spec.center, dtype=np.float64), rest[bodies.nodes(i)]
+        if shape is not None:
+            out[bodies.nodes(i)] = center + _stress_free_part(spec, shape, part, sphere)
+        elif spec.shape.inflation:
+            out[bodies.nodes(i)] = center + (part - center) / (1.0 + spec.shape.inflation)
     return out
+
+
+def _stress_free_shape(spec: BodySpec, membrane: Any) -> Any:
+    """The capsule's membrane.reference_shape where it is another surface than its rest shape, else None."""
+    own = spec.membrane if spec.membrane is not None else membrane
+    return own.reference_shape if own is not None and own.stress_free_differs else None
+
+
+def _stress_free_part(spec: BodySpec, shape: Any, part: np.ndarray, sphere) -> np.ndarray:
+    """One capsule's stress-free surface about its centre, at the area of its rest nodes `part`."""
+    from capsim.numerics.geometry import element_geometry, volume_area
+    from capsim.numerics.mesh import stress_free_positions
+
+    _, area = volume_area(element_geometry(np.ascontiguousarray(part), sphere.elements, 6))
+    rest_shape = spec.shape
+    coefficients = ({"c0": rest_shape.c0, "c2": rest_shape.c2, "c4": rest_shape.c4}
+                    if rest_shape.kind == "biconcave" else {})
+    return stress_free_positions(shape.kind, area, sphere, tilt_deg=spec.tilt_deg if spec.axis is None else 0.0,
+                                 axis=spec.axis, aspect_ratio=shape.aspect_ratio if shape.kind == "oblate" else 1.0,
+                                 reduced_volume_target=shape.reduced_volume, **coefficients)
 
 
 def body_gaps(x: np.ndarray, bodies: Bodies) -> np.ndarray:

@@ -105,7 +105,7 @@ class Scene:
         shape = spec.shape if spec is not None else case.shape
         membrane = spec.membrane if spec is not None and spec.membrane is not None else case.membrane
         if (shape.kind != "sphere" or shape.inflation or membrane.law not in NU_HALF_LAWS or membrane.bending_modulus
-                or getattr(membrane, "stress_free_differs", False)):  # another stress-free shape: pre-stressed
+                or membrane.stress_free_differs):  # another stress-free shape: pre-stressed
             return None
         if spec is not None and spec.modulus_ratio != 1.0:
             return None

@@ -40,7 +40,7 @@ def test_evans_fung_reduced_volume():
     assert nu == pytest.approx(_biconcave_profile_reduced_volume(1.0, 0.207, 2.003, -1.123, 800), abs=1e-13)
     assert nu == pytest.approx(0.6444, abs=1e-4)
     sphere = unit_sphere_mesh("octahedron", 3)
-    x = stress_free_positions("biconcave", "octahedron", 3, 1.0)
+    x = stress_free_positions("biconcave", 1.0, sphere)
     assert _nu_area(x, sphere.elements)[0] == pytest.approx(nu, abs=1e-4)
     assert biconcave_thickness_scale(nu) == pytest.approx(1.0, abs=1e-10)
 
@@ -48,7 +48,7 @@ def test_evans_fung_reduced_volume():
 @pytest.mark.parametrize("target", [0.4, 0.58, 0.7])
 def test_biconcave_family_reaches_its_reduced_volume(target):
     sphere = unit_sphere_mesh("octahedron", 3)
-    x = stress_free_positions("biconcave", "octahedron", 3, 5.0, reduced_volume_target=target)
+    x = stress_free_positions("biconcave", 5.0, sphere, reduced_volume_target=target)
     nu, area = _nu_area(x, sphere.elements)
     assert area == pytest.approx(5.0, rel=1e-12)
     assert nu == pytest.approx(target, abs=3e-4)  # the mesh's discretisation error at level 3
