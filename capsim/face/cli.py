@@ -26,7 +26,7 @@ atexit.register(gc.freeze)
 
 
 app = typer.Typer(
-    help="Boundary-integral simulation of elastic capsules in Stokes flow (shear, extension, Poiseuille, any linear flow, in time; near a wall; one capsule or several); runs that meet accuracy targets; campaigns with summaries and figures.",
+    help="Boundary-integral simulation of elastic capsules in Stokes flow (shear, extension, Poiseuille, any linear flow, in time; near a wall, in a tube, duct or constriction; one capsule or several); runs that meet accuracy targets; campaigns with summaries and figures; membrane parameters fitted to measurements.",
     no_args_is_help=True,
     add_completion=True,
     pretty_exceptions_show_locals=False,
