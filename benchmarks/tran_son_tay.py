@@ -83,6 +83,18 @@ STRESS_FREE_RATES = (28.6, 57.1, 171.4)
 #: Fischer & Korzeniewski 2015 (Biophys. J., Fig. S11): f/k of 225 cells in 28.9 mPa s (benchmarks/data/README.md)
 FISCHER_DATA = ROOT / "benchmarks" / "data" / "fischer2015_ttf_eta28.9.csv"
 FISCHER_VISCOSITY_MPAS = 28.9
+#: issue 55: the sensitivity's second rate (the highest of Table I), and the changes made at both rates
+TWO_SIDED_RATE = 171.4
+TWO_SIDED_CHANGES = (
+    ("mu_s x0.7", {"membrane_viscosity": lambda mu: f"{0.7 * mu:.4g} N*s/m"}),
+    ("mu_s x1.3", {"membrane_viscosity": lambda mu: f"{1.3 * mu:.4g} N*s/m"}),
+    ("G_s 1.25 uN/m", {"shear_modulus": "1.25 uN/m"}),
+    ("G_s 5 uN/m", {"shear_modulus": "5 uN/m"}),
+    ("cytoplasm 5 mPa s", {"inner_viscosity": "5 mPa*s"}),
+    ("cytoplasm 20 mPa s", {"inner_viscosity": "20 mPa*s"}),
+)
+#: the changes the sensitivity group already ran at the lowest rate (same labels)
+ALREADY_AT_LOW_RATE = ("mu_s x0.7", "mu_s x1.3", "G_s 1.25 uN/m", "G_s 5 uN/m")
 
 
 def load_base(path: Path) -> tuple[dict, dict]:
@@ -228,6 +240,19 @@ def jobs() -> dict[str, list[tuple[str, dict, dict]]]:
         soft["physical"]["shear_modulus"] = "1.25 uN/m"
         out["soft"].append((f"sens G_s 1.25 C 100 k={rate_of(soft)} L{MAIN_LEVEL}", soft, {}))
     out["level3"] = [(f"viscous k={SENSITIVITY_RATE} L3", base, {"level": 3})]
+    # issue 55: which parameter moves the frequency at the lowest rate and not at the highest (the
+    # measured f/k is flat, capsim's falls): the same changes at 28.6 and 171.4 1/s, the cytoplasm too
+    out["twosided"] = []
+    for c in main:
+        if rate_of(c) not in (SENSITIVITY_RATE, TWO_SIDED_RATE):
+            continue
+        k, mu_k = rate_of(c), float(c["physical"]["membrane_viscosity"].split()[0])
+        for tag, physical in TWO_SIDED_CHANGES:
+            if rate_of(c) == SENSITIVITY_RATE and tag in ALREADY_AT_LOW_RATE:
+                continue
+            d = json.loads(json.dumps(c))
+            d["physical"].update({key: (value(mu_k) if callable(value) else value) for key, value in physical.items()})
+            out["twosided"].append((f"sens {tag} k={k} L{MAIN_LEVEL}", d, {}))
     # issue 55: the stress-free shape (membrane.reference_shape) other than the cell's own disk
     out["stressfree"] = []
     for c in main:

@@ -368,3 +368,20 @@ def test_each_sub_package_has_one_lazy_public_surface():
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
     assert json.loads(out.stdout.strip().splitlines()[-1]) == []
+
+
+def test_the_command_line_starts_without_package_metadata_or_numerics():
+    """Importing the CLI loads neither importlib.metadata (30 ms: the version is a literal in
+    capsim/_version.py) nor numpy, numba, scipy, h5py, pydantic or pint (issue 57: a command loads
+    what it uses); the installed metadata's version is that literal."""
+    import subprocess
+    import sys
+    from importlib.metadata import version
+
+    import capsim
+
+    probe = ("import sys, capsim.face.cli; print(' '.join(m for m in ('importlib.metadata', 'numpy', 'numba', "
+             "'scipy', 'h5py', 'pydantic', 'pint') if m in sys.modules))")
+    loaded = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout.split()
+    assert loaded == [], loaded
+    assert version("capsim") == capsim.__version__
