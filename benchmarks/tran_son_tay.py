@@ -392,9 +392,46 @@ def report() -> None:
         rel = f"{100 * (r['f_rad_s'] / base['f_rad_s'] - 1):+.1f} %" if base else "—"
         lines.append(f"| {name} | {r['f_rad_s']:.3g} | {rel} | {100 * (r['f_rad_s'] / f_meas - 1):+.0f} % | "
                      f"{r['motion']} |")
-    lines += stress_free_lines(rows) + fischer_lines(rows)
+    lines += two_sided_lines(rows) + stress_free_lines(rows) + fischer_lines(rows)
     TABLE.write_text("\n".join(lines) + "\n")
     figure(rows)
+
+
+def two_sided_lines(rows: dict) -> list[str]:
+    """Issue 55: each change at the lowest and the highest of Table I's rates, and what it does to the
+    ratio of the two frequencies (measured 6.01, the rates' ratio 5.99: f proportional to k) and to the
+    measured shape (Table I's a cos θ and c)."""
+    lo, hi = SENSITIVITY_RATE, TWO_SIDED_RATE
+    meas = {r[0]: r for r in TABLE_I}
+    changes = [("the case (G_s 2.5 µN/m, C = 10, their μ_s, cytoplasm 10 mPa s, the disk)", "viscous"),
+               ("μ_s × 0.7", "sens mu_s x0.7"), ("μ_s × 1.3", "sens mu_s x1.3"), ("μ_s = 0", "elastic"),
+               ("G_s × 0.5 (1.25 µN/m)", "sens G_s 1.25 uN/m"), ("G_s × 2 (5 µN/m)", "sens G_s 5 uN/m"),
+               ("cytoplasm 5 mPa s (λ 0.14)", "sens cytoplasm 5 mPa s"),
+               ("cytoplasm 20 mPa s (λ 0.57)", "sens cytoplasm 20 mPa s"),
+               ("Skalak C = 100", "sens C 100"), ("G_s × 0.5 and C = 100", "sens G_s 1.25 C 100"),
+               *((f"stress-free {t}", f"stress-free {t}") for t, _ in STRESS_FREE_SHAPES)]
+    base = {k: rows.get(f"viscous k={k} L{MAIN_LEVEL}") for k in (lo, hi)}
+    lines = ["", f"What moves what, at the lowest and the highest rate ({lo:g} and {hi:g} 1/s; level {MAIN_LEVEL}): the "
+             "frequency against the case's, the ratio of the two frequencies (measured "
+             f"{meas[hi][5] / meas[lo][5]:.2f}: the rates' ratio is {hi / lo:.2f}, f proportional to k), and the "
+             "measured shape, Table I's projected half-length a cos θ and half-width c (µm):", "",
+             f"| change | f at {lo:g}: rad/s (against the case) | f at {hi:g} | f({hi:g}) / f({lo:g}) | "
+             f"a cos θ at {lo:g} / {hi:g} | c at {lo:g} / {hi:g} | θ (deg) at {lo:g} / {hi:g} |",
+             "|---|---|---|---|---|---|---|",
+             f"| measured (Tables I, II) | {meas[lo][5]:.3g} | {meas[hi][5]:.3g} | {meas[hi][5] / meas[lo][5]:.2f} | "
+             f"{meas[lo][1]} / {meas[hi][1]} | {meas[lo][3]} / {meas[hi][3]} | 12.8 / 12.7 (computed) |"]
+    for name, prefix in changes:
+        r = {k: rows.get(f"{prefix} k={k} L{MAIN_LEVEL}") for k in (lo, hi)}
+        if any(v is None for v in r.values()):
+            lines.append(f"| {name} | not run | — | — | — | — | — |")
+            continue
+        f = {k: r[k]["f_rad_s"] for k in (lo, hi)}
+        rel = {k: "" if prefix == "viscous" else f" ({100 * (f[k] / base[k]['f_rad_s'] - 1):+.1f} %)" for k in (lo, hi)}
+        proj = {k: r[k]["axes_um"][0] * math.cos(math.radians(r[k]["theta_deg"])) for k in (lo, hi)}
+        lines.append(f"| {name} | {f[lo]:.3g}{rel[lo]} | {f[hi]:.3g}{rel[hi]} | {f[hi] / f[lo]:.2f} | "
+                     f"{proj[lo]:.2f} / {proj[hi]:.2f} | {r[lo]['axes_um'][1]:.2f} / {r[hi]['axes_um'][1]:.2f} | "
+                     f"{r[lo]['theta_deg']:.1f} / {r[hi]['theta_deg']:.1f} |")
+    return lines
 
 
 def stress_free_lines(rows: dict) -> list[str]:

@@ -15,20 +15,20 @@ The CSV's columns are *conditions* (case fields by dotted path: ``flow.viscosity
 ``D_xy``, ``theta``, ``ttf_ratio``, ...) and ``<observable>_sd``, each observable's
 standard deviation. An empty observable cell is a point not measured.
 
-Method: weighted least squares (:func:`scipy.optimize.least_squares`, ``trf``).
-Every evaluation of the model runs one case per distinct row of conditions with the
-parameters set, through the campaign runner (:func:`capsim.campaigns.campaign.run_campaign`)
-in ``<output.dir>/runs``: the run ids are keyed by the case, so a refit, a resumed fit or a
-fit with one more data point reuses every run that exists. The residual of point i is
-``(model_i − data_i) / σ_i`` with ``σ_i² = sd_i² + e_i²``, e_i the run's own error
-estimate of that observable where its file has one (``--error-estimate`` or a measured
-accuracy target): the discretisation error is treated as one more independent error of
-the point. The parameters are optimised as unit variables ``u`` in [0, 1] across their
-bounds (on log10 of the value for ``log: true``), so ``x_scale = 1`` makes every
-parameter's step comparable, and ``diff_step`` (default 0.01: scipy's step is relative to
-the variable, so u is optimised as 1 + u and the step is 1-2 % of the bound range) is far larger than the adaptive time stepping's noise in an output
-(about rtol relative, a step sequence changing with the parameter), so that the forward
-differences measure the slope and not that noise. The covariance is ``(JᵀJ)⁻¹`` with
+Method: weighted least squares, by DFO-LS (``method.optimizer: dfols``, the default: linear
+models of the residuals interpolated through the evaluations, one evaluation an iteration) or
+scipy's ``trf`` with forward differences. Every evaluation of the model runs one case per
+distinct row of conditions with the parameters set, through the campaign runner
+(:func:`capsim.campaigns.campaign.run_campaign`) in ``<output.dir>/runs``: the run ids are keyed
+by the case, so a refit, a resumed fit or a fit with one more data point reuses every run that
+exists. The residual of point i is ``(model_i − data_i) / σ_i`` with ``σ_i² = sd_i² + e_i²``,
+e_i the run's own error estimate of that observable where its file has one (``--error-estimate``
+or a measured accuracy target): the discretisation error is treated as one more independent
+error of the point. The parameters are optimised as unit variables ``u`` in [0, 1] across their
+bounds (on log10 of the value for ``log: true``); the Jacobian's points are 1e-3 (dfols'
+``radius_end``) to 1-2 % (trf's ``diff_step``) of the bound range apart, far above the adaptive
+time stepping's noise in an output (about rtol relative, a step sequence changing with the
+parameter), so that it measures the slope and not that noise (docs/fit.md). The covariance is ``(JᵀJ)⁻¹`` with
 the weighted J when the data have sd columns (absolute errors: intervals from the normal
 quantile), else ``s² (JᵀJ)⁻¹`` with ``s² = Σr²/(m − n)`` (intervals from Student's t with
 m − n degrees of freedom); a log parameter's interval is symmetric in log10 of the value.
@@ -44,7 +44,7 @@ import sys
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Literal, Optional
 
 import numpy as np
 from pydantic import Field, model_validator
@@ -118,12 +118,26 @@ class FitParameter(StrictModel):
 class FitMethod(StrictModel):
     """Settings of the least-squares fit."""
 
-    diff_step: float = Field(0.01, gt=0, le=0.2, description="forward-difference step in unit variables (fraction "
-                             "of the bound range): large against the runs' time-stepping noise")
-    max_evaluations: int = Field(30, ge=1, le=1000, description="most model evaluations (scipy's max_nfev; the "
+    optimizer: Literal["dfols", "trf"] = Field(
+        "dfols", description="dfols: DFO-LS's interpolation models, every evaluation reused (measured: 60 runs for "
+        "two parameters over five rows, against 80 with trf); trf: scipy's least_squares with forward differences")
+    radius_start: float = Field(0.1, gt=0, le=0.5, description="dfols: the first trust region's radius in unit "
+                                "variables (fraction of the bound range): the first steps' size")
+    radius_end: float = Field(1e-3, gt=0, lt=0.5, description="dfols: stop when the trust region's radius is this "
+                              "(unit variables): the resolution of the estimate and the spacing of the points its "
+                              "Jacobian is interpolated from, large against the runs' time-stepping noise")
+    diff_step: float = Field(0.01, gt=0, le=0.2, description="trf: forward-difference step in unit variables "
+                             "(fraction of the bound range): large against the runs' time-stepping noise")
+    max_evaluations: int = Field(30, ge=1, le=1000, description="most model evaluations (trf: scipy's max_nfev, the "
                                  "Jacobian's evaluations come on top)")
-    xtol: float = Field(1e-4, gt=0, lt=1, description="stop when a step moves the unit variables less than this")
+    xtol: float = Field(1e-4, gt=0, lt=1, description="trf: stop when a step moves the unit variables less than this")
     confidence: float = Field(0.95, gt=0, lt=1, description="level of the intervals")
+
+    @model_validator(mode="after")
+    def _radii(self) -> FitMethod:
+        if not self.radius_end < self.radius_start:
+            raise ValueError(f"radius_end = {self.radius_end:g}: must be below radius_start ({self.radius_start:g})")
+        return self
 
 
 class FitOutput(StrictModel):
@@ -508,15 +522,25 @@ class FitResult:
         return "\n".join(lines)
 
 
+def typical_evaluations(optimizer: str, n: int) -> int:
+    """The evaluations a fit of n parameters typically costs (the printed expectation), measured on the
+    synthetic fits of benchmarks/fit_coverage.py from a start within a factor 2: dfols 8 for one parameter
+    and 12 for two (n + 1 for its first model, then one an iteration); trf 1 + n a Gauss-Newton
+    iteration, about TYPICAL_ITERATIONS of them."""
+    return 4 + 4 * n if optimizer == "dfols" else (1 + n) * TYPICAL_ITERATIONS
+
+
 def plan_line(fit: Fit) -> str:
     """What the fit will cost, said before it starts."""
     n = len(fit.spec.parameters)
     per = len(fit.distinct_conditions())
-    per_iteration = per * (1 + n)
-    at_most = per_iteration * fit.spec.method.max_evaluations
+    m = fit.spec.method
+    typical = typical_evaluations(m.optimizer, n)
+    at_most = per * m.max_evaluations * ((1 + n) if m.optimizer == "trf" else 1)
+    how = ("one evaluation an iteration after n + 1 for its first model (DFO-LS)" if m.optimizer == "dfols"
+           else f"{1 + n} evaluations per iteration (forward differences)")
     return (f"fit {fit.spec.name}: {fit.data.n_points} data points, {n} parameter{'s' * (n != 1)}; {per} runs per "
-            f"evaluation, {1 + n} evaluations per iteration (forward differences): about "
-            f"{per_iteration * TYPICAL_ITERATIONS} runs in {TYPICAL_ITERATIONS} iterations, at most {at_most}; runs "
+            f"evaluation, {how}: about {per * typical} runs in {typical} evaluations, at most {at_most}; runs "
             f"that exist in {fit.runs_dir} are reused")
 
 
@@ -529,7 +553,7 @@ def run_fit(fit: Fit, *, workers: int | None = 1, log: Callable[[str], None] | N
 
     `log` receives the plan line, one line per evaluation and the closing table (None: silent).
     """
-    from scipy import optimize, stats
+    from scipy import stats
 
     log = log or (lambda line: None)
     spec, data = fit.spec, fit.data
@@ -538,28 +562,22 @@ def run_fit(fit: Fit, *, workers: int | None = 1, log: Callable[[str], None] | N
     pars = list(spec.parameters.values())
     model = _Evaluator(fit, workers, log)
 
-    # scipy's diff_step is relative to the variable (its step is diff_step·|v|): optimised as v = 1 + u in
-    # [1, 2], the step is 1-2 % of each bound range and never shrinks towards the time stepping's noise
-    # near a lower bound (u → 0, where a step relative to u would vanish)
-    def residuals(v: np.ndarray) -> np.ndarray:
-        x = [_from_unit(p, vi - 1.0) for p, vi in zip(pars, v)]
+    def residuals(u: np.ndarray) -> np.ndarray:
+        x = [_from_unit(p, ui) for p, ui in zip(pars, u)]
         values, err, _ = model(x)
         return (values - data.values) / _sigma(data, err)
 
     u0 = np.array([_to_unit(p, p.initial) for p in pars])
     m = spec.method
-    # trf honours the bounds; the unit variables make x_scale = 1 (a shift does not change the Jacobian)
-    res = optimize.least_squares(residuals, u0 + 1.0, jac="2-point", bounds=(1.0, 2.0), method="trf", x_scale=1.0,
-                                 diff_step=m.diff_step, xtol=m.xtol, ftol=1e-6, gtol=1e-8,
-                                 max_nfev=m.max_evaluations)
-    x = [_from_unit(p, vi - 1.0) for p, vi in zip(pars, res.x)]
+    solution = OPTIMIZERS[m.optimizer](residuals, u0, m)
+    x = [_from_unit(p, ui) for p, ui in zip(pars, solution.u)]
     values, err, ids = model(x)
     sigma = _sigma(data, err)
     r = (values - data.values) / sigma
     n, n_pts = len(pars), data.n_points
     dof = n_pts - n
     chi2 = float(r @ r)
-    J = np.atleast_2d(res.jac)
+    J = np.atleast_2d(solution.jac)
     cov_u = np.linalg.pinv(J.T @ J)
     if data.sd is not None:
         form = "(J^T J)^-1 of the residuals weighted by 1/sqrt(sd^2 + run error^2)"
@@ -585,7 +603,7 @@ def run_fit(fit: Fit, *, workers: int | None = 1, log: Callable[[str], None] | N
         errors[key] = float(math.sqrt(max(cov_x[i, i], 0.0)))
         intervals[key] = [10 ** lo, 10 ** hi] if p.log else [lo, hi]
         units[key] = p.unit or ""
-        at_bound[key] = bool(res.active_mask[i] != 0)
+        at_bound[key] = bool(solution.at_bound[i])
     point_rows = []
     for k in range(n_pts):
         row = int(data.rows[k])
@@ -600,10 +618,61 @@ def run_fit(fit: Fit, *, workers: int | None = 1, log: Callable[[str], None] | N
         residuals=point_rows, chi2=chi2, dof=dof, reduced_chi2=chi2 / dof if dof > 0 else math.nan,
         n_points=n_pts, n_runs=len(model.used), n_runs_executed=model.runs_executed,
         n_evaluations=model.evaluations, runs_per_evaluation=len(fit.distinct_conditions()),
-        success=bool(res.success), message=str(res.message), runs_dir=str(fit.runs_dir),
+        success=solution.success, message=solution.message, runs_dir=str(fit.runs_dir),
     )
     _finish(fit, model, result, log)
     return result
+
+
+@dataclass
+class _Solution:
+    """An optimiser's answer in unit variables: the estimate, the weighted residuals' Jacobian there,
+    which parameters ended on a bound, and whether it converged (with its message)."""
+
+    u: np.ndarray
+    jac: np.ndarray
+    at_bound: np.ndarray
+    success: bool
+    message: str
+
+
+def _solve_trf(residuals: Callable[[np.ndarray], np.ndarray], u0: np.ndarray, m: FitMethod) -> _Solution:
+    """scipy's trf with forward differences: 1 + n evaluations an iteration.
+
+    scipy's diff_step is relative to the variable (its step is diff_step·|v|): optimised as v = 1 + u in
+    [1, 2], the step is 1-2 % of each bound range and never shrinks towards the time stepping's noise
+    near a lower bound (u → 0, where a step relative to u would vanish). The unit variables make
+    x_scale = 1 (a shift does not change the Jacobian)."""
+    from scipy import optimize
+
+    res = optimize.least_squares(lambda v: residuals(v - 1.0), u0 + 1.0, jac="2-point", bounds=(1.0, 2.0),
+                                 method="trf", x_scale=1.0, diff_step=m.diff_step, xtol=m.xtol, ftol=1e-6, gtol=1e-8,
+                                 max_nfev=m.max_evaluations)
+    return _Solution(res.x - 1.0, np.atleast_2d(res.jac), res.active_mask != 0, bool(res.success), str(res.message))
+
+
+def _solve_dfols(residuals: Callable[[np.ndarray], np.ndarray], u0: np.ndarray, m: FitMethod) -> _Solution:
+    """DFO-LS (Cartis, Fiala, Marteau & Roberts 2019): a trust region on linear models of the residuals
+    interpolated through n + 1 evaluated points, each iteration one evaluation, every evaluation kept
+    in the model (no forward differences). It stops when the radius reaches ``radius_end``; its
+    Jacobian at the estimate is the model's, interpolated from points within about that distance (so
+    ``radius_end`` plays ``diff_step``'s part: large against the runs' noise, small against the
+    model's curvature)."""
+    import dfols
+
+    n = len(u0)
+    # the first interpolation points are u0 + radius_start along each axis (DFO-LS steps back from a bound)
+    sol = dfols.solve(residuals, u0, bounds=(np.zeros(n), np.ones(n)), rhobeg=m.radius_start, rhoend=m.radius_end,
+                      maxfun=m.max_evaluations, do_logging=False, print_progress=False)
+    if sol.flag == sol.EXIT_INPUT_ERROR or sol.x is None or sol.jacobian is None:
+        raise FitError(f"DFO-LS refused the problem: {sol.msg}")
+    u = np.asarray(sol.x, dtype=float)
+    at_bound = (u <= m.radius_end) | (u >= 1.0 - m.radius_end)
+    return _Solution(u, np.atleast_2d(sol.jacobian), at_bound, sol.flag == sol.EXIT_SUCCESS, str(sol.msg))
+
+
+#: the least-squares optimisers (FitMethod.optimizer): residuals(u), u0, method -> _Solution
+OPTIMIZERS: dict[str, Callable[..., _Solution]] = {"dfols": _solve_dfols, "trf": _solve_trf}
 
 
 def _check_owner(fit: Fit) -> None:
