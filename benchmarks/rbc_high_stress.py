@@ -13,7 +13,8 @@ the flow and along the vorticity (capsim's axis_L and axis_W, window means); the
     python benchmarks/rbc_high_stress.py run [GROUP ...]   # resumable: rows kept in the JSON
     python benchmarks/rbc_high_stress.py report
 
-GROUP: c10, c100, c1000 (level 2), level3 (C = 1000 at level 3, at 1 and 10 Pa).
+GROUP: c10, c100, c1000 (level 2), level3 (C = 1000 at level 3, at 1 and 10 Pa), gs4 (C = 1000 and G_s
+4 uN/m instead of 2.5: the EI's sensitivity to the modulus, issue 55).
 """
 
 from __future__ import annotations
@@ -32,13 +33,15 @@ JSON = ROOT / "benchmarks" / "rbc_high_stress.json"
 TABLE = ROOT / "benchmarks" / "rbc_high_stress.md"
 VISCOSITY_MPAS, INNER_MPAS = 30.0, 6.0
 STRESSES_PA = (0.1, 1.0, 10.0, 50.0)
-GROUPS = {"c10": (10.0, 2), "c100": (100.0, 2), "c1000": (1000.0, 2), "level3": (1000.0, 3)}
+#: group -> (Skalak C, mesh level, G_s in uN/m: None for the configuration's 2.5)
+GROUPS = {"c10": (10.0, 2, None), "c100": (100.0, 2, None), "c1000": (1000.0, 2, None),
+          "level3": (1000.0, 3, None), "gs4": (1000.0, 2, 4.0)}
 T_END = 10.0
 #: the mesh error at level 3 is measured at two of the stresses (a level-3 run costs minutes here)
 LEVEL3_STRESSES_PA = (1.0, 10.0)
 
 
-def case_for(stress: float, C: float, level: int) -> dict:
+def case_for(stress: float, C: float, level: int, shear_modulus: float | None = None) -> dict:
     import yaml
 
     case = yaml.safe_load((ROOT / "configs" / "rbc.yaml").read_text())
@@ -46,19 +49,21 @@ def case_for(stress: float, C: float, level: int) -> dict:
     case["membrane"]["skalak_c"] = C
     case["physical"].update(viscosity=f"{VISCOSITY_MPAS:g} mPa*s", inner_viscosity=f"{INNER_MPAS:g} mPa*s",
                             shear_rate=f"{stress / (VISCOSITY_MPAS * 1e-3):.6g} 1/s")
+    if shear_modulus is not None:
+        case["physical"]["shear_modulus"] = f"{shear_modulus:g} uN/m"
     case["mesh"]["level"] = level
     case["time"] = {"t_end": T_END, "rtol": 1.0e-4}
     return case
 
 
-def run_one(stress: float, C: float, level: int) -> dict:
+def run_one(stress: float, C: float, level: int, shear_modulus: float | None = None) -> dict:
     import numpy as np
 
     from capsim.config import case_from_dict
     from capsim.runs.runner import run_case
     from capsim.storage.store import read_trajectory
 
-    d = case_for(stress, C, level)
+    d = case_for(stress, C, level, shear_modulus)
     with tempfile.TemporaryDirectory() as tmp:
         d["name"] = "rbc-stress"
         d["output"] = {"path": f"{tmp}/run.h5", "snapshot_every": T_END}
@@ -72,7 +77,8 @@ def run_one(stress: float, C: float, level: int) -> dict:
     L = float(np.mean(np.asarray(ts["axis_L"], float)[sel]))
     W = float(np.mean(np.asarray(ts["axis_W"], float)[sel]))
     area = np.asarray(ts["area"], float)
-    return {"stress_Pa": stress, "skalak_c": C, "level": level, "G": case.flow.shear_rate_G,
+    return {"stress_Pa": stress, "skalak_c": C, "level": level, "shear_modulus_uN_m": shear_modulus or 2.5,
+            "G": case.flow.shear_rate_G,
             "viscosity_ratio": case.flow.viscosity_ratio, "status": result.status, "reason": result.status_reason,
             "t": result.t, "motion": s.get("motion"), "EI": (L - W) / (L + W), "L": L, "W": W,
             "D_xy": s.get("D_xy"), "area_change_max": float(np.max(np.abs(area / area[0] - 1.0))),
@@ -91,11 +97,12 @@ def run(groups: list[str]) -> None:
     apply_policy(1)
     rows = load()
     for group in groups:
-        C, level = GROUPS[group]
+        C, level, gs = GROUPS[group]
         for stress in (LEVEL3_STRESSES_PA if level == 3 else STRESSES_PA):
-            if any(r["stress_Pa"] == stress and r["skalak_c"] == C and r["level"] == level for r in rows):
+            if any(r["stress_Pa"] == stress and r["skalak_c"] == C and r["level"] == level
+                   and r.get("shear_modulus_uN_m", 2.5) == (gs or 2.5) for r in rows):
                 continue
-            rows.append(run_one(stress, C, level))
+            rows.append(run_one(stress, C, level, gs))
             JSON.write_text(json.dumps(rows, indent=1) + "\n")
             r = rows[-1]
             print(f"{stress:g} Pa C {C:g} L{level}: {r['status']} at kt {r['t']:.3g}, EI {r['EI']:.3f}, "
@@ -122,12 +129,12 @@ def report() -> None:
              "`make bench-rbc-stress`; EI measured: healthy cells by ektacytometry, interpolated in log τ "
              "(benchmarks/data/iuq_ektacytometry_healthy.csv: its paper unconfirmed, its medium's viscosity not given; "
              "capsim's EI is the equivalent ellipsoid's, not a diffraction pattern's):", "",
-             "| τ (Pa) | G | C | level | status | EI = (L − W)/(L + W) | EI measured | largest area change | smallest "
-             "element quality | compressed at the end |", "|---|---|---|---|---|---|---|---|---|---|"]
-    for r in sorted(rows, key=lambda r: (r["level"], r["skalak_c"], r["stress_Pa"])):
+             "| τ (Pa) | G_s (µN/m) | G | C | level | status | EI = (L − W)/(L + W) | EI measured | largest area "
+             "change | smallest element quality | compressed at the end |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in sorted(rows, key=lambda r: (r["level"], r.get("shear_modulus_uN_m", 2.5), r["skalak_c"], r["stress_Pa"])):
         status = r["status"] if r["status"] == "completed" else f"{r['status']} at kt {r['t']:.3g} ({r['reason'].split(':')[0]})"
         ei = measured_ei(r["stress_Pa"])
-        lines.append(f"| {r['stress_Pa']:g} | {r['G']:.3g} | {r['skalak_c']:g} | {r['level']} | {status} | "
+        lines.append(f"| {r['stress_Pa']:g} | {r.get('shear_modulus_uN_m', 2.5):g} | {r['G']:.3g} | {r['skalak_c']:g} | {r['level']} | {status} | "
                      f"{r['EI']:.3f} | {'—' if ei is None else f'{ei:.3f}'} | {100 * r['area_change_max']:.1f} % | {r['min_element_quality']:.2f} | "
                      f"{100 * r['compressed_fraction']:.0f} % |")
     TABLE.write_text("\n".join(lines) + "\n")

@@ -119,9 +119,9 @@ class FitMethod(StrictModel):
     """Settings of the least-squares fit."""
 
     optimizer: Literal["dfols", "trf"] = Field(
-        "dfols", description="dfols: DFO-LS's interpolation models, every evaluation reused (measured: 60 runs for "
+        "dfols", description="dfols: DFO-LS's interpolation models, every evaluation reused (measured: 50-55 runs for "
         "two parameters over five rows, against 80 with trf); trf: scipy's least_squares with forward differences")
-    radius_start: float = Field(0.1, gt=0, le=0.5, description="dfols: the first trust region's radius in unit "
+    radius_start: float = Field(0.2, gt=0, le=0.5, description="dfols: the first trust region's radius in unit "
                                 "variables (fraction of the bound range): the first steps' size")
     radius_end: float = Field(1e-3, gt=0, lt=0.5, description="dfols: stop when the trust region's radius is this "
                               "(unit variables): the resolution of the estimate and the spacing of the points its "
@@ -524,10 +524,10 @@ class FitResult:
 
 def typical_evaluations(optimizer: str, n: int) -> int:
     """The evaluations a fit of n parameters typically costs (the printed expectation), measured on the
-    synthetic fits of benchmarks/fit_coverage.py from a start within a factor 2: dfols 8 for one parameter
-    and 12 for two (n + 1 for its first model, then one an iteration); trf 1 + n a Gauss-Newton
-    iteration, about TYPICAL_ITERATIONS of them."""
-    return 4 + 4 * n if optimizer == "dfols" else (1 + n) * TYPICAL_ITERATIONS
+    synthetic fits of benchmarks/fit_coverage.py and docs/fit.md's example from a start within a factor 2:
+    dfols 8-9 for one parameter and 10-11 for two (n + 1 for its first model, then one an iteration);
+    trf 1 + n a Gauss-Newton iteration, about TYPICAL_ITERATIONS of them."""
+    return 7 + 2 * n if optimizer == "dfols" else (1 + n) * TYPICAL_ITERATIONS
 
 
 def plan_line(fit: Fit) -> str:
