@@ -1761,3 +1761,126 @@ def viscous_membrane_blocks(x, elements, dxi, deta, w, c_shear, c_dil):
                             out[e, 3 * ka + i, 3 * kb + j] += (cs * (g[kb, i] * g[ka, j] + dot * proj)
                                                                + cd * g[ka, i] * g[kb, j])
     return out
+
+
+# ---------------------------------------------------------------- per-step observables (issue 57)
+
+@njit(**_JIT)
+def surface_moments(points, normals, weights, p):
+    """The enclosed volume's moments from surface integrals at the regular points, in two
+    passes (capsim.numerics.geometry's volume_area, centroid and second_moment fused):
+    V = ⅓ ∫ (x − p)·n dS, S = ∫ dS, c = p + ½ ∫ |x − p|² n dS / V, and about c
+    M = ⅕ ∫ y y (y·n) dS, y = x − c (seed 3.9). p: the reference point the first
+    integrals are taken about (round-off far from the origin). Returns
+    [V, S, c_x, c_y, c_z, M_xx, M_xy, ..., M_zz] (14 values)."""
+    ne, nq = weights.shape
+    V = 0.0
+    S = 0.0
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    for e in range(ne):
+        for q in range(nq):
+            w = weights[e, q]
+            y0 = points[e, q, 0] - p[0]
+            y1 = points[e, q, 1] - p[1]
+            y2 = points[e, q, 2] - p[2]
+            n0, n1, n2 = normals[e, q, 0], normals[e, q, 1], normals[e, q, 2]
+            V += (y0 * n0 + y1 * n1 + y2 * n2) * w
+            S += w
+            r2w = (y0 * y0 + y1 * y1 + y2 * y2) * w
+            s0 += r2w * n0
+            s1 += r2w * n1
+            s2 += r2w * n2
+    V /= 3.0
+    out = np.zeros(14)
+    out[0] = V
+    out[1] = S
+    c0 = p[0] + 0.5 * s0 / V
+    c1 = p[1] + 0.5 * s1 / V
+    c2 = p[2] + 0.5 * s2 / V
+    out[2] = c0
+    out[3] = c1
+    out[4] = c2
+    m = np.zeros(9)
+    for e in range(ne):
+        for q in range(nq):
+            y0 = points[e, q, 0] - c0
+            y1 = points[e, q, 1] - c1
+            y2 = points[e, q, 2] - c2
+            ynw = (y0 * normals[e, q, 0] + y1 * normals[e, q, 1] + y2 * normals[e, q, 2]) * weights[e, q]
+            m[0] += y0 * y0 * ynw
+            m[1] += y0 * y1 * ynw
+            m[2] += y0 * y2 * ynw
+            m[4] += y1 * y1 * ynw
+            m[5] += y1 * y2 * ynw
+            m[8] += y2 * y2 * ynw
+    m[3] = m[1]
+    m[6] = m[2]
+    m[7] = m[5]
+    for k in range(9):
+        out[5 + k] = m[k] / 5.0
+    return out
+
+
+@njit(**_JIT)
+def centroid_flux_velocity(points, normals, weights, u, elements, phi, center, volume):
+    """dc/dt of the volume centroid by Reynolds' transport theorem (capsim.solve.observables.
+    centroid_velocity): U + ∮ (x − c) ((u − U)·n) dS / V, U the nodes' mean velocity, u
+    interpolated to the regular points with the shape functions ``phi`` (Q, 6)."""
+    n_nodes = u.shape[0]
+    U0 = 0.0
+    U1 = 0.0
+    U2 = 0.0
+    for i in range(n_nodes):
+        U0 += u[i, 0]
+        U1 += u[i, 1]
+        U2 += u[i, 2]
+    U0 /= n_nodes
+    U1 /= n_nodes
+    U2 /= n_nodes
+    v0 = 0.0
+    v1 = 0.0
+    v2 = 0.0
+    ne, nq = weights.shape
+    for e in range(ne):
+        for q in range(nq):
+            a0 = 0.0
+            a1 = 0.0
+            a2 = 0.0
+            for k in range(phi.shape[1]):
+                node = elements[e, k]
+                f = phi[q, k]
+                a0 += f * (u[node, 0] - U0)
+                a1 += f * (u[node, 1] - U1)
+                a2 += f * (u[node, 2] - U2)
+            flux = (a0 * normals[e, q, 0] + a1 * normals[e, q, 1] + a2 * normals[e, q, 2]) * weights[e, q]
+            v0 += flux * (points[e, q, 0] - center[0])
+            v1 += flux * (points[e, q, 1] - center[1])
+            v2 += flux * (points[e, q, 2] - center[2])
+    out = np.empty(3)
+    out[0] = U0 + v0 / volume
+    out[1] = U1 + v1 / volume
+    out[2] = U2 + v2 / volume
+    return out
+
+
+@njit(**_JIT)
+def min_vertex_triangle_quality(x, elements):
+    """The smallest 4√3·area / Σ edge² of the elements' vertex triangles (capsim.numerics.
+    geometry.vertex_triangle_quality's minimum)."""
+    worst = np.inf
+    for e in range(elements.shape[0]):
+        a, b, c = elements[e, 0], elements[e, 1], elements[e, 2]
+        ab0, ab1, ab2 = x[b, 0] - x[a, 0], x[b, 1] - x[a, 1], x[b, 2] - x[a, 2]
+        ac0, ac1, ac2 = x[c, 0] - x[a, 0], x[c, 1] - x[a, 1], x[c, 2] - x[a, 2]
+        bc0, bc1, bc2 = x[c, 0] - x[b, 0], x[c, 1] - x[b, 1], x[c, 2] - x[b, 2]
+        cr0 = ab1 * ac2 - ab2 * ac1
+        cr1 = ab2 * ac0 - ab0 * ac2
+        cr2 = ab0 * ac1 - ab1 * ac0
+        area = 0.5 * np.sqrt(cr0 * cr0 + cr1 * cr1 + cr2 * cr2)
+        s = (ab0 * ab0 + ab1 * ab1 + ab2 * ab2) + (bc0 * bc0 + bc1 * bc1 + bc2 * bc2) + (ac0 * ac0 + ac1 * ac1 + ac2 * ac2)
+        qual = 4.0 * np.sqrt(3.0) * area / s
+        if qual < worst:
+            worst = qual
+    return worst

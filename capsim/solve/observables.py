@@ -16,8 +16,9 @@ from capsim.numerics.geometry import (
     ElementGeometry,
     centroid,
     interpolate,
+    min_quality,
     second_moment,
-    vertex_triangle_quality,
+    surface_moments,
     volume_area,
 )
 from capsim.scene import smallest_gap
@@ -101,9 +102,8 @@ def _line(v: np.ndarray) -> np.ndarray:
 
 
 def ellipsoid_axes(geo: ElementGeometry) -> dict:
-    volume, area = volume_area(geo)
-    center = centroid(geo, volume)
-    out = ellipsoid_of_moment(second_moment(geo, center), volume)
+    volume, area, center, moment = surface_moments(geo)
+    out = ellipsoid_of_moment(moment, volume)
     out.update(volume=volume, area=area, centroid=center)
     return out
 
@@ -175,7 +175,7 @@ def step_observables(x: np.ndarray, elements: np.ndarray, geo: ElementGeometry, 
         "short_axis_x": float(e["short_axis"][0]),
         "short_axis_y": float(e["short_axis"][1]),
         "short_axis_z": float(e["short_axis"][2]),
-        "min_element_quality": float(vertex_triangle_quality(x, elements).min()),
+        "min_element_quality": min_quality(x, elements),
         "max_principal_stretch": float(max_stretch),
     }
 
@@ -247,10 +247,10 @@ def centroid_velocity(geo: ElementGeometry, u: np.ndarray, elements: np.ndarray,
     to the regular points with the elements' shape functions ``phi`` (Q, 6)."""
     # about the centre and less the mean velocity U (∮ (x − c) (U·n) dS = V U): far from the
     # origin x and U are large and their round-off swamped the slip (capsim.numerics.geometry.reference_point)
-    U = u.mean(axis=0)
-    uq = np.einsum("qk,ekc->eqc", phi, u[elements] - U)
-    flux = np.einsum("eqc,eqc->eq", uq, geo.normals) * geo.weights
-    v = U + np.einsum("eq,eqc->c", flux, geo.points - center) / volume
+    from capsim.numerics.kernels import centroid_flux_velocity  # one loop: the einsums took 0.4 ms a step
+
+    v = centroid_flux_velocity(geo.points, geo.normals, geo.weights, np.ascontiguousarray(u), elements, phi,
+                               np.asarray(center, dtype=np.float64), float(volume))
     return {"centroid_velocity_x": float(v[0]), "centroid_velocity_y": float(v[1]), "centroid_velocity_z": float(v[2])}
 
 

@@ -1,0 +1,73 @@
+"""The per-step observables' numba kernels (issue 57) against the numpy integrals they replace:
+the same values to round-off, on a deformed, turned and displaced surface (far from the origin too)."""
+
+import numpy as np
+import pytest
+
+from capsim.numerics.geometry import (
+    centroid, element_geometry, min_quality, numpy_quadrature, second_moment, shape_functions, surface_moments,
+    vertex_triangle_quality, volume_area,
+)
+from capsim.numerics.mesh import unit_sphere_mesh
+from capsim.numerics.quadrature import triangle_rule
+
+
+def _surface(offset):
+    """A level-2 sphere stretched to an ellipsoid (2, 1, 0.5), turned about z and y, moved by `offset`."""
+    mesh = unit_sphere_mesh(level=2)
+    x = mesh.positions * np.array([2.0, 1.0, 0.5])
+    c, s = np.cos(0.4), np.sin(0.4)
+    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    return np.ascontiguousarray(x @ turn.T + offset), mesh.elements
+
+
+@pytest.mark.parametrize("offset", [(0.0, 0.0, 0.0), (3.0, -2.0, 1.0), (1e6, 0.0, 0.0)])
+def test_surface_moments_are_the_numpy_integrals(offset):
+    x, elements = _surface(np.array(offset))
+    geo = element_geometry(x, elements)
+    V, S, c, M = surface_moments(geo)
+    V0, S0 = volume_area(geo)
+    c0 = centroid(geo, V0)
+    M0 = second_moment(geo, c0)
+    assert V == pytest.approx(V0, rel=1e-12) and S == pytest.approx(S0, rel=1e-12)
+    assert np.allclose(c, c0, rtol=0, atol=1e-11 * max(1.0, np.abs(offset).max()) ** 0.5)
+    assert np.allclose(M, M0, rtol=0, atol=1e-12 * np.abs(M0).max()) and np.allclose(M, M.T, atol=0)
+    # and the known answer: an ellipsoid (2, 1, 0.5) has V = 4π/3 and ∫ x_i² dV = V a_i²/5 in its frame
+    assert V == pytest.approx(4 * np.pi / 3, rel=2e-3)
+    assert np.sort(np.linalg.eigvalsh(M)) == pytest.approx(V0 / 5 * np.array([0.25, 1.0, 4.0]), rel=1e-2)
+    with numpy_quadrature():  # the numpy path (a check before a run): the same numbers
+        V1, S1, c1, M1 = surface_moments(geo)
+    assert (V1, S1) == (V0, S0) and np.array_equal(c1, c0) and np.array_equal(M1, M0)
+
+
+def test_centroid_velocity_kernel_is_the_reynolds_integral():
+    """A rigid motion U + ω × (x − c) moves the centroid at U; a uniform expansion u = x − c leaves it;
+    and a general field gives the numpy einsum's value to round-off."""
+    from capsim.numerics.kernels import centroid_flux_velocity
+
+    x, elements = _surface(np.array([3.0, -2.0, 1.0]))
+    geo = element_geometry(x, elements)
+    V, _, c, _ = surface_moments(geo)
+    xi, eta, _ = triangle_rule(6)
+    phi = shape_functions(xi, eta)[0]
+    U, w = np.array([0.3, -0.2, 0.1]), np.array([0.0, 0.0, 0.5])
+    rigid = U + np.cross(w, x - c)
+    assert centroid_flux_velocity(geo.points, geo.normals, geo.weights, rigid, elements, phi, c, V) == pytest.approx(
+        U, abs=1e-4)
+    rng = np.random.default_rng(57)
+    u = np.ascontiguousarray(rng.normal(size=x.shape))
+    Um = u.mean(axis=0)
+    uq = np.einsum("qk,ekc->eqc", phi, u[elements] - Um)
+    flux = np.einsum("eqc,eqc->eq", uq, geo.normals) * geo.weights
+    expected = Um + np.einsum("eq,eqc->c", flux, geo.points - c) / V
+    got = centroid_flux_velocity(geo.points, geo.normals, geo.weights, u, elements, phi, c, V)
+    assert np.allclose(got, expected, rtol=0, atol=1e-13 * np.abs(expected).max() + 1e-15)
+
+
+def test_min_quality_is_the_smallest_vertex_triangle_quality():
+    x, elements = _surface(np.zeros(3))
+    assert min_quality(x, elements) == pytest.approx(vertex_triangle_quality(x, elements).min(), rel=1e-13)
+    # an equilateral triangle is 1, a flattened one tends to 0
+    tri = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, np.sqrt(3) / 2, 0.0], [0.5, 1e-3, 0.0]])
+    assert min_quality(tri, np.array([[0, 1, 2]])) == pytest.approx(1.0, rel=1e-14)
+    assert min_quality(tri, np.array([[0, 1, 2], [0, 1, 3]])) == pytest.approx(4 * np.sqrt(3) * 5e-4 / 1.500002, rel=1e-6)
