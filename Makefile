@@ -75,6 +75,13 @@ bench-stepping: venv
 bench-split: venv
 	$(BIN)/python benchmarks/evaluation_split.py
 
+# the demo's command around its evaluations (issue 57): the whole command, validate, imports, the run's
+# evaluations, rows and writes, this checkout against the baseline in alternating rounds (about 1 min):
+# writes benchmarks/command_time.md and benchmarks/command_time.json
+.PHONY: bench-command
+bench-command: venv
+	$(BIN)/python benchmarks/command_time.py
+
 # time.rtol's promise: every scheme x case x rtol 1e-2..1e-5, error / rtol against a reference at
 # 1e-7 (about 25 min on 2 shared cores; CASES=a c to run some): writes benchmarks/rtol_promise.md and .json
 bench-promise: venv

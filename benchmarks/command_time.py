@@ -1,0 +1,166 @@
+"""What a command spends around its evaluations (issue 57): the demo's command, before and after.
+
+Two source trees in one invocation, in alternating rounds so that other processes' load affects
+both alike: this checkout ("after") and a baseline commit exported with ``git archive``
+("before"), each in fresh interpreters with the byte-code cache on (``PYTHONDONTWRITEBYTECODE``
+unset: an installed package has its .pyc; without them every command compiles capsim's sources
+again, ~0.1 s), one thread, after a warm-up round (numba's cache and the .pyc written). Per tree:
+
+- ``command``: the whole ``capsim run configs/sphere.yaml`` (the demo) as a subprocess, wall time;
+- ``validate``: the whole ``capsim validate configs/sphere.yaml``;
+- ``interpreter``: ``python -c pass``; ``numba``: ``python -c "import numba"``;
+- in one more fresh interpreter (``worker``): the imports of the run's modules, then ``capsim.run``
+  of the same case with its parts timed by wrapping them: the velocity evaluations (the model's
+  ``velocity``), ``observe`` (the step's row), the run file's row writes; ``outside`` is the run's
+  wall time less its evaluations.
+
+The table gives medians over the rounds; ``around the run`` is the command's wall time less the
+worker's run wall time (the same case). Usage::
+
+    python benchmarks/command_time.py                # 5 rounds (about 1 min)
+    python benchmarks/command_time.py --rounds 2 --out /tmp/ct
+
+Writes ``<out>.md`` and ``<out>.json``, default ``benchmarks/command_time.{md,json}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+#: the last commit before issue 57's changes of this session (version literal, numba observables)
+BASELINE = "697d7fa"
+CASE = "configs/sphere.yaml"
+
+WORKER = r"""
+import json, sys, tempfile, time
+t0 = time.perf_counter()
+from capsim.numerics.threads import apply_policy
+apply_policy(1)
+import capsim
+from capsim.runs import runner
+from capsim.solve import solver, observables
+from capsim.storage import store
+imports = time.perf_counter() - t0
+clock = {"evaluations": 0.0, "observe": 0.0, "writes": 0.0}
+def timed(cls, name, key):
+    original = getattr(cls, name)
+    def wrapper(*a, **k):
+        s = time.perf_counter()
+        try:
+            return original(*a, **k)
+        finally:
+            clock[key] += time.perf_counter() - s
+    setattr(cls, name, wrapper)
+model_cls = [c for c in vars(solver).values() if isinstance(c, type) and "velocity" in vars(c)][0]
+timed(model_cls, "velocity", "evaluations")
+timed(observables.StepObserver, "observe", "observe")
+timed(store.TrajectoryWriter, "append_step", "writes")
+case = capsim.load_case(sys.argv[1])
+with tempfile.TemporaryDirectory() as d:
+    case = case.model_copy(update={"output": case.output.model_copy(update={"path": d + "/run.h5"})})
+    s = time.perf_counter()
+    result = capsim.run(case, overwrite=True)
+    run = time.perf_counter() - s
+print(json.dumps({"imports": imports, "run": run, **clock, "velocity_evaluations": int(result["velocity_evaluations"]),
+                  "D_xy": float(result["D_xy"])}))
+"""
+
+
+def _env(tree: Path) -> dict:
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    env.update(PYTHONPATH=str(tree), OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
+               NUMBA_NUM_THREADS="1")
+    return env
+
+
+def _wall(args: list[str], tree: Path, cwd: Path) -> float:
+    s = time.perf_counter()
+    subprocess.run(args, env=_env(tree), cwd=cwd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return time.perf_counter() - s
+
+
+def _cli(tree: Path, *args: str) -> list[str]:
+    return [sys.executable, "-c", "import sys; from capsim.face.cli import app; sys.argv[0] = 'capsim'; app()", *args]
+
+
+def measure(tree: Path, work: Path) -> dict:
+    case = str(tree / CASE)
+    out = {"command": _wall(_cli(tree, "run", case, "--overwrite", "--quiet"), tree, work),
+           "validate": _wall(_cli(tree, "validate", case), tree, work),
+           "interpreter": _wall([sys.executable, "-c", "pass"], tree, work),
+           "numba": _wall([sys.executable, "-c", "import numba"], tree, work)}
+    res = subprocess.run([sys.executable, "-c", WORKER, case], env=_env(tree), cwd=work, check=True,
+                         capture_output=True, text=True)
+    out.update(json.loads(res.stdout.strip().splitlines()[-1]))
+    out["outside"] = out["run"] - out["evaluations"]
+    out["around_the_run"] = out["command"] - out["run"]
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--baseline", default=BASELINE)
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "command_time"))
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        before = Path(tmp) / "before"
+        before.mkdir()
+        archive = subprocess.run(["git", "archive", args.baseline], cwd=ROOT, check=True, capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(before)], input=archive, check=True)
+        trees = {"before": before, "after": ROOT}
+        work = Path(tmp) / "work"
+        work.mkdir()
+        for tree in trees.values():  # warm-up: numba's cache, the .pyc
+            measure(tree, work)
+        rounds = {name: [] for name in trees}
+        for r in range(args.rounds):
+            for name, tree in trees.items():
+                rounds[name].append(measure(tree, work))
+                print(f"round {r + 1} {name}: " + ", ".join(f"{k} {v:.3f}" for k, v in rounds[name][-1].items()
+                                                           if isinstance(v, float)), flush=True)
+    med = {name: {k: float(np.median([x[k] for x in rs])) for k in rs[0]} for name, rs in rounds.items()}
+    rows = [("the whole command (`capsim run configs/sphere.yaml`)", "command"),
+            ("its time around the run (command less the run)", "around_the_run"),
+            ("the run (`capsim.run`, in-process)", "run"),
+            ("the run's velocity evaluations", "evaluations"),
+            ("the run outside its evaluations", "outside"),
+            ("… of which the rows (`observe`)", "observe"),
+            ("… of which the run file's row writes", "writes"),
+            ("imports of the run's modules (fresh interpreter)", "imports"),
+            ("`capsim validate configs/sphere.yaml`", "validate"),
+            ("`python -c pass`", "interpreter"),
+            ("`python -c \"import numba\"`", "numba")]
+    lines = [f"The demo's command and its split (issue 57), medians of {args.rounds} alternating rounds, one thread, "
+             f"byte-code cache on; before: commit {args.baseline}, after: this tree. `make bench-command`. "
+             f"{platform.processor() or platform.machine()}, load when run: {os.getloadavg()[0]:.1f}.", "",
+             "| seconds | before | after | after / before |", "|---|---|---|---|"]
+    for label, key in rows:
+        b, a = med["before"][key], med["after"][key]
+        lines.append(f"| {label} | {b:.3f} | {a:.3f} | {a / b:.2f} |")
+    for name in trees:
+        m = med[name]
+        lines.append("")
+        lines.append(f"{name}: outside the evaluations {100 * m['outside'] / m['run']:.0f} % of the run; "
+                     f"{int(m['velocity_evaluations'])} evaluations, D_xy {m['D_xy']:.6f}")
+    Path(args.out + ".md").write_text("\n".join(lines) + "\n")
+    Path(args.out + ".json").write_text(json.dumps({"date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                                                    "baseline": args.baseline, "rounds": rounds, "medians": med},
+                                                   indent=1) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
