@@ -40,6 +40,7 @@ import csv
 import json
 import math
 import os
+import re
 import sys
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
@@ -166,6 +167,8 @@ class FitData:
     observable: list[str]
     values: np.ndarray
     sd: np.ndarray | None  # None: no sd columns (unweighted, s² from the residuals)
+    #: observable -> the unit its column carries ("ttf_ratio [rad/s]"); absent: capsim's own value
+    units: dict[str, str] = field(default_factory=dict)
 
     @property
     def n_points(self) -> int:
@@ -237,7 +240,14 @@ def fit_from_dict(d: Any, source: str = "<fit>", base_dir: str | os.PathLike = "
                           f"parameter{'s' * (n != 1)}: at least {need} needed{why}")
     fit = Fit(spec, data, source)
     # every case of the first evaluation, validated as a campaign validates its runs
-    _campaign(fit, [_point(fit, [p.initial for p in spec.parameters.values()])], source=source)
+    first = _campaign(fit, [_point(fit, [p.initial for p in spec.parameters.values()])], source=source)
+    if data.units:  # and each column's unit reachable from its runs (a physical block where a scale is needed)
+        case = expand_campaign(first)[0].case()
+        for obs, unit in data.units.items():
+            try:
+                output_in_unit(obs, unit, case)
+            except ConfigError as exc:
+                raise ConfigError(f"{source}: {exc}") from None
     return fit
 
 
@@ -252,7 +262,12 @@ def read_data(path: Path, parameters: Mapping[str, str] = {}) -> FitData:
     rows = list(csv.reader(lines))
     if len(rows) < 2:
         raise ConfigError(f"{where}: no data rows (a header line of column names, then one line per measurement)")
-    header = [h.strip() for h in rows[0]]
+    header, column_units = [], {}
+    for cell in rows[0]:
+        name, unit = _split_unit(cell.strip(), where)
+        header.append(name)
+        if unit:
+            column_units[name] = unit
     if len(set(header)) != len(header):
         raise ConfigError(f"{where}: a column name appears twice ({', '.join(sorted({h for h in header if header.count(h) > 1}))})")
     conditions, observables, sds = [], [], {}
@@ -272,6 +287,19 @@ def read_data(path: Path, parameters: Mapping[str, str] = {}) -> FitData:
                               "flow.viscosity_ratio; uncertainties are <output>_sd)")
     if not observables:
         raise ConfigError(f"{where}: no observable column (a run output such as {', '.join(OBSERVABLES[:4])})")
+    for name in column_units:
+        if name in conditions:
+            raise ConfigError(f"{where}: column {name!r} [{column_units[name]}]: a condition carries its unit in its "
+                              "cells ('50 1/s'), not in the header")
+    units = {}
+    for obs in observables:
+        unit, sd_unit = column_units.get(obs, ""), column_units.get(sds.get(obs, ""), "")
+        if sd_unit and sd_unit != unit:
+            raise ConfigError(f"{where}: {sds[obs]} [{sd_unit}]: an sd column takes its observable's unit "
+                              f"({obs} [{unit or 'capsim units'}])")
+        if unit:
+            output_unit_kind(obs, unit, where)  # refused here if it cannot be one
+            units[obs] = unit
     if sds and set(sds) != set(observables):
         lacking = [o for o in observables if o not in sds]
         raise ConfigError(f"{where}: {', '.join(o + '_sd' for o in lacking)} missing: give an sd column for every "
@@ -300,7 +328,75 @@ def read_data(path: Path, parameters: Mapping[str, str] = {}) -> FitData:
                     raise ConfigError(f"{where}: line {r + 1}: {sds[obs]} = {s:g}: must be > 0")
                 sd.append(s)
     return FitData(cond_rows, np.array(point_row, dtype=int), observables, point_obs, np.array(values),
-                   np.array(sd) if sds else None)
+                   np.array(sd) if sds else None, units)
+
+
+_UNIT_IN_HEADER = re.compile(r"^(?P<name>[^\[\]]+?)\s*\[(?P<unit>[^\[\]]+)\]$")
+#: pint's names of angles: a frequency column in one of them counts radians (or degrees) per time,
+#: a revolution being 2π rad; pint itself treats the radian as dimensionless (1 Hz -> 1 rad/s)
+_ANGLE_UNITS = ("radian", "degree", "revolution", "turn", "cycle")
+
+
+def _split_unit(cell: str, where: str) -> tuple[str, str]:
+    """'ttf_ratio [rad/s]' -> ('ttf_ratio', 'rad/s'); a name without brackets -> (name, '')."""
+    if "[" not in cell and "]" not in cell:
+        return cell, ""
+    m = _UNIT_IN_HEADER.match(cell)
+    if m is None:
+        raise ConfigError(f"{where}: column {bounded_repr(cell)}: a unit is written after the name in brackets, "
+                          "as in 'length_along [um]'")
+    return m.group("name").strip(), m.group("unit").strip()
+
+
+def output_unit_kind(observable: str, unit: str, where: str) -> str:
+    """How a run output is converted to a column's unit, refused in one line where it cannot be:
+    "scale" (a value in a capsim scale: times the case's factor, then pint), "own" (a value with its
+    own unit, an angle in rad or a time in s: pint), "frequency" (the k/(4π) scale's revolutions per
+    time, with angles counted: 1 revolution = 2π rad)."""
+    from capsim.quantities import SCALE_UNITS, TABLE, key_for
+    from capsim.units import _registry
+
+    q = TABLE[key_for(observable, "campaign")]
+    ureg = _registry()
+    try:
+        target = ureg.Unit(unit)
+    except Exception:  # noqa: BLE001 - pint's many parse errors: one line
+        raise ConfigError(f"{where}: column {observable} [{unit}]: {bounded_repr(unit)} is not a unit pint reads "
+                          "(e.g. um, Hz, rad/s, deg)") from None
+    if q.scale in SCALE_UNITS:
+        shown = SCALE_UNITS[q.scale][1]
+        kind = "frequency" if q.scale == "k/(4 pi)" else "scale"
+        source = ureg.Unit(shown)
+    elif q.units in ("rad", "degree", "s"):
+        kind, shown, source = "own", q.units, ureg.Unit(q.units)
+    else:
+        raise ConfigError(f"{where}: column {observable} [{unit}]: {observable} is a pure number (no physical unit); "
+                          "remove the unit")
+    if source.dimensionality != target.dimensionality:
+        raise ConfigError(f"{where}: column {observable} [{unit}]: {observable} is in {shown} with --units physical; "
+                          f"{unit} is not convertible to it")
+    return kind
+
+
+def output_in_unit(observable: str, unit: str, case: Any) -> float:
+    """The factor that turns a run's dimensionless `observable` into `unit` for `case`: the case's
+    scale factor (its physical block) times pint's conversion; a frequency in an angle per time counts
+    2π rad a revolution. ConfigError (one line) for a scaled output of a case without a physical block."""
+    from capsim.quantities import SCALE_UNITS, TABLE, key_for
+    from capsim.units import _registry, physical_factors
+
+    q = TABLE[key_for(observable, "campaign")]
+    ureg = _registry()
+    kind = output_unit_kind(observable, unit, "data")
+    if kind == "own":
+        return float(ureg.Quantity(1.0, q.units).to(unit).magnitude)
+    if getattr(case, "physical", None) is None:
+        raise ConfigError(f"data: column {observable} [{unit}]: the case has no physical block, so {observable} has "
+                          "no physical value; give the base a physical: block or the column in capsim units")
+    factor = physical_factors(case.physical)[q.scale]  # to SCALE_UNITS' shown unit
+    if kind == "frequency" and any(a in str(ureg.Unit(unit)) for a in _ANGLE_UNITS):
+        return float(factor * ureg.Quantity(1.0, "revolution/second").to(unit).magnitude)
+    return float(factor * ureg.Quantity(1.0, SCALE_UNITS[q.scale][1]).to(unit).magnitude)
 
 
 def _cell_value(text: str) -> Any:
@@ -447,8 +543,13 @@ class _Evaluator:
             if not math.isfinite(value):
                 raise FitError(f"{fit.source}: run {spec.run_id} has no {obs} (status {record.get('status', '?')}, "
                                f"motion {record.get('motion', '?') or '?'}); a longer time.t_end may settle it")
+            e = _run_error(spec.path, obs, value)
+            unit = fit.data.units.get(obs)
+            if unit:  # the column's unit: the run's value (and its error) times the case's factor
+                factor = output_in_unit(obs, unit, spec.case())
+                value, e = value * factor, e * factor
             model.append(value)
-            err.append(_run_error(spec.path, obs, value))
+            err.append(e)
             ids.append(spec.run_id)
         shown = ", ".join(f"{k}={v:.6g}" for k, v in zip(fit.names, x))
         self.log(f"  evaluation {self.evaluations}: {shown}: {len(specs)} runs ({ran} of them run now)")
@@ -608,6 +709,7 @@ def run_fit(fit: Fit, *, workers: int | None = 1, log: Callable[[str], None] | N
     for k in range(n_pts):
         row = int(data.rows[k])
         point_rows.append({"row": row + 1, "conditions": data.conditions[row], "observable": data.observable[k],
+                           "unit": data.units.get(data.observable[k], ""),
                            "data": float(data.values[k]), "sd": float(data.sd[k]) if data.sd is not None else None,
                            "run_error": float(err[k]) if math.isfinite(err[k]) else None,
                            "model": float(values[k]), "residual": float(r[k]), "run_id": ids[k]})
@@ -744,7 +846,8 @@ def plot_fit(result: FitResult, path: str | os.PathLike) -> Path:
         ax.errorbar(xs, data, yerr=sd if sd.any() else None, fmt="o", label="data")
         ax.plot(xs, fitted, "-s", label="model at the estimates")
         ax.set_xlabel((conds[0] + (" (SI)" if conds[0].startswith("physical.") else "")) if conds else "data row")
-        ax.set_ylabel(obs)
+        unit = pts[0].get("unit") or ""
+        ax.set_ylabel(f"{obs} [{unit}]" if unit else obs)
         ax.legend(fontsize=8)
     shown = ", ".join(f"{p} = {result.estimates[p]:.4g}" for p in result.parameters)
     fig.suptitle(f"{result.name}: {shown}", fontsize=9)

@@ -215,3 +215,64 @@ def test_validate_reads_a_fit_file_and_says_its_plan(tmp_path):
         "bounds": [0.002, 0.05], "initial": 0.02}})))
     result = CliRunner().invoke(app, ["validate", str(path)])
     assert result.exit_code == 2 and result.output.startswith("error: ") and "flow.Gee" in result.output
+
+
+# ---------------------------------------------------------------- units on observable columns
+
+_PHYSICAL_BASE = {"shape": {"kind": "sphere"}, "mesh": {"level": 1}, "time": {"t_end": 1.0},
+                  "physical": {"viscosity": "1 mPa*s", "radius": "50 um"}}
+
+
+def _unit_fit(tmp_path, header, rows, base=_PHYSICAL_BASE, name="data.csv"):
+    csv = tmp_path / name
+    csv.write_text(header + "\n" + "".join(r + "\n" for r in rows))
+    return {"name": "fit-units", "base": base,
+            "parameters": {"physical.shear_modulus": {"bounds": [1, 50], "initial": 10, "log": True, "unit": "uN/m"}},
+            "data": str(csv), "output": {"dir": str(tmp_path / "out"), "figure": False}}
+
+
+def test_a_column_in_physical_units_is_the_run_output_times_its_scale(tmp_path):
+    """ttf_ratio in rad/s is ω = ttf_ratio k/2 (a revolution is 2π rad: pint alone would read 1 Hz as 1 rad/s),
+    in Hz f = ttf_ratio k/(4π), in rpm 60 f; θ in degrees 180/π θ; the same runs (one run dir, reused)."""
+    from capsim.campaigns.fit import _Evaluator
+
+    rates = ("2 1/s", "4 1/s")
+    plain = fit_from_dict(_unit_fit(tmp_path, "physical.shear_rate,ttf_ratio,theta",
+                                    [f"{k},0.5,0.3" for k in rates]), source="plain.yaml")
+    model, _, ids = _Evaluator(plain, 1, lambda line: None)([10.0])
+    ttf, theta = model[0::2], model[1::2]
+    for unit, factor in (("rad/s", np.array([1.0, 2.0])), ("Hz", np.array([2.0, 4.0]) / (4 * np.pi)),
+                         ("rpm", 60 * np.array([2.0, 4.0]) / (4 * np.pi))):
+        fit = fit_from_dict(_unit_fit(tmp_path, f"physical.shear_rate,ttf_ratio [{unit}],theta [deg]",
+                                      [f"{k},0.5,0.3" for k in rates], name=f"{unit.replace('/', '_')}.csv"),
+                            source="units.yaml")
+        evaluator = _Evaluator(fit, 1, lambda line: None)
+        converted, _, ids_u = evaluator([10.0])
+        assert ids_u == ids and evaluator.runs_executed == 0  # the same runs, reused
+        assert converted[0::2] == pytest.approx(ttf * factor, rel=1e-12), unit
+        assert converted[1::2] == pytest.approx(np.degrees(theta), rel=1e-12)
+
+
+@pytest.mark.parametrize("header, base, message", [
+    ("physical.shear_rate,D_xy [um]", _PHYSICAL_BASE, "column D_xy [um]: D_xy is a pure number (no physical unit); "
+     "remove the unit"),
+    ("physical.shear_rate,theta [um]", _PHYSICAL_BASE, "column theta [um]: theta is in rad with --units physical; um "
+     "is not convertible to it"),
+    ("physical.shear_rate,ttf_ratio [blorps]", _PHYSICAL_BASE, "'blorps' is not a unit pint reads"),
+    ("physical.shear_rate,ttf_ratio [Hz,ttf_ratio_sd [rad/s]", _PHYSICAL_BASE, "a unit is written after the name in "
+     "brackets"),
+    ("physical.shear_rate,ttf_ratio [Hz],ttf_ratio_sd [rad/s]", _PHYSICAL_BASE, "ttf_ratio_sd [rad/s]: an sd column "
+     "takes its observable's unit (ttf_ratio [Hz])"),
+    ("physical.shear_rate [1/s],ttf_ratio", _PHYSICAL_BASE, "a condition carries its unit in its cells"),
+    ("flow.viscosity_ratio,length_along [um]", {"shape": {"kind": "sphere"}, "mesh": {"level": 1}},
+     "the case has no physical block, so length_along has no physical value"),
+])
+def test_column_unit_refusals(tmp_path, header, base, message):
+    n = header.count(",") + 1
+    cells = ["2 1/s" if h.startswith("physical") else "1.0" for h in header.split(",")][:n]
+    spec = _unit_fit(tmp_path, header, [",".join(cells)] * 2, base=base)
+    if base is not _PHYSICAL_BASE:
+        spec["parameters"] = {"flow.G": {"bounds": [0.002, 0.05], "initial": 0.02, "log": True}}
+    with pytest.raises(ConfigError) as info:
+        fit_from_dict(spec, source="fit.yaml")
+    assert message in str(info.value) and "\n" not in str(info.value)
