@@ -100,7 +100,8 @@ def _fit(name: str, cfg: dict, level: int, work: Path, values: dict, sds: dict):
 
 
 def _first_iteration_runs(fit) -> list[Path]:
-    """The run files of the initial point and its forward-difference steps, the same for every draw.
+    """The run files of the initial point and its first steps (trf's forward differences, dfols' first
+    interpolation points), the same for every draw.
 
     scipy's 2-point step with ``diff_step`` is relative to the variable, h = diff_step · |u| (scipy
     1.17; measured: u0 = 0.715 is stepped to 0.72215), not an absolute step in u; both candidates are
@@ -110,7 +111,8 @@ def _first_iteration_runs(fit) -> list[Path]:
     rel = fit.spec.method.diff_step
     points = [u0]
     for j in range(len(pars)):
-        for h in (rel * abs(u0[j]) or rel, rel):
+        # trf's forward differences (relative and absolute steps), dfols' first model (radius_start along each axis)
+        for h in (rel * abs(u0[j]) or rel, rel, fit.spec.method.radius_start):
             u = u0.copy()
             u[j] = u0[j] + h if u0[j] + h <= 1.0 else u0[j] - h
             points.append(u)

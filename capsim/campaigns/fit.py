@@ -133,6 +133,9 @@ class FitMethod(StrictModel):
                                  "Jacobian's evaluations come on top)")
     xtol: float = Field(1e-4, gt=0, lt=1, description="trf: stop when a step moves the unit variables less than this")
     confidence: float = Field(0.95, gt=0, lt=1, description="level of the intervals")
+    coarse_level: Optional[int] = Field(
+        None, ge=1, le=4, description="fit first at this mesh level (cheaper runs), then at the case's own from that "
+        "estimate, the first radius three of its standard errors: fewer runs at the case's level (mesh sequencing)")
 
     @model_validator(mode="after")
     def _radii(self) -> FitMethod:
@@ -241,6 +244,11 @@ def fit_from_dict(d: Any, source: str = "<fit>", base_dir: str | os.PathLike = "
     fit = Fit(spec, data, source)
     # every case of the first evaluation, validated as a campaign validates its runs
     first = _campaign(fit, [_point(fit, [p.initial for p in spec.parameters.values()])], source=source)
+    coarse = spec.method.coarse_level
+    if coarse is not None:
+        level = expand_campaign(first)[0].case().mesh.level
+        if coarse >= level:
+            raise ConfigError(f"{source}: method.coarse_level = {coarse}: must be below the runs' mesh level ({level})")
     if data.units:  # and each column's unit reachable from its runs (a physical block where a scale is needed)
         case = expand_campaign(first)[0].case()
         for obs, unit in data.units.items():
@@ -598,6 +606,8 @@ class FitResult:
     runs_dir: str
     summary: str = ""
     figure: str = ""
+    coarse_level: Optional[int] = None
+    n_runs_coarse: int = 0  # of n_runs, those at the coarse level (method.coarse_level)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -618,8 +628,10 @@ class FitResult:
                     lines.append(f"correlation {p} / {self.parameters[j]}: {self.correlations[i][j]:+.3f}")
         lines.append(f"chi2 {self.chi2:.4g} on {self.dof} degrees of freedom (reduced {self.reduced_chi2:.3g}); "
                      f"covariance {self.covariance_form}")
+        coarse = (f"; {self.n_runs_coarse} of them at the coarse mesh level {self.coarse_level}, "
+                  f"{self.n_runs - self.n_runs_coarse} at the case's" if self.coarse_level is not None else "")
         lines.append(f"{self.n_runs} runs ({self.runs_per_evaluation} per evaluation, {self.n_evaluations} "
-                     f"evaluations), {self.n_runs_executed} run now, the others reused from {self.runs_dir}")
+                     f"evaluations{coarse}), {self.n_runs_executed} run now, the others reused from {self.runs_dir}")
         return "\n".join(lines)
 
 
@@ -640,13 +652,22 @@ def plan_line(fit: Fit) -> str:
     at_most = per * m.max_evaluations * ((1 + n) if m.optimizer == "trf" else 1)
     how = ("one evaluation an iteration after n + 1 for its first model (DFO-LS)" if m.optimizer == "dfols"
            else f"{1 + n} evaluations per iteration (forward differences)")
+    coarse = (f"; first at the coarse mesh level {m.coarse_level} (as many again there), then at the case's from "
+              "its estimate (fewer)" if m.coarse_level is not None else "")
     return (f"fit {fit.spec.name}: {fit.data.n_points} data points, {n} parameter{'s' * (n != 1)}; {per} runs per "
-            f"evaluation, {how}: about {per * typical} runs in {typical} evaluations, at most {at_most}; runs "
-            f"that exist in {fit.runs_dir} are reused")
+            f"evaluation, {how}: about {per * typical} runs in {typical} evaluations, at most {at_most}{coarse}; "
+            f"runs that exist in {fit.runs_dir} are reused")
 
 
 def _stderr(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
+
+
+def _at_level(fit: Fit, level: int) -> Fit:
+    """The same fit with every run at mesh level `level` (its runs keyed apart by their case)."""
+    base = json.loads(json.dumps(fit.spec.base))
+    base.setdefault("mesh", {})["level"] = level
+    return Fit(fit.spec.model_copy(update={"base": base}), fit.data, fit.source)
 
 
 def run_fit(fit: Fit, *, workers: int | None = 1, log: Callable[[str], None] | None = _stderr) -> FitResult:
@@ -661,16 +682,31 @@ def run_fit(fit: Fit, *, workers: int | None = 1, log: Callable[[str], None] | N
     _check_owner(fit)
     log(plan_line(fit))
     pars = list(spec.parameters.values())
-    model = _Evaluator(fit, workers, log)
 
-    def residuals(u: np.ndarray) -> np.ndarray:
-        x = [_from_unit(p, ui) for p, ui in zip(pars, u)]
-        values, err, _ = model(x)
-        return (values - data.values) / _sigma(data, err)
+    def residuals_of(model: _Evaluator) -> Callable[[np.ndarray], np.ndarray]:
+        def residuals(u: np.ndarray) -> np.ndarray:
+            values, err, _ = model([_from_unit(p, ui) for p, ui in zip(pars, u)])
+            return (values - data.values) / _sigma(data, err)
+        return residuals
 
     u0 = np.array([_to_unit(p, p.initial) for p in pars])
     m = spec.method
-    solution = OPTIMIZERS[m.optimizer](residuals, u0, m)
+    coarse = None
+    if m.coarse_level is not None:  # mesh sequencing: the coarse level's estimate starts the case's level
+        coarse = _Evaluator(_at_level(fit, m.coarse_level), workers, log)
+        log(f"  at the coarse mesh level {m.coarse_level}:")
+        first = OPTIMIZERS[m.optimizer](residuals_of(coarse), u0, m)
+        se_u = np.sqrt(np.clip(np.diag(np.linalg.pinv(first.jac.T @ first.jac)), 0, None))
+        if data.sd is None:
+            r0 = residuals_of(coarse)(first.u)
+            se_u = se_u * math.sqrt(float(r0 @ r0) / max(data.n_points - len(pars), 1))
+        # three standard errors of the coarse estimate: the case's level moves it by the mesh's error, of
+        # that order where the coarse level is worth its name (never below four final radii)
+        radius = float(np.clip(3.0 * se_u.max(), 4.0 * m.radius_end, m.radius_start))
+        u0, m = first.u, m.model_copy(update={"radius_start": radius})
+        log(f"  at the case's mesh level, from there (first radius {radius:.3g}):")
+    model = _Evaluator(fit, workers, log)
+    solution = OPTIMIZERS[m.optimizer](residuals_of(model), u0, m)
     x = [_from_unit(p, ui) for p, ui in zip(pars, solution.u)]
     values, err, ids = model(x)
     sigma = _sigma(data, err)
@@ -718,8 +754,11 @@ def run_fit(fit: Fit, *, workers: int | None = 1, log: Callable[[str], None] | N
         intervals=intervals, confidence=m.confidence, units=units, at_bound=at_bound,
         correlations=np.nan_to_num(corr, nan=0.0).tolist(), covariance=cov_x.tolist(), covariance_form=form,
         residuals=point_rows, chi2=chi2, dof=dof, reduced_chi2=chi2 / dof if dof > 0 else math.nan,
-        n_points=n_pts, n_runs=len(model.used), n_runs_executed=model.runs_executed,
-        n_evaluations=model.evaluations, runs_per_evaluation=len(fit.distinct_conditions()),
+        n_points=n_pts, n_runs=len(model.used) + (len(coarse.used) if coarse else 0),
+        n_runs_executed=model.runs_executed + (coarse.runs_executed if coarse else 0),
+        n_evaluations=model.evaluations + (coarse.evaluations if coarse else 0),
+        runs_per_evaluation=len(fit.distinct_conditions()), coarse_level=spec.method.coarse_level,
+        n_runs_coarse=len(coarse.used) if coarse else 0,
         success=solution.success, message=solution.message, runs_dir=str(fit.runs_dir),
     )
     _finish(fit, model, result, log)

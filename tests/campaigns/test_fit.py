@@ -276,3 +276,33 @@ def test_column_unit_refusals(tmp_path, header, base, message):
     with pytest.raises(ConfigError) as info:
         fit_from_dict(spec, source="fit.yaml")
     assert message in str(info.value) and "\n" not in str(info.value)
+
+
+def test_mesh_sequencing_fits_at_the_coarse_level_first(tmp_path):
+    """method.coarse_level 1 under level-2 runs: the level-1 fit's estimate (and three of its standard
+    errors as the first radius) starts the level-2 fit, which then needs few evaluations: at most 7
+    (6 measured: n + 1 = 2 for its first model, then steps; a level-2 fit from the initial value took
+    benchmark), and recovers the level-2 truth within its interval; the summary holds the level-2 runs."""
+    base2 = {**BASE, "mesh": {"level": 2}}
+    D = []
+    for lam in LAMBDAS:
+        case = {**base2, "name": "truth2", "flow": {"G": G_TRUE, "viscosity_ratio": lam},
+                "output": {"path": str(tmp_path / f"truth2-{lam}.h5")}}
+        D.append(float(capsim.run(case, overwrite=True)["D_xy"]))
+    D = np.array(D)
+    sd = REL_SD * D
+    noisy = D + np.random.default_rng(57).normal(0.0, sd)
+    spec = _spec(tmp_path, list(zip(LAMBDAS, noisy, sd)), base=base2,
+                 method={"coarse_level": 1})
+    lines = []
+    result = run_fit(fit_from_dict(spec, source="seq.yaml"), workers=1, log=lines.append)
+    lo, hi = result.intervals["flow.G"]
+    fine_evaluations = (result.n_runs - result.n_runs_coarse) // 3
+    print(f"G {result.estimates['flow.G']:.6g} [{lo:.6g}, {hi:.6g}]; {result.n_runs_coarse} runs at level 1, "
+          f"{result.n_runs - result.n_runs_coarse} at level 2")
+    assert lo < G_TRUE < hi
+    assert result.coarse_level == 1 and result.n_runs_coarse >= 9 and 2 <= fine_evaluations <= 7
+    assert "at the coarse mesh level 1" in lines[0] and "at the coarse mesh level 1, " in lines[-1]
+    with pytest.raises(ConfigError, match="method.coarse_level = 2: must be below the runs' mesh level \\(2\\)"):
+        fit_from_dict(_spec(tmp_path, list(zip(LAMBDAS, noisy, sd)), base=base2, method={"coarse_level": 2}),
+                      source="seq.yaml")
