@@ -226,6 +226,14 @@ def _verdict(res: dict) -> str:
     return " ".join(out)
 
 
+def _method_text() -> str:
+    from capsim.campaigns.fit import FitMethod
+
+    m = FitMethod()
+    return (f"{m.optimizer}, radius_start {m.radius_start:g}, radius_end {m.radius_end:g}" if m.optimizer == "dfols"
+            else f"{m.optimizer}, diff_step {m.diff_step:g}, xtol {m.xtol:g}")
+
+
 def table(results: list[dict]) -> str:
     head = results[0]
     text = (f"How often `capsim fit`'s intervals contain the truth over repeated noise draws (issue 56): synthetic "
@@ -235,7 +243,7 @@ def table(results: list[dict]) -> str:
                         + ", ".join(f"{k} = {v['initial']:g}" for k, v in res["parameters"].items())
                         for res in results)
             + ") plus Gaussian noise of known sd (given in the sd columns), "
-            "each draw fitted by `run_fit` with the default method (diff_step 0.01, xtol 1e-4). The 68.3 % interval "
+            f"each draw fitted by `run_fit` with the default method ({_method_text()}). The 68.3 % interval "
             "is ±1 reported standard error in the fitted scale (log10 for `log: true`), the 95 % one is the fit's "
             "own; the rate's error is the binomial standard error at the nominal rate. SD/SE: the standard "
             "deviation of the estimates over the draws against the mean reported standard error, in the fitted "
