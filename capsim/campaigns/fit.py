@@ -241,6 +241,9 @@ def fit_from_dict(d: Any, source: str = "<fit>", base_dir: str | os.PathLike = "
         why = "" if data.sd is not None else " (no sd columns: one more than the parameters, to estimate s²)"
         raise ConfigError(f"{source}: data: {data.n_points} data point{'s' * (data.n_points != 1)} for {n} "
                           f"parameter{'s' * (n != 1)}: at least {need} needed{why}")
+    if spec.method.optimizer == "dfols" and spec.method.max_evaluations < n + 2:
+        raise ConfigError(f"{source}: method.max_evaluations = {spec.method.max_evaluations}: dfols needs at least "
+                          f"n + 2 = {n + 2} (its first model takes n + 1 evaluations, then one an iteration)")
     fit = Fit(spec, data, source)
     # every case of the first evaluation, validated as a campaign validates its runs
     first = _campaign(fit, [_point(fit, [p.initial for p in spec.parameters.values()])], source=source)
@@ -628,6 +631,9 @@ class FitResult:
                     lines.append(f"correlation {p} / {self.parameters[j]}: {self.correlations[i][j]:+.3f}")
         lines.append(f"chi2 {self.chi2:.4g} on {self.dof} degrees of freedom (reduced {self.reduced_chi2:.3g}); "
                      f"covariance {self.covariance_form}")
+        if not self.success:  # said, not only in the exit code: the numbers above are not a minimum's
+            lines.append(f"NOT converged ({self.message}): the estimates are the optimiser's last point and the "
+                         "intervals its Jacobian's there; raise method.max_evaluations or narrow the bounds")
         coarse = (f"; {self.n_runs_coarse} of them at the coarse mesh level {self.coarse_level}, "
                   f"{self.n_runs - self.n_runs_coarse} at the case's" if self.coarse_level is not None else "")
         lines.append(f"{self.n_runs} runs ({self.runs_per_evaluation} per evaluation, {self.n_evaluations} "

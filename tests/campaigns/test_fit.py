@@ -122,6 +122,7 @@ def load_fit_dict(fit):
      "initial = 0.5: must be within bounds [0.01, 0.1]"),
     ({"method": {"radius_start": 0.01, "radius_end": 0.02}}, "radius_end = 0.02: must be below radius_start (0.01)"),
     ({"method": {"optimizer": "lbfgs"}}, "method.optimizer"),
+    ({"method": {"max_evaluations": 2}}, "method.max_evaluations = 2: dfols needs at least n + 2 = 3"),
     ({"parameters": {"physical.shear_modulus": {"bounds": [1, 10], "initial": 2}}},
      "parameters.physical.shear_modulus.unit: missing"),
     ({"parameters": {"flow.G": {"bounds": [0.002, 0.05], "initial": 0.02},
@@ -306,3 +307,16 @@ def test_mesh_sequencing_fits_at_the_coarse_level_first(tmp_path):
     with pytest.raises(ConfigError, match="method.coarse_level = 2: must be below the runs' mesh level \\(2\\)"):
         fit_from_dict(_spec(tmp_path, list(zip(LAMBDAS, noisy, sd)), base=base2, method={"coarse_level": 2}),
                       source="seq.yaml")
+
+
+def test_a_fit_that_does_not_converge_says_so(fitted, tmp_path):
+    """max_evaluations too small: success False, the closing table says NOT converged and why (its
+    exit code is 1)."""
+    _, D, noisy, sd, fit, result, lines = fitted
+    spec = fit.spec.model_dump(mode="json")
+    spec["method"]["max_evaluations"] = 3
+    spec["output"]["dir"] = str(tmp_path / "short")
+    short = run_fit(fit_from_dict(spec, source="short.yaml"), workers=1, log=None)
+    assert not short.success
+    assert "NOT converged (" in short.table() and "raise method.max_evaluations" in short.table()
+    assert "NOT converged" not in result.table()
