@@ -253,6 +253,10 @@ def jobs() -> dict[str, list[tuple[str, dict, dict]]]:
             d = json.loads(json.dumps(c))
             d["physical"].update({key: (value(mu_k) if callable(value) else value) for key, value in physical.items()})
             out["twosided"].append((f"sens {tag} k={k} L{MAIN_LEVEL}", d, {}))
+        if rate_of(c) == TWO_SIDED_RATE:  # their cells' reduced volume (group shape ran it at the lowest rate)
+            d = json.loads(json.dumps(c))
+            d["shape"] = {"kind": "biconcave", "c0": THICK[0], "c2": THICK[1], "c4": THICK[2]}
+            out["twosided"].append((f"sens thick k={TWO_SIDED_RATE} L{MAIN_LEVEL}", d, {}))
     # issue 55: the stress-free shape (membrane.reference_shape) other than the cell's own disk
     out["stressfree"] = []
     for c in main:
@@ -403,34 +407,39 @@ def two_sided_lines(rows: dict) -> list[str]:
     measured shape (Table I's a cos θ and c)."""
     lo, hi = SENSITIVITY_RATE, TWO_SIDED_RATE
     meas = {r[0]: r for r in TABLE_I}
+    table2 = {r[0]: r for r in TABLE_II}
     changes = [("the case (G_s 2.5 µN/m, C = 10, their μ_s, cytoplasm 10 mPa s, the disk)", "viscous"),
                ("μ_s × 0.7", "sens mu_s x0.7"), ("μ_s × 1.3", "sens mu_s x1.3"), ("μ_s = 0", "elastic"),
                ("G_s × 0.5 (1.25 µN/m)", "sens G_s 1.25 uN/m"), ("G_s × 2 (5 µN/m)", "sens G_s 5 uN/m"),
                ("cytoplasm 5 mPa s (λ 0.14)", "sens cytoplasm 5 mPa s"),
                ("cytoplasm 20 mPa s (λ 0.57)", "sens cytoplasm 20 mPa s"),
                ("Skalak C = 100", "sens C 100"), ("G_s × 0.5 and C = 100", "sens G_s 1.25 C 100"),
+               ("their reduced volume (sphericity 0.792)", "sens thick"),
                *((f"stress-free {t}", f"stress-free {t}") for t, _ in STRESS_FREE_SHAPES)]
     base = {k: rows.get(f"viscous k={k} L{MAIN_LEVEL}") for k in (lo, hi)}
     lines = ["", f"What moves what, at the lowest and the highest rate ({lo:g} and {hi:g} 1/s; level {MAIN_LEVEL}): the "
              "frequency against the case's, the ratio of the two frequencies (measured "
-             f"{meas[hi][5] / meas[lo][5]:.2f}: the rates' ratio is {hi / lo:.2f}, f proportional to k), and the "
-             "measured shape, Table I's projected half-length a cos θ and half-width c (µm):", "",
+             f"{meas[hi][5] / meas[lo][5]:.2f}: the rates' ratio is {hi / lo:.2f}, f proportional to k), the "
+             "measured shape, Table I's projected half-length a cos θ and half-width c (µm), and the ellipsoid's a/b "
+             "against Table II's (computed by them from Table I with their cells' area and volume assigned):", "",
              f"| change | f at {lo:g}: rad/s (against the case) | f at {hi:g} | f({hi:g}) / f({lo:g}) | "
-             f"a cos θ at {lo:g} / {hi:g} | c at {lo:g} / {hi:g} | θ (deg) at {lo:g} / {hi:g} |",
-             "|---|---|---|---|---|---|---|",
+             f"a cos θ at {lo:g} / {hi:g} | c at {lo:g} / {hi:g} | θ (deg) at {lo:g} / {hi:g} | a/b at {lo:g} / {hi:g} |",
+             "|---|---|---|---|---|---|---|---|",
              f"| measured (Tables I, II) | {meas[lo][5]:.3g} | {meas[hi][5]:.3g} | {meas[hi][5] / meas[lo][5]:.2f} | "
-             f"{meas[lo][1]} / {meas[hi][1]} | {meas[lo][3]} / {meas[hi][3]} | 12.8 / 12.7 (computed) |"]
+             f"{meas[lo][1]} / {meas[hi][1]} | {meas[lo][3]} / {meas[hi][3]} | 12.8 / 12.7 (computed) | "
+             f"{table2[lo][1] / table2[lo][2]:.2f} / {table2[hi][1] / table2[hi][2]:.2f} (computed) |"]
     for name, prefix in changes:
         r = {k: rows.get(f"{prefix} k={k} L{MAIN_LEVEL}") for k in (lo, hi)}
         if any(v is None for v in r.values()):
-            lines.append(f"| {name} | not run | — | — | — | — | — |")
+            lines.append(f"| {name} | not run | — | — | — | — | — | — |")
             continue
         f = {k: r[k]["f_rad_s"] for k in (lo, hi)}
         rel = {k: "" if prefix == "viscous" else f" ({100 * (f[k] / base[k]['f_rad_s'] - 1):+.1f} %)" for k in (lo, hi)}
         proj = {k: r[k]["axes_um"][0] * math.cos(math.radians(r[k]["theta_deg"])) for k in (lo, hi)}
         lines.append(f"| {name} | {f[lo]:.3g}{rel[lo]} | {f[hi]:.3g}{rel[hi]} | {f[hi] / f[lo]:.2f} | "
                      f"{proj[lo]:.2f} / {proj[hi]:.2f} | {r[lo]['axes_um'][1]:.2f} / {r[hi]['axes_um'][1]:.2f} | "
-                     f"{r[lo]['theta_deg']:.1f} / {r[hi]['theta_deg']:.1f} |")
+                     f"{r[lo]['theta_deg']:.1f} / {r[hi]['theta_deg']:.1f} | "
+                     f"{r[lo]['axes_um'][0] / r[lo]['axes_um'][2]:.2f} / {r[hi]['axes_um'][0] / r[hi]['axes_um'][2]:.2f} |")
     return lines
 
 
