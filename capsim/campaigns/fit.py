@@ -120,7 +120,7 @@ class FitMethod(StrictModel):
     """Settings of the least-squares fit."""
 
     optimizer: Literal["dfols", "trf"] = Field(
-        "dfols", description="dfols: DFO-LS's interpolation models, every evaluation reused (measured: 50-55 runs for "
+        "dfols", description="dfols: DFO-LS's interpolation models, every evaluation reused (measured at level 1: 50-55 runs for "
         "two parameters over five rows, against 80 with trf); trf: scipy's least_squares with forward differences")
     radius_start: float = Field(0.2, gt=0, le=0.5, description="dfols: the first trust region's radius in unit "
                                 "variables (fraction of the bound range): the first steps' size")
