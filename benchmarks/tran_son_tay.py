@@ -280,6 +280,16 @@ def jobs() -> dict[str, list[tuple[str, dict, dict]]]:
         soft["membrane"]["skalak_c"] = 100.0
         soft["physical"]["shear_modulus"] = "1.25 uN/m"
         out["fischersoft"].append((label.replace("fischer ", "fischer G_s 1.25 C 100 "), soft, opts))
+    # issue 55: the (μ_s, G_s) fitted to Tran-Son-Tay et al.'s five rates (fits/fit-tran-son-tay-mu-s-g-s.yaml,
+    # benchmarks/fit_tran_son_tay_mu_s_g_s.json) at Fischer & Korzeniewski's rates, level 1 as the fit
+    out["fischerfit"] = []
+    fitted = json.loads((ROOT / "benchmarks" / "fit_tran_son_tay_mu_s_g_s.json").read_text())["estimates"]
+    for label, d, opts in out["fischer"]:
+        e = json.loads(json.dumps(d))
+        e["physical"]["membrane_viscosity"] = f"{fitted['physical.membrane_viscosity']:.4g} N*s/m"
+        e["physical"]["shear_modulus"] = f"{fitted['physical.shear_modulus']:.4g} uN/m"
+        out["fischerfit"].append((label.replace("fischer ", "fischer TTS-fit ").replace(f"L{MAIN_LEVEL}", "L1"), e,
+                                  {"level": 1}))
     return out
 
 
@@ -471,7 +481,8 @@ def fischer_lines(rows: dict) -> list[str]:
              "membrane's angular frequency over the shear rate (theirs: 2π × their f/k, mean ± SD over the cells "
              "of each group of rates):", "",
              "| k (1/s) | cells | ω/k measured | ω/k capsim | error | G | motion | ω/k capsim, G_s 1.25 µN/m, C = 100 | "
-             "error |", "|---|---|---|---|---|---|---|---|---|"]
+             "error | ω/k capsim, Tran-Son-Tay's fitted μ_s and G_s (level 1) | error |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for k, ratio, sd, n in fischer_groups():
         measured = 2 * math.pi * ratio
         r = rows.get(f"fischer k={k:.4g} L{MAIN_LEVEL}")
@@ -482,6 +493,11 @@ def fischer_lines(rows: dict) -> list[str]:
                    r["motion"]])
         cells += (["not run", "—"] if soft is None else
                   [f"{soft['f_rad_s'] / k:.3f}", f"{100 * (soft['f_rad_s'] / k / measured - 1):+.0f} %"])
+        fitted = rows.get(f"fischer TTS-fit k={k:.4g} L1")
+        turning = fitted is not None and fitted["motion"] not in ("swinging", "steady", "transient")
+        cells += (["not run", "—"] if fitted is None else
+                  [f"{fitted['f_rad_s'] / k:.3f}" + (f" ({fitted['motion']}: the body's turn)" if turning else ""),
+                   "—" if turning else f"{100 * (fitted['f_rad_s'] / k / measured - 1):+.0f} %"])
         lines.append("| " + " | ".join(cells) + " |")
     return lines
 

@@ -73,3 +73,16 @@ def test_the_tran_son_tay_fit_the_validation_page_states_is_the_stored_one():
     r = [p["residual"] for p in fit["residuals"]]
     assert f"from +{r[0]:.1f} SD at 28.6 s⁻¹ to {r[-1]:.1f} at 171.4 s⁻¹".replace("-", "−") in text
     assert f"level 1, {fit['n_runs']} runs" in text
+
+
+def test_the_two_parameter_tran_son_tay_fit_the_validation_page_states_is_the_stored_one():
+    fit = json.loads((ROOT / "benchmarks" / "fit_tran_son_tay_mu_s_g_s.json").read_text())
+    text = _validation_prose()
+    gs = fit["estimates"]["physical.shear_modulus"]
+    lo, hi = fit["intervals"]["physical.shear_modulus"]
+    assert f"G_s = {gs:.2f} µN/m, 95 % interval {lo:.2f}–{hi:.3g} µN/m" in text
+    assert fit["at_bound"]["physical.membrane_viscosity"] and not fit["at_bound"]["physical.shear_modulus"]
+    assert f"μ_s at the fit's upper bound, {fit['estimates']['physical.membrane_viscosity'] / 1e-6:.1f} × 10⁻⁶" in text
+    assert f"χ² = {fit['chi2']:.1f} on {fit['dof']} degrees of freedom" in text
+    assert f"{fit['n_evaluations']} evaluations, {fit['n_runs']} runs" in text
+    assert f"{fit['correlations'][0][1]:+.2f}" in text
