@@ -182,5 +182,5 @@ bench-rtol-auto: venv
 
 .PHONY: bench-tts
 bench-tts: venv
-	$(BIN)/python benchmarks/tran_son_tay.py run main elastic sensitivity extra shape hardening soft
+	$(BIN)/python benchmarks/tran_son_tay.py run main elastic sensitivity extra shape hardening soft stressfree fischer fischersoft twosided fischerfit
 	$(BIN)/python benchmarks/tran_son_tay.py report

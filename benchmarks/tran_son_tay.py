@@ -21,7 +21,10 @@ level3 (level 3 at 28.6 1/s: ~6 min; not run for the docs), stressfree (issue 55
 stress-free oblate spheroid of aspect 0.9, and a sphere, at 28.6, 57.1 and 171.4 1/s), fischer (issue 55:
 the case in Fischer & Korzeniewski 2015's 28.9 mPa s at the six shear rates of their 225 cells,
 benchmarks/data/fischer2015_ttf_eta28.9.csv, with the mean of Table III's μ_s), fischersoft (the same with
-G_s 1.25 uN/m and C = 100).
+G_s 1.25 uN/m and C = 100), twosided (issue 55: μ_s x0.7, x1.3, G_s x0.5, x2, the cytoplasm at 5 and
+20 mPa s, at 28.6 and 171.4 1/s; their reduced volume at 171.4), fischerfit (Fischer's rates with the μ_s
+and G_s fitted to Table I, benchmarks/fit_tran_son_tay_mu_s_g_s.json, level 1). `make bench-tts` runs
+every group but level3.
 
 `run` appends each finished run to benchmarks/tran_son_tay.json (a run already there is not
 repeated; one run at level 2 takes 1-3 min on one core); `report` writes
@@ -536,7 +539,8 @@ def figure(rows: dict) -> None:
 
 if __name__ == "__main__":
     if len(sys.argv) >= 2 and sys.argv[1] == "run":
-        run(sys.argv[2:] or ["main", "elastic", "sensitivity", "extra", "shape", "hardening", "soft"])
+        run(sys.argv[2:] or ["main", "elastic", "sensitivity", "extra", "shape", "hardening", "soft", "stressfree",
+                             "fischer", "fischersoft", "twosided", "fischerfit"])
     elif len(sys.argv) == 2 and sys.argv[1] == "report":
         report()
     else:
