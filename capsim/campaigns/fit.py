@@ -247,13 +247,12 @@ def fit_from_dict(d: Any, source: str = "<fit>", base_dir: str | os.PathLike = "
     fit = Fit(spec, data, source)
     # every case of the first evaluation, validated as a campaign validates its runs
     first = _campaign(fit, [_point(fit, [p.initial for p in spec.parameters.values()])], source=source)
+    case = expand_campaign(first)[0].case()  # the first run's case: its mesh level, its physical block
     coarse = spec.method.coarse_level
-    if coarse is not None:
-        level = expand_campaign(first)[0].case().mesh.level
-        if coarse >= level:
-            raise ConfigError(f"{source}: method.coarse_level = {coarse}: must be below the runs' mesh level ({level})")
+    if coarse is not None and coarse >= case.mesh.level:
+        raise ConfigError(f"{source}: method.coarse_level = {coarse}: must be below the runs' mesh level "
+                          f"({case.mesh.level})")
     if data.units:  # and each column's unit reachable from its runs (a physical block where a scale is needed)
-        case = expand_campaign(first)[0].case()
         for obs, unit in data.units.items():
             try:
                 output_in_unit(obs, unit, case)
@@ -547,6 +546,7 @@ class _Evaluator:
             self.used[spec.run_id] = spec.params
         model, err, ids = [], [], []
         records: dict[str, dict] = {}
+        factors: dict[tuple[str, str], float] = {}
         for row, obs in zip(fit.data.rows, fit.data.observable):
             spec = by_cond[json.dumps(fit.data.conditions[row], sort_keys=True)]
             record = records.setdefault(spec.run_id, read_run(spec.path) or {})
@@ -557,7 +557,9 @@ class _Evaluator:
             e = _run_error(spec.path, obs, value)
             unit = fit.data.units.get(obs)
             if unit:  # the column's unit: the run's value (and its error) times the case's factor
-                factor = output_in_unit(obs, unit, spec.case())
+                factor = factors.get((spec.run_id, obs))
+                if factor is None:
+                    factor = factors[spec.run_id, obs] = output_in_unit(obs, unit, spec.case())
                 value, e = value * factor, e * factor
             model.append(value)
             err.append(e)
@@ -669,6 +671,17 @@ def _stderr(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
 
 
+def _unit_covariance(jac: np.ndarray, chi2: float, data: FitData, n: int) -> tuple[np.ndarray, float | None]:
+    """The estimate's covariance in unit variables from the weighted residuals' Jacobian: (JᵀJ)⁻¹ when the
+    data have sd columns (s² None), else s² (JᵀJ)⁻¹ with s² = χ²/(m − n) estimated from the residuals."""
+    J = np.atleast_2d(jac)
+    cov = np.linalg.pinv(J.T @ J)
+    if data.sd is not None:
+        return cov, None
+    s2 = chi2 / max(data.n_points - n, 1)
+    return s2 * cov, s2
+
+
 def _at_level(fit: Fit, level: int) -> Fit:
     """The same fit with every run at mesh level `level` (its runs keyed apart by their case)."""
     base = json.loads(json.dumps(fit.spec.base))
@@ -702,10 +715,8 @@ def run_fit(fit: Fit, *, workers: int | None = 1, log: Callable[[str], None] | N
         coarse = _Evaluator(_at_level(fit, m.coarse_level), workers, log)
         log(f"  at the coarse mesh level {m.coarse_level}:")
         first = OPTIMIZERS[m.optimizer](residuals_of(coarse), u0, m)
-        se_u = np.sqrt(np.clip(np.diag(np.linalg.pinv(first.jac.T @ first.jac)), 0, None))
-        if data.sd is None:
-            r0 = residuals_of(coarse)(first.u)
-            se_u = se_u * math.sqrt(float(r0 @ r0) / max(data.n_points - len(pars), 1))
+        r0 = residuals_of(coarse)(first.u)  # the estimate's evaluation, made already
+        se_u = np.sqrt(np.clip(np.diag(_unit_covariance(first.jac, float(r0 @ r0), data, len(pars))[0]), 0, None))
         # three standard errors of the coarse estimate: the case's level moves it by the mesh's error, of
         # that order where the coarse level is worth its name (never below four final radii)
         radius = float(np.clip(3.0 * se_u.max(), 4.0 * m.radius_end, m.radius_start))
@@ -720,14 +731,11 @@ def run_fit(fit: Fit, *, workers: int | None = 1, log: Callable[[str], None] | N
     n, n_pts = len(pars), data.n_points
     dof = n_pts - n
     chi2 = float(r @ r)
-    J = np.atleast_2d(solution.jac)
-    cov_u = np.linalg.pinv(J.T @ J)
-    if data.sd is not None:
+    cov_u, s2 = _unit_covariance(solution.jac, chi2, data, n)
+    if s2 is None:
         form = "(J^T J)^-1 of the residuals weighted by 1/sqrt(sd^2 + run error^2)"
         q = float(stats.norm.ppf(0.5 + m.confidence / 2))
     else:
-        s2 = chi2 / dof
-        cov_u = s2 * cov_u
         form = f"s^2 (J^T J)^-1, s^2 = {s2:.4g} from the residuals (no sd columns)"
         q = float(stats.t.ppf(0.5 + m.confidence / 2, dof))
     # from unit variables to the fitted scale z (log10 x or x), then the delta method for x
