@@ -138,7 +138,7 @@ def second_moment(geo: ElementGeometry, center: np.ndarray) -> np.ndarray:
 def surface_moments(geo: ElementGeometry) -> tuple[float, float, np.ndarray, np.ndarray]:
     """(V, S, the centroid, M about it): volume_area, centroid and second_moment in one numba
     pass over the points (issue 57: the three took 0.45 ms a step in numpy at level 3, the kernel
-    ~0.02), the same integrals to round-off (tests/numerics/test_geometry.py); numpy within
+    ~0.02), the same integrals to round-off (tests/numerics/test_step_kernels.py); numpy within
     :func:`numpy_quadrature` (a check before a run need not import numba)."""
     if _NUMPY_QUADRATURE.get():
         volume, area = volume_area(geo)

@@ -1802,24 +1802,23 @@ def surface_moments(points, normals, weights, p):
     out[2] = c0
     out[3] = c1
     out[4] = c2
-    m = np.zeros(9)
+    m = out[5:].reshape(3, 3)  # M row-major in out[5:], the upper triangle summed, the lower its mirror
     for e in range(ne):
         for q in range(nq):
             y0 = points[e, q, 0] - c0
             y1 = points[e, q, 1] - c1
             y2 = points[e, q, 2] - c2
             ynw = (y0 * normals[e, q, 0] + y1 * normals[e, q, 1] + y2 * normals[e, q, 2]) * weights[e, q]
-            m[0] += y0 * y0 * ynw
-            m[1] += y0 * y1 * ynw
-            m[2] += y0 * y2 * ynw
-            m[4] += y1 * y1 * ynw
-            m[5] += y1 * y2 * ynw
-            m[8] += y2 * y2 * ynw
-    m[3] = m[1]
-    m[6] = m[2]
-    m[7] = m[5]
-    for k in range(9):
-        out[5 + k] = m[k] / 5.0
+            m[0, 0] += y0 * y0 * ynw
+            m[0, 1] += y0 * y1 * ynw
+            m[0, 2] += y0 * y2 * ynw
+            m[1, 1] += y1 * y1 * ynw
+            m[1, 2] += y1 * y2 * ynw
+            m[2, 2] += y2 * y2 * ynw
+    out[5:] /= 5.0
+    m[1, 0] = m[0, 1]
+    m[2, 0] = m[0, 2]
+    m[2, 1] = m[1, 2]
     return out
 
 
