@@ -63,9 +63,13 @@ def test_the_bending_trade_the_user_guide_states_is_the_benchmarks():
     assert bare[3] > bare[2]  # and grows with the level: no converged value
 
 
+def _stored_fit(name: str) -> tuple[dict, str]:
+    """A fit result kept in benchmarks/ and the validation page's prose that states it."""
+    return json.loads((ROOT / "benchmarks" / name).read_text()), _validation_prose()
+
+
 def test_the_tran_son_tay_fit_the_validation_page_states_is_the_stored_one():
-    fit = json.loads((ROOT / "benchmarks" / "fit_tran_son_tay.json").read_text())
-    text = _validation_prose()
+    fit, text = _stored_fit("fit_tran_son_tay.json")
     mu = fit["estimates"]["physical.membrane_viscosity"]
     lo, hi = fit["intervals"]["physical.membrane_viscosity"]
     assert f"μ_s = {mu / 1e-7:.2f} × 10⁻⁷ N s/m, 95 % interval {lo / 1e-7:.2f}–{hi / 1e-7:.2f} × 10⁻⁷" in text
@@ -76,8 +80,7 @@ def test_the_tran_son_tay_fit_the_validation_page_states_is_the_stored_one():
 
 
 def test_the_two_parameter_tran_son_tay_fit_the_validation_page_states_is_the_stored_one():
-    fit = json.loads((ROOT / "benchmarks" / "fit_tran_son_tay_mu_s_g_s.json").read_text())
-    text = _validation_prose()
+    fit, text = _stored_fit("fit_tran_son_tay_mu_s_g_s.json")
     gs = fit["estimates"]["physical.shear_modulus"]
     lo, hi = fit["intervals"]["physical.shear_modulus"]
     assert f"G_s = {gs:.2f} µN/m, 95 % interval {lo:.2f}–{hi:.3g} µN/m" in text
