@@ -844,7 +844,8 @@ def _check_owner(fit: Fit) -> None:
 
 
 def _finish(fit: Fit, model: _Evaluator, result: FitResult, log: Callable[[str], None]) -> None:
-    """Every run the fit used as one campaign (runs/campaign.yaml, runs.json: nothing is run again),
+    """Every run the fit used at the case's mesh level (a coarse stage's stay in runs/ for a refit) as one
+    campaign (runs/campaign.yaml, runs.json: nothing is run again),
     its netCDF summary, fit.json and the figure."""
     from capsim.campaigns.summary import summarize_to_file
     from capsim.storage.files import write_durably
