@@ -31,6 +31,7 @@ import os
 import platform
 import subprocess
 import sys
+import tempfile
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -41,6 +42,8 @@ G_VALUES = (0.0125, 0.025, 0.05, 0.075, 0.1, 0.15, 0.2, 0.4)
 LAMBDAS = (1.0, 5.0)
 T_END = 4.0
 LEVEL = 2
+#: the commit before issue 57's changes of this session (the campaign's writes and rows)
+BASELINE = "8a86e1e"
 
 WORKER = r"""
 import json, sys, tempfile, time
@@ -98,11 +101,11 @@ def campaign_spec() -> dict:
             "sweep": {"flow.shear_rate_G": list(G_VALUES), "flow.viscosity_ratio": list(LAMBDAS)}, "zip": {}}
 
 
-def measure() -> dict:
+def measure(tree: Path) -> dict:
     env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
-    env.update(PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
+    env.update(PYTHONPATH=str(tree), OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
                NUMBA_NUM_THREADS="1")
-    res = subprocess.run([sys.executable, "-c", WORKER, json.dumps(campaign_spec())], env=env, cwd=ROOT, check=True,
+    res = subprocess.run([sys.executable, "-c", WORKER, json.dumps(campaign_spec())], env=env, cwd=tree, check=True,
                          capture_output=True, text=True)
     out = json.loads(res.stdout.strip().splitlines()[-1])
     out["outside"] = out["campaign"] - out["evaluations"]
@@ -112,34 +115,50 @@ def measure() -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--baseline", default=BASELINE, help="the commit to compare with (git archive), '' for none")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "campaign_overhead"))
     args = ap.parse_args()
-    rounds = []
-    for r in range(args.rounds):
-        rounds.append(measure())
-        print(f"round {r + 1}: " + ", ".join(f"{k} {v:.3f}" for k, v in rounds[-1].items() if isinstance(v, float)),
-              flush=True)
-    keys = [k for k, v in rounds[0].items() if isinstance(v, (int, float))]
-    med = {k: float(np.median([x[k] for x in rounds])) for k in keys}
-    per_step = 1e3 / med["steps"]
+    with tempfile.TemporaryDirectory() as tmp:
+        trees = {"after": ROOT}
+        if args.baseline:
+            before = Path(tmp) / "before"
+            before.mkdir()
+            archive = subprocess.run(["git", "archive", args.baseline], cwd=ROOT, check=True, capture_output=True).stdout
+            subprocess.run(["tar", "-x", "-C", str(before)], input=archive, check=True)
+            trees = {"before": before, "after": ROOT}
+        rounds: dict[str, list[dict]] = {name: [] for name in trees}
+        for r in range(args.rounds):  # alternating: the machine's load falls on both alike
+            for name, tree in trees.items():
+                rounds[name].append(measure(tree))
+                print(f"round {r + 1} {name}: " + ", ".join(f"{k} {v:.3f}" for k, v in rounds[name][-1].items()
+                                                           if isinstance(v, float)), flush=True)
+    keys = [k for k, v in rounds["after"][0].items() if isinstance(v, (int, float))]
+    meds = {name: {k: float(np.median([x[k] for x in rs])) for k in keys} for name, rs in rounds.items()}
+    med = meds["after"]
     rows = [("the campaign (16 runs, one worker)", "campaign"), ("its velocity evaluations", "evaluations"),
             ("outside the evaluations", "outside"), ("… the runs' set-up (mesh, model, scheme's probe)", "setup"),
             ("… the rows (`observe`)", "rows"), ("… the run files' writes", "writes")]
+    names = list(meds)
     lines = [f"A campaign of {med['runs']:.0f} short runs on one worker (issue 57): a sphere at level {LEVEL}, "
              f"G = {G_VALUES[0]:g} … {G_VALUES[-1]:g} × λ = {', '.join(f'{x:g}' for x in LAMBDAS)}, to kt = {T_END:g}, "
-             f"one thread; medians of {args.rounds} rounds in fresh interpreters. `make bench-campaign`. "
+             f"one thread; medians of {args.rounds} rounds in fresh interpreters"
+             + (f", alternating with commit {args.baseline} (before)" if "before" in meds else "")
+             + ". `make bench-campaign`. "
              f"{platform.processor() or platform.machine()}, load when run: {os.getloadavg()[0]:.1f}.", "",
-             "| | seconds | share of the campaign | ms per accepted step |", "|---|---|---|---|"]
+             "| | " + " | ".join(f"{n}: seconds | {n}: share | {n}: ms a step" for n in names) + " |",
+             "|---|" + "---|---|---|" * len(names)]
     for label, key in rows:
-        lines.append(f"| {label} | {med[key]:.3f} | {100 * med[key] / med['campaign']:.0f} % | "
-                     f"{med[key] * per_step:.3f} |")
+        cells = [f"{m[key]:.3f} | {100 * m[key] / m['campaign']:.0f} % | {1e3 * m[key] / m['steps']:.3f}"
+                 for m in meds.values()]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
     lines += ["", f"Work: {med['steps']:.0f} accepted steps, {med['velocity_evaluations']:.0f} velocity evaluations "
               f"({med['velocity_evaluations'] / med['steps']:.2f} a step; "
               f"{1e3 * med['evaluations'] / med['velocity_evaluations']:.3f} ms an evaluation). "
               f"The set-up's evaluations (the scheme's probe) are counted with the evaluations."]
     Path(args.out + ".md").write_text("\n".join(lines) + "\n")
     Path(args.out + ".json").write_text(json.dumps({"date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-                                                    "campaign": campaign_spec(), "rounds": rounds, "medians": med},
+                                                    "baseline": args.baseline, "campaign": campaign_spec(),
+                                                    "rounds": rounds, "medians": meds},
                                                    indent=1) + "\n")
     print("\n".join(lines))
 
