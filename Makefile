@@ -82,6 +82,12 @@ bench-split: venv
 bench-command: venv
 	$(BIN)/python benchmarks/command_time.py
 
+# a campaign of 16 short level-2 runs on one worker (issue 57): its time outside the evaluations, this
+# checkout against the baseline in alternating rounds (about 1 min): writes benchmarks/campaign_overhead.{md,json}
+.PHONY: bench-campaign
+bench-campaign: venv
+	$(BIN)/python benchmarks/campaign_overhead.py
+
 # time.rtol's promise: every scheme x case x rtol 1e-2..1e-5, error / rtol against a reference at
 # 1e-7 (about 25 min on 2 shared cores; CASES=a c to run some): writes benchmarks/rtol_promise.md and .json
 bench-promise: venv

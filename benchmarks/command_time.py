@@ -10,9 +10,11 @@ again, ~0.1 s), one thread, after a warm-up round (numba's cache and the .pyc wr
 - ``validate``: the whole ``capsim validate configs/sphere.yaml``;
 - ``interpreter``: ``python -c pass``; ``numba``: ``python -c "import numba"``;
 - in one more fresh interpreter (``worker``): the imports of the run's modules, then ``capsim.run``
-  of the same case with its parts timed by wrapping them: the velocity evaluations (the model's
-  ``velocity``), ``observe`` (the step's row), the run file's row writes; ``outside`` is the run's
-  wall time less its evaluations.
+  of the same case with its parts timed by wrapping them: the velocity evaluations (``_Run._rhs``:
+  the membrane's forces and the velocity, what ``capsim bench`` calls one evaluation; until
+  2026-12-06 this wrapped the model's ``velocity`` alone and counted the membrane's forces, ~0.4 of
+  an evaluation at level 3, outside), ``observe`` (the step's row), the run file's row writes;
+  ``outside`` is the run's wall time less its evaluations.
 
 The table gives medians over the rounds; ``around the run`` is the command's wall time less the
 worker's run wall time (the same case). Usage::
@@ -39,8 +41,9 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-#: the last commit before issue 57's changes of this session (version literal, numba observables)
-BASELINE = "697d7fa"
+#: the last commit before this session's issue-57 changes (the run file's writes); the session before
+#: compared with 697d7fa (the version literal, numba observables: docs/performance.md quotes it)
+BASELINE = "8e7b114"
 CASE = "configs/sphere.yaml"
 
 WORKER = r"""
@@ -50,7 +53,7 @@ from capsim.numerics.threads import apply_policy
 apply_policy(1)
 import capsim
 from capsim.runs import runner
-from capsim.solve import solver, observables
+from capsim.solve import observables
 from capsim.storage import store
 imports = time.perf_counter() - t0
 clock = {"evaluations": 0.0, "observe": 0.0, "writes": 0.0}
@@ -63,8 +66,7 @@ def timed(cls, name, key):
         finally:
             clock[key] += time.perf_counter() - s
     setattr(cls, name, wrapper)
-model_cls = [c for c in vars(solver).values() if isinstance(c, type) and "velocity" in vars(c)][0]
-timed(model_cls, "velocity", "evaluations")
+timed(runner._Run, "_rhs", "evaluations")  # an evaluation: the membrane's forces and the velocity
 timed(observables.StepObserver, "observe", "observe")
 timed(store.TrajectoryWriter, "append_step", "writes")
 case = capsim.load_case(sys.argv[1])

@@ -1823,6 +1823,96 @@ def surface_moments(points, normals, weights, p):
 
 
 @njit(**_JIT)
+def row_surface_sums(points, normals, weights, density_weights, density, u, elements, phi, center,
+                     director_weights, mean_weights):
+    """The row's surface integrals about the centroid ``center`` in one pass over the regular points
+    (capsim.solve.observables.capsule_row; each of them was its own numpy pass): with u the nodal
+    velocity less its mean U, interpolated by ``phi`` (Q, 6), and Δf the element-nodal ``density``
+    (N_e, 6, 3) interpolated alike, returns 27 values:
+
+    - [0:3] U, the nodes' mean velocity; [3:6] ∮ (x − c)(u·n) dS (the centroid's Reynolds flux);
+    - [6:15] ∮ Δf_i (x − c)_j dS0 (``density_weights``: the measure Δf is per), row-major;
+    - [15:24] ∮ u_i n_j dS (the λ ≠ 1 term of the stresslet);
+    - [24:27] the material director's Σ W_p (x_p − c) − (Σ W_p) Σ w_p (x_p − c) (``director_weights`` W,
+      ``mean_weights`` w summing to 1: MaterialDirector's d, the same for any reference point).
+    """
+    n_nodes = u.shape[0]
+    out = np.zeros(27)
+    for i in range(n_nodes):
+        for d in range(3):
+            out[d] += u[i, d]
+    for d in range(3):
+        out[d] /= n_nodes
+    U0, U1, U2 = out[0], out[1], out[2]
+    c0, c1, c2 = center[0], center[1], center[2]
+    ne, nq = weights.shape
+    nk = phi.shape[1]
+    sum_director = 0.0
+    m0 = 0.0
+    m1 = 0.0
+    m2 = 0.0
+    for e in range(ne):
+        for q in range(nq):
+            a0 = 0.0
+            a1 = 0.0
+            a2 = 0.0
+            f0 = 0.0
+            f1 = 0.0
+            f2 = 0.0
+            for k in range(nk):
+                node = elements[e, k]
+                f = phi[q, k]
+                a0 += f * (u[node, 0] - U0)
+                a1 += f * (u[node, 1] - U1)
+                a2 += f * (u[node, 2] - U2)
+                f0 += f * density[e, k, 0]
+                f1 += f * density[e, k, 1]
+                f2 += f * density[e, k, 2]
+            w = weights[e, q]
+            n0, n1, n2 = normals[e, q, 0], normals[e, q, 1], normals[e, q, 2]
+            y0 = points[e, q, 0] - c0
+            y1 = points[e, q, 1] - c1
+            y2 = points[e, q, 2] - c2
+            flux = (a0 * n0 + a1 * n1 + a2 * n2) * w
+            out[3] += flux * y0
+            out[4] += flux * y1
+            out[5] += flux * y2
+            wd = density_weights[e, q]
+            out[6] += f0 * y0 * wd
+            out[7] += f0 * y1 * wd
+            out[8] += f0 * y2 * wd
+            out[9] += f1 * y0 * wd
+            out[10] += f1 * y1 * wd
+            out[11] += f1 * y2 * wd
+            out[12] += f2 * y0 * wd
+            out[13] += f2 * y1 * wd
+            out[14] += f2 * y2 * wd
+            out[15] += a0 * n0 * w
+            out[16] += a0 * n1 * w
+            out[17] += a0 * n2 * w
+            out[18] += a1 * n0 * w
+            out[19] += a1 * n1 * w
+            out[20] += a1 * n2 * w
+            out[21] += a2 * n0 * w
+            out[22] += a2 * n1 * w
+            out[23] += a2 * n2 * w
+            p = e * nq + q
+            W = director_weights[p]
+            sum_director += W
+            out[24] += W * y0
+            out[25] += W * y1
+            out[26] += W * y2
+            wm = mean_weights[p]
+            m0 += wm * y0
+            m1 += wm * y1
+            m2 += wm * y2
+    out[24] -= sum_director * m0
+    out[25] -= sum_director * m1
+    out[26] -= sum_director * m2
+    return out
+
+
+@njit(**_JIT)
 def centroid_flux_velocity(points, normals, weights, u, elements, phi, center, volume):
     """dc/dt of the volume centroid by Reynolds' transport theorem (capsim.solve.observables.
     centroid_velocity): U + ∮ (x − c) ((u − U)·n) dS / V, U the nodes' mean velocity, u

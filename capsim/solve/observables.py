@@ -17,6 +17,7 @@ from capsim.numerics.geometry import (
     centroid,
     interpolate,
     min_quality,
+    numpy_quadrature_active,
     second_moment,
     surface_moments,
     volume_area,
@@ -252,6 +253,44 @@ def centroid_velocity(geo: ElementGeometry, u: np.ndarray, elements: np.ndarray,
     v = centroid_flux_velocity(geo.points, geo.normals, geo.weights, np.ascontiguousarray(u), elements, phi,
                                np.asarray(center, dtype=np.float64), float(volume))
     return {"centroid_velocity_x": float(v[0]), "centroid_velocity_y": float(v[1]), "centroid_velocity_z": float(v[2])}
+
+
+class RowSums:
+    """The row's surface integrals about the centroid from one kernel pass
+    (capsim.numerics.kernels.row_surface_sums): the same quantities as :class:`MaterialDirector`,
+    :func:`centroid_velocity` and :func:`particle_stresslet` (tests/numerics/test_step_kernels.py
+    holds them equal to round-off)."""
+
+    def __init__(self, values: np.ndarray) -> None:
+        self.values = values
+
+    @property
+    def director(self) -> np.ndarray:
+        d = self.values[24:27]
+        return d / np.linalg.norm(d)
+
+    def centroid_velocity(self, volume: float) -> np.ndarray:
+        return self.values[0:3] + self.values[3:6] / volume
+
+    def stresslet(self, volume: float, shear_rate_G: float, viscosity_ratio: float) -> np.ndarray:
+        """S* as :func:`particle_stresslet` gives it."""
+        elastic = self.values[6:15].reshape(3, 3)
+        S = 0.5 * (elastic + elastic.T) / shear_rate_G
+        if viscosity_ratio != 1.0:
+            un = self.values[15:24].reshape(3, 3)
+            S = S - (1.0 - viscosity_ratio) * (un + un.T)
+        return S / (2.5 * volume)
+
+
+def row_surface_sums(geo: ElementGeometry, density: np.ndarray, weights: np.ndarray, u: np.ndarray,
+                     elements: np.ndarray, phi: np.ndarray, center: np.ndarray,
+                     director: MaterialDirector) -> RowSums:
+    """:class:`RowSums` of a configuration: element-nodal Δf (N_e, 6, 3) per the measure ``weights``."""
+    from capsim.numerics.kernels import row_surface_sums as kernel
+
+    return RowSums(kernel(geo.points, geo.normals, geo.weights, np.ascontiguousarray(weights), density,
+                          np.ascontiguousarray(u), elements, phi, np.asarray(center, dtype=np.float64),
+                          director.weights, director.w))
 
 
 def particle_stresslet(
@@ -1446,15 +1485,23 @@ def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarr
     lam = model.viscosity_ratio if material is None else material["viscosity_ratio"]
     smax = float(np.max(strain.principal_stretches[0]))
     row = step_observables(y, elements, geometry, smax)
-    row.update(director_observables(director(geometry)))
+    center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
+    # the director's, the centroid velocity's and the stresslet's surface integrals in one pass (issue 57:
+    # each was its own numpy pass, ~0.1 ms of a level-2 row); the contour method's element-constant Δf
+    # keeps the numpy integrals
+    sums = None if density.ndim != 3 or numpy_quadrature_active() else row_surface_sums(geometry, density, weights, u, elements,
+                                                               model.disc.reg_phi, center, director)
+    row.update(director_observables(director(geometry) if sums is None else sums.director))
     # compressive tensions: where a membrane without bending stiffness would wrinkle
     _, tau2 = principal_tensions(strain, model.law, law_params)
     if material is not None:
         tau2 = modulus * tau2
     row["min_tension"] = float(tau2.min()) / model.shear_rate_G
     row["compressed_fraction"] = float(np.mean(tau2 < -COMPRESSION_TOL))
-    center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
-    row.update(centroid_velocity(geometry, u, elements, model.disc.reg_phi, center, row["volume"]))
+    if sums is None:
+        row.update(centroid_velocity(geometry, u, elements, model.disc.reg_phi, center, row["volume"]))
+    else:
+        row.update({f"centroid_velocity_{c}": float(v) for c, v in zip("xyz", sums.centroid_velocity(row["volume"]))})
     u_far = model.undisturbed(center[None])[0]  # the undisturbed flow at the centre, now
     for i, c in enumerate("xyz"):
         row[f"slip_velocity_{c}"] = row[f"centroid_velocity_{c}"] - float(u_far[i])
@@ -1462,10 +1509,13 @@ def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarr
     if gap is not None:
         row["wall_gap"] = gap
     row.update(boundary_quantities(model, y, geometry, density, weights, u, elements, center, lam))
-    S_star = particle_stresslet(
-        geometry, density, u, elements, model.disc.reg_phi, center, row["volume"],
-        model.shear_rate_G, lam, weights,
-    )
+    if sums is None:
+        S_star = particle_stresslet(
+            geometry, density, u, elements, model.disc.reg_phi, center, row["volume"],
+            model.shear_rate_G, lam, weights,
+        )
+    else:
+        S_star = sums.stresslet(row["volume"], model.shear_rate_G, lam)
     row["_S_star"] = S_star
     row.update(stresslet_observables(S_star))
     row["dissipation_ratio"] = dissipation_ratio(S_star, model.rate_of_strain(center))
