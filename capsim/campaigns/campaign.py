@@ -66,7 +66,7 @@ from typing import Annotated, Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from capsim.config import NAME_MAX, Case, ConfigError, StrictModel, case_from_dict, model_from_mapping, read_yaml, section_model
+from capsim.config import NAME_MAX, YAML_DUMPER, Case, ConfigError, StrictModel, case_from_dict, model_from_mapping, read_yaml, section_model
 from capsim.errors import bounded_repr, first_line
 from capsim.campaigns.executor import WORKER_DIED, SigtermAsInterrupt, one_line, run_batch
 from capsim.storage.files import write_durably
@@ -138,7 +138,7 @@ class Campaign(_Model):
         return self
 
     def to_yaml(self) -> str:
-        return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False)
+        return yaml.dump(self.model_dump(mode="json"), Dumper=YAML_DUMPER, sort_keys=False)
 
     @property
     def is_grid(self) -> bool:
