@@ -43,6 +43,8 @@ from pathlib import Path
 for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
+import numpy as np  # noqa: E402 - after the thread counts above
+
 ROOT = Path(__file__).resolve().parents[1]
 JSON = ROOT / "benchmarks" / "tran_son_tay.json"
 TABLE = ROOT / "benchmarks" / "tran_son_tay.md"
@@ -128,8 +130,43 @@ def rate_of(case: dict) -> float:
     return float(str(case["physical"]["shear_rate"]).split()[0])
 
 
-def run_one(case: dict, label: str, level: int | None = None, t_end: float | None = None) -> dict:
-    """Run a case (dict) to its end and return the summary's numbers, with the frequency in rad/s."""
+def silhouette(positions: np.ndarray, elements: np.ndarray, subdivisions: int = 6) -> tuple[float, float]:
+    """The cell's outline seen along the shear gradient y, as in the rheoscope (Table I): its half-length
+    along the flow x and half-width along the vorticity z, (max − min)/2 of the membrane's points, each
+    6-node element sampled on a grid of ``subdivisions`` per side (the midside nodes alone miss the bulge
+    of a curved element at the tips)."""
+    from capsim.numerics.geometry import interpolate, shape_functions
+
+    n = subdivisions
+    grid = np.array([(i / n, j / n) for i in range(n + 1) for j in range(n + 1 - i)])
+    phi, _, _ = shape_functions(grid[:, 0], grid[:, 1])
+    points = interpolate(phi, positions[elements]).reshape(-1, 3)
+    extent = points.max(axis=0) - points.min(axis=0)
+    return float(extent[0] / 2), float(extent[2] / 2)
+
+
+def ellipsoid_of_width(c: float, volume: float, area: float) -> tuple[float, float]:
+    """Tran-Son-Tay et al.'s Table II ellipsoid: the semi-axes a ≥ b of the ellipsoid of semi-axis c
+    (the measured half-width), the given volume and the given area (Knud Thomsen's area, p = 1.6,
+    within ~1 %). Its a and b follow from c, V and S alone; their Table II is this of Table I's c
+    with V = 111 µm³, S = 141 µm² (a/b within 3 % at 28.6-114.3 1/s; their θ comes from f, eq. 10)."""
+    from scipy.optimize import brentq
+
+    p = 1.6
+
+    def thomsen(a: float, b: float) -> float:
+        return 4 * math.pi * (((a * b) ** p + (b * c) ** p + (c * a) ** p) / 3) ** (1 / p)
+
+    ab = 3 * volume / (4 * math.pi * c)
+    b = brentq(lambda b: thomsen(ab / b, b) - area, 1e-6 * math.sqrt(ab), math.sqrt(ab))
+    return ab / b, b
+
+
+def run_one(case: dict, label: str, level: int | None = None, t_end: float | None = None,
+            outline: bool = False) -> dict:
+    """Run a case (dict) to its end and return the summary's numbers, with the frequency in rad/s;
+    with ``outline`` also the cell's outline seen along the gradient (:func:`silhouette`, in µm, the
+    mean over the snapshots, one per unit kt, in the summary's averaging window), its volume and area."""
     import numpy as np
 
     from capsim.config import case_from_dict
@@ -143,12 +180,13 @@ def run_one(case: dict, label: str, level: int | None = None, t_end: float | Non
         case["time"]["t_end"] = t_end
     with tempfile.TemporaryDirectory() as tmp:
         case["name"] = "tts"
-        case["output"] = {"path": f"{tmp}/tts.h5", "snapshot_every": case["time"]["t_end"]}
+        case["output"] = {"path": f"{tmp}/tts.h5", "snapshot_every": 1.0 if outline else case["time"]["t_end"]}
         c = case_from_dict(case)
         result = run_case(c)
         if result.status != "completed":
             raise SystemExit(f"run {label} ended {result.status}: no row written")
-        ts = read_trajectory(c.output.path)["timeseries"]
+        data = read_trajectory(c.output.path)
+        ts = data["timeseries"]
     s = dict(result.summary)
     k = rate_of(case)
     t = np.asarray(ts["t"], float)
@@ -179,6 +217,16 @@ def run_one(case: dict, label: str, level: int | None = None, t_end: float | Non
         "wall_time_s": result.wall_time_s,
     }
     row["f_rad_s"] = row["ttf_ratio"] * k / 2.0   # ttf_ratio = omega / (k/2)
+    if outline:
+        snap_t = np.asarray(data["snapshot_t"], float)
+        pick = np.flatnonzero((snap_t >= s["averaging_t_from"]) & (snap_t <= s["averaging_t_to"]))
+        extents = np.array([silhouette(np.asarray(data["positions"][i], float), np.asarray(data["elements"]))
+                            for i in pick])
+        row["outline_um"] = [float(x) * RADIUS_UM for x in extents.mean(axis=0)]
+        row["outline_sd_um"] = [float(x) * RADIUS_UM for x in extents.std(axis=0)]
+        row["outline_snapshots"] = int(pick.size)
+        row["volume_um3"] = float(np.mean(np.asarray(ts["volume"], float)[sel])) * RADIUS_UM ** 3
+        row["area_um2"] = float(np.mean(np.asarray(ts["area"], float)[sel])) * RADIUS_UM ** 2
     return row
 
 
@@ -293,6 +341,14 @@ def jobs() -> dict[str, list[tuple[str, dict, dict]]]:
         e["physical"]["shear_modulus"] = f"{fitted['physical.shear_modulus']:.4g} uN/m"
         out["fischerfit"].append((label.replace("fischer ", "fischer TTS-fit ").replace(f"L{MAIN_LEVEL}", "L1"), e,
                                   {"level": 1}))
+    # issue 55: the cell's outline seen along the gradient (Table I's measured a cos θ and c) and Table II's
+    # ellipsoid made of it as they made theirs; the case at every rate, three changes at the two ends
+    out["outline"] = [(label.replace("viscous ", "outline viscous "), d, {"outline": True}) for label, d, _ in out["main"]]
+    for group, prefix in (("shape", "sens thick"), ("hardening", "sens C 100"), ("soft", "sens G_s 1.25 C 100"),
+                          ("twosided", "sens thick")):
+        for label, d, opts in out[group]:
+            if label.startswith(prefix + " ") and rate_of(d) in (SENSITIVITY_RATE, TWO_SIDED_RATE):
+                out["outline"].append(("outline " + label, d, {**opts, "outline": True}))
     return out
 
 
@@ -409,7 +465,7 @@ def report() -> None:
         rel = f"{100 * (r['f_rad_s'] / base['f_rad_s'] - 1):+.1f} %" if base else "—"
         lines.append(f"| {name} | {r['f_rad_s']:.3g} | {rel} | {100 * (r['f_rad_s'] / f_meas - 1):+.0f} % | "
                      f"{r['motion']} |")
-    lines += two_sided_lines(rows) + stress_free_lines(rows) + fischer_lines(rows)
+    lines += two_sided_lines(rows) + outline_lines(rows) + stress_free_lines(rows) + fischer_lines(rows)
     TABLE.write_text("\n".join(lines) + "\n")
     figure(rows)
 
@@ -453,6 +509,42 @@ def two_sided_lines(rows: dict) -> list[str]:
                      f"{proj[lo]:.2f} / {proj[hi]:.2f} | {r[lo]['axes_um'][1]:.2f} / {r[hi]['axes_um'][1]:.2f} | "
                      f"{r[lo]['theta_deg']:.1f} / {r[hi]['theta_deg']:.1f} | "
                      f"{r[lo]['axes_um'][0] / r[lo]['axes_um'][2]:.2f} / {r[hi]['axes_um'][0] / r[hi]['axes_um'][2]:.2f} |")
+    return lines
+
+
+#: Table II's assigned cell (Tran-Son-Tay et al., after Nash & Wyard 1980): volume (µm³) and area (µm²)
+TABLE_II_VOLUME, TABLE_II_AREA = 111.0, 141.0
+
+
+def outline_lines(rows: dict) -> list[str]:
+    """Issue 55: the cell as the rheoscope sees it (its outline along the gradient: Table I's measured
+    a cos θ and c) and Table II's ellipsoid made of it as they made theirs (:func:`ellipsoid_of_width`
+    with their V and S), or with the cell's own volume and area."""
+    meas = {r[0]: r for r in TABLE_I}
+    table2 = {r[0]: r for r in TABLE_II}
+    lines = ["", "The outline seen along the gradient (as in the rheoscope; mean over the snapshots of the averaging "
+             "window, one a unit kt) against Table I's measured projected half-length a cos θ and half-width c (µm, "
+             "mean ± SD), and Table II's a/b made from it as they made theirs: the ellipsoid of that half-width c with "
+             f"their assigned volume {TABLE_II_VOLUME:g} µm³ and area {TABLE_II_AREA:g} µm² (Table II's own a/b is this "
+             "of Table I's c within 3 % at 28.6–114.3 1/s), or with the cell's own volume and area "
+             "(what capsim's equal-moment ellipsoid gives):", "",
+             "| run | k (1/s) | half-length: capsim / Table I | half-width c: capsim / Table I | "
+             "a/b, their V and S: capsim / Table II | a/b, the cell's own V and S (area µm²) | "
+             "equal-moment a/b |", "|---|---|---|---|---|---|---|"]
+    for tag, prefix in (("the case", "outline viscous"), ("their reduced volume", "outline sens thick"),
+                        ("C = 100", "outline sens C 100"), ("G_s 1.25 µN/m, C = 100", "outline sens G_s 1.25 C 100")):
+        for k, *_ in TABLE_I:
+            r = rows.get(f"{prefix} k={k} L{MAIN_LEVEL}")
+            if r is None:
+                continue
+            half_length, half_width = r["outline_um"]
+            a, b = ellipsoid_of_width(half_width, TABLE_II_VOLUME, TABLE_II_AREA)
+            own_a, own_b = ellipsoid_of_width(half_width, r["volume_um3"], r["area_um2"])
+            ab2 = table2[k][1] / table2[k][2]
+            lines.append(f"| {tag} | {k:g} | {half_length:.2f} / {meas[k][1]} ± {meas[k][2]} | "
+                         f"{half_width:.2f} / {meas[k][3]} ± {meas[k][4]} | {a / b:.2f} / {ab2:.2f} "
+                         f"({100 * (a / b / ab2 - 1):+.0f} %) | {own_a / own_b:.2f} ({r['area_um2']:.0f}) | "
+                         f"{r['axes_um'][0] / r['axes_um'][2]:.2f} |")
     return lines
 
 
