@@ -106,7 +106,9 @@ _KILLED = textwrap.dedent(
     """
     import sys, time
     import numpy as np
+    import capsim.storage.store as store
     from capsim.storage.store import TrajectoryWriter
+    store._FLUSH_INTERVAL_S = 0.0  # the rows flushed every _STEP_FLUSH_EVERY steps, however fast they come
     w = TrajectoryWriter(sys.argv[1], config_yaml="name: x\\n", elements=np.zeros((8, 6), int),
                          rest_positions=np.zeros((18, 3)), version="0")
     w.append_snapshot(0.0, np.ones((18, 3)))

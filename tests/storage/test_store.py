@@ -119,7 +119,9 @@ _KILLED_WRITER = textwrap.dedent(
     """
     import sys, time
     import numpy as np
+    import capsim.storage.store as store
     from capsim.storage.store import TrajectoryWriter
+    store._FLUSH_INTERVAL_S = 0.0  # the rows flushed every _STEP_FLUSH_EVERY steps, however fast they come
     w = TrajectoryWriter(sys.argv[1], config_yaml="name: x\\n", elements=np.zeros((8, 6), int),
                          rest_positions=np.zeros((18, 3)), version="0")
     w.append_snapshot(0.0, np.ones((18, 3)))
@@ -203,3 +205,26 @@ def test_read_case_errors_are_one_line(tmp_path):
         pass
     with pytest.raises(TrajectoryError, match="no config_yaml"):
         read_case(tmp_path / "bare.h5")
+
+
+def test_rows_are_flushed_every_twenty_steps_once_a_second_has_passed(tmp_path, monkeypatch):
+    """The buffered rows reach the file every _STEP_FLUSH_EVERY steps when _FLUSH_INTERVAL_S has passed
+    since the last flush, or at _STEP_FLUSH_MAX rows whatever the time (issue 57: a fast run flushed ~70
+    columns every 20 steps); a flush's rows are the file's, read back whole."""
+    import capsim.storage.store as store
+
+    monkeypatch.setattr(store, "_FLUSH_INTERVAL_S", 3600.0)
+    monkeypatch.setattr(store, "_STEP_FLUSH_MAX", 50)
+    path = tmp_path / "r.h5"
+    with _writer(path) as w:
+        for i in range(49):
+            w.append_step({"t": 0.1 * i, "D_xy": 0.0})
+        assert w._unflushed_steps == 49  # twenty steps are not enough within the hour
+        w.append_step({"t": 4.9, "D_xy": 0.0})
+        assert w._unflushed_steps == 0  # fifty are, whatever the time
+        monkeypatch.setattr(store, "_FLUSH_INTERVAL_S", 0.0)
+        for i in range(50, 70):
+            w.append_step({"t": 0.1 * i, "D_xy": 0.0})
+            assert w._unflushed_steps == (i - 49) % 20
+        w.close("completed")
+    np.testing.assert_allclose(read_trajectory(path)["timeseries"]["t"], 0.1 * np.arange(70))
