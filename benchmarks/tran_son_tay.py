@@ -21,14 +21,16 @@ level3 (level 3 at 28.6 1/s: ~6 min; not run for the docs), stressfree (issue 55
 stress-free oblate spheroid of aspect 0.9, and a sphere, at 28.6, 57.1 and 171.4 1/s), fischer (issue 55:
 the case in Fischer & Korzeniewski 2015's 28.9 mPa s at the six shear rates of their 225 cells,
 benchmarks/data/fischer2015_ttf_eta28.9.csv, with the mean of Table III's μ_s), fischersoft (the same with
-G_s 1.25 uN/m and C = 100), twosided (issue 55: μ_s x0.7, x1.3, G_s x0.5, x2, the cytoplasm at 5 and
+G_s 1.25 uN/m and C = 100), fischermu (the same with the μ_s fitted to Fischer's frequencies, issue 55),
+twosided (issue 55: μ_s x0.7, x1.3, G_s x0.5, x2, the cytoplasm at 5 and
 20 mPa s, at 28.6 and 171.4 1/s; their reduced volume at 171.4), fischerfit (Fischer's rates with the μ_s
 and G_s fitted to Table I, benchmarks/fit_tran_son_tay_mu_s_g_s.json, level 1). `make bench-tts` runs
 every group but level3.
 
 `run` appends each finished run to benchmarks/tran_son_tay.json (a run already there is not
 repeated; one run at level 2 takes 1-3 min on one core); `report` writes
-benchmarks/tran_son_tay.md (included by docs/validation.md) and docs/figures/tran_son_tay.png.
+benchmarks/tran_son_tay.md (included by docs/validation.md), docs/figures/tran_son_tay.png and
+docs/figures/fischer_2015_ttf.png.
 """
 
 from __future__ import annotations
@@ -49,6 +51,7 @@ ROOT = Path(__file__).resolve().parents[1]
 JSON = ROOT / "benchmarks" / "tran_son_tay.json"
 TABLE = ROOT / "benchmarks" / "tran_son_tay.md"
 FIGURE = ROOT / "docs" / "figures" / "tran_son_tay.png"
+FISCHER_FIGURE = ROOT / "docs" / "figures" / "fischer_2015_ttf.png"
 CAMPAIGN = ROOT / "campaigns" / "tran-son-tay-1984.yaml"
 ELASTIC = ROOT / "campaigns" / "tran-son-tay-1984-elastic.yaml"
 
@@ -85,6 +88,9 @@ THICK = (0.2736, 2.647, -1.4841)
 #: issue 55: the stress-free shapes tried (membrane.reference_shape) and at which of Table I's rates
 STRESS_FREE_SHAPES = (("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9}), ("sphere", {"kind": "sphere"}))
 STRESS_FREE_RATES = (28.6, 57.1, 171.4)
+#: issue 55: the membrane viscosity (N s/m) of the best point of the level-1 fit to Fischer & Korzeniewski 2015's
+#: frequencies (fits/fit-fischer-2015-mu-s-g-s.yaml, G_s 2.5 uN/m; docs/validation.md says how it ended)
+FISCHER_FIT_MU_S = 3.265452361e-07
 #: Fischer & Korzeniewski 2015 (Biophys. J., Fig. S11): f/k of 225 cells in 28.9 mPa s (benchmarks/data/README.md)
 FISCHER_DATA = ROOT / "benchmarks" / "data" / "fischer2015_ttf_eta28.9.csv"
 FISCHER_VISCOSITY_MPAS = 28.9
@@ -341,6 +347,14 @@ def jobs() -> dict[str, list[tuple[str, dict, dict]]]:
         e["physical"]["shear_modulus"] = f"{fitted['physical.shear_modulus']:.4g} uN/m"
         out["fischerfit"].append((label.replace("fischer ", "fischer TTS-fit ").replace(f"L{MAIN_LEVEL}", "L1"), e,
                                   {"level": 1}))
+    # issue 55: Fischer & Korzeniewski's own parameter set: the smallest χ² of the level-1 fit to their six rate groups
+    # (fits/fit-fischer-2015-mu-s-g-s.yaml; χ² 1.84, evaluation 2 of 5 before a run at 258 1/s stopped it
+    # unstable), checked at level 2, where the lowest rate's motion is resolved (level 1 tumbles there)
+    out["fischermu"] = []
+    for label, d, opts in out["fischer"]:
+        e = json.loads(json.dumps(d))
+        e["physical"]["membrane_viscosity"] = f"{FISCHER_FIT_MU_S:.4g} N*s/m"
+        out["fischermu"].append((label.replace("fischer ", "fischer mu_s 3.27e-7 "), e, opts))
     # issue 55: the cell's outline seen along the gradient (Table I's measured a cos θ and c) and Table II's
     # ellipsoid made of it as they made theirs; the case at every rate, three changes at the two ends
     out["outline"] = [(label.replace("viscous ", "outline viscous "), d, {"outline": True}) for label, d, _ in out["main"]]
@@ -576,8 +590,9 @@ def fischer_lines(rows: dict) -> list[str]:
              "membrane's angular frequency over the shear rate (theirs: 2π × their f/k, mean ± SD over the cells "
              "of each group of rates):", "",
              "| k (1/s) | cells | ω/k measured | ω/k capsim | error | G | motion | ω/k capsim, G_s 1.25 µN/m, C = 100 | "
-             "error | ω/k capsim, Tran-Son-Tay's fitted μ_s and G_s (level 1) | error |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "error | ω/k capsim, Tran-Son-Tay's fitted μ_s and G_s (level 1) | error | "
+             f"ω/k capsim, μ_s {FISCHER_FIT_MU_S:.3g} N s/m fitted to these (G_s 2.5 µN/m) | error | motion |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for k, ratio, sd, n in fischer_groups():
         measured = 2 * math.pi * ratio
         r = rows.get(f"fischer k={k:.4g} L{MAIN_LEVEL}")
@@ -593,6 +608,10 @@ def fischer_lines(rows: dict) -> list[str]:
         cells += (["not run", "—"] if fitted is None else
                   [f"{fitted['f_rad_s'] / k:.3f}" + (f" ({fitted['motion']}: the body's turn)" if turning else ""),
                    "—" if turning else f"{100 * (fitted['f_rad_s'] / k / measured - 1):+.0f} %"])
+        own = rows.get(f"fischer mu_s 3.27e-7 k={k:.4g} L{MAIN_LEVEL}")
+        cells += (["not run", "—", "—"] if own is None else
+                  [f"{own['f_rad_s'] / k:.3f}", f"{100 * (own['f_rad_s'] / k / measured - 1):+.0f} %",
+                   own["motion"] + ("" if own["settled"] == 1 else " (not settled)")])
         lines.append("| " + " | ".join(cells) + " |")
     return lines
 
@@ -627,12 +646,50 @@ def figure(rows: dict) -> None:
     fig.tight_layout()
     FIGURE.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(FIGURE, dpi=120)
+    plt.close(fig)
+    fischer_figure(rows)
+
+
+def fischer_figure(rows: dict) -> None:
+    """Issue 55: Fischer & Korzeniewski 2015's ω/k against the rate, with capsim's sets (the Fischer table)."""
+    import matplotlib.pyplot as plt
+
+    groups = fischer_groups()
+    k = [g[0] for g in groups]
+    fig, ax = plt.subplots(figsize=(5.2, 3.8))
+    measured = [2 * math.pi * g[1] for g in groups]
+    ax.fill_between(k, [0.85 * x for x in measured], [1.15 * x for x in measured], color="0.85", lw=0,
+                    label="measured ± 15 % (the issue's criterion)")
+    ax.errorbar(k, measured, yerr=[2 * math.pi * g[2] for g in groups], fmt="ko", capsize=3,
+                label="measured (Fischer & Korzeniewski 2015, mean ± SD of the cells)")
+    for prefix, level, style, name in (
+            ("fischer", MAIN_LEVEL, "s-", "capsim, G_s 2.5 µN/m, Tran-Son-Tay's mean μ_s 0.66e-7 N s/m"),
+            ("fischer G_s 1.25 C 100", MAIN_LEVEL, "v-.", "capsim, G_s 1.25 µN/m, C = 100, μ_s 0.66e-7"),
+            ("fischer mu_s 3.27e-7", MAIN_LEVEL, "D-", f"capsim, G_s 2.5 µN/m, μ_s {FISCHER_FIT_MU_S:.3g} (fitted here)"),
+            ("fischer TTS-fit", 1, "^--", "capsim, μ_s and G_s fitted to Tran-Son-Tay (level 1)")):
+        pts = [(g[0], rows[key]["f_rad_s"] / g[0], rows[key]["motion"]) for g in groups
+               if (key := f"{prefix} k={g[0]:.4g} L{level}") in rows]
+        if not pts:
+            continue
+        line, = ax.plot([p[0] for p in pts], [p[1] for p in pts], style, mfc="none", label=name)
+        turning = [(x, y) for x, y, motion in pts if motion not in ("swinging", "steady", "transient")]
+        if turning:
+            ax.plot(*zip(*turning), "x", color=line.get_color(), ms=9, label="… tumbling there (no tank-treading)")
+    ax.set_xscale("log")
+    ax.set_xlabel("shear rate k (1/s)")
+    ax.set_ylabel("ω/k (membrane's angular frequency / shear rate)")
+    ax.set_ylim(0.1, 0.5)  # room for the legend above the points
+    ax.legend(fontsize=6.2, loc="upper right")
+    ax.set_title(f"Red cells in {FISCHER_VISCOSITY_MPAS} mPa s (level 2 unless marked)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(FISCHER_FIGURE, dpi=120)
+    plt.close(fig)
 
 
 if __name__ == "__main__":
     if len(sys.argv) >= 2 and sys.argv[1] == "run":
         run(sys.argv[2:] or ["main", "elastic", "sensitivity", "extra", "shape", "hardening", "soft", "stressfree",
-                             "fischer", "fischersoft", "twosided", "fischerfit"])
+                             "fischer", "fischersoft", "twosided", "fischerfit", "outline", "fischermu"])
     elif len(sys.argv) == 2 and sys.argv[1] == "report":
         report()
     else:
