@@ -1026,6 +1026,11 @@ class Automatic(Integrator):
     LI_ITERATIONS_DENSE = 12.0
     LI_ITERATIONS_LOCAL = 12.0
     LI_ITERATIONS_SLOPE = 3.0
+    #: the stiffness ρh those iteration counts were measured over (the local preconditioner's 17-32);
+    #: beyond it the count grows faster than ln(ρh): the ektacytometry red cell (Skalak C = 1000, level 2,
+    #: 0.1 Pa) at ρh ≈ 6600 took 154 iterations a step, not the model's 38, and 86 s, not the
+    #: predicted 11 s. The choice's text says when a prediction is so extrapolated.
+    LI_CALIBRATED_RHO_H = 400.0
     #: a stage solve's iteration at λ ≠ 1 takes about this many layer applications (the double
     #: layer's solve inside the Jacobian-vector product; rtol_promise.md (d), (e): 2.1-2.2)
     LI_LAYERS_PER_ITERATION = 2.1
@@ -1060,6 +1065,25 @@ class Automatic(Integrator):
                     if cls._implicit_ok(dense):
                         out["linearly_implicit/dense"] = dense
         return out
+
+    @classmethod
+    def extrapolation_note(cls, case: Any, rho: float) -> str | None:
+        """Why the linearly implicit scheme's predicted time is not to be trusted here (ρh beyond
+        LI_CALIBRATED_RHO_H), else None."""
+        rho_h = rho * cls.li_step(case)
+        if not rho_h > cls.LI_CALIBRATED_RHO_H:
+            return None
+        return (f"linearly_implicit's prediction is extrapolated: its GMRES iterations were measured to "
+                f"ρh = {cls.LI_CALIBRATED_RHO_H:g}, here ρh = {rho_h:.3g} (at ρh 6600 a run took 7.6x the predicted "
+                "time: docs/time_stepping.md, 'How to count cost')")
+
+    @classmethod
+    def li_step(cls, case: Any) -> float:
+        """The linearly implicit scheme's predicted (accuracy) step: LI_H_ACC (rtol/1e-3)^(1/3), times
+        ((1 + λ)/2)^(1/2), at most time.dt_max."""
+        tc = case.time
+        slow = math.sqrt((1.0 + max(case.viscosity_ratios)) / 2.0)
+        return min(tc.dt_max, slow * cls.LI_H_ACC * (tc.rtol / 1e-3) ** (1.0 / 3.0))
 
     @classmethod
     def predict(cls, case: Any, rho: float, layers_per_evaluation: float = 1.0, n_nodes: int | None = None,
@@ -1098,7 +1122,7 @@ class Automatic(Integrator):
                 counts = explicit(h, stages + cls.RKC_EXTRA)
             else:
                 dense = label.endswith("/dense")
-                h = min(tc.dt_max, slow * cls.LI_H_ACC * (tc.rtol / 1e-3) ** (1.0 / 3.0))
+                h = cls.li_step(case)
                 steps = t_end / h
                 per_step = (cls.LI_ITERATIONS_DENSE if dense else
                             cls.LI_ITERATIONS_LOCAL + cls.LI_ITERATIONS_SLOPE * math.log(max(rho * h, 1.0)))
@@ -1149,6 +1173,8 @@ class Automatic(Integrator):
         notes = []
         if not cls._implicit_ok(case):
             notes.append("linearly_implicit cannot run this case")
+        if any(k.startswith("linearly_implicit") for k in predicted):
+            notes += [n for n in (cls.extrapolation_note(case, rho),) if n]
         ranked = sorted(predicted, key=lambda k: predicted[k][0])
         why = (f"least predicted wall time: ρ = {rho:.3g}, {per_evaluation:.3g} layer applications an evaluation, "
                f"{n_nodes} nodes; predicted " + ", ".join(f"{predicted[k][0]:.3g} s {k}" for k in ranked))

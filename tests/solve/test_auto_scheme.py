@@ -159,3 +159,17 @@ def test_an_auto_run_is_the_run_of_the_scheme_it_picks_to_the_bit(tmp_path):
     for name in ("t", "D_xy", "theta"):  # θ is NaN at t = 0 (a sphere has no long axis): NaN equals NaN here
         assert np.array_equal(a[name], b[name], equal_nan=True), name
     assert auto["velocity_evaluations"] > named["velocity_evaluations"]  # the measurement is counted
+
+
+def test_the_choice_says_when_the_linearly_implicit_prediction_is_extrapolated():
+    """Its GMRES iterations a step were measured to ρh = 400 (LI_CALIBRATED_RHO_H); the ektacytometry red cell,
+    ρh ≈ 6600, took 7.6x its predicted time (docs/time_stepping.md): beyond, the choice's text says so."""
+    import capsim
+    from capsim.solve.timestepping import Automatic
+
+    case = capsim.load_case({"name": "x", "time": {"rtol": 1e-4}})
+    h = Automatic.li_step(case)
+    assert Automatic.extrapolation_note(case, 100.0 / h) is None
+    assert Automatic.extrapolation_note(case, 400.0 / h) is None
+    note = Automatic.extrapolation_note(case, 6600.0 / h)
+    assert note is not None and "extrapolated" in note and "ρh = 6.6e+03" in note
