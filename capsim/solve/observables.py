@@ -1489,8 +1489,9 @@ def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarr
     # the director's, the centroid velocity's and the stresslet's surface integrals in one pass (issue 57:
     # each was its own numpy pass, ~0.1 ms of a level-2 row); the contour method's element-constant Δf
     # keeps the numpy integrals
-    sums = None if density.ndim != 3 or numpy_quadrature_active() else row_surface_sums(geometry, density, weights, u, elements,
-                                                               model.disc.reg_phi, center, director)
+    sums = None
+    if density.ndim == 3 and not numpy_quadrature_active():
+        sums = row_surface_sums(geometry, density, weights, u, elements, model.disc.reg_phi, center, director)
     row.update(director_observables(director(geometry) if sums is None else sums.director))
     # compressive tensions: where a membrane without bending stiffness would wrinkle
     _, tau2 = principal_tensions(strain, model.law, law_params)
