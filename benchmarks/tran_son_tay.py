@@ -24,8 +24,10 @@ benchmarks/data/fischer2015_ttf_eta28.9.csv, with the mean of Table III's μ_s),
 G_s 1.25 uN/m and C = 100), fischermu (the same with the μ_s fitted to Fischer's frequencies, issue 55),
 twosided (issue 55: μ_s x0.7, x1.3, G_s x0.5, x2, the cytoplasm at 5 and
 20 mPa s, at 28.6 and 171.4 1/s; their reduced volume at 171.4), fischerfit (Fischer's rates with the μ_s
-and G_s fitted to Table I, benchmarks/fit_tran_son_tay_mu_s_g_s.json, level 1). `make bench-tts` runs
-every group but level3.
+and G_s fitted to Table I, benchmarks/fit_tran_son_tay_mu_s_g_s.json, level 1), outline (issue 55: the case
+at every rate, their reduced volume, C = 100 and G_s 1.25 uN/m with C = 100 at 28.6 and 171.4 1/s, with
+snapshots: the outline seen along the gradient and Table II's ellipsoid made from it). `make bench-tts`
+runs every group but level3.
 
 `run` appends each finished run to benchmarks/tran_son_tay.json (a run already there is not
 repeated; one run at level 2 takes 1-3 min on one core); `report` writes
