@@ -16,6 +16,7 @@ Mesh level 1 (the TTS case's frequency moved 0.1 % from level 1 to 2), t_end kt 
 tumbling periods), rtol 1e-4: a first look, not a converged threshold.
 
     python benchmarks/tumbling_transition.py run [VISCOSITY ...]   # resumable; rows in the JSON
+    python benchmarks/tumbling_transition.py finer 2 23.9 [K ...]  # the disk at level 2 (or 3; LEVEL2_RATES)
     python benchmarks/tumbling_transition.py report                # the table
 """
 
@@ -52,12 +53,19 @@ def base_case() -> dict:
     return base
 
 
-def run_one(eta: float, k: float, tag: str, reference) -> dict:
+#: the disk's bracket at level 1 checked at level 2 (the motion near the threshold is the mesh's too: at
+#: 28.9 mPa s, 8.2 1/s, the cell of fits/fit-fischer-2015-mu-s-g-s.yaml tumbled at level 1 and tank-treaded
+#: at level 2): viscosity -> shear rates, the disk only
+LEVEL2_RATES = {23.9: (5.0, 8.0, 12.0)}
+
+
+def run_one(eta: float, k: float, tag: str, reference, level: int = LEVEL) -> dict:
     from capsim.config import case_from_dict
     from capsim.runs.runner import run_case
 
     case = json.loads(json.dumps(base_case()))
     case["physical"].update(viscosity=f"{eta:g} mPa*s", shear_rate=f"{k:g} 1/s")
+    case["mesh"]["level"] = level
     if reference is not None:
         case["membrane"]["reference_shape"] = reference
     with tempfile.TemporaryDirectory() as tmp:
@@ -69,7 +77,27 @@ def run_one(eta: float, k: float, tag: str, reference) -> dict:
     return {"eta_mPa_s": eta, "shear_rate": k, "stress_Pa": eta * 1e-3 * k, "stress_free": tag,
             "G": c.flow.shear_rate_G, "viscosity_ratio": c.flow.viscosity_ratio, "status": result.status,
             "motion": s.get("motion"), "settled": s.get("settled"), "ttf_ratio": s.get("ttf_ratio"),
-            "body_rotation_ratio": s.get("body_rotation_ratio"), "wall_time_s": result.wall_time_s}
+            "body_rotation_ratio": s.get("body_rotation_ratio"), "wall_time_s": result.wall_time_s,
+            "level": level}
+
+
+def run_finer(level: int, eta: float, rates: list[float]) -> None:
+    """The disk at a finer level at the given rates (LEVEL2_RATES), each row added to the JSON under a lock
+    (two of these may run side by side, one per core)."""
+    import fcntl
+
+    from capsim.numerics.threads import apply_policy
+
+    apply_policy(1)
+    for k in rates:
+        row = run_one(eta, k, "disk", None, level=level)
+        with open(JSON.with_suffix(".lock"), "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            rows = [r for r in load() if not (r.get("level", LEVEL) == level and r["eta_mPa_s"] == eta
+                                              and r["shear_rate"] == k)]
+            JSON.write_text(json.dumps(rows + [row], indent=1) + "\n")
+        print(f"level {level}: η {eta:g} k {k:g} ({row['stress_Pa']:.3g} Pa) disk: {row['motion']} {row['status']} "
+              f"{row['wall_time_s']:.0f} s", flush=True)
 
 
 def load() -> list[dict]:
@@ -81,7 +109,7 @@ def run(viscosities: list[float]) -> None:
 
     apply_policy(1)
     rows = load()
-    done = {(r["eta_mPa_s"], r["shear_rate"], r["stress_free"]) for r in rows}
+    done = {(r["eta_mPa_s"], r["shear_rate"], r["stress_free"]) for r in rows if r.get("level", LEVEL) == LEVEL}
     for eta in viscosities:
         for tag, reference in STRESS_FREE:
             for k in RATES[eta]:
@@ -108,7 +136,8 @@ def _measured(eta: float) -> str:
 
 
 def report() -> None:
-    rows = load()
+    everything = load()
+    rows = [r for r in everything if r.get("level", LEVEL) == LEVEL]
     lines = [__doc__.split("\n\n")[0].replace("\n", " ") + " `make bench-transition` (level 1, kt 60).", "",
              "| η (mPa s) | measured threshold τ (Pa) | stress-free shape | tumbles at τ (Pa) | tank-treads at τ (Pa) | "
              "threshold bracket (Pa) |", "|---|---|---|---|---|---|"]
@@ -131,6 +160,16 @@ def report() -> None:
         lines += ["", "Runs classified otherwise: " + "; ".join(
             f"η {r['eta_mPa_s']:g}, {r['stress_Pa']:.3g} Pa, {r['stress_free']}: {r['motion']} ({r['status']})"
             for r in others)]
+    finer = [r for r in everything if r.get("level", LEVEL) > LEVEL]
+    if finer:
+        by = {(r.get("level", LEVEL), r["eta_mPa_s"], r["shear_rate"]): r for r in everything if r["stress_free"] == "disk"}
+        lines += ["", "The disk at finer meshes near its level-1 bracket (the motion near the threshold depends on the "
+                  "mesh; `python benchmarks/tumbling_transition.py finer LEVEL 23.9 K ...`):", "",
+                  "| η (mPa s) | τ (Pa) | G | level 1 | level 2 | level 3 |", "|---|---|---|---|---|---|"]
+        for eta, k in sorted({(r["eta_mPa_s"], r["shear_rate"]) for r in finer}):
+            r0 = next(r for (lv, e, kk), r in by.items() if e == eta and kk == k)
+            cells = [by[(lv, eta, k)]["motion"] if (lv, eta, k) in by else "not run" for lv in (1, 2, 3)]
+            lines.append(f"| {eta:g} | {r0['stress_Pa']:.3g} | {r0['G']:.3g} | " + " | ".join(cells) + " |")
     TABLE.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
@@ -138,5 +177,8 @@ def report() -> None:
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "run":
         run([float(v) for v in sys.argv[2:]] or sorted(RATES))
+    elif len(sys.argv) > 3 and sys.argv[1] == "finer":
+        eta = float(sys.argv[3])
+        run_finer(int(sys.argv[2]), eta, [float(v) for v in sys.argv[4:]] or list(LEVEL2_RATES[eta]))
     else:
         report()
