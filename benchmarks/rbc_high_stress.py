@@ -14,7 +14,8 @@ the flow and along the vorticity (capsim's axis_L and axis_W, window means); the
     python benchmarks/rbc_high_stress.py report
 
 GROUP: c10, c100, c1000 (level 2), level3 (C = 1000 at level 3, at 1 and 10 Pa), gs4 (C = 1000 and G_s
-4 uN/m instead of 2.5: the EI's sensitivity to the modulus, issue 55).
+4 uN/m instead of 2.5: the EI's sensitivity to the modulus, issue 55), outline (C = 1000 again, with snapshots:
+the EI of the cell's outline seen along the gradient, as the ektacytometer's laser sees it).
 """
 
 from __future__ import annotations
@@ -35,7 +36,10 @@ VISCOSITY_MPAS, INNER_MPAS = 30.0, 6.0
 STRESSES_PA = (0.1, 1.0, 10.0, 50.0)
 #: group -> (Skalak C, mesh level, G_s in uN/m: None for the configuration's 2.5)
 GROUPS = {"c10": (10.0, 2, None), "c100": (100.0, 2, None), "c1000": (1000.0, 2, None),
-          "level3": (1000.0, 3, None), "gs4": (1000.0, 2, 4.0)}
+          "level3": (1000.0, 3, None), "gs4": (1000.0, 2, 4.0), "outline": (1000.0, 2, None)}
+#: the groups whose runs also give the EI of the cell's outline seen along the gradient, as the
+#: ektacytometer's laser sees it (its light crosses the gap along the velocity gradient)
+OUTLINE_GROUPS = ("outline",)
 T_END = 10.0
 #: the mesh error at level 3 is measured at two of the stresses (a level-3 run costs minutes here)
 LEVEL3_STRESSES_PA = (1.0, 10.0)
@@ -56,7 +60,7 @@ def case_for(stress: float, C: float, level: int, shear_modulus: float | None = 
     return case
 
 
-def run_one(stress: float, C: float, level: int, shear_modulus: float | None = None) -> dict:
+def run_one(stress: float, C: float, level: int, shear_modulus: float | None = None, outline: bool = False) -> dict:
     import numpy as np
 
     from capsim.config import case_from_dict
@@ -66,10 +70,11 @@ def run_one(stress: float, C: float, level: int, shear_modulus: float | None = N
     d = case_for(stress, C, level, shear_modulus)
     with tempfile.TemporaryDirectory() as tmp:
         d["name"] = "rbc-stress"
-        d["output"] = {"path": f"{tmp}/run.h5", "snapshot_every": T_END}
+        d["output"] = {"path": f"{tmp}/run.h5", "snapshot_every": 0.5 if outline else T_END}
         case = case_from_dict(d)
         result = run_case(case)
-        ts = read_trajectory(case.output.path)["timeseries"]
+        data = read_trajectory(case.output.path)
+        ts = data["timeseries"]
     s = dict(result.summary)
     t = np.asarray(ts["t"], float)
     lo, hi = s.get("averaging_t_from"), s.get("averaging_t_to")
@@ -84,7 +89,27 @@ def run_one(stress: float, C: float, level: int, shear_modulus: float | None = N
             "D_xy": s.get("D_xy"), "area_change_max": float(np.max(np.abs(area / area[0] - 1.0))),
             "compressed_fraction": float(np.asarray(ts["compressed_fraction"], float)[-1]),
             "min_element_quality": float(np.min(np.asarray(ts["min_element_quality"], float))),
-            "evaluations": int(result.velocity_evaluations or 0), "wall_time_s": result.wall_time_s}
+            "evaluations": int(result.velocity_evaluations or 0), "wall_time_s": result.wall_time_s,
+            **(_outline_ei(data, lo, hi) if outline else {})}
+
+
+def _outline_ei(data: dict, lo, hi) -> dict:
+    """EI = (X − Z)/(X + Z) of the outline seen along the gradient y: its half-length along the flow x and
+    half-width along the vorticity z (benchmarks/tran_son_tay.py, silhouette), the mean over the snapshots of
+    the averaging window (every snapshot if the run has none)."""
+    import numpy as np
+
+    from tran_son_tay import silhouette
+
+    snap_t = np.asarray(data["snapshot_t"], float)
+    pick = np.flatnonzero((snap_t >= lo) & (snap_t <= hi)) if lo is not None and np.isfinite(lo) else \
+        np.arange(snap_t.size)
+    extents = np.array([silhouette(np.asarray(data["positions"][i], float), np.asarray(data["elements"]))
+                        for i in pick])
+    X, Z = extents[:, 0], extents[:, 1]
+    ei = (X - Z) / (X + Z)
+    return {"outline": True, "EI_outline": float(ei.mean()), "EI_outline_sd": float(ei.std()),
+            "outline_snapshots": int(pick.size)}
 
 
 def load() -> list[dict]:
@@ -99,10 +124,12 @@ def run(groups: list[str]) -> None:
     for group in groups:
         C, level, gs = GROUPS[group]
         for stress in (LEVEL3_STRESSES_PA if level == 3 else STRESSES_PA):
+            outline = group in OUTLINE_GROUPS
             if any(r["stress_Pa"] == stress and r["skalak_c"] == C and r["level"] == level
-                   and r.get("shear_modulus_uN_m", 2.5) == (gs or 2.5) for r in rows):
+                   and r.get("shear_modulus_uN_m", 2.5) == (gs or 2.5) and r.get("outline", False) == outline
+                   for r in rows):
                 continue
-            rows.append(run_one(stress, C, level, gs))
+            rows.append(run_one(stress, C, level, gs, outline))
             JSON.write_text(json.dumps(rows, indent=1) + "\n")
             r = rows[-1]
             print(f"{stress:g} Pa C {C:g} L{level}: {r['status']} at kt {r['t']:.3g}, EI {r['EI']:.3f}, "
@@ -131,12 +158,26 @@ def report() -> None:
              "capsim's EI is the equivalent ellipsoid's, not a diffraction pattern's):", "",
              "| τ (Pa) | G_s (µN/m) | G | C | level | status | EI = (L − W)/(L + W) | EI measured | largest area "
              "change | smallest element quality | compressed at the end |", "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for r in sorted(rows, key=lambda r: (r["level"], r.get("shear_modulus_uN_m", 2.5), r["skalak_c"], r["stress_Pa"])):
+    plain = [r for r in rows if not r.get("outline")]
+    for r in sorted(plain, key=lambda r: (r["level"], r.get("shear_modulus_uN_m", 2.5), r["skalak_c"], r["stress_Pa"])):
         status = r["status"] if r["status"] == "completed" else f"{r['status']} at kt {r['t']:.3g} ({r['reason'].split(':')[0]})"
         ei = measured_ei(r["stress_Pa"])
         lines.append(f"| {r['stress_Pa']:g} | {r.get('shear_modulus_uN_m', 2.5):g} | {r['G']:.3g} | {r['skalak_c']:g} | {r['level']} | {status} | "
                      f"{r['EI']:.3f} | {'—' if ei is None else f'{ei:.3f}'} | {100 * r['area_change_max']:.1f} % | {r['min_element_quality']:.2f} | "
                      f"{100 * r['compressed_fraction']:.0f} % |")
+    seen = sorted((r for r in rows if r.get("outline")), key=lambda r: r["stress_Pa"])
+    if seen:
+        lines += ["", "The EI as the ektacytometer sees the cell (group `outline`: C = 1000, G_s 2.5 µN/m, level 2; its "
+                  "laser crosses the gap along the velocity gradient, so the diffraction pattern is the outline's seen "
+                  "along y: its half-length along the flow x and half-width along the vorticity z, mean ± SD over the "
+                  "snapshots of the averaging window) beside the equivalent ellipsoid's:", "",
+                  "| τ (Pa) | EI of the outline | EI of the equivalent ellipsoid | EI measured | outline against measured |",
+                  "|---|---|---|---|---|"]
+        for r in seen:
+            ei = measured_ei(r["stress_Pa"])
+            off = "—" if ei is None else f"{100 * (r['EI_outline'] / ei - 1):+.0f} %"
+            lines.append(f"| {r['stress_Pa']:g} | {r['EI_outline']:.3f} ± {r['EI_outline_sd']:.3f} | {r['EI']:.3f} | "
+                         f"{'—' if ei is None else f'{ei:.3f}'} | {off} |")
     TABLE.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
