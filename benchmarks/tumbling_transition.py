@@ -16,7 +16,8 @@ Mesh level 1 (the TTS case's frequency moved 0.1 % from level 1 to 2), t_end kt 
 tumbling periods), rtol 1e-4: a first look, not a converged threshold.
 
     python benchmarks/tumbling_transition.py run [VISCOSITY ...]   # resumable; rows in the JSON
-    python benchmarks/tumbling_transition.py finer 2 23.9 [K ...]  # the disk at level 2 (or 3; LEVEL2_RATES)
+    python benchmarks/tumbling_transition.py finer 2 23.9 [K ...] [--oblate]  # the disk (or the oblate
+                                                                   # state) at level 2 (or 3; LEVEL2_RATES)
     python benchmarks/tumbling_transition.py report                # the table
 """
 
@@ -81,22 +82,23 @@ def run_one(eta: float, k: float, tag: str, reference, level: int = LEVEL) -> di
             "level": level}
 
 
-def run_finer(level: int, eta: float, rates: list[float]) -> None:
-    """The disk at a finer level at the given rates (LEVEL2_RATES), each row added to the JSON under a lock
-    (two of these may run side by side, one per core)."""
+def run_finer(level: int, eta: float, rates: list[float], tag: str = "disk") -> None:
+    """A stress-free shape of STRESS_FREE (the disk by default) at a finer level at the given rates
+    (LEVEL2_RATES), each row added to the JSON under a lock (two of these may run side by side, one per core)."""
+    reference = dict(STRESS_FREE)[tag]
     import fcntl
 
     from capsim.numerics.threads import apply_policy
 
     apply_policy(1)
     for k in rates:
-        row = run_one(eta, k, "disk", None, level=level)
+        row = run_one(eta, k, tag, reference, level=level)
         with open(JSON.with_suffix(".lock"), "w") as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)
             rows = [r for r in load() if not (r.get("level", LEVEL) == level and r["eta_mPa_s"] == eta
-                                              and r["shear_rate"] == k)]
+                                              and r["shear_rate"] == k and r["stress_free"] == tag)]
             JSON.write_text(json.dumps(rows + [row], indent=1) + "\n")
-        print(f"level {level}: η {eta:g} k {k:g} ({row['stress_Pa']:.3g} Pa) disk: {row['motion']} {row['status']} "
+        print(f"level {level}: η {eta:g} k {k:g} ({row['stress_Pa']:.3g} Pa) {tag}: {row['motion']} {row['status']} "
               f"{row['wall_time_s']:.0f} s", flush=True)
 
 
@@ -162,14 +164,15 @@ def report() -> None:
             for r in others)]
     finer = [r for r in everything if r.get("level", LEVEL) > LEVEL]
     if finer:
-        by = {(r.get("level", LEVEL), r["eta_mPa_s"], r["shear_rate"]): r for r in everything if r["stress_free"] == "disk"}
-        lines += ["", "The disk at finer meshes near its level-1 bracket (the motion near the threshold depends on the "
-                  "mesh; `python benchmarks/tumbling_transition.py finer LEVEL 23.9 K ...`):", "",
-                  "| η (mPa s) | τ (Pa) | G | level 1 | level 2 | level 3 |", "|---|---|---|---|---|---|"]
-        for eta, k in sorted({(r["eta_mPa_s"], r["shear_rate"]) for r in finer}):
-            r0 = next(r for (lv, e, kk), r in by.items() if e == eta and kk == k)
-            cells = [by[(lv, eta, k)]["motion"] if (lv, eta, k) in by else "not run" for lv in (1, 2, 3)]
-            lines.append(f"| {eta:g} | {r0['stress_Pa']:.3g} | {r0['G']:.3g} | " + " | ".join(cells) + " |")
+        by = {(r.get("level", LEVEL), r["eta_mPa_s"], r["shear_rate"], r["stress_free"]): r for r in everything}
+        lines += ["", "Finer meshes near the level-1 brackets (the motion near the threshold depends on the mesh; "
+                  "`python benchmarks/tumbling_transition.py finer LEVEL ETA K ... [--oblate]`):", "",
+                  "| η (mPa s) | stress-free shape | τ (Pa) | G | level 1 | level 2 | level 3 |",
+                  "|---|---|---|---|---|---|---|"]
+        for eta, tag, k in sorted({(r["eta_mPa_s"], r["stress_free"], r["shear_rate"]) for r in finer}):
+            r0 = next(r for (lv, e, kk, t), r in by.items() if e == eta and kk == k and t == tag)
+            cells = [by[(lv, eta, k, tag)]["motion"] if (lv, eta, k, tag) in by else "not run" for lv in (1, 2, 3)]
+            lines.append(f"| {eta:g} | {tag} | {r0['stress_Pa']:.3g} | {r0['G']:.3g} | " + " | ".join(cells) + " |")
     TABLE.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
@@ -178,7 +181,8 @@ if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "run":
         run([float(v) for v in sys.argv[2:]] or sorted(RATES))
     elif len(sys.argv) > 3 and sys.argv[1] == "finer":
-        eta = float(sys.argv[3])
-        run_finer(int(sys.argv[2]), eta, [float(v) for v in sys.argv[4:]] or list(LEVEL2_RATES[eta]))
+        eta, args = float(sys.argv[3]), [a for a in sys.argv[4:] if a != "--oblate"]
+        run_finer(int(sys.argv[2]), eta, [float(v) for v in args] or list(LEVEL2_RATES[eta]),
+                  "oblate 0.9" if "--oblate" in sys.argv else "disk")
     else:
         report()
