@@ -150,11 +150,6 @@ def surface_moments(geo: ElementGeometry) -> tuple[float, float, np.ndarray, np.
     return float(out[0]), float(out[1]), out[2:5].copy(), out[5:].reshape(3, 3).copy()
 
 
-def numpy_quadrature_active() -> bool:
-    """Whether the surface integrals are taken in numpy here (within :func:`numpy_quadrature`)."""
-    return bool(_NUMPY_QUADRATURE.get())
-
-
 def min_quality(x: np.ndarray, elements: np.ndarray) -> float:
     """The smallest vertex-triangle quality (``vertex_triangle_quality(x, elements).min()``, one numba
     loop: the guard reads it every step)."""

@@ -1826,7 +1826,9 @@ def surface_moments(points, normals, weights, p):
 def row_surface_sums(points, normals, weights, density_weights, density, u, elements, phi, center,
                      director_weights, mean_weights):
     """The row's surface integrals about the centroid ``center`` in one pass over the regular points
-    (capsim.solve.observables.capsule_row; each of them was its own numpy pass): with u the nodal
+    (capsim.solve.observables.capsule_row; each of them was its own numpy pass). About the centre and
+    less the mean velocity U (∮ (x − c)(U·n) dS = V U): far from the origin x and U are large and their
+    round-off swamped the slip (capsim.numerics.geometry.reference_point). With u the nodal
     velocity less its mean U, interpolated by ``phi`` (Q, 6), and Δf the element-nodal ``density``
     (N_e, 6, 3) interpolated alike, returns 27 values:
 
@@ -1909,48 +1911,6 @@ def row_surface_sums(points, normals, weights, density_weights, density, u, elem
     out[24] -= sum_director * m0
     out[25] -= sum_director * m1
     out[26] -= sum_director * m2
-    return out
-
-
-@njit(**_JIT)
-def centroid_flux_velocity(points, normals, weights, u, elements, phi, center, volume):
-    """dc/dt of the volume centroid by Reynolds' transport theorem (capsim.solve.observables.
-    centroid_velocity): U + ∮ (x − c) ((u − U)·n) dS / V, U the nodes' mean velocity, u
-    interpolated to the regular points with the shape functions ``phi`` (Q, 6)."""
-    n_nodes = u.shape[0]
-    U0 = 0.0
-    U1 = 0.0
-    U2 = 0.0
-    for i in range(n_nodes):
-        U0 += u[i, 0]
-        U1 += u[i, 1]
-        U2 += u[i, 2]
-    U0 /= n_nodes
-    U1 /= n_nodes
-    U2 /= n_nodes
-    v0 = 0.0
-    v1 = 0.0
-    v2 = 0.0
-    ne, nq = weights.shape
-    for e in range(ne):
-        for q in range(nq):
-            a0 = 0.0
-            a1 = 0.0
-            a2 = 0.0
-            for k in range(phi.shape[1]):
-                node = elements[e, k]
-                f = phi[q, k]
-                a0 += f * (u[node, 0] - U0)
-                a1 += f * (u[node, 1] - U1)
-                a2 += f * (u[node, 2] - U2)
-            flux = (a0 * normals[e, q, 0] + a1 * normals[e, q, 1] + a2 * normals[e, q, 2]) * weights[e, q]
-            v0 += flux * (points[e, q, 0] - center[0])
-            v1 += flux * (points[e, q, 1] - center[1])
-            v2 += flux * (points[e, q, 2] - center[2])
-    out = np.empty(3)
-    out[0] = U0 + v0 / volume
-    out[1] = U1 + v1 / volume
-    out[2] = U2 + v2 / volume
     return out
 
 

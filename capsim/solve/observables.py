@@ -17,7 +17,6 @@ from capsim.numerics.geometry import (
     centroid,
     interpolate,
     min_quality,
-    numpy_quadrature_active,
     second_moment,
     surface_moments,
     volume_area,
@@ -241,25 +240,12 @@ def rest_aspect_ratio(rest_geometry: ElementGeometry, axis) -> float:
 # ---------------------------------------------------------------- stresslet
 
 
-def centroid_velocity(geo: ElementGeometry, u: np.ndarray, elements: np.ndarray, phi: np.ndarray,
-                      center: np.ndarray, volume: float) -> dict:
-    """dc/dt of the volume centroid c = ∫_V x dV / V by Reynolds' transport theorem on the membrane's
-    velocity: d/dt ∫_V x dV = ∮ x (u·n) dS, so dc/dt = (∮ x (u·n) dS − c ∮ u·n dS)/V, u interpolated
-    to the regular points with the elements' shape functions ``phi`` (Q, 6)."""
-    # about the centre and less the mean velocity U (∮ (x − c) (U·n) dS = V U): far from the
-    # origin x and U are large and their round-off swamped the slip (capsim.numerics.geometry.reference_point)
-    from capsim.numerics.kernels import centroid_flux_velocity  # one loop: the einsums took 0.4 ms a step
-
-    v = centroid_flux_velocity(geo.points, geo.normals, geo.weights, np.ascontiguousarray(u), elements, phi,
-                               np.asarray(center, dtype=np.float64), float(volume))
-    return {"centroid_velocity_x": float(v[0]), "centroid_velocity_y": float(v[1]), "centroid_velocity_z": float(v[2])}
-
-
 class RowSums:
     """The row's surface integrals about the centroid from one kernel pass
-    (capsim.numerics.kernels.row_surface_sums): the same quantities as :class:`MaterialDirector`,
-    :func:`centroid_velocity` and :func:`particle_stresslet` (tests/numerics/test_step_kernels.py
-    holds them equal to round-off)."""
+    (capsim.numerics.kernels.row_surface_sums): the material director (as :class:`MaterialDirector`),
+    the centroid's velocity dc/dt by Reynolds' transport theorem, d/dt ∫_V x dV = ∮ x (u·n) dS, so
+    dc/dt = (∮ x (u·n) dS − c ∮ u·n dS)/V, and the stresslet (as :func:`particle_stresslet`;
+    tests/numerics/test_step_kernels.py holds them equal to round-off)."""
 
     def __init__(self, values: np.ndarray) -> None:
         self.values = values
@@ -285,9 +271,12 @@ class RowSums:
 def row_surface_sums(geo: ElementGeometry, density: np.ndarray, weights: np.ndarray, u: np.ndarray,
                      elements: np.ndarray, phi: np.ndarray, center: np.ndarray,
                      director: MaterialDirector) -> RowSums:
-    """:class:`RowSums` of a configuration: element-nodal Δf (N_e, 6, 3) per the measure ``weights``."""
+    """:class:`RowSums` of a configuration: Δf element-nodal (N_e, 6, 3), or element-constant (N_e, 3: the
+    contour method's, repeated at the six nodes: the shape functions sum to one), per the measure ``weights``."""
     from capsim.numerics.kernels import row_surface_sums as kernel
 
+    if density.ndim == 2:
+        density = np.repeat(density[:, None, :], elements.shape[1], axis=1)
     return RowSums(kernel(geo.points, geo.normals, geo.weights, np.ascontiguousarray(weights), density,
                           np.ascontiguousarray(u), elements, phi, np.asarray(center, dtype=np.float64),
                           director.weights, director.w))
@@ -1489,20 +1478,15 @@ def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarr
     # the director's, the centroid velocity's and the stresslet's surface integrals in one pass (issue 57:
     # each was its own numpy pass, ~0.1 ms of a level-2 row); the contour method's element-constant Δf
     # keeps the numpy integrals
-    sums = None
-    if density.ndim == 3 and not numpy_quadrature_active():
-        sums = row_surface_sums(geometry, density, weights, u, elements, model.disc.reg_phi, center, director)
-    row.update(director_observables(director(geometry) if sums is None else sums.director))
+    sums = row_surface_sums(geometry, density, weights, u, elements, model.disc.reg_phi, center, director)
+    row.update(director_observables(sums.director))
     # compressive tensions: where a membrane without bending stiffness would wrinkle
     _, tau2 = principal_tensions(strain, model.law, law_params)
     if material is not None:
         tau2 = modulus * tau2
     row["min_tension"] = float(tau2.min()) / model.shear_rate_G
     row["compressed_fraction"] = float(np.mean(tau2 < -COMPRESSION_TOL))
-    if sums is None:
-        row.update(centroid_velocity(geometry, u, elements, model.disc.reg_phi, center, row["volume"]))
-    else:
-        row.update({f"centroid_velocity_{c}": float(v) for c, v in zip("xyz", sums.centroid_velocity(row["volume"]))})
+    row.update({f"centroid_velocity_{c}": float(v) for c, v in zip("xyz", sums.centroid_velocity(row["volume"]))})
     u_far = model.undisturbed(center[None])[0]  # the undisturbed flow at the centre, now
     for i, c in enumerate("xyz"):
         row[f"slip_velocity_{c}"] = row[f"centroid_velocity_{c}"] - float(u_far[i])
@@ -1510,13 +1494,7 @@ def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarr
     if gap is not None:
         row["wall_gap"] = gap
     row.update(boundary_quantities(model, y, geometry, density, weights, u, elements, center, lam))
-    if sums is None:
-        S_star = particle_stresslet(
-            geometry, density, u, elements, model.disc.reg_phi, center, row["volume"],
-            model.shear_rate_G, lam, weights,
-        )
-    else:
-        S_star = sums.stresslet(row["volume"], model.shear_rate_G, lam)
+    S_star = sums.stresslet(row["volume"], model.shear_rate_G, lam)
     row["_S_star"] = S_star
     row.update(stresslet_observables(S_star))
     row["dissipation_ratio"] = dissipation_ratio(S_star, model.rate_of_strain(center))

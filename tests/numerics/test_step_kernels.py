@@ -40,11 +40,27 @@ def test_surface_moments_are_the_numpy_integrals(offset):
     assert (V1, S1) == (V0, S0) and np.array_equal(c1, c0) and np.array_equal(M1, M0)
 
 
+def _reynolds_velocity(geo, u, elements, phi, c, V):
+    """dc/dt by the numpy einsums the row's kernel replaced: U + ∮ (x − c) ((u − U)·n) dS / V."""
+    Um = u.mean(axis=0)
+    uq = np.einsum("qk,ekc->eqc", phi, u[elements] - Um)
+    flux = np.einsum("eqc,eqc->eq", uq, geo.normals) * geo.weights
+    return Um + np.einsum("eq,eqc->c", flux, geo.points - c) / V
+
+
+def _kernel_velocity(geo, u, elements, phi, c, V):
+    """dc/dt by the row's one-pass kernel (capsim.solve.observables.row_surface_sums)."""
+    from capsim.solve.observables import MaterialDirector, row_surface_sums
+
+    density = np.zeros((elements.shape[0], 6, 3))
+    director = MaterialDirector(geo, (0.0, 0.0, 1.0))
+    return row_surface_sums(geo, density, geo.weights, np.ascontiguousarray(u), elements, phi, c,
+                            director).centroid_velocity(V)
+
+
 def test_centroid_velocity_kernel_is_the_reynolds_integral():
     """A rigid motion U + ω × (x − c) moves the centroid at U; a uniform expansion u = x − c leaves it;
     and a general field gives the numpy einsum's value to round-off."""
-    from capsim.numerics.kernels import centroid_flux_velocity
-
     x, elements = _surface(np.array([3.0, -2.0, 1.0]))
     geo = element_geometry(x, elements)
     V, _, c, _ = surface_moments(geo)
@@ -52,15 +68,11 @@ def test_centroid_velocity_kernel_is_the_reynolds_integral():
     phi = shape_functions(xi, eta)[0]
     U, w = np.array([0.3, -0.2, 0.1]), np.array([0.0, 0.0, 0.5])
     rigid = U + np.cross(w, x - c)
-    assert centroid_flux_velocity(geo.points, geo.normals, geo.weights, rigid, elements, phi, c, V) == pytest.approx(
-        U, abs=1e-4)
+    assert _kernel_velocity(geo, rigid, elements, phi, c, V) == pytest.approx(U, abs=1e-4)
     rng = np.random.default_rng(57)
     u = np.ascontiguousarray(rng.normal(size=x.shape))
-    Um = u.mean(axis=0)
-    uq = np.einsum("qk,ekc->eqc", phi, u[elements] - Um)
-    flux = np.einsum("eqc,eqc->eq", uq, geo.normals) * geo.weights
-    expected = Um + np.einsum("eq,eqc->c", flux, geo.points - c) / V
-    got = centroid_flux_velocity(geo.points, geo.normals, geo.weights, u, elements, phi, c, V)
+    expected = _reynolds_velocity(geo, u, elements, phi, c, V)
+    got = _kernel_velocity(geo, u, elements, phi, c, V)
     assert np.allclose(got, expected, rtol=0, atol=1e-13 * np.abs(expected).max() + 1e-15)
 
 
@@ -77,12 +89,11 @@ def test_min_quality_is_the_smallest_vertex_triangle_quality():
 @pytest.mark.parametrize("offset", [(0.0, 0.0, 0.0), (3.0, -2.0, 1.0), (1e4, 0.0, 0.0)])
 def test_row_sums_are_the_director_centroid_velocity_and_stresslet(offset, lam):
     """The row's one-pass surface integrals (capsule_row) against the numpy functions they replace:
-    MaterialDirector, centroid_velocity and particle_stresslet, on a turned, displaced ellipsoid with a
-    random traction (per a rest measure of other weights) and velocity; and a known answer: a rigid
-    rotation's stresslet has no velocity term (∫ (ω × y) n + n (ω × y) dS = 0, symmetric part)."""
-    from capsim.solve.observables import (
-        MaterialDirector, centroid_velocity, particle_stresslet, row_surface_sums,
-    )
+    MaterialDirector, the Reynolds integral of the centroid's velocity and particle_stresslet (element-nodal
+    Δf, and the contour method's element-constant one), on a turned, displaced ellipsoid with a random
+    traction (per a rest measure of other weights) and velocity; and a known answer: a rigid rotation's
+    stresslet has no velocity term (∫ (ω × y) n + n (ω × y) dS = 0, symmetric part)."""
+    from capsim.solve.observables import MaterialDirector, particle_stresslet, row_surface_sums
 
     x, elements = _surface(np.array(offset))
     geo = element_geometry(x, elements)
@@ -98,11 +109,15 @@ def test_row_sums_are_the_director_centroid_velocity_and_stresslet(offset, lam):
     sums = row_surface_sums(geo, density, rest_weights, u, elements, phi, c, director)
     scale = max(1.0, float(np.abs(offset).max()))
     assert np.allclose(sums.director, director(geo), rtol=0, atol=1e-12 * scale)
-    expected_v = centroid_velocity(geo, u, elements, phi, c, V)
+    expected_v = _reynolds_velocity(geo, u, elements, phi, c, V)
     got_v = sums.centroid_velocity(V)
-    assert np.allclose(got_v, [expected_v[f"centroid_velocity_{k}"] for k in "xyz"], rtol=0, atol=1e-12)
+    assert np.allclose(got_v, expected_v, rtol=0, atol=1e-12)
     S0 = particle_stresslet(geo, density, u, elements, phi, c, V, 0.1, lam, rest_weights)
     assert np.allclose(sums.stresslet(V, 0.1, lam), S0, rtol=0, atol=1e-12 * np.abs(S0).max())
+    constant = density.mean(axis=1)  # the contour method's element-constant Δf
+    S1 = particle_stresslet(geo, constant, u, elements, phi, c, V, 0.1, lam, rest_weights)
+    S1_sums = row_surface_sums(geo, constant, rest_weights, u, elements, phi, c, director).stresslet(V, 0.1, lam)
+    assert np.allclose(S1_sums, S1, rtol=0, atol=1e-12 * np.abs(S1).max())
     spin = np.ascontiguousarray(np.cross([0.0, 0.0, 0.7], x - c))
     S_spin = row_surface_sums(geo, np.zeros_like(density), rest_weights, spin, elements, phi, c, director)
     assert np.abs(S_spin.stresslet(V, 0.1, lam)).max() < 1e-3
