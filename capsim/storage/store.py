@@ -460,21 +460,12 @@ class TrajectoryWriter:
     def _write_pending(self) -> None:
         if not self._pending:
             return
-        # one column after another, as Dataset.resize and Dataset.__setitem__ do, but through
-        # the low-level calls with the handles kept: h5py's name lookup and selection building
-        # cost ~0.2 ms a column, ~8 ms a flush of ~40 columns (more than a level-3 step's observables)
-        if self._wide:
+        if self._wide:  # else one column after another (_append), the handles kept
             self._write_pending_wide()
             return
         columns = np.array(self._pending, dtype=np.float64).T.copy()  # C order: each column contiguous
-        n = self._n_steps
-        m = columns.shape[1]
-        memory = h5py.h5s.create_simple((m,))
         for ds, column in zip(self._columns, columns):
-            ds.id.set_extent((n,))
-            space = ds.id.get_space()
-            space.select_hyperslab((n - m,), (m,))
-            ds.id.write(memory, space, column)
+            _append(ds, column, self._n_steps)
         self._pending = []
 
     def _write_pending_wide(self) -> None:
@@ -527,17 +518,11 @@ class TrajectoryWriter:
         n = self._n_snapshots + 1
 
         def write() -> None:
-            # through the low-level calls with the handles kept, as the rows' columns (h5py's resize
-            # and selection took ~0.8 ms a snapshot); then the file is flushed: the snapshot is on disk
-            # (the buffered rows follow at their own flush, every _STEP_FLUSH_EVERY steps or more: writing
-            # ~60 columns at every snapshot took 1.1 ms more)
-            for dataset, value, shape in ((self._positions, positions, (n, self._n_nodes, 3)),
-                                          (self._snapshot_t, np.array([t], dtype=np.float64), (n,))):
-                dataset.id.set_extent(shape)
-                space = dataset.id.get_space()
-                space.select_hyperslab((n - 1,) + (0,) * (len(shape) - 1), (1,) + shape[1:])
-                dataset.id.write(h5py.h5s.create_simple((1,) + shape[1:]), space,
-                                 np.ascontiguousarray(value, dtype=np.float64).reshape((1,) + shape[1:]))
+            # as the rows' columns (h5py's resize and selection took ~0.8 ms a snapshot); then the file is
+            # flushed: the snapshot is on disk (the buffered rows follow at their own flush, every
+            # _STEP_FLUSH_EVERY steps or more: writing ~60 columns at every snapshot took 1.1 ms more)
+            _append(self._positions, positions[None], n)
+            _append(self._snapshot_t, np.array([t], dtype=np.float64), n)
             self._file.flush()
 
         self._guarded(write)
@@ -652,6 +637,18 @@ class TrajectoryWriter:
         self._file.close()
 
 
+def _append(dataset: h5py.Dataset, block: np.ndarray, length: int) -> None:
+    """Extend the extendible ``dataset`` along its first axis to ``length`` and write ``block`` (float64,
+    its last ``len(block)`` entries) there, as ``resize`` and ``__setitem__`` do, through the low-level
+    calls: h5py's name lookup and selection building cost ~0.2 ms a dataset (a flush wrote ~70 columns)."""
+    block = np.ascontiguousarray(block, dtype=np.float64)
+    shape = (length, *block.shape[1:])
+    dataset.id.set_extent(shape)
+    space = dataset.id.get_space()
+    space.select_hyperslab((length - block.shape[0],) + (0,) * (block.ndim - 1), block.shape)
+    dataset.id.write(h5py.h5s.create_simple(block.shape), space, block)
+
+
 def _write_dict(group: h5py.Group, data: dict[str, Any], where: str | None = None) -> None:
     """Datasets for `data` (nested dicts as subgroups), labelled as names in group `where`."""
     for key, value in data.items():
@@ -678,18 +675,17 @@ def _write_dict(group: h5py.Group, data: dict[str, Any], where: str | None = Non
             _attach(ds, *(_dimension(group, f"{key}_dim{i}", n) for i, n in enumerate(ds.shape)))
 
 
-#: the scalars :func:`_scalar_dataset` writes and their file types (bool, str and arrays go through h5py's
-#: create_dataset: an enum, a string, dimensions)
-_NUMBER_TYPES = {float: h5py.h5t.IEEE_F64LE, np.float64: h5py.h5t.IEEE_F64LE, int: h5py.h5t.STD_I64LE,
-                 np.int64: h5py.h5t.STD_I64LE}
+#: the scalars :func:`_scalar_dataset` writes and their dtypes, as h5py stores them (bool, str and arrays go
+#: through h5py's create_dataset: an enum, a string, dimensions)
+_NUMBER_TYPES = {float: "<f8", np.float64: "<f8", int: "<i8", np.int64: "<i8"}
 
 
 def _scalar_dataset(group: h5py.Group, key: str, value: Any) -> h5py.Dataset:
-    """``group.create_dataset(key, data=value)`` of a float or an int (float64, int64 as h5py makes
-    them) by the low-level calls: a summary's ~100 scalars took ~10 ms through h5py's."""
-    file_type = _NUMBER_TYPES[type(value)]
-    dataset = h5py.h5d.create(group.id, key.encode("utf-8"), file_type, _SCALAR_SPACE)
-    dataset.write(h5py.h5s.ALL, h5py.h5s.ALL, np.array(value, dtype="<f8" if file_type is h5py.h5t.IEEE_F64LE else "<i8"))
+    """``group.create_dataset(key, data=value)`` of a float or an int by the low-level calls: a summary's
+    ~100 scalars took ~10 ms through h5py's."""
+    data = np.array(value, dtype=_NUMBER_TYPES[type(value)])
+    dataset = h5py.h5d.create(group.id, key.encode("utf-8"), h5py.h5t.py_create(data.dtype), _SCALAR_SPACE)
+    dataset.write(h5py.h5s.ALL, h5py.h5s.ALL, data)
     return h5py.Dataset(dataset)
 
 
