@@ -1077,13 +1077,17 @@ class Automatic(Integrator):
                 f"ρh = {cls.LI_CALIBRATED_RHO_H:g}, here ρh = {rho_h:.3g} (at ρh 6600 a run took 7.6x the predicted "
                 "time: docs/time_stepping.md, 'How to count cost')")
 
+    @staticmethod
+    def viscous_step_factor(case: Any) -> float:
+        """((1 + λ)/2)^(1/2), λ the most viscous capsule's: the accuracy steps' factor (class docstring)."""
+        return math.sqrt((1.0 + max(case.viscosity_ratios)) / 2.0)
+
     @classmethod
     def li_step(cls, case: Any) -> float:
         """The linearly implicit scheme's predicted (accuracy) step: LI_H_ACC (rtol/1e-3)^(1/3), times
-        ((1 + λ)/2)^(1/2), at most time.dt_max."""
+        the viscous step factor, at most time.dt_max."""
         tc = case.time
-        slow = math.sqrt((1.0 + max(case.viscosity_ratios)) / 2.0)
-        return min(tc.dt_max, slow * cls.LI_H_ACC * (tc.rtol / 1e-3) ** (1.0 / 3.0))
+        return min(tc.dt_max, cls.viscous_step_factor(case) * cls.LI_H_ACC * (tc.rtol / 1e-3) ** (1.0 / 3.0))
 
     @classmethod
     def predict(cls, case: Any, rho: float, layers_per_evaluation: float = 1.0, n_nodes: int | None = None,
@@ -1098,7 +1102,7 @@ class Automatic(Integrator):
         lam = max(case.viscosity_ratios)
         extra = max(layers_per_evaluation - 1.0, 0.0)
         rho = max(rho, 1e-300)
-        slow = math.sqrt((1.0 + lam) / 2.0)  # the accuracy steps' factor at λ (VISCOUS_STEP)
+        slow = cls.viscous_step_factor(case)
         out: dict[str, tuple[float, dict[str, float]]] = {}
 
         def explicit(h: float, per_step: float) -> dict[str, float]:
@@ -1173,8 +1177,10 @@ class Automatic(Integrator):
         notes = []
         if not cls._implicit_ok(case):
             notes.append("linearly_implicit cannot run this case")
-        if any(k.startswith("linearly_implicit") for k in predicted):
-            notes += [n for n in (cls.extrapolation_note(case, rho),) if n]
+        extrapolated = cls.extrapolation_note(case, rho) if any(k.startswith("linearly_implicit") for k in predicted) \
+            else None
+        if extrapolated:
+            notes.append(extrapolated)
         ranked = sorted(predicted, key=lambda k: predicted[k][0])
         why = (f"least predicted wall time: ρ = {rho:.3g}, {per_evaluation:.3g} layer applications an evaluation, "
                f"{n_nodes} nodes; predicted " + ", ".join(f"{predicted[k][0]:.3g} s {k}" for k in ranked))
