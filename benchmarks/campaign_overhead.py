@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+from _common import ROOT, TIMED_SOURCE, export_commit, fresh_env
 G_VALUES = (0.0125, 0.025, 0.05, 0.075, 0.1, 0.15, 0.2, 0.4)
 LAMBDAS = (1.0, 5.0)
 T_END = 4.0
@@ -55,19 +55,7 @@ from capsim.runs import runner
 from capsim.solve import observables
 from capsim.storage import store
 imports = time.perf_counter() - t0
-clock, depth = {}, {}
-def timed(cls, name, key):
-    original = getattr(cls, name)
-    def wrapper(*a, **k):
-        depth[key] = depth.get(key, 0) + 1  # the outermost call only: flush is also called by append_step
-        s = time.perf_counter()
-        try:
-            return original(*a, **k)
-        finally:
-            depth[key] -= 1
-            if depth[key] == 0:
-                clock[key] = clock.get(key, 0.0) + time.perf_counter() - s
-    setattr(cls, name, wrapper)
+""" + TIMED_SOURCE + r"""
 spec = json.loads(sys.argv[1])
 with tempfile.TemporaryDirectory() as tmp:
     spec["output"] = {"dir": tmp + "/campaign"}
@@ -102,10 +90,8 @@ def campaign_spec() -> dict:
 
 
 def measure(tree: Path) -> dict:
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
-    env.update(PYTHONPATH=str(tree), OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
-               NUMBA_NUM_THREADS="1")
-    res = subprocess.run([sys.executable, "-c", WORKER, json.dumps(campaign_spec())], env=env, cwd=tree, check=True,
+    res = subprocess.run([sys.executable, "-c", WORKER, json.dumps(campaign_spec())], env=fresh_env(tree), cwd=tree,
+                         check=True,
                          capture_output=True, text=True)
     out = json.loads(res.stdout.strip().splitlines()[-1])
     out["outside"] = out["campaign"] - out["evaluations"]
@@ -121,11 +107,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         trees = {"after": ROOT}
         if args.baseline:
-            before = Path(tmp) / "before"
-            before.mkdir()
-            archive = subprocess.run(["git", "archive", args.baseline], cwd=ROOT, check=True, capture_output=True).stdout
-            subprocess.run(["tar", "-x", "-C", str(before)], input=archive, check=True)
-            trees = {"before": before, "after": ROOT}
+            trees = {"before": export_commit(args.baseline, Path(tmp) / "before"), "after": ROOT}
         rounds: dict[str, list[dict]] = {name: [] for name in trees}
         for r in range(args.rounds):  # alternating: the machine's load falls on both alike
             for name, tree in trees.items():

@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+from _common import ROOT, TIMED_SOURCE, export_commit, fresh_env
 #: the last commit before this session's issue-57 changes (the run file's writes); the session before
 #: compared with 697d7fa (the version literal, numba observables: docs/performance.md quotes it)
 BASELINE = "8e7b114"
@@ -57,16 +57,7 @@ from capsim.runs import runner
 from capsim.solve import observables
 from capsim.storage import store
 imports = time.perf_counter() - t0
-clock = {"evaluations": 0.0, "observe": 0.0, "writes": 0.0}
-def timed(cls, name, key):
-    original = getattr(cls, name)
-    def wrapper(*a, **k):
-        s = time.perf_counter()
-        try:
-            return original(*a, **k)
-        finally:
-            clock[key] += time.perf_counter() - s
-    setattr(cls, name, wrapper)
+""" + TIMED_SOURCE + r"""
 timed(runner._Run, "_rhs", "evaluations")  # an evaluation: the membrane's forces and the velocity
 timed(observables.StepObserver, "observe", "observe")
 timed(store.TrajectoryWriter, "append_step", "writes")
@@ -90,16 +81,9 @@ print(json.dumps({"imports": imports, "run": run, **first, "velocity_evaluations
 """
 
 
-def _env(tree: Path) -> dict:
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
-    env.update(PYTHONPATH=str(tree), OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
-               NUMBA_NUM_THREADS="1")
-    return env
-
-
 def _wall(args: list[str], tree: Path, cwd: Path) -> float:
     s = time.perf_counter()
-    subprocess.run(args, env=_env(tree), cwd=cwd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    subprocess.run(args, env=fresh_env(tree), cwd=cwd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     return time.perf_counter() - s
 
 
@@ -113,7 +97,7 @@ def measure(tree: Path, work: Path) -> dict:
            "validate": _wall(_cli(tree, "validate", case), tree, work),
            "interpreter": _wall([sys.executable, "-c", "pass"], tree, work),
            "numba": _wall([sys.executable, "-c", "import numba"], tree, work)}
-    res = subprocess.run([sys.executable, "-c", WORKER, case], env=_env(tree), cwd=work, check=True,
+    res = subprocess.run([sys.executable, "-c", WORKER, case], env=fresh_env(tree), cwd=work, check=True,
                          capture_output=True, text=True)
     out.update(json.loads(res.stdout.strip().splitlines()[-1]))
     out["outside"] = out["run"] - out["evaluations"]
@@ -129,11 +113,7 @@ def main() -> None:
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "command_time"))
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        before = Path(tmp) / "before"
-        before.mkdir()
-        archive = subprocess.run(["git", "archive", args.baseline], cwd=ROOT, check=True, capture_output=True).stdout
-        subprocess.run(["tar", "-x", "-C", str(before)], input=archive, check=True)
-        trees = {"before": before, "after": ROOT}
+        trees = {"before": export_commit(args.baseline, Path(tmp) / "before"), "after": ROOT}
         work = Path(tmp) / "work"
         work.mkdir()
         for tree in trees.values():  # warm-up: numba's cache, the .pyc

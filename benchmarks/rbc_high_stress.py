@@ -64,7 +64,7 @@ def run_one(stress: float, C: float, level: int, shear_modulus: float | None = N
     import numpy as np
 
     from capsim.config import case_from_dict
-    from capsim.runs.runner import run_case
+    from _common import run_or_stop  # an interrupted run ends the benchmark, never a row
     from capsim.storage.store import read_trajectory
 
     d = case_for(stress, C, level, shear_modulus)
@@ -72,7 +72,7 @@ def run_one(stress: float, C: float, level: int, shear_modulus: float | None = N
         d["name"] = "rbc-stress"
         d["output"] = {"path": f"{tmp}/run.h5", "snapshot_every": 0.5 if outline else T_END}
         case = case_from_dict(d)
-        result = run_case(case)
+        result = run_or_stop(case)
         data = read_trajectory(case.output.path)
         ts = data["timeseries"]
     s = dict(result.summary)

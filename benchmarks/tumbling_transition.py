@@ -62,7 +62,7 @@ LEVEL2_RATES = {23.9: (5.0, 8.0, 12.0)}
 
 def run_one(eta: float, k: float, tag: str, reference, level: int = LEVEL) -> dict:
     from capsim.config import case_from_dict
-    from capsim.runs.runner import run_case
+    from _common import run_or_stop  # an interrupted run ends the benchmark, never a row
 
     case = json.loads(json.dumps(base_case()))
     case["physical"].update(viscosity=f"{eta:g} mPa*s", shear_rate=f"{k:g} 1/s")
@@ -73,7 +73,7 @@ def run_one(eta: float, k: float, tag: str, reference, level: int = LEVEL) -> di
         case["name"] = "tt-tb"
         case["output"] = {"path": f"{tmp}/run.h5", "snapshot_every": T_END}
         c = case_from_dict(case)
-        result = run_case(c)
+        result = run_or_stop(c)
     s = dict(result.summary)
     return {"eta_mPa_s": eta, "shear_rate": k, "stress_Pa": eta * 1e-3 * k, "stress_free": tag,
             "G": c.flow.shear_rate_G, "viscosity_ratio": c.flow.viscosity_ratio, "status": result.status,
