@@ -14,6 +14,8 @@ import os
 import subprocess
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 
 #: Python source for a timing benchmark's worker interpreter: ``timed(cls, name, key)`` wraps a method so
@@ -52,6 +54,22 @@ def export_commit(commit: str, dest: Path) -> Path:
     archive = subprocess.run(["git", "archive", commit], cwd=ROOT, check=True, capture_output=True).stdout
     subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
     return dest
+
+
+def silhouette(positions: np.ndarray, elements: np.ndarray, subdivisions: int = 6) -> tuple[float, float]:
+    """The cell's outline seen along the shear gradient y, as a rheoscope or an ektacytometer's laser sees it
+    (benchmarks/tran_son_tay.py, benchmarks/rbc_high_stress.py): its half-length
+    along the flow x and half-width along the vorticity z, (max − min)/2 of the membrane's points, each
+    6-node element sampled on a grid of ``subdivisions`` per side (the midside nodes alone miss the bulge
+    of a curved element at the tips)."""
+    from capsim.numerics.geometry import interpolate, shape_functions
+
+    n = subdivisions
+    grid = np.array([(i / n, j / n) for i in range(n + 1) for j in range(n + 1 - i)])
+    phi, _, _ = shape_functions(grid[:, 0], grid[:, 1])
+    points = interpolate(phi, positions[elements]).reshape(-1, 3)
+    extent = points.max(axis=0) - points.min(axis=0)
+    return float(extent[0] / 2), float(extent[2] / 2)
 
 
 def run_or_stop(case):

@@ -95,11 +95,11 @@ def run_one(stress: float, C: float, level: int, shear_modulus: float | None = N
 
 def _outline_ei(data: dict, lo, hi) -> dict:
     """EI = (X − Z)/(X + Z) of the outline seen along the gradient y: its half-length along the flow x and
-    half-width along the vorticity z (benchmarks/tran_son_tay.py, silhouette), the mean over the snapshots of
+    half-width along the vorticity z (benchmarks/_common.py, silhouette), the mean over the snapshots of
     the averaging window (every snapshot if the run has none)."""
     import numpy as np
 
-    from tran_son_tay import silhouette
+    from _common import silhouette
 
     snap_t = np.asarray(data["snapshot_t"], float)
     pick = np.flatnonzero((snap_t >= lo) & (snap_t <= hi)) if lo is not None and np.isfinite(lo) else \

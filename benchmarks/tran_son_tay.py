@@ -49,6 +49,8 @@ for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402 - after the thread counts above
 
+from _common import silhouette  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 JSON = ROOT / "benchmarks" / "tran_son_tay.json"
 TABLE = ROOT / "benchmarks" / "tran_son_tay.md"
@@ -136,21 +138,6 @@ def case_dicts(path: Path) -> list[dict]:
 
 def rate_of(case: dict) -> float:
     return float(str(case["physical"]["shear_rate"]).split()[0])
-
-
-def silhouette(positions: np.ndarray, elements: np.ndarray, subdivisions: int = 6) -> tuple[float, float]:
-    """The cell's outline seen along the shear gradient y, as in the rheoscope (Table I): its half-length
-    along the flow x and half-width along the vorticity z, (max − min)/2 of the membrane's points, each
-    6-node element sampled on a grid of ``subdivisions`` per side (the midside nodes alone miss the bulge
-    of a curved element at the tips)."""
-    from capsim.numerics.geometry import interpolate, shape_functions
-
-    n = subdivisions
-    grid = np.array([(i / n, j / n) for i in range(n + 1) for j in range(n + 1 - i)])
-    phi, _, _ = shape_functions(grid[:, 0], grid[:, 1])
-    points = interpolate(phi, positions[elements]).reshape(-1, 3)
-    extent = points.max(axis=0) - points.min(axis=0)
-    return float(extent[0] / 2), float(extent[2] / 2)
 
 
 def ellipsoid_of_width(c: float, volume: float, area: float) -> tuple[float, float]:
