@@ -15,7 +15,9 @@ the flow and along the vorticity (capsim's axis_L and axis_W, window means); the
 
 GROUP: c10, c100, c1000 (level 2), level3 (C = 1000 at level 3, at 1 and 10 Pa), gs4 (C = 1000 and G_s
 4 uN/m instead of 2.5: the EI's sensitivity to the modulus, issue 55), outline (C = 1000 again, with snapshots:
-the EI of the cell's outline seen along the gradient, as the ektacytometer's laser sees it).
+the EI of the cell's outline seen along the gradient, as the ektacytometer's laser sees it), auto and auto3
+(the configuration as it ships, skalak_c auto: the C that keeps the area within membrane.area_tolerance at each
+stress, at levels 2 and 3, with the outline's EI).
 """
 
 from __future__ import annotations
@@ -36,16 +38,19 @@ VISCOSITY_MPAS, INNER_MPAS = 30.0, 6.0
 STRESSES_PA = (0.1, 1.0, 10.0, 50.0)
 #: group -> (Skalak C, mesh level, G_s in uN/m: None for the configuration's 2.5)
 GROUPS = {"c10": (10.0, 2, None), "c100": (100.0, 2, None), "c1000": (1000.0, 2, None),
-          "level3": (1000.0, 3, None), "gs4": (1000.0, 2, 4.0), "outline": (1000.0, 2, None)}
+          "level3": (1000.0, 3, None), "gs4": (1000.0, 2, 4.0), "outline": (1000.0, 2, None),
+          "auto": ("auto", 2, None), "auto3": ("auto", 3, None)}
 #: the groups whose runs also give the EI of the cell's outline seen along the gradient, as the
 #: ektacytometer's laser sees it (its light crosses the gap along the velocity gradient)
-OUTLINE_GROUPS = ("outline",)
+OUTLINE_GROUPS = ("outline", "auto", "auto3")
+#: the groups run at level 3 at every stress (the others at LEVEL3_STRESSES_PA)
+EVERY_STRESS_AT_LEVEL3 = ("auto3",)
 T_END = 10.0
 #: the mesh error at level 3 is measured at two of the stresses (a level-3 run costs minutes here)
 LEVEL3_STRESSES_PA = (1.0, 10.0)
 
 
-def case_for(stress: float, C: float, level: int, shear_modulus: float | None = None) -> dict:
+def case_for(stress: float, C: float | str, level: int, shear_modulus: float | None = None) -> dict:
     import yaml
 
     case = yaml.safe_load((ROOT / "configs" / "rbc.yaml").read_text())
@@ -60,7 +65,8 @@ def case_for(stress: float, C: float, level: int, shear_modulus: float | None = 
     return case
 
 
-def run_one(stress: float, C: float, level: int, shear_modulus: float | None = None, outline: bool = False) -> dict:
+def run_one(stress: float, C: float | str, level: int, shear_modulus: float | None = None,
+            outline: bool = False) -> dict:
     import numpy as np
 
     from capsim.config import case_from_dict
@@ -82,8 +88,9 @@ def run_one(stress: float, C: float, level: int, shear_modulus: float | None = N
     L = float(np.mean(np.asarray(ts["axis_L"], float)[sel]))
     W = float(np.mean(np.asarray(ts["axis_W"], float)[sel]))
     area = np.asarray(ts["area"], float)
-    return {"stress_Pa": stress, "skalak_c": C, "level": level, "shear_modulus_uN_m": shear_modulus or 2.5,
-            "G": case.flow.shear_rate_G,
+    return {"stress_Pa": stress, "skalak_c": case.membrane.skalak_c, "skalak_c_auto": C == "auto",
+            "area_tolerance": case.membrane.area_tolerance, "level": level,
+            "shear_modulus_uN_m": shear_modulus or 2.5, "G": case.flow.shear_rate_G,
             "viscosity_ratio": case.flow.viscosity_ratio, "status": result.status, "reason": result.status_reason,
             "t": result.t, "motion": s.get("motion"), "EI": (L - W) / (L + W), "L": L, "W": W,
             "D_xy": s.get("D_xy"), "area_change_max": float(np.max(np.abs(area / area[0] - 1.0))),
@@ -123,16 +130,17 @@ def run(groups: list[str]) -> None:
     rows = load()
     for group in groups:
         C, level, gs = GROUPS[group]
-        for stress in (LEVEL3_STRESSES_PA if level == 3 else STRESSES_PA):
+        for stress in (LEVEL3_STRESSES_PA if level == 3 and group not in EVERY_STRESS_AT_LEVEL3 else STRESSES_PA):
             outline = group in OUTLINE_GROUPS
-            if any(r["stress_Pa"] == stress and r["skalak_c"] == C and r["level"] == level
+            if any(r["stress_Pa"] == stress and (r["skalak_c"] == C or C == "auto" and r.get("skalak_c_auto"))
+                   and r.get("skalak_c_auto", False) == (C == "auto") and r["level"] == level
                    and r.get("shear_modulus_uN_m", 2.5) == (gs or 2.5) and r.get("outline", False) == outline
                    for r in rows):
                 continue
             rows.append(run_one(stress, C, level, gs, outline))
             JSON.write_text(json.dumps(rows, indent=1) + "\n")
             r = rows[-1]
-            print(f"{stress:g} Pa C {C:g} L{level}: {r['status']} at kt {r['t']:.3g}, EI {r['EI']:.3f}, "
+            print(f"{stress:g} Pa C {r['skalak_c']:g} L{level}: {r['status']} at kt {r['t']:.3g}, EI {r['EI']:.3f}, "
                   f"area {100 * r['area_change_max']:.1f} %, {r['wall_time_s']:.0f} s", flush=True)
     report()
 
@@ -158,14 +166,14 @@ def report() -> None:
              "capsim's EI is the equivalent ellipsoid's, not a diffraction pattern's):", "",
              "| τ (Pa) | G_s (µN/m) | G | C | level | status | EI = (L − W)/(L + W) | EI measured | largest area "
              "change | smallest element quality | compressed at the end |", "|---|---|---|---|---|---|---|---|---|---|---|"]
-    plain = [r for r in rows if not r.get("outline")]
+    plain = [r for r in rows if not r.get("outline") and not r.get("skalak_c_auto")]
     for r in sorted(plain, key=lambda r: (r["level"], r.get("shear_modulus_uN_m", 2.5), r["skalak_c"], r["stress_Pa"])):
         status = r["status"] if r["status"] == "completed" else f"{r['status']} at kt {r['t']:.3g} ({r['reason'].split(':')[0]})"
         ei = measured_ei(r["stress_Pa"])
         lines.append(f"| {r['stress_Pa']:g} | {r.get('shear_modulus_uN_m', 2.5):g} | {r['G']:.3g} | {r['skalak_c']:g} | {r['level']} | {status} | "
                      f"{r['EI']:.3f} | {'—' if ei is None else f'{ei:.3f}'} | {100 * r['area_change_max']:.1f} % | {r['min_element_quality']:.2f} | "
                      f"{100 * r['compressed_fraction']:.0f} % |")
-    seen = sorted((r for r in rows if r.get("outline")), key=lambda r: r["stress_Pa"])
+    seen = sorted((r for r in rows if r.get("outline") and not r.get("skalak_c_auto")), key=lambda r: r["stress_Pa"])
     if seen:
         lines += ["", "The EI as the ektacytometer sees the cell (group `outline`: C = 1000, G_s 2.5 µN/m, level 2; its "
                   "laser crosses the gap along the velocity gradient, so the diffraction pattern is the outline's seen "
@@ -178,8 +186,36 @@ def report() -> None:
             off = "—" if ei is None else f"{100 * (r['EI_outline'] / ei - 1):+.0f} %"
             lines.append(f"| {r['stress_Pa']:g} | {r['EI_outline']:.3f} ± {r['EI_outline_sd']:.3f} | {r['EI']:.3f} | "
                          f"{'—' if ei is None else f'{ei:.3f}'} | {off} |")
+    lines += _auto_lines(rows)
     TABLE.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
+
+
+def _auto_lines(rows: list[dict]) -> list[str]:
+    """The configuration as it ships (skalak_c auto) at every stress, levels 2 and 3: the C chosen, the area
+    change against the tolerance, both EIs against the curve, the mesh error (level 2 against 3) and the cost."""
+    auto = [r for r in rows if r.get("skalak_c_auto")]
+    if not auto:
+        return []
+    by = {(r["stress_Pa"], r["level"]): r for r in auto}
+    lines = ["", "The configuration as it ships (configs/rbc.yaml, `membrane.skalak_c: auto`, area_tolerance "
+             f"{100 * auto[0]['area_tolerance']:g} %; groups `auto` and `auto3`): the C chosen at each stress, the "
+             "largest area change, the EI of the outline (as the ektacytometer sees it) and of the equivalent "
+             "ellipsoid, their mesh error (level 2 against level 3) and the cost on one thread:", "",
+             "| τ (Pa) | G | C chosen | level | status | largest area change | EI of the outline | EI of the "
+             "equivalent ellipsoid | EI measured | outline against measured | outline, level 2 − level 3 | "
+             "evaluations | wall time (s) |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in sorted(auto, key=lambda r: (r["level"], r["stress_Pa"])):
+        status = r["status"] if r["status"] == "completed" else f"{r['status']} at kt {r['t']:.3g}"
+        ei = measured_ei(r["stress_Pa"])
+        off = "—" if ei is None else f"{100 * (r['EI_outline'] / ei - 1):+.0f} %"
+        other = by.get((r["stress_Pa"], 5 - r["level"]))
+        mesh = f"{r['EI_outline'] - other['EI_outline']:+.3f}" if r["level"] == 2 and other else "—"
+        lines.append(f"| {r['stress_Pa']:g} | {r['G']:.3g} | {r['skalak_c']:g} | {r['level']} | {status} | "
+                     f"{100 * r['area_change_max']:.2f} % | {r['EI_outline']:.3f} | {r['EI']:.3f} | "
+                     f"{'—' if ei is None else f'{ei:.3f}'} | {off} | {mesh} | {r['evaluations']} | "
+                     f"{r['wall_time_s']:.0f} |")
+    return lines
 
 
 if __name__ == "__main__":

@@ -128,6 +128,69 @@ LAMBDA_RANGE = (1e-3, 1e3)
 #: the membrane-law parameters and their defaults (the law functions of capsim.numerics.membrane
 #: take the same defaults; tests/test_registries.py checks that they agree)
 LAW_PARAMETER_DEFAULTS = {"mooney_rivlin": {"psi": 0.0}, "skalak": {"skalak_c": 10.0}}
+#: membrane.skalak_c's bound: the area modulus 1 + 2C beyond it is stiffer than the stepping follows
+SKALAK_MAX_C = 1e4
+#: skalak_c auto (issue 55): the area change a Skalak membrane takes in shear is ΔA/A ≈ β G/(1 + 2C)
+#: (the isotropic tension ~ μka over the area modulus); β the largest measured on the red cell in
+#: 30 mPa s at 0.1-50 Pa: 9.4 (G 18.7, C 4200; 2.1-8.5 at C 10-1000: benchmarks/rbc_high_stress.md).
+#: C = (β G/ε - 1)/2 for the tolerance ε, at least SKALAK_AUTO_MIN_C.
+SKALAK_AUTO_BETA = 9.4
+#: the smallest C auto takes: the usual computational choice (area within ~1 % at G <= 0.05, the
+#: default red cell's case, which auto leaves unchanged bit for bit)
+SKALAK_AUTO_MIN_C = 10.0
+#: membrane.area_tolerance's default: 2 % (the elongation index moves by ~1 % between 2 % and 0.05 %)
+SKALAK_AUTO_AREA_TOLERANCE = 0.02
+
+
+#: skalak_c auto needs a rest shape with excess area (reduced volume at most this): a red cell deforms
+#: at nearly constant area, so its area change goes as G/(1 + 2C); a sphere's membrane must stretch to
+#: deform at all (a Skalak sphere at G 0.05-0.2: ΔA/A ~ C^-1/2, 1.6 % at C 10, 0.35 % at C 200), its C is
+#: the material's and sets the deformation itself. Measured at level 2, kt 6, G 0.2 and 1 (tests/
+#: test_skalak_auto.py): an oblate spheroid of aspect 0.5 (ν 0.872) stays within 2 % (1.1, 1.5 %), a
+#: prolate one of aspect 2 (ν 0.895) does not (2.5, 2.8 %)
+SKALAK_AUTO_MAX_REDUCED_VOLUME = 0.88
+
+
+def rest_reduced_volume(shape: Shape) -> float:
+    """The reduced volume ν = V/(4π/3 (S/4π)^{3/2}) of a rest shape: 1 for a sphere, the spheroid's in
+    closed form, at most 0.72 for the biconcave family (capsim.numerics.mesh.BICONCAVE_REDUCED_VOLUME)."""
+    e = float(shape.aspect_ratio)
+    if shape.kind == "biconcave":
+        return 0.72  # the family's largest (its rest shapes are all below it)
+    if shape.kind == "sphere" or e == 1.0:
+        return 1.0
+    if e < 1.0:  # oblate: equatorial radius 1, polar e
+        ecc = math.sqrt(1.0 - e * e)
+        area = 2.0 * math.pi * (1.0 + e * e / ecc * math.atanh(ecc))
+    else:  # prolate
+        ecc = math.sqrt(1.0 - 1.0 / (e * e))
+        area = 2.0 * math.pi * (1.0 + e / ecc * math.asin(ecc))
+    return (4.0 * math.pi / 3.0 * e) / (4.0 * math.pi / 3.0 * (area / (4.0 * math.pi)) ** 1.5)
+
+
+def skalak_c_for_stress(G: float, tolerance: float = SKALAK_AUTO_AREA_TOLERANCE) -> float:
+    """The smallest Skalak C whose area change at capillary number G stays within `tolerance`
+    (ΔA/A ≈ β G/(1 + 2C), β = SKALAK_AUTO_BETA), between SKALAK_AUTO_MIN_C and SKALAK_MAX_C, as a
+    round number (two significant digits): the resolved case's C reads as it was chosen."""
+    wanted = 0.5 * (SKALAK_AUTO_BETA * G / tolerance - 1.0)
+    if not wanted > SKALAK_AUTO_MIN_C:
+        return SKALAK_AUTO_MIN_C
+    digits = 10.0 ** (math.floor(math.log10(wanted)) - 1)
+    return float(min(max(round(wanted / digits) * digits, SKALAK_AUTO_MIN_C), SKALAK_MAX_C))
+
+
+def _auto_or_number(v: Any, interval: str) -> Any:
+    """A field that is a number or auto (time.rtol, membrane.skalak_c): the word auto in any case (AUTO,
+    Auto), a number given as text read as one; anything else refused in one line, not pydantic's one per
+    member of the union."""
+    if isinstance(v, str) and v.strip().lower() == "auto":
+        return "auto"
+    if isinstance(v, str):
+        try:
+            return _strict_scalar(v, float)
+        except ValueError:
+            raise ValueError(f"must be a number in {interval} or auto") from None
+    return v
 
 
 class _FieldProblem(ValueError):
@@ -348,12 +411,21 @@ class Membrane(_Model):
         LAW_PARAMETER_DEFAULTS["mooney_rivlin"]["psi"], ge=0, le=1,
         description="Mooney-Rivlin parameter psi'; law: mooney_rivlin only",
     )
-    skalak_c: float = Field(
-        LAW_PARAMETER_DEFAULTS["skalak"]["skalak_c"], gt=0, le=1e4,
-        description="Skalak area-dilation parameter C (at most 1e4: the area modulus 1 + 2C "
+    skalak_c: Union[float, Literal["auto"]] = Field(
+        LAW_PARAMETER_DEFAULTS["skalak"]["skalak_c"],
+        description="Skalak area-dilation parameter C, K_s/G_s = 1 + 2C (at most 1e4: the area modulus "
         "then makes the membrane force stiff beyond what the explicit stepping can follow); "
-        "law: skalak only",
+        "auto: a nearly area-incompressible membrane, C the smallest that keeps the area within "
+        "membrane.area_tolerance at the case's G (docs/laws.md, \"The area modulus for the stress\"); "
+        "skalak_c_choice then says what it chose; law: skalak only",
     )
+    area_tolerance: float = Field(
+        SKALAK_AUTO_AREA_TOLERANCE, gt=0, le=0.2,
+        description="skalak_c auto only: the largest relative change of the membrane's area the chosen C "
+        "aims at (a smaller one costs more: the step's stiffness grows with C/G)",
+    )
+    skalak_c_choice: Optional[str] = Field(
+        None, description="set by capsim, not a setting: why skalak_c auto chose the C the case holds")
     traction: Literal["galerkin", "contour"] = Field(
         "galerkin",
         description="galerkin: Δf from the energy gradient and the consistent mass matrix "
@@ -374,6 +446,26 @@ class Membrane(_Model):
         description="surface viscosity {model, shear, dilatational} as Boussinesq numbers (docs/viscous_membrane.md); "
         "none: a purely elastic membrane; needs traction: galerkin",
     )
+
+    @field_validator("skalak_c", mode="before")
+    @classmethod
+    def _skalak_c_auto_or_number(cls, v):
+        return _auto_or_number(v, "(0, 1e4]")
+
+    @field_validator("skalak_c")
+    @classmethod
+    def _skalak_c_in_range(cls, v):
+        if v != "auto" and not 0 < v <= SKALAK_MAX_C:
+            raise ValueError(f"must be in (0, {SKALAK_MAX_C:g}] (or auto)")
+        return v
+
+    @model_validator(mode="after")
+    def _area_tolerance_needs_auto(self) -> Membrane:
+        if self.area_tolerance != SKALAK_AUTO_AREA_TOLERANCE and self.skalak_c_choice is None \
+                and self.skalak_c != "auto":
+            raise _FieldProblem("area_tolerance", self.area_tolerance,
+                                "applies only to skalak_c: auto (the C it chooses); remove it or set skalak_c: auto")
+        return self
 
     @model_validator(mode="after")
     def _parameters_of_the_law(self) -> Membrane:
@@ -756,16 +848,7 @@ class _TimeCommon(_Model):
     @field_validator("rtol", mode="before")
     @classmethod
     def _rtol_auto_or_number(cls, v):
-        # AUTO, Auto: the word auto in any case (a number stays a number); anything else one line,
-        # not pydantic's two (one per member of the union)
-        if isinstance(v, str) and v.strip().lower() == "auto":
-            return "auto"
-        if isinstance(v, str):
-            try:
-                return _strict_scalar(v, float)
-            except ValueError:
-                raise ValueError("must be a number in [1e-10, 1) or auto") from None
-        return v
+        return _auto_or_number(v, "[1e-10, 1)")
 
     @field_validator("rtol")
     @classmethod
@@ -1160,8 +1243,43 @@ class Case(_Model):
         self._lambda_from_physical()
         self._bending_from_physical()
         self._Bq_from_physical()
+        self._area_modulus_from_the_stress()
         self._level_and_tolerance_from_the_error_model()
         return self
+
+    def _area_modulus_from_the_stress(self) -> None:
+        """membrane.skalak_c auto: the C that keeps the area within membrane.area_tolerance at this case's G
+        (skalak_c_for_stress), for the top-level membrane and each capsule's own (at its own G, flow.G over
+        its modulus_ratio); a resolved case holds the number and skalak_c_choice says why."""
+        G = self.flow.shear_rate_G
+
+        def chosen(membrane: Membrane, G_here: float, shape: Shape, field: str) -> Membrane:
+            nu = rest_reduced_volume(shape)
+            if nu > SKALAK_AUTO_MAX_REDUCED_VOLUME:
+                raise _FieldProblem(field, "auto", f"needs a rest shape with excess area (reduced volume at most "
+                                    f"{SKALAK_AUTO_MAX_REDUCED_VOLUME:g}; this {shape.kind}'s is {nu:.3g}): a nearly "
+                                    "spherical membrane must stretch to deform, its C is the material's; give a number")
+            C = skalak_c_for_stress(G_here, membrane.area_tolerance)
+            wanted = 0.5 * (SKALAK_AUTO_BETA * G_here / membrane.area_tolerance - 1.0)
+            capped = f"; capped at {SKALAK_MAX_C:g}: the area may change by more" if wanted > SKALAK_MAX_C else ""
+            why = (f"auto: C {C:g} for G {G_here:.4g} and area_tolerance {membrane.area_tolerance:g} "
+                   f"(dA/A ~ {SKALAK_AUTO_BETA:g} G/(1 + 2C), at least {SKALAK_AUTO_MIN_C:g}){capped}")
+            new = membrane.model_copy(update={"skalak_c": C, "skalak_c_choice": why})
+            object.__setattr__(new, "__pydantic_fields_set__", set(membrane.model_fields_set))
+            return new
+
+        if self.membrane.skalak_c == "auto":
+            object.__setattr__(self, "membrane", chosen(self.membrane, G, self.shape, "membrane.skalak_c"))
+        if self.capsules and any(c.membrane is not None and c.membrane.skalak_c == "auto" for c in self.capsules):
+            capsules = []
+            for i, c in enumerate(self.capsules):
+                if c.membrane is not None and c.membrane.skalak_c == "auto":
+                    fields = set(c.model_fields_set)
+                    c = c.model_copy(update={"membrane": chosen(c.membrane, G / c.modulus_ratio, c.shape or self.shape,
+                                                                f"capsules[{i}].membrane.skalak_c")})
+                    object.__setattr__(c, "__pydantic_fields_set__", fields)
+                capsules.append(c)
+            object.__setattr__(self, "capsules", capsules)
 
     def _level_and_tolerance_from_the_error_model(self) -> Case:
         """The accuracy target's level and rtol, else time.rtol auto's rtol (capsim.solve.accuracy); a
@@ -1390,11 +1508,13 @@ class Case(_Model):
         itself (benchmarks/rbc_high_stress.md: the red cell with C = 10 stops unstable at G 3.7, its area
         +17 %; C = 1000 ran to G 18.7 within 8 %): said before the run, which goes ahead."""
         m, G = self.membrane, self.flow.shear_rate_G
-        if m.law == "skalak" and G > SKALAK_SOFT_AREA_G and m.skalak_c < SKALAK_HIGH_STRESS_C:
+        if m.law == "skalak" and m.skalak_c_choice is None and G > SKALAK_SOFT_AREA_G \
+                and m.skalak_c < SKALAK_HIGH_STRESS_C:
             _case_warning(f"membrane.skalak_c = {m.skalak_c:g} at G = {G:.3g}: above G {SKALAK_SOFT_AREA_G:g} "
                           f"the membrane's area grows (the red cell with C 10: +17 % at G 3.7, then an unstable "
-                          f"stop; C 100: +8 %, unstable at G 18.7); C >= {SKALAK_HIGH_STRESS_C:g} ran to G 18.7 "
-                          "within 8 % (benchmarks/rbc_high_stress.md; a real membrane's C is ~1e5)")
+                          f"stop; C 100: +8 %, unstable at G 18.7); skalak_c: auto chooses C "
+                          f"{skalak_c_for_stress(G):g} here, for an area within {100 * SKALAK_AUTO_AREA_TOLERANCE:g} % "
+                          "(benchmarks/rbc_high_stress.md; a real membrane's C is ~1e5)")
         return self
 
     @model_validator(mode="after")
@@ -2025,14 +2145,22 @@ def load_case_with(path: str | os.PathLike, sets: list[str] | None = None, **ove
 #: physical value enters G; the radius and the moduli enter κ/(E_s a²) and the viscosity and
 #: the radius Bq = μ_s/(μ a) too, when the case computes them from physical.
 _UNSET = "<unless the case set it>"  # a derived field's source: dropped unless the old case gave it itself
+#: skalak_c chosen by auto (its choice set): back to auto when what it was chosen for changes
+_AUTO_AREA_MODULUS = (("membrane.skalak_c", "membrane.skalak_c_choice"), ("membrane.skalak_c_choice", None))
+#: a derived field whose default is not auto: what it goes back to when it is chosen again
+_CHOOSE_AGAIN = {"membrane.skalak_c": "auto"}
 DERIVED_FIELDS = {
     "physical": (("flow.shear_rate_G", None), ("membrane.bending_modulus", "physical.bending_modulus"),
                  ("membrane.viscosity.shear", "physical.membrane_viscosity"),
-                 ("flow.viscosity_ratio", "physical.inner_viscosity")),
-    "flow.capillary_number": (("flow.shear_rate_G", None),),
+                 ("flow.viscosity_ratio", "physical.inner_viscosity"), *_AUTO_AREA_MODULUS),
+    "flow.capillary_number": (("flow.shear_rate_G", None), *_AUTO_AREA_MODULUS),
     "physical.bending_modulus": (("membrane.bending_modulus", None),),
     "physical.membrane_viscosity": (("membrane.viscosity.shear", None),),
     "physical.inner_viscosity": (("flow.viscosity_ratio", None),),
+    # skalak_c auto chooses again for another G or tolerance; a C the user sets is no longer a choice
+    "flow.shear_rate_G": _AUTO_AREA_MODULUS,
+    "membrane.area_tolerance": _AUTO_AREA_MODULUS,
+    "membrane.skalak_c": (("membrane.skalak_c_choice", None),),
     # time.rtol auto and the accuracy target choose again for another level or target
     "mesh.level": (("time.rtol", "time.rtol_choice"), ("time.rtol_choice", None), ("accuracy.choice", None)),
     "accuracy": (("mesh.level", _UNSET), ("time.rtol", _UNSET), ("time.rtol_choice", None), ("accuracy.choice", None),
@@ -2114,7 +2242,7 @@ def apply_overrides(case: Case, **dotted: Any) -> Case:
     old = case.model_dump()
     for given, derived_fields in DERIVED_FIELDS.items():
         # a derived value is computed anew from what it derives from, not the old one kept
-        if not any(key == given or key.startswith(given + ".") for key in dotted):
+        if not any(key == given or key.startswith(given + ".") for key in map(lambda k: _ALIASES.get(k, k), dotted)):
             continue
         for derived, source in derived_fields:
             if source == _UNSET:
@@ -2124,7 +2252,9 @@ def apply_overrides(case: Case, **dotted: Any) -> Case:
                 continue
             *path, field = derived.split(".")
             parent = _lookup(data, ".".join(path))
-            if isinstance(parent, dict):
+            if isinstance(parent, dict) and derived in _CHOOSE_AGAIN:
+                parent[field] = _CHOOSE_AGAIN[derived]
+            elif isinstance(parent, dict):
                 parent.pop(field, None)
     for key, value in dotted.items():
         key = _ALIASES.get(key, key)

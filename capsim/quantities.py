@@ -276,6 +276,11 @@ _add("wall_time_s", "wall-clock time of the run", "s",
      "elapsed time of run_case, mesh set-up included (a resumed run adds the time before its interruption); "
      "the study warms the JIT kernels up first")
 _add("area_change", "relative area change", "1", "(S − S0)/S0, S0 the area at t = 0")
+_add("largest_area_change", "largest relative area change", "1",
+     "max over the run's rows of |S/S0 − 1| (several capsules: the capsule whose area moved most)")
+_add("area_tolerance", "area tolerance of skalak_c auto", "1",
+     "membrane.area_tolerance of a Skalak membrane whose C was chosen by skalak_c auto (the run says whether its "
+     "largest area change stayed within it)")
 _add("status", "final status of the run", "",
      "completed, unstable, interrupted or failed as recorded in the run file; missing when the run has no "
      "readable file")

@@ -91,7 +91,10 @@ EXPECTED = {
     "case_evans_fung_negative_rim.yaml": "shape.c4 = -4.0: the Evans-Fung thickness c0 + c2 s + c4 s² = -1.79 <= 0 at s",
     "case_evans_fung_all_zero.yaml": "shape.c0 = 0.0: the Evans-Fung thickness",
     "case_evans_fung_huge.yaml": "shape.c2 = 1e+300: must be <= 10",
-    "case_skalak_c_huge.yaml": "membrane.skalak_c = 1000000000.0: must be <= 10000",
+    "case_skalak_c_huge.yaml": "membrane.skalak_c = 1000000000.0: must be in (0, 10000] (or auto)",
+    "case_skalak_c_automatic.yaml": "membrane.skalak_c = 'automatic': must be a number in (0, 1e4] or auto",
+    "case_skalak_c_auto_sphere.yaml": "membrane.skalak_c = 'auto': needs a rest shape with excess area",
+    "case_area_tolerance_without_auto.yaml": "membrane.area_tolerance = 0.05: applies only to skalak_c: auto",
     "case_name_too_long.yaml": "name = 'capsulecapsule",
     "case_level_huge_integer.yaml": "mesh.level = 1000000000000000000000000000000: must be <= 6",
     # fields that the chosen shape or law ignores

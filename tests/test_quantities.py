@@ -96,6 +96,13 @@ def written(tmp_path_factory):
         "output": {"path": str(tmp / "viscous.h5"), "snapshot_every": 0.05},
     }))
 
+    # a red cell whose area modulus skalak_c auto chose: the record's area tolerance
+    run_case(case_from_dict({
+        "name": "qa", "mesh": {"level": 0}, "time": {"t_end": 0.02}, "shape": {"kind": "biconcave"},
+        "membrane": {"law": "skalak", "skalak_c": "auto"},
+        "output": {"path": str(tmp / "auto.h5"), "snapshot_every": 0.02},
+    }))
+
     # a capsule near a wall: its gap column
     run_case(case_from_dict({
         "name": "qw", "mesh": {"level": 0}, "time": {"t_end": 0.02}, "wall": {"distance": 3.0},
@@ -145,7 +152,7 @@ def written(tmp_path_factory):
     # a study of the orbit's numbers (capsim study --quantity orbit)
     orbit_study = write_study(run_study(study_case, levels=[0, 1], rtols=[1e-3], workers=1, quantity="orbit",
                                         out_dir=tmp / "study_orbit"), tmp / "study_orbit.nc")
-    run_files = [tmp / "run.h5", tmp / "viscous.h5", tmp / "wall.h5", tmp / "conduit.h5", tmp / "pair.h5", tmp / "measured.h5", *sorted((tmp / "campaign").glob("*.h5"))]
+    run_files = [tmp / "run.h5", tmp / "viscous.h5", tmp / "auto.h5", tmp / "wall.h5", tmp / "conduit.h5", tmp / "pair.h5", tmp / "measured.h5", *sorted((tmp / "campaign").glob("*.h5"))]
     return case, summary, run_files, nc, (study, orbit_study)
 
 

@@ -326,6 +326,21 @@ def _mean_std(summary: dict[str, Any], name: str, scale: float = 1.0) -> str | N
     return shown + (f" ± {std / scale:.2e}" if isinstance(std, (int, float)) else "")
 
 
+def _area_change(summary: dict[str, Any]) -> str | None:
+    """The membrane's largest area change over the run; with skalak_c auto, whether it stayed within the
+    area tolerance its C was chosen for (the choice is a prediction: docs/laws.md)."""
+    largest = summary.get("largest_area_change")
+    if not isinstance(largest, float):
+        return None
+    text = f"largest {100 * largest:.3g} %"
+    tolerance = summary.get("area_tolerance")
+    if isinstance(tolerance, float):
+        text += (f", within membrane.area_tolerance {100 * tolerance:g} % (skalak_c auto)" if largest <= tolerance
+                 else f": beyond membrane.area_tolerance {100 * tolerance:g} % that skalak_c auto chose C for; "
+                 "set a larger skalak_c (or a smaller area_tolerance) for a nearly area-incompressible membrane")
+    return text
+
+
 def _compression(summary: dict[str, Any], factors: Mapping[str, float] | None = None) -> str | None:
     """Share of the membrane under compression at the end, with a warning when large.
 
@@ -486,6 +501,7 @@ def summary_rows(summary: dict[str, Any], factors: Mapping[str, float] | None = 
         ("layer matrices", fmt(summary.get("layer_matrices"), "d") if summary.get("layer_matrices") else None),
         ("wall time (s)", fmt(summary.get("wall_time_s"), ".1f")),
         ("volume drift", fmt(summary.get("volume_drift"), ".3e")),
+        ("area change", _area_change(summary)),
         ("centroid travelled (a)", _travel(summary)),
         ("compressed vertices", _compression(summary, factors)),
         ("output", summary.get("path")),

@@ -53,6 +53,14 @@ class _StopRequested(Exception):
     pass
 
 
+def _largest_area_change(areas) -> float | None:
+    """max over the rows of |A/A0 - 1|, over every capsule (a scene's rows hold one area per capsule)."""
+    if areas is None or len(areas) == 0:
+        return None
+    a = np.asarray(areas, dtype=float)
+    return float(np.max(np.abs(a / a[0] - 1.0)))
+
+
 #: how a run's record reduces a per-capsule column to the scene's one value (several capsules):
 #: the worst capsule for the guards' quantities, the mean for the shape's
 _SCENE_REDUCTION = {"min_element_quality": np.min, "max_principal_stretch": np.max, "min_tension": np.min,
@@ -156,6 +164,8 @@ class RunResult(Mapping):
     final_theta: float | None = None
     volume_drift: float | None = None
     area_change: float | None = None
+    largest_area_change: float | None = None  # max over the run's rows of |A/A0 - 1| (the capsule that moved most)
+    area_tolerance: float | None = None  # membrane.skalak_c auto: what its C aimed at (capsim.config)
     min_element_quality: float | None = None
     max_principal_stretch: float | None = None
     min_tension: float | None = None
@@ -317,6 +327,13 @@ class _Run:
             return choice
         return (f"{choice.split(';')[0]}; kept from the run's start: its predicted error was for the t_end the "
                 f"run had then, not for this extension to kt {self.case.time.t_end:g} (measure it: capsim run --verify)")
+
+    def _area_tolerance(self) -> float | None:
+        """The area tolerance skalak_c auto chose its C for (the smallest over the capsules' own membranes);
+        None where no membrane's C was chosen so."""
+        membranes = [self.case.membrane] + [c.membrane for c in self.case.capsules or () if c.membrane is not None]
+        chosen = [m.area_tolerance for m in membranes if m.skalak_c_choice is not None]
+        return min(chosen) if chosen else None
 
     def _wall(self) -> float:
         """Wall time the run has spent, its earlier parts (before a resume) included."""
@@ -576,6 +593,8 @@ class _Run:
             final_D_xy=last["D_xy"], final_theta=last["theta"],
             volume_drift=(last["volume"] - first["volume"]) / first["volume"],
             area_change=last["area"] / first["area"] - 1.0,
+            largest_area_change=_largest_area_change(self.observer.history.get("area")),
+            area_tolerance=self._area_tolerance(),
             min_element_quality=last["min_element_quality"], max_principal_stretch=last["max_principal_stretch"],
             min_tension=last["min_tension"], compressed_fraction=last["compressed_fraction"],
             bending_modulus=float(self.case.membrane.bending_modulus),

@@ -1219,7 +1219,9 @@ HISTORY_COLUMNS = ("t", "dt", "tt_angle", *SUMMARY_QUANTITIES, "director_x", "di
                    # the body's drift across and along the flow (issues 41, 42): lift or migration, slip
                    "centroid_velocity_y", "slip_velocity_x", "dissipation_ratio", *CONDUIT_COLUMNS,
                    # a wall's gap and the migration across the flow, from start to end (issue 54)
-                   "wall_gap", "centroid_y")
+                   "wall_gap", "centroid_y",
+                   # the membrane's area: the record's largest change (skalak_c auto's promise, issue 55)
+                   "area")
 #: several capsules: the scene's columns the summary reads back (a pair's relative trajectory)
 SCENE_HISTORY_COLUMNS = ("min_capsule_gap", "separation_x", "separation_y", "separation_z")
 
