@@ -130,3 +130,26 @@ def test_a_run_with_auto_keeps_its_area_within_the_tolerance(tmp_path, G):
         assert auto.area_tolerance == tolerance
         assert 0 < auto.largest_area_change <= tolerance
         assert auto.largest_area_change >= abs(auto.area_change)
+
+
+def test_a_campaign_over_the_rate_chooses_c_for_each_run():
+    """A sweep of physical.shear_rate over the red cell with auto: each run's C is the one its own G asks
+    for (the base's choice is not carried over), and a swept C is kept as given."""
+    import yaml
+
+    from capsim.campaigns.campaign import campaign_from_dict, expand_campaign
+
+    base = yaml.safe_load((ROOT / "configs" / "rbc.yaml").read_text())
+    base.pop("name"), base.pop("output")
+    base["physical"]["viscosity"] = "30 mPa*s"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CaseWarning)
+        specs = expand_campaign(campaign_from_dict({
+            "name": "stress", "base": base, "output": {"dir": "runs/x"},
+            "sweep": {"physical.shear_rate": ["3.333 1/s", "333.3 1/s", "1667 1/s"]}}))
+        Cs = [s.case().membrane.skalak_c for s in specs]
+        assert Cs == [skalak_c_for_stress(s.case().flow.shear_rate_G) for s in specs] == [10.0, 880.0, 4400.0]
+        fixed = expand_campaign(campaign_from_dict({
+            "name": "c", "base": base, "output": {"dir": "runs/y"}, "sweep": {"membrane.skalak_c": [100.0, "auto"]}}))
+    assert [s.case().membrane.skalak_c for s in fixed] == [100.0, skalak_c_for_stress(fixed[1].case().flow.shear_rate_G)]
+    assert [s.case().membrane.skalak_c_choice is None for s in fixed] == [True, False]
