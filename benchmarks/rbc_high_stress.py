@@ -34,6 +34,7 @@ for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 ROOT = Path(__file__).resolve().parents[1]
 JSON = ROOT / "benchmarks" / "rbc_high_stress.json"
 TABLE = ROOT / "benchmarks" / "rbc_high_stress.md"
+FIGURE = ROOT / "docs" / "figures" / "rbc_ektacytometry.png"
 VISCOSITY_MPAS, INNER_MPAS = 30.0, 6.0
 STRESSES_PA = (0.1, 1.0, 10.0, 50.0)
 #: group -> (Skalak C, mesh level, G_s in uN/m: None for the configuration's 2.5)
@@ -45,6 +46,8 @@ GROUPS = {"c10": (10.0, 2, None), "c100": (100.0, 2, None), "c1000": (1000.0, 2,
 OUTLINE_GROUPS = ("outline", "auto", "auto3")
 #: the groups run at level 3 at every stress (the others at LEVEL3_STRESSES_PA)
 EVERY_STRESS_AT_LEVEL3 = ("auto3",)
+#: the configuration as it ships, at level 2, also between the four stresses (campaigns/rbc-ektacytometry.yaml's)
+AUTO_STRESSES_PA = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 50.0)
 T_END = 10.0
 #: the mesh error at level 3 is measured at two of the stresses (a level-3 run costs minutes here)
 LEVEL3_STRESSES_PA = (1.0, 10.0)
@@ -130,7 +133,7 @@ def run(groups: list[str]) -> None:
     rows = load()
     for group in groups:
         C, level, gs = GROUPS[group]
-        for stress in (LEVEL3_STRESSES_PA if level == 3 and group not in EVERY_STRESS_AT_LEVEL3 else STRESSES_PA):
+        for stress in _stresses(group, level):
             outline = group in OUTLINE_GROUPS
             if any(r["stress_Pa"] == stress and (r["skalak_c"] == C or C == "auto" and r.get("skalak_c_auto"))
                    and r.get("skalak_c_auto", False) == (C == "auto") and r["level"] == level
@@ -143,6 +146,12 @@ def run(groups: list[str]) -> None:
             print(f"{stress:g} Pa C {r['skalak_c']:g} L{level}: {r['status']} at kt {r['t']:.3g}, EI {r['EI']:.3f}, "
                   f"area {100 * r['area_change_max']:.1f} %, {r['wall_time_s']:.0f} s", flush=True)
     report()
+
+
+def _stresses(group: str, level: int) -> tuple[float, ...]:
+    if group == "auto":
+        return AUTO_STRESSES_PA
+    return LEVEL3_STRESSES_PA if level == 3 and group not in EVERY_STRESS_AT_LEVEL3 else STRESSES_PA
 
 
 def measured_ei(stress: float) -> float | None:
@@ -188,6 +197,7 @@ def report() -> None:
                          f"{'—' if ei is None else f'{ei:.3f}'} | {off} |")
     lines += _auto_lines(rows)
     TABLE.write_text("\n".join(lines) + "\n")
+    figure(rows)
     print("\n".join(lines))
 
 
@@ -216,6 +226,48 @@ def _auto_lines(rows: list[dict]) -> list[str]:
                      f"{'—' if ei is None else f'{ei:.3f}'} | {off} | {mesh} | {r['evaluations']} | "
                      f"{r['wall_time_s']:.0f} |")
     return lines
+
+
+def figure(rows: list[dict]) -> None:
+    """The elongation index against the shear stress: the measured curve (mean ± its printed error) and the
+    default red cell (skalak_c auto) as the ektacytometer sees it (the outline) at levels 2 and 3, with its
+    equivalent ellipsoid's and the G_s 4 µN/m sensitivity (C 1000)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    d = np.genfromtxt(ROOT / "benchmarks" / "data" / "iuq_ektacytometry_healthy.csv", delimiter=",", names=True)
+    fig, ax = plt.subplots(figsize=(5.2, 3.8))
+    ax.fill_between(d["shear_stress_Pa"], 0.85 * d["elongation_index"], 1.15 * d["elongation_index"], color="0.88",
+                    lw=0, label="measured ± 15 % (the issue's criterion)")
+    ax.errorbar(d["shear_stress_Pa"], d["elongation_index"], yerr=d["elongation_index_err_pm"], fmt="ko", ms=3,
+                capsize=2, label="healthy cells, ektacytometry (benchmarks/data)")
+
+    def series(pick, key):
+        pts = sorted((r["stress_Pa"], r[key]) for r in rows if pick(r) and key in r)
+        return list(zip(*pts)) if pts else None
+
+    auto = lambda level: (lambda r: r.get("skalak_c_auto") and r["level"] == level)  # noqa: E731
+    for pick, key, style, name in (
+            (auto(2), "EI_outline", "s-", "capsim, outline seen along y (level 2, skalak_c auto)"),
+            (auto(3), "EI_outline", "D", "capsim, outline (level 3)"),
+            (auto(2), "EI", "^--", "capsim, equivalent ellipsoid (level 2)"),
+            (lambda r: r.get("shear_modulus_uN_m") == 4.0, "EI", "v:", "capsim, ellipsoid, G_s 4 µN/m (C 1000)")):
+        xy = series(pick, key)
+        if xy:
+            ax.plot(*xy, style, mfc="none", label=name)
+    ax.set_xscale("log")
+    ax.set_xlabel("shear stress τ = μk (Pa), 30 mPa s")
+    ax.set_ylabel("elongation index (L − W)/(L + W)")
+    ax.set_ylim(0, 0.8)
+    ax.legend(fontsize=6.5, loc="lower right")
+    ax.set_title("The default red cell in an ektacytometer (G_s 2.5 µN/m, λ = 0.2)", fontsize=9)
+    fig.tight_layout()
+    FIGURE.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(FIGURE, dpi=120)
+    plt.close(fig)
 
 
 if __name__ == "__main__":
