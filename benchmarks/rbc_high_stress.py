@@ -220,7 +220,8 @@ def _auto_lines(rows: list[dict]) -> list[str]:
         ei = measured_ei(r["stress_Pa"])
         off = "—" if ei is None else f"{100 * (r['EI_outline'] / ei - 1):+.0f} %"
         other = by.get((r["stress_Pa"], 5 - r["level"]))
-        mesh = f"{r['EI_outline'] - other['EI_outline']:+.3f}" if r["level"] == 2 and other else "—"
+        diff = round(r["EI_outline"] - other["EI_outline"], 3) + 0.0 if r["level"] == 2 and other else None
+        mesh = "—" if diff is None else "0.000" if diff == 0 else f"{diff:+.3f}"
         lines.append(f"| {r['stress_Pa']:g} | {r['G']:.3g} | {r['skalak_c']:g} | {r['level']} | {status} | "
                      f"{100 * r['area_change_max']:.2f} % | {r['EI_outline']:.3f} | {r['EI']:.3f} | "
                      f"{'—' if ei is None else f'{ei:.3f}'} | {off} | {mesh} | {r['evaluations']} | "
@@ -261,8 +262,8 @@ def figure(rows: list[dict]) -> None:
     ax.set_xscale("log")
     ax.set_xlabel("shear stress τ = μk (Pa), 30 mPa s")
     ax.set_ylabel("elongation index (L − W)/(L + W)")
-    ax.set_ylim(0, 0.8)
-    ax.legend(fontsize=6.5, loc="lower right")
+    ax.set_ylim(0, 0.95)
+    ax.legend(fontsize=6, loc="upper left")
     ax.set_title("The default red cell in an ektacytometer (G_s 2.5 µN/m, λ = 0.2)", fontsize=9)
     fig.tight_layout()
     FIGURE.parent.mkdir(parents=True, exist_ok=True)

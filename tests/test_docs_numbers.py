@@ -133,3 +133,44 @@ def test_table_two_made_from_the_outline_is_as_validation_says():
         off.append(100 * (a / b / (a2 / b2) - 1))
     assert max(abs(e) for e in off) < 15
     assert f"the case's a/b is {_signed([round(e) for e in off])} % off Table II" in text
+
+
+def _rbc_stress():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("rbc_high_stress", ROOT / "benchmarks" / "rbc_high_stress.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    rows = json.loads((ROOT / "benchmarks" / "rbc_high_stress.json").read_text())
+    return module, {(r["stress_Pa"], r["level"]): r for r in rows if r.get("skalak_c_auto")}
+
+
+def test_the_shipped_red_cell_completes_at_every_stress_as_validation_says():
+    """docs/validation.md: configs/rbc.yaml (skalak_c auto) completes at 0.1-50 Pa at levels 2 and 3, its C,
+    area changes and mesh error as stated, each area within the 2 % auto aimed at (to its rounding)."""
+    _, auto = _rbc_stress()
+    text = _validation_prose()
+    four = (0.1, 1.0, 10.0, 50.0)
+    for level in (2, 3):
+        assert all(auto[(s, level)]["status"] == "completed" for s in four)
+        assert all(auto[(s, level)]["area_change_max"] <= 0.02 * 1.05 for s in four)
+    assert "C 10, 91, 910 and 4600 at 0.1, 1, 10 and 50 Pa" in text
+    assert all(f"{auto[(s, 2)]['skalak_c']:g}" in "10 91 910 4600".split() for s in four)
+    l2 = ", ".join(f"{100 * auto[(s, 2)]['area_change_max']:.2f}" for s in four[:3])
+    l3 = ", ".join(f"{100 * auto[(s, 3)]['area_change_max']:.2f}" for s in four[:3])
+    assert (f"the largest area change {l2} and {100 * auto[(50.0, 2)]['area_change_max']:.2f} % (level 3: "
+            f"{l3}, {100 * auto[(50.0, 3)]['area_change_max']:.2f} %)") in text
+    mesh = [round(auto[(s, 2)]["EI_outline"] - auto[(s, 3)]["EI_outline"], 3) + 0.0 for s in four]
+    shown = ["0.000" if m == 0 else f"{m:+.3f}".replace("-", "−") for m in mesh]
+    assert f"{', '.join(shown[:3])} and {shown[3]} at 0.1, 1, 10 and 50 Pa" in text
+
+
+def test_the_shipped_red_cells_elongation_index_is_as_validation_says():
+    """docs/validation.md: the outline's EI against the ektacytometry curve at the six stresses it covers."""
+    module, auto = _rbc_stress()
+    text = _validation_prose()
+    stresses = (0.3, 1.0, 3.0, 10.0, 30.0, 50.0)
+    off = [round(100 * (auto[(s, 2)]["EI_outline"] / module.measured_ei(s) - 1)) for s in stresses]
+    assert f"**{', '.join(f'{e:+d}' for e in off[:-1])} and {off[-1]:+d} %** off the curve" in text
+    level3 = round(100 * (auto[(1.0, 3)]["EI_outline"] / module.measured_ei(1.0) - 1))
+    assert f"(level 2; {level3:+d} % at 1 Pa at level 3)" in text
