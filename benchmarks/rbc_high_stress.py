@@ -40,10 +40,13 @@ STRESSES_PA = (0.1, 1.0, 10.0, 50.0)
 #: group -> (Skalak C, mesh level, G_s in uN/m: None for the configuration's 2.5)
 GROUPS = {"c10": (10.0, 2, None), "c100": (100.0, 2, None), "c1000": (1000.0, 2, None),
           "level3": (1000.0, 3, None), "gs4": (1000.0, 2, 4.0), "outline": (1000.0, 2, None),
-          "auto": ("auto", 2, None), "auto3": ("auto", 3, None)}
+          "auto": ("auto", 2, None), "auto3": ("auto", 3, None), "auto_oblate": ("auto", 2, None)}
+#: the groups whose cell has another stress-free shape (membrane.reference_shape): the nearly spherical one that
+#: sets the tumbling threshold within a factor 2 (benchmarks/tumbling_transition.md)
+STRESS_FREE = {"auto_oblate": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9})}
 #: the groups whose runs also give the EI of the cell's outline seen along the gradient, as the
 #: ektacytometer's laser sees it (its light crosses the gap along the velocity gradient)
-OUTLINE_GROUPS = ("outline", "auto", "auto3")
+OUTLINE_GROUPS = ("outline", "auto", "auto3", "auto_oblate")
 #: the groups run at level 3 at every stress (the others at LEVEL3_STRESSES_PA)
 EVERY_STRESS_AT_LEVEL3 = ("auto3",)
 #: the configuration as it ships, at level 2, also between the four stresses (campaigns/rbc-ektacytometry.yaml's)
@@ -53,7 +56,8 @@ T_END = 10.0
 LEVEL3_STRESSES_PA = (1.0, 10.0)
 
 
-def case_for(stress: float, C: float | str, level: int, shear_modulus: float | None = None) -> dict:
+def case_for(stress: float, C: float | str, level: int, shear_modulus: float | None = None,
+             reference_shape: dict | None = None) -> dict:
     import yaml
 
     case = yaml.safe_load((ROOT / "configs" / "rbc.yaml").read_text())
@@ -63,20 +67,22 @@ def case_for(stress: float, C: float | str, level: int, shear_modulus: float | N
                             shear_rate=f"{stress / (VISCOSITY_MPAS * 1e-3):.6g} 1/s")
     if shear_modulus is not None:
         case["physical"]["shear_modulus"] = f"{shear_modulus:g} uN/m"
+    if reference_shape is not None:
+        case["membrane"]["reference_shape"] = reference_shape
     case["mesh"]["level"] = level
     case["time"] = {"t_end": T_END, "rtol": 1.0e-4}
     return case
 
 
 def run_one(stress: float, C: float | str, level: int, shear_modulus: float | None = None,
-            outline: bool = False) -> dict:
+            outline: bool = False, stress_free: tuple[str, dict] | None = None) -> dict:
     import numpy as np
 
     from capsim.config import case_from_dict
     from _common import run_or_stop  # an interrupted run ends the benchmark, never a row
     from capsim.storage.store import read_trajectory
 
-    d = case_for(stress, C, level, shear_modulus)
+    d = case_for(stress, C, level, shear_modulus, stress_free[1] if stress_free else None)
     with tempfile.TemporaryDirectory() as tmp:
         d["name"] = "rbc-stress"
         d["output"] = {"path": f"{tmp}/run.h5", "snapshot_every": 0.5 if outline else T_END}
@@ -93,6 +99,7 @@ def run_one(stress: float, C: float | str, level: int, shear_modulus: float | No
     area = np.asarray(ts["area"], float)
     return {"stress_Pa": stress, "skalak_c": case.membrane.skalak_c, "skalak_c_auto": C == "auto",
             "area_tolerance": case.membrane.area_tolerance, "level": level,
+            **({"stress_free": stress_free[0]} if stress_free else {}),
             "shear_modulus_uN_m": shear_modulus or 2.5, "G": case.flow.shear_rate_G,
             "viscosity_ratio": case.flow.viscosity_ratio, "status": result.status, "reason": result.status_reason,
             "t": result.t, "motion": s.get("motion"), "EI": (L - W) / (L + W), "L": L, "W": W,
@@ -133,14 +140,15 @@ def run(groups: list[str]) -> None:
     rows = load()
     for group in groups:
         C, level, gs = GROUPS[group]
+        stress_free = STRESS_FREE.get(group)
         for stress in _stresses(group, level):
             outline = group in OUTLINE_GROUPS
-            if any(r["stress_Pa"] == stress and (r["skalak_c"] == C or C == "auto" and r.get("skalak_c_auto"))
+            if any(r["stress_Pa"] == stress and r.get("stress_free") == (stress_free[0] if stress_free else None) and (r["skalak_c"] == C or C == "auto" and r.get("skalak_c_auto"))
                    and r.get("skalak_c_auto", False) == (C == "auto") and r["level"] == level
                    and r.get("shear_modulus_uN_m", 2.5) == (gs or 2.5) and r.get("outline", False) == outline
                    for r in rows):
                 continue
-            rows.append(run_one(stress, C, level, gs, outline))
+            rows.append(run_one(stress, C, level, gs, outline, stress_free))
             JSON.write_text(json.dumps(rows, indent=1) + "\n")
             r = rows[-1]
             print(f"{stress:g} Pa C {r['skalak_c']:g} L{level}: {r['status']} at kt {r['t']:.3g}, EI {r['EI']:.3f}, "
@@ -151,6 +159,8 @@ def run(groups: list[str]) -> None:
 def _stresses(group: str, level: int) -> tuple[float, ...]:
     if group == "auto":
         return AUTO_STRESSES_PA
+    if group in STRESS_FREE:
+        return (0.3, 1.0, 3.0, 10.0, 50.0)
     return LEVEL3_STRESSES_PA if level == 3 and group not in EVERY_STRESS_AT_LEVEL3 else STRESSES_PA
 
 
@@ -204,7 +214,7 @@ def report() -> None:
 def _auto_lines(rows: list[dict]) -> list[str]:
     """The configuration as it ships (skalak_c auto) at every stress, levels 2 and 3: the C chosen, the area
     change against the tolerance, both EIs against the curve, the mesh error (level 2 against 3) and the cost."""
-    auto = [r for r in rows if r.get("skalak_c_auto")]
+    auto = [r for r in rows if r.get("skalak_c_auto") and not r.get("stress_free")]
     if not auto:
         return []
     by = {(r["stress_Pa"], r["level"]): r for r in auto}
@@ -226,6 +236,19 @@ def _auto_lines(rows: list[dict]) -> list[str]:
                      f"{100 * r['area_change_max']:.2f} % | {r['EI_outline']:.3f} | {r['EI']:.3f} | "
                      f"{'—' if ei is None else f'{ei:.3f}'} | {off} | {mesh} | {r['evaluations']} | "
                      f"{r['wall_time_s']:.0f} |")
+    other = sorted((r for r in rows if r.get("skalak_c_auto") and r.get("stress_free")), key=lambda r: r["stress_Pa"])
+    if other:
+        lines += ["", "The same with the nearly spherical stress-free shape (group `auto_oblate`: membrane.reference_shape "
+                  "an oblate spheroid of aspect 0.9, the rest shape the disk; level 2): what the stress-free shape moves:",
+                  "", "| τ (Pa) | C chosen | status | largest area change | EI of the outline | the disk's | EI measured | "
+                  "outline against measured |", "|---|---|---|---|---|---|---|---|"]
+        for r in other:
+            disk = by.get((r["stress_Pa"], 2))
+            disk_ei = "—" if disk is None else f"{disk['EI_outline']:.3f}"
+            ei = measured_ei(r["stress_Pa"])
+            off = "—" if ei is None else f"{100 * (r['EI_outline'] / ei - 1):+.0f} %"
+            lines.append(f"| {r['stress_Pa']:g} | {r['skalak_c']:g} | {r['status']} | {100 * r['area_change_max']:.2f} % | "
+                         f"{r['EI_outline']:.3f} | {disk_ei} | {'—' if ei is None else f'{ei:.3f}'} | {off} |")
     return lines
 
 
@@ -250,7 +273,7 @@ def figure(rows: list[dict]) -> None:
         pts = sorted((r["stress_Pa"], r[key]) for r in rows if pick(r) and key in r)
         return list(zip(*pts)) if pts else None
 
-    auto = lambda level: (lambda r: r.get("skalak_c_auto") and r["level"] == level)  # noqa: E731
+    auto = lambda level: (lambda r: r.get("skalak_c_auto") and not r.get("stress_free") and r["level"] == level)  # noqa: E731
     for pick, key, style, name in (
             (auto(2), "EI_outline", "s-", "capsim, outline seen along y (level 2, skalak_c auto)"),
             (auto(3), "EI_outline", "D", "capsim, outline (level 3)"),

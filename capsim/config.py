@@ -138,7 +138,8 @@ SKALAK_AUTO_BETA = 9.8
 #: the smallest C auto takes: the usual computational choice (area within ~1 % at G <= 0.05, the
 #: default red cell's case, which auto leaves unchanged bit for bit)
 SKALAK_AUTO_MIN_C = 10.0
-#: membrane.area_tolerance's default: 2 % (the elongation index moves by ~1 % between 2 % and 0.05 %)
+#: membrane.area_tolerance's default: 2 % (the red cell's outline EI at 1 Pa moved 0.8 % between C 91, area
+#: +0.5 %, and C 1000, +0.05 %; at 50 Pa C 1000's +8 % had lengthened it by 9 %: benchmarks/rbc_high_stress.md)
 SKALAK_AUTO_AREA_TOLERANCE = 0.02
 
 
@@ -2228,6 +2229,19 @@ _ALIASES = {"flow.G": "flow.shear_rate_G"}
 USER_NAMES = {full: short for short, full in _ALIASES.items()}
 
 
+def _choose_capsule_area_moduli_again(data: dict, dotted: dict[str, Any]) -> None:
+    """A capsule's own skalak_c chosen by auto (capsules[i].membrane) goes back to auto when the case's G
+    changes, as the top-level one does (DERIVED_FIELDS): each capsule's G is flow.G over its modulus_ratio."""
+    G_sources = ("physical", "flow.capillary_number", "flow.shear_rate_G")
+    keys = [_ALIASES.get(k, k) for k in dotted]
+    if "capsules" in dotted or not any(k == g or k.startswith(g + ".") for k in keys for g in G_sources):
+        return
+    for capsule in data.get("capsules") or ():
+        membrane = capsule.get("membrane") if isinstance(capsule, dict) else None
+        if isinstance(membrane, dict) and membrane.get("skalak_c_choice") is not None:
+            membrane["skalak_c"], membrane["skalak_c_choice"] = "auto", None
+
+
 def apply_overrides(case: Case, **dotted: Any) -> Case:
     """A re-validated copy of `case` with dotted fields replaced.
 
@@ -2256,6 +2270,7 @@ def apply_overrides(case: Case, **dotted: Any) -> Case:
                 parent[field] = _CHOOSE_AGAIN[derived]
             elif isinstance(parent, dict):
                 parent.pop(field, None)
+    _choose_capsule_area_moduli_again(data, dotted)
     for key, value in dotted.items():
         key = _ALIASES.get(key, key)
         parts = key.split(".")

@@ -78,6 +78,10 @@ def test_each_capsule_gets_the_c_of_its_own_g():
                                         {"center": [3, 0, 0], "modulus_ratio": 0.25, "membrane": membrane}]})
     assert case.membrane.skalak_c == skalak_c_for_stress(0.5)
     assert case.capsules[1].membrane.skalak_c == skalak_c_for_stress(2.0)  # G/modulus_ratio
+    # another G: the capsule's own C is chosen again, as the top-level one
+    faster = apply_overrides(case, **{"flow.G": 0.8})
+    assert faster.membrane.skalak_c == skalak_c_for_stress(0.8)
+    assert faster.capsules[1].membrane.skalak_c == skalak_c_for_stress(3.2)
 
 
 def test_a_soft_area_modulus_at_high_stress_is_warned_of_and_auto_is_not():
