@@ -22,6 +22,7 @@ stress-free oblate spheroid of aspect 0.9, and a sphere, at 28.6, 57.1 and 171.4
 the case in Fischer & Korzeniewski 2015's 28.9 mPa s at the six shear rates of their 225 cells,
 benchmarks/data/fischer2015_ttf_eta28.9.csv, with the mean of Table III's μ_s), fischersoft (the same with
 G_s 1.25 uN/m and C = 100), fischermu (the same with the μ_s fitted to Fischer's frequencies, issue 55),
+fischerauto (fischermu with the membrane nearly area-incompressible: membrane.skalak_c auto),
 twosided (issue 55: μ_s x0.7, x1.3, G_s x0.5, x2, the cytoplasm at 5 and
 20 mPa s, at 28.6 and 171.4 1/s; their reduced volume at 171.4), fischerfit (Fischer's rates with the μ_s
 and G_s fitted to Table I, benchmarks/fit_tran_son_tay_mu_s_g_s.json, level 1), outline (issue 55: the case
@@ -344,6 +345,13 @@ def jobs() -> dict[str, list[tuple[str, dict, dict]]]:
         e = json.loads(json.dumps(d))
         e["physical"]["membrane_viscosity"] = f"{FISCHER_FIT_MU_S:.4g} N*s/m"
         out["fischermu"].append((label.replace("fischer ", "fischer mu_s 3.27e-7 "), e, opts))
+    # the same set with the membrane nearly area-incompressible (membrane.skalak_c auto, the area within 2 %; C = 10's
+    # grew 7-8 % at the highest rates): what holding the area does to the frequencies
+    out["fischerauto"] = []
+    for label, d, opts in out["fischermu"]:
+        e = json.loads(json.dumps(d))
+        e["membrane"]["skalak_c"] = "auto"
+        out["fischerauto"].append((label.replace("fischer mu_s 3.27e-7 ", "fischer auto mu_s 3.27e-7 "), e, opts))
     # issue 55: the cell's outline seen along the gradient (Table I's measured a cos θ and c) and Table II's
     # ellipsoid made of it as they made theirs; the case at every rate, three changes at the two ends
     out["outline"] = [(label.replace("viscous ", "outline viscous "), d, {"outline": True}) for label, d, _ in out["main"]]
@@ -580,8 +588,9 @@ def fischer_lines(rows: dict) -> list[str]:
              "of each group of rates):", "",
              "| k (1/s) | cells | ω/k measured | ω/k capsim | error | G | motion | ω/k capsim, G_s 1.25 µN/m, C = 100 | "
              "error | ω/k capsim, Tran-Son-Tay's fitted μ_s and G_s (level 1) | error | "
-             f"ω/k capsim, μ_s {FISCHER_FIT_MU_S:.3g} N s/m fitted to these (G_s 2.5 µN/m) | error | motion |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             f"ω/k capsim, μ_s {FISCHER_FIT_MU_S:.3g} N s/m fitted to these (G_s 2.5 µN/m) | error | motion | "
+             "the same, skalak_c auto (the area within 2 %) | error | motion |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for k, ratio, sd, n in fischer_groups():
         measured = 2 * math.pi * ratio
         r = rows.get(f"fischer k={k:.4g} L{MAIN_LEVEL}")
@@ -597,10 +606,11 @@ def fischer_lines(rows: dict) -> list[str]:
         cells += (["not run", "—"] if fitted is None else
                   [f"{fitted['f_rad_s'] / k:.3f}" + (f" ({fitted['motion']}: the body's turn)" if turning else ""),
                    "—" if turning else f"{100 * (fitted['f_rad_s'] / k / measured - 1):+.0f} %"])
-        own = rows.get(f"fischer mu_s 3.27e-7 k={k:.4g} L{MAIN_LEVEL}")
-        cells += (["not run", "—", "—"] if own is None else
-                  [f"{own['f_rad_s'] / k:.3f}", f"{100 * (own['f_rad_s'] / k / measured - 1):+.0f} %",
-                   own["motion"] + ("" if own["settled"] == 1 else " (not settled)")])
+        for tag in ("fischer mu_s 3.27e-7", "fischer auto mu_s 3.27e-7"):
+            own = rows.get(f"{tag} k={k:.4g} L{MAIN_LEVEL}")
+            cells += (["not run", "—", "—"] if own is None else
+                      [f"{own['f_rad_s'] / k:.3f}", f"{100 * (own['f_rad_s'] / k / measured - 1):+.0f} %",
+                       own["motion"] + ("" if own["settled"] == 1 else " (not settled)")])
         lines.append("| " + " | ".join(cells) + " |")
     return lines
 
@@ -678,7 +688,8 @@ def fischer_figure(rows: dict) -> None:
 if __name__ == "__main__":
     if len(sys.argv) >= 2 and sys.argv[1] == "run":
         run(sys.argv[2:] or ["main", "elastic", "sensitivity", "extra", "shape", "hardening", "soft", "stressfree",
-                             "fischer", "fischersoft", "twosided", "fischerfit", "outline", "fischermu"])
+                             "fischer", "fischersoft", "twosided", "fischerfit", "outline", "fischermu",
+                             "fischerauto"])
     elif len(sys.argv) == 2 and sys.argv[1] == "report":
         report()
     else:

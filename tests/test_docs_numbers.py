@@ -186,3 +186,17 @@ def test_the_stress_free_shapes_effect_on_the_elongation_index_is_as_validation_
     off = [round(100 * (oblate[s]["EI_outline"] / module.measured_ei(s) - 1)) for s in stresses]
     assert (f"the outline is {', '.join(f'{e:+d}' for e in off[:-1])} and {off[-1]:+d} % off at 0.3, 1, 3, 10 "
             "and 50 Pa") in _validation_prose()
+
+
+def test_fischers_set_with_the_area_held_is_as_validation_says():
+    """docs/validation.md: the Fischer set with skalak_c auto (group fischerauto): its errors at the six rates,
+    tumbling at the lowest."""
+    tts, rows, text = _tts(), _tts_rows(), _validation_prose()
+    errors, motions = [], []
+    for k, ratio, _, _ in tts.fischer_groups():
+        r = rows[f"fischer auto mu_s 3.27e-7 k={k:.4g} L2"]
+        errors.append(100 * (r["f_rad_s"] / k / (2 * 3.141592653589793 * ratio) - 1))
+        motions.append(r["motion"])
+    assert f"is **{_signed([round(e) for e in errors])} %** off" in text
+    assert motions[0] == "tumbling" and "tumbles at 8.2 s⁻¹" in text
+    assert all(m in ("swinging", "steady", "transient") for m in motions[1:])
