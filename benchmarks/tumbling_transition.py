@@ -16,8 +16,8 @@ Mesh level 1 (the TTS case's frequency moved 0.1 % from level 1 to 2), t_end kt 
 tumbling periods), rtol 1e-4: a first look, not a converged threshold.
 
     python benchmarks/tumbling_transition.py run [VISCOSITY ...]   # resumable; rows in the JSON
-    python benchmarks/tumbling_transition.py finer 2 23.9 [K ...] [--oblate]  # the disk (or the oblate
-                                                                   # state) at level 2 (or 3; LEVEL2_RATES)
+    python benchmarks/tumbling_transition.py finer 2 23.9 [K ...] [--oblate] [--auto]  # the disk (or the
+                          # oblate state) at level 2 (or 3; LEVEL2_RATES); --auto: membrane.skalak_c auto
     python benchmarks/tumbling_transition.py report                # the table
 """
 
@@ -42,6 +42,8 @@ RATES = {23.9: (1.0, 2.0, 3.0, 5.0, 8.0, 12.0, 20.0), 10.7: (10.0, 20.0, 40.0, 6
          104.0: (0.15, 0.3, 0.5, 0.8, 1.2, 2.0)}
 STRESS_FREE = (("disk", None), ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9}))
 LEVEL, T_END = 1, 60.0
+#: the tag's suffix of the rows run with membrane.skalak_c auto (`finer ... --auto`)
+AUTO_TAG = ", skalak_c auto"
 
 
 def base_case() -> dict:
@@ -60,7 +62,7 @@ def base_case() -> dict:
 LEVEL2_RATES = {23.9: (5.0, 8.0, 12.0)}
 
 
-def run_one(eta: float, k: float, tag: str, reference, level: int = LEVEL) -> dict:
+def run_one(eta: float, k: float, tag: str, reference, level: int = LEVEL, area_auto: bool = False) -> dict:
     from capsim.config import case_from_dict
     from _common import run_or_stop  # an interrupted run ends the benchmark, never a row
 
@@ -69,6 +71,8 @@ def run_one(eta: float, k: float, tag: str, reference, level: int = LEVEL) -> di
     case["mesh"]["level"] = level
     if reference is not None:
         case["membrane"]["reference_shape"] = reference
+    if area_auto:  # the membrane nearly area-incompressible (its C chosen for the case's G) instead of C = 10
+        case["membrane"]["skalak_c"] = "auto"
     with tempfile.TemporaryDirectory() as tmp:
         case["name"] = "tt-tb"
         case["output"] = {"path": f"{tmp}/run.h5", "snapshot_every": T_END}
@@ -79,20 +83,22 @@ def run_one(eta: float, k: float, tag: str, reference, level: int = LEVEL) -> di
             "G": c.flow.shear_rate_G, "viscosity_ratio": c.flow.viscosity_ratio, "status": result.status,
             "motion": s.get("motion"), "settled": s.get("settled"), "ttf_ratio": s.get("ttf_ratio"),
             "body_rotation_ratio": s.get("body_rotation_ratio"), "wall_time_s": result.wall_time_s,
-            "level": level}
+            "level": level, "skalak_c": c.membrane.skalak_c}
 
 
-def run_finer(level: int, eta: float, rates: list[float], tag: str = "disk") -> None:
+def run_finer(level: int, eta: float, rates: list[float], tag: str = "disk", area_auto: bool = False) -> None:
     """A stress-free shape of STRESS_FREE (the disk by default) at a finer level at the given rates
-    (LEVEL2_RATES), each row added to the JSON under a lock (two of these may run side by side, one per core)."""
+    (LEVEL2_RATES), each row added to the JSON under a lock (two of these may run side by side, one per core);
+    ``area_auto``: with membrane.skalak_c auto (its row's shape tagged ", skalak_c auto")."""
     reference = dict(STRESS_FREE)[tag]
+    tag = tag + (AUTO_TAG if area_auto else "")
     import fcntl
 
     from capsim.numerics.threads import apply_policy
 
     apply_policy(1)
     for k in rates:
-        row = run_one(eta, k, tag, reference, level=level)
+        row = run_one(eta, k, tag, reference, level=level, area_auto=area_auto)
         with open(JSON.with_suffix(".lock"), "w") as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)
             rows = [r for r in load() if not (r.get("level", LEVEL) == level and r["eta_mPa_s"] == eta
@@ -181,8 +187,8 @@ if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "run":
         run([float(v) for v in sys.argv[2:]] or sorted(RATES))
     elif len(sys.argv) > 3 and sys.argv[1] == "finer":
-        eta, args = float(sys.argv[3]), [a for a in sys.argv[4:] if a != "--oblate"]
+        eta, args = float(sys.argv[3]), [a for a in sys.argv[4:] if a not in ("--oblate", "--auto")]
         run_finer(int(sys.argv[2]), eta, [float(v) for v in args] or list(LEVEL2_RATES[eta]),
-                  "oblate 0.9" if "--oblate" in sys.argv else "disk")
+                  "oblate 0.9" if "--oblate" in sys.argv else "disk", area_auto="--auto" in sys.argv)
     else:
         report()

@@ -200,3 +200,20 @@ def test_fischers_set_with_the_area_held_is_as_validation_says():
     assert f"is **{_signed([round(e) for e in errors])} %** off" in text
     assert motions[0] == "tumbling" and "tumbles at 8.2 s⁻¹" in text
     assert all(m in ("swinging", "steady", "transient") for m in motions[1:])
+
+
+def test_the_oblate_state_with_the_area_held_keeps_its_transition_brackets():
+    """docs/validation.md: the oblate stress-free state at level 2 has the same tumbling-tank-treading brackets
+    with skalak_c auto as with C = 10 (benchmarks/tumbling_transition.json), within a factor 2 of the measured."""
+    rows = [r for r in json.loads((ROOT / "benchmarks" / "tumbling_transition.json").read_text()) if r.get("level") == 2]
+
+    def bracket(eta: float, tag: str) -> tuple[float, float]:
+        mine = [r for r in rows if r["eta_mPa_s"] == eta and r["stress_free"] == tag]
+        lo = max(r["stress_Pa"] for r in mine if r["motion"] == "tumbling")
+        hi = min(r["stress_Pa"] for r in mine if r["motion"] in ("swinging", "steady") and r["stress_Pa"] > lo)
+        return round(lo, 3), round(hi, 3)
+
+    text = _validation_prose()
+    for eta, (lo, hi) in ((23.9, (0.048, 0.072)), (104.0, (0.031, 0.052))):
+        assert bracket(eta, "oblate 0.9") == bracket(eta, "oblate 0.9, skalak_c auto") == (lo, hi)
+    assert "the oblate state's brackets are the same, (0.048, 0.072) and (0.031, 0.052) Pa" in text
