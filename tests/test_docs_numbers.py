@@ -217,3 +217,15 @@ def test_the_oblate_state_with_the_area_held_keeps_its_transition_brackets():
     for eta, (lo, hi) in ((23.9, (0.048, 0.072)), (104.0, (0.031, 0.052))):
         assert bracket(eta, "oblate 0.9") == bracket(eta, "oblate 0.9, skalak_c auto") == (lo, hi)
     assert "the oblate state's brackets are the same, (0.048, 0.072) and (0.031, 0.052) Pa" in text
+    # the disk's at 23.9 mPa s, which the Fischer paragraph cites
+    assert bracket(23.9, "disk") == bracket(23.9, "disk, skalak_c auto") == (0.191, 0.287)
+    assert "its bracket is (0.19, 0.29) Pa with C = 10 and with auto alike" in text
+
+
+def test_the_fischer_fit_with_the_area_held_is_as_validation_says():
+    fit, text = _stored_fit("fit_fischer_2015_auto.json")
+    mu = fit["estimates"]["physical.membrane_viscosity"]
+    assert fit["at_bound"]["physical.shear_modulus"] and fit["estimates"]["physical.shear_modulus"] == 2.5
+    assert f"μ_s = {mu / 1e-7:.2f} × 10⁻⁷ N s/m with G_s at its lower bound 2.5 µN/m, χ² {fit['chi2']:.2f} on " \
+           f"{fit['dof']} degrees of freedom" in text
+    assert fit["n_evaluations"] == 7 and "replayed to its seventh" in text
