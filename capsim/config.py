@@ -191,6 +191,10 @@ def _auto_or_number(v: Any, interval: str) -> Any:
             return _strict_scalar(v, float)
         except ValueError:
             raise ValueError(f"must be a number in {interval} or auto") from None
+    if isinstance(v, float) and not math.isfinite(v):
+        raise ValueError(f"must be a finite number in {interval} or auto")
+    if not isinstance(v, (bool, int, float)):  # a list, a mapping: one line, not one per member of the union
+        raise ValueError(f"must be a number in {interval} or auto")
     return v
 
 

@@ -93,6 +93,8 @@ EXPECTED = {
     "case_evans_fung_huge.yaml": "shape.c2 = 1e+300: must be <= 10",
     "case_skalak_c_huge.yaml": "membrane.skalak_c = 1000000000.0: must be in (0, 10000] (or auto)",
     "case_skalak_c_automatic.yaml": "membrane.skalak_c = 'automatic': must be a number in (0, 1e4] or auto",
+    "case_skalak_c_nan.yaml": "membrane.skalak_c = nan: must be a finite number in (0, 1e4] or auto",
+    "case_rtol_list.yaml": "time.rtol = ['auto']: must be a number in [1e-10, 1) or auto",
     "case_skalak_c_auto_sphere.yaml": "membrane.skalak_c = 'auto': needs a rest shape with excess area",
     "case_area_tolerance_without_auto.yaml": "membrane.area_tolerance = 0.05: applies only to skalak_c: auto",
     "case_name_too_long.yaml": "name = 'capsulecapsule",
