@@ -130,7 +130,7 @@ bench-fit: venv
 	PYTHONPATH=. $(BIN)/python benchmarks/fit_coverage.py $(if $(FITS),--fits $(FITS)) $(if $(DRAWS),--draws $(DRAWS))
 
 # the red cell at 0.1-50 Pa in 30 mPa s (issue 55): the area modulus C = 10, 100, 1000 at level 2, C = 1000 at
-# level 3, and the configuration as it ships (skalak_c auto) at levels 2 and 3 (about 40 min on one core; rows in
+# level 3, and the configuration as it ships (skalak_c auto) at levels 2 and 3 and in 10 and 100 mPa s (about 45 min on one core; rows in
 # benchmarks/rbc_high_stress.json are kept): writes benchmarks/rbc_high_stress.md and docs/figures/rbc_ektacytometry.png
 .PHONY: bench-rbc-stress
 bench-rbc-stress: venv

@@ -17,7 +17,8 @@ GROUP: c10, c100, c1000 (level 2), level3 (C = 1000 at level 3, at 1 and 10 Pa),
 4 uN/m instead of 2.5: the EI's sensitivity to the modulus, issue 55), outline (C = 1000 again, with snapshots:
 the EI of the cell's outline seen along the gradient, as the ektacytometer's laser sees it), auto and auto3
 (the configuration as it ships, skalak_c auto: the C that keeps the area within membrane.area_tolerance at each
-stress, at levels 2 and 3, with the outline's EI).
+stress, at levels 2 and 3, with the outline's EI), auto_oblate (auto with the nearly spherical stress-free shape),
+media (auto in 10 and 100 mPa s at 0.1 and 50 Pa, and what the stop at 100 mPa s, 50 Pa takes).
 """
 
 from __future__ import annotations
@@ -57,14 +58,17 @@ LEVEL3_STRESSES_PA = (1.0, 10.0)
 
 
 def case_for(stress: float, C: float | str, level: int, shear_modulus: float | None = None,
-             reference_shape: dict | None = None) -> dict:
+             reference_shape: dict | None = None, viscosity: float = VISCOSITY_MPAS,
+             area_tolerance: float | None = None) -> dict:
     import yaml
 
     case = yaml.safe_load((ROOT / "configs" / "rbc.yaml").read_text())
     case["flow"] = {}  # λ from the physical viscosities
     case["membrane"]["skalak_c"] = C
-    case["physical"].update(viscosity=f"{VISCOSITY_MPAS:g} mPa*s", inner_viscosity=f"{INNER_MPAS:g} mPa*s",
-                            shear_rate=f"{stress / (VISCOSITY_MPAS * 1e-3):.6g} 1/s")
+    case["physical"].update(viscosity=f"{viscosity:g} mPa*s", inner_viscosity=f"{INNER_MPAS:g} mPa*s",
+                            shear_rate=f"{stress / (viscosity * 1e-3):.6g} 1/s")
+    if area_tolerance is not None:
+        case["membrane"]["area_tolerance"] = area_tolerance
     if shear_modulus is not None:
         case["physical"]["shear_modulus"] = f"{shear_modulus:g} uN/m"
     if reference_shape is not None:
@@ -75,14 +79,15 @@ def case_for(stress: float, C: float | str, level: int, shear_modulus: float | N
 
 
 def run_one(stress: float, C: float | str, level: int, shear_modulus: float | None = None,
-            outline: bool = False, stress_free: tuple[str, dict] | None = None) -> dict:
+            outline: bool = False, stress_free: tuple[str, dict] | None = None, viscosity: float = VISCOSITY_MPAS,
+            area_tolerance: float | None = None) -> dict:
     import numpy as np
 
     from capsim.config import case_from_dict
     from _common import run_or_stop  # an interrupted run ends the benchmark, never a row
     from capsim.storage.store import read_trajectory
 
-    d = case_for(stress, C, level, shear_modulus, stress_free[1] if stress_free else None)
+    d = case_for(stress, C, level, shear_modulus, stress_free[1] if stress_free else None, viscosity, area_tolerance)
     with tempfile.TemporaryDirectory() as tmp:
         d["name"] = "rbc-stress"
         d["output"] = {"path": f"{tmp}/run.h5", "snapshot_every": 0.5 if outline else T_END}
@@ -98,7 +103,7 @@ def run_one(stress: float, C: float | str, level: int, shear_modulus: float | No
     W = float(np.mean(np.asarray(ts["axis_W"], float)[sel]))
     area = np.asarray(ts["area"], float)
     return {"stress_Pa": stress, "skalak_c": case.membrane.skalak_c, "skalak_c_auto": C == "auto",
-            "area_tolerance": case.membrane.area_tolerance, "level": level,
+            "area_tolerance": case.membrane.area_tolerance, "level": level, "viscosity_mPa_s": viscosity,
             **({"stress_free": stress_free[0]} if stress_free else {}),
             "shear_modulus_uN_m": shear_modulus or 2.5, "G": case.flow.shear_rate_G,
             "viscosity_ratio": case.flow.viscosity_ratio, "status": result.status, "reason": result.status_reason,
@@ -138,12 +143,14 @@ def run(groups: list[str]) -> None:
 
     apply_policy(1)
     rows = load()
-    for group in groups:
+    if "media" in groups:
+        rows = run_media(rows)
+    for group in (g for g in groups if g != "media"):
         C, level, gs = GROUPS[group]
         stress_free = STRESS_FREE.get(group)
         for stress in _stresses(group, level):
             outline = group in OUTLINE_GROUPS
-            if any(r["stress_Pa"] == stress and r.get("stress_free") == (stress_free[0] if stress_free else None) and (r["skalak_c"] == C or C == "auto" and r.get("skalak_c_auto"))
+            if any(r["stress_Pa"] == stress and _in_30(r) and r.get("stress_free") == (stress_free[0] if stress_free else None) and (r["skalak_c"] == C or C == "auto" and r.get("skalak_c_auto"))
                    and r.get("skalak_c_auto", False) == (C == "auto") and r["level"] == level
                    and r.get("shear_modulus_uN_m", 2.5) == (gs or 2.5) and r.get("outline", False) == outline
                    for r in rows):
@@ -154,6 +161,49 @@ def run(groups: list[str]) -> None:
             print(f"{stress:g} Pa C {r['skalak_c']:g} L{level}: {r['status']} at kt {r['t']:.3g}, EI {r['EI']:.3f}, "
                   f"area {100 * r['area_change_max']:.1f} %, {r['wall_time_s']:.0f} s", flush=True)
     report()
+
+
+def _in_30(row: dict) -> bool:
+    """Whether a row is in the benchmark's medium (30 mPa s); the rows of `media` are in others."""
+    return row.get("viscosity_mPa_s", VISCOSITY_MPAS) == VISCOSITY_MPAS
+
+
+#: the configuration as it ships in the other media of item 4 (10 and 100 mPa s: λ 0.6 and 0.06) at the ends of
+#: the stress range, level 2; and what the stop at 100 mPa s, 50 Pa takes: (viscosity, stress, level, area_tolerance)
+MEDIA_CASES = ((10.0, 0.1, 2, None), (10.0, 50.0, 2, None), (100.0, 0.1, 2, None), (100.0, 10.0, 2, None),
+               (100.0, 50.0, 2, None), (100.0, 50.0, 2, 0.01), (100.0, 50.0, 3, None))
+
+
+def run_media(rows: list[dict]) -> list[dict]:
+    """Group `media`: MEDIA_CASES, resumable as the others."""
+    for eta, stress, level, tolerance in MEDIA_CASES:
+        if any(r.get("viscosity_mPa_s") == eta and r["stress_Pa"] == stress and r["level"] == level
+               and r.get("skalak_c_auto") and r["area_tolerance"] == (tolerance or 0.02) for r in rows):
+            continue
+        rows.append(run_one(stress, "auto", level, viscosity=eta, area_tolerance=tolerance))
+        JSON.write_text(json.dumps(rows, indent=1) + "\n")
+        r = rows[-1]
+        print(f"{eta:g} mPa s, {stress:g} Pa, L{level}, tolerance {r['area_tolerance']:g}: {r['status']} at kt "
+              f"{r['t']:.3g}, area {100 * r['area_change_max']:.2f} %, {r['wall_time_s']:.0f} s", flush=True)
+    return rows
+
+
+def _media_lines(rows: list[dict]) -> list[str]:
+    media = [r for r in rows if not _in_30(r)]
+    if not media:
+        return []
+    lines = ["", "The configuration as it ships in the other media (group `media`: 10 and 100 mPa s, the cytoplasm's "
+             "6 mPa s, so λ 0.6 and 0.06), at the ends of the stress range (and 10 Pa in 100 mPa s):", "",
+             "| medium (mPa s) | λ | τ (Pa) | level | area_tolerance | C chosen | status | largest area change | "
+             "smallest element quality | EI of the equivalent ellipsoid | wall time (s) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in sorted(media, key=lambda r: (r["viscosity_mPa_s"], r["stress_Pa"], r["level"], -r["area_tolerance"])):
+        status = r["status"] if r["status"] == "completed" else \
+            f"{r['status']} at kt {r['t']:.3g} ({r['reason'].split(':')[0]})"
+        lines.append(f"| {r['viscosity_mPa_s']:g} | {r['viscosity_ratio']:.2g} | {r['stress_Pa']:g} | {r['level']} | "
+                     f"{r['area_tolerance']:g} | {r['skalak_c']:g} | {status} | {100 * r['area_change_max']:.2f} % | "
+                     f"{r['min_element_quality']:.2f} | {r['EI']:.3f} | {r['wall_time_s']:.0f} |")
+    return lines
 
 
 def _stresses(group: str, level: int) -> tuple[float, ...]:
@@ -185,14 +235,15 @@ def report() -> None:
              "capsim's EI is the equivalent ellipsoid's, not a diffraction pattern's):", "",
              "| τ (Pa) | G_s (µN/m) | G | C | level | status | EI = (L − W)/(L + W) | EI measured | largest area "
              "change | smallest element quality | compressed at the end |", "|---|---|---|---|---|---|---|---|---|---|---|"]
-    plain = [r for r in rows if not r.get("outline") and not r.get("skalak_c_auto")]
+    plain = [r for r in rows if not r.get("outline") and not r.get("skalak_c_auto") and _in_30(r)]
     for r in sorted(plain, key=lambda r: (r["level"], r.get("shear_modulus_uN_m", 2.5), r["skalak_c"], r["stress_Pa"])):
         status = r["status"] if r["status"] == "completed" else f"{r['status']} at kt {r['t']:.3g} ({r['reason'].split(':')[0]})"
         ei = measured_ei(r["stress_Pa"])
         lines.append(f"| {r['stress_Pa']:g} | {r.get('shear_modulus_uN_m', 2.5):g} | {r['G']:.3g} | {r['skalak_c']:g} | {r['level']} | {status} | "
                      f"{r['EI']:.3f} | {'—' if ei is None else f'{ei:.3f}'} | {100 * r['area_change_max']:.1f} % | {r['min_element_quality']:.2f} | "
                      f"{100 * r['compressed_fraction']:.0f} % |")
-    seen = sorted((r for r in rows if r.get("outline") and not r.get("skalak_c_auto")), key=lambda r: r["stress_Pa"])
+    seen = sorted((r for r in rows if r.get("outline") and not r.get("skalak_c_auto") and _in_30(r)),
+                  key=lambda r: r["stress_Pa"])
     if seen:
         lines += ["", "The EI as the ektacytometer sees the cell (group `outline`: C = 1000, G_s 2.5 µN/m, level 2; its "
                   "laser crosses the gap along the velocity gradient, so the diffraction pattern is the outline's seen "
@@ -205,7 +256,7 @@ def report() -> None:
             off = "—" if ei is None else f"{100 * (r['EI_outline'] / ei - 1):+.0f} %"
             lines.append(f"| {r['stress_Pa']:g} | {r['EI_outline']:.3f} ± {r['EI_outline_sd']:.3f} | {r['EI']:.3f} | "
                          f"{'—' if ei is None else f'{ei:.3f}'} | {off} |")
-    lines += _auto_lines(rows)
+    lines += _auto_lines(rows) + _media_lines(rows)
     TABLE.write_text("\n".join(lines) + "\n")
     figure(rows)
     print("\n".join(lines))
@@ -214,7 +265,7 @@ def report() -> None:
 def _auto_lines(rows: list[dict]) -> list[str]:
     """The configuration as it ships (skalak_c auto) at every stress, levels 2 and 3: the C chosen, the area
     change against the tolerance, both EIs against the curve, the mesh error (level 2 against 3) and the cost."""
-    auto = [r for r in rows if r.get("skalak_c_auto") and not r.get("stress_free")]
+    auto = [r for r in rows if r.get("skalak_c_auto") and not r.get("stress_free") and _in_30(r)]
     if not auto:
         return []
     by = {(r["stress_Pa"], r["level"]): r for r in auto}
@@ -236,7 +287,8 @@ def _auto_lines(rows: list[dict]) -> list[str]:
                      f"{100 * r['area_change_max']:.2f} % | {r['EI_outline']:.3f} | {r['EI']:.3f} | "
                      f"{'—' if ei is None else f'{ei:.3f}'} | {off} | {mesh} | {r['evaluations']} | "
                      f"{r['wall_time_s']:.0f} |")
-    other = sorted((r for r in rows if r.get("skalak_c_auto") and r.get("stress_free")), key=lambda r: r["stress_Pa"])
+    other = sorted((r for r in rows if r.get("skalak_c_auto") and r.get("stress_free") and _in_30(r)),
+                   key=lambda r: r["stress_Pa"])
     if other:
         lines += ["", "The same with the nearly spherical stress-free shape (group `auto_oblate`: membrane.reference_shape "
                   "an oblate spheroid of aspect 0.9, the rest shape the disk; level 2): what the stress-free shape moves:",
@@ -273,7 +325,8 @@ def figure(rows: list[dict]) -> None:
         pts = sorted((r["stress_Pa"], r[key]) for r in rows if pick(r) and key in r)
         return list(zip(*pts)) if pts else None
 
-    auto = lambda level: (lambda r: r.get("skalak_c_auto") and not r.get("stress_free") and r["level"] == level)  # noqa: E731
+    auto = lambda level: (lambda r: r.get("skalak_c_auto") and not r.get("stress_free") and _in_30(r)  # noqa: E731
+                          and r["level"] == level)
     for pick, key, style, name in (
             (auto(2), "EI_outline", "s-", "capsim, outline seen along y (level 2, skalak_c auto)"),
             (auto(3), "EI_outline", "D", "capsim, outline (level 3)"),
@@ -296,6 +349,6 @@ def figure(rows: list[dict]) -> None:
 
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "run":
-        run(sys.argv[2:] or list(GROUPS))
+        run(sys.argv[2:] or [*GROUPS, "media"])
     else:
         report()

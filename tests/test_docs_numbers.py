@@ -142,7 +142,8 @@ def _rbc_stress():
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     rows = json.loads((ROOT / "benchmarks" / "rbc_high_stress.json").read_text())
-    return module, {(r["stress_Pa"], r["level"]): r for r in rows if r.get("skalak_c_auto") and not r.get("stress_free")}
+    return module, {(r["stress_Pa"], r["level"]): r for r in rows if r.get("skalak_c_auto") and not r.get("stress_free")
+                    and r.get("viscosity_mPa_s", 30.0) == 30.0}
 
 
 def test_the_shipped_red_cell_completes_at_every_stress_as_validation_says():
@@ -229,3 +230,22 @@ def test_the_fischer_fit_with_the_area_held_is_as_validation_says():
     assert f"μ_s = {mu / 1e-7:.2f} × 10⁻⁷ N s/m with G_s at its lower bound 2.5 µN/m, χ² {fit['chi2']:.2f} on " \
            f"{fit['dof']} degrees of freedom" in text
     assert fit["n_evaluations"] == 7 and "replayed to its seventh" in text
+
+
+def test_the_shipped_red_cells_range_in_other_media_is_as_validation_says():
+    """docs/validation.md: skalak_c auto in 10 and 100 mPa s (group media): where it completes, the stop at
+    100 mPa s and 50 Pa at level 2, and the two ways that complete it."""
+    rows = json.loads((ROOT / "benchmarks" / "rbc_high_stress.json").read_text())
+    media = {(r["viscosity_mPa_s"], r["stress_Pa"], r["level"], r["area_tolerance"]): r
+             for r in rows if r.get("viscosity_mPa_s", 30.0) != 30.0}
+    done = [(10.0, 0.1, 2, 0.02), (10.0, 50.0, 2, 0.02), (100.0, 0.1, 2, 0.02), (100.0, 10.0, 2, 0.02),
+            (100.0, 50.0, 2, 0.01), (100.0, 50.0, 3, 0.02)]
+    assert all(media[k]["status"] == "completed" for k in done)
+    stop = media[(100.0, 50.0, 2, 0.02)]
+    assert stop["status"] == "unstable" and stop["reason"].startswith("guard min_dt_fraction")
+    text = _validation_prose()
+    assert f"**stops unstable at kt {stop['t']:.2g}**" in text
+    assert f"its area grew {100 * stop['area_change_max']:.2f} %" in text
+    assert f"smallest element quality {stop['min_element_quality']:.2f}" in text
+    fixed = media[(100.0, 50.0, 2, 0.01)]
+    assert f"(C {fixed['skalak_c']:g}) completes it at level 2 (area {100 * fixed['area_change_max']:.2f} %)" in text
