@@ -169,11 +169,16 @@ def rest_reduced_volume(shape: Shape) -> float:
     return (4.0 * math.pi / 3.0 * e) / (4.0 * math.pi / 3.0 * (area / (4.0 * math.pi)) ** 1.5)
 
 
+def _skalak_c_unbounded(G: float, tolerance: float) -> float:
+    """C = (β G/ε − 1)/2: ΔA/A ≈ β G/(1 + 2C) solved for the tolerance ε, before its bounds and rounding."""
+    return 0.5 * (SKALAK_AUTO_BETA * G / tolerance - 1.0)
+
+
 def skalak_c_for_stress(G: float, tolerance: float = SKALAK_AUTO_AREA_TOLERANCE) -> float:
     """The smallest Skalak C whose area change at capillary number G stays within `tolerance`
     (ΔA/A ≈ β G/(1 + 2C), β = SKALAK_AUTO_BETA), between SKALAK_AUTO_MIN_C and SKALAK_MAX_C, as a
     round number (two significant digits): the resolved case's C reads as it was chosen."""
-    wanted = 0.5 * (SKALAK_AUTO_BETA * G / tolerance - 1.0)
+    wanted = _skalak_c_unbounded(G, tolerance)
     if not wanted > SKALAK_AUTO_MIN_C:
         return SKALAK_AUTO_MIN_C
     digits = 10.0 ** (math.floor(math.log10(wanted)) - 1)
@@ -1265,8 +1270,8 @@ class Case(_Model):
                                     f"{SKALAK_AUTO_MAX_REDUCED_VOLUME:g}; this {shape.kind}'s is {nu:.3g}): a nearly "
                                     "spherical membrane must stretch to deform, its C is the material's; give a number")
             C = skalak_c_for_stress(G_here, membrane.area_tolerance)
-            wanted = 0.5 * (SKALAK_AUTO_BETA * G_here / membrane.area_tolerance - 1.0)
-            capped = f"; capped at {SKALAK_MAX_C:g}: the area may change by more" if wanted > SKALAK_MAX_C else ""
+            capped = f"; capped at {SKALAK_MAX_C:g}: the area may change by more" \
+                if _skalak_c_unbounded(G_here, membrane.area_tolerance) > SKALAK_MAX_C else ""
             why = (f"auto: C {C:g} for G {G_here:.4g} and area_tolerance {membrane.area_tolerance:g} "
                    f"(dA/A ~ {SKALAK_AUTO_BETA:g} G/(1 + 2C), at least {SKALAK_AUTO_MIN_C:g}){capped}")
             new = membrane.model_copy(update={"skalak_c": C, "skalak_c_choice": why})
@@ -2233,12 +2238,17 @@ _ALIASES = {"flow.G": "flow.shear_rate_G"}
 USER_NAMES = {full: short for short, full in _ALIASES.items()}
 
 
-def _choose_capsule_area_moduli_again(data: dict, dotted: dict[str, Any]) -> None:
+def _overrides_touch(keys: list[str], given: str) -> bool:
+    """Whether any of the (alias-resolved) dotted keys is the field or section `given`, or lies inside it."""
+    return any(key == given or key.startswith(given + ".") for key in keys)
+
+
+def _choose_capsule_area_moduli_again(data: dict, keys: list[str]) -> None:
     """A capsule's own skalak_c chosen by auto (capsules[i].membrane) goes back to auto when the case's G
-    changes, as the top-level one does (DERIVED_FIELDS): each capsule's G is flow.G over its modulus_ratio."""
-    G_sources = ("physical", "flow.capillary_number", "flow.shear_rate_G")
-    keys = [_ALIASES.get(k, k) for k in dotted]
-    if "capsules" in dotted or not any(k == g or k.startswith(g + ".") for k in keys for g in G_sources):
+    changes, as the top-level one does (DERIVED_FIELDS): each capsule's G is flow.G over its modulus_ratio.
+    What changes G is what DERIVED_FIELDS derives flow.shear_rate_G from, and the field itself."""
+    G_sources = [given for given, derived in DERIVED_FIELDS.items() if ("flow.shear_rate_G", None) in derived]
+    if "capsules" in keys or not any(_overrides_touch(keys, g) for g in [*G_sources, "flow.shear_rate_G"]):
         return
     for capsule in data.get("capsules") or ():
         membrane = capsule.get("membrane") if isinstance(capsule, dict) else None
@@ -2258,9 +2268,10 @@ def apply_overrides(case: Case, **dotted: Any) -> Case:
     ):
         data["output"]["path"] = Output().path
     old = case.model_dump()
+    keys = [_ALIASES.get(k, k) for k in dotted]  # the fields the overrides name, flow.G as flow.shear_rate_G
     for given, derived_fields in DERIVED_FIELDS.items():
         # a derived value is computed anew from what it derives from, not the old one kept
-        if not any(key == given or key.startswith(given + ".") for key in map(lambda k: _ALIASES.get(k, k), dotted)):
+        if not _overrides_touch(keys, given):
             continue
         for derived, source in derived_fields:
             if source == _UNSET:
@@ -2274,7 +2285,7 @@ def apply_overrides(case: Case, **dotted: Any) -> Case:
                 parent[field] = _CHOOSE_AGAIN[derived]
             elif isinstance(parent, dict):
                 parent.pop(field, None)
-    _choose_capsule_area_moduli_again(data, dotted)
+    _choose_capsule_area_moduli_again(data, keys)
     for key, value in dotted.items():
         key = _ALIASES.get(key, key)
         parts = key.split(".")

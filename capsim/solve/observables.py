@@ -1478,8 +1478,7 @@ def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarr
     row = step_observables(y, elements, geometry, smax)
     center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
     # the director's, the centroid velocity's and the stresslet's surface integrals in one pass (issue 57:
-    # each was its own numpy pass, ~0.1 ms of a level-2 row); the contour method's element-constant Δf
-    # keeps the numpy integrals
+    # each was its own numpy pass, ~0.1 ms of a level-2 row), the contour method's element-constant Δf too
     sums = row_surface_sums(geometry, density, weights, u, elements, model.disc.reg_phi, center, director)
     row.update(director_observables(sums.director))
     # compressive tensions: where a membrane without bending stiffness would wrinkle
