@@ -81,3 +81,13 @@ def run_or_stop(case):
         raise SystemExit(f"benchmark run {case.name!r} {result.get('status_reason') or 'interrupted'}: "
                          "no table written (a partial run is never a row)")
     return result
+
+
+def save_figure(fig, path: Path, dpi: int = 120) -> None:
+    """Lay the figure out, write it to `path` (its folder made) and close it."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)

@@ -150,8 +150,10 @@ def run(groups: list[str]) -> None:
         stress_free = STRESS_FREE.get(group)
         for stress in _stresses(group, level):
             outline = group in OUTLINE_GROUPS
-            if any(r["stress_Pa"] == stress and _in_30(r) and r.get("stress_free") == (stress_free[0] if stress_free else None) and (r["skalak_c"] == C or C == "auto" and r.get("skalak_c_auto"))
-                   and r.get("skalak_c_auto", False) == (C == "auto") and r["level"] == level
+            tag = stress_free[0] if stress_free else None
+            if any(r["stress_Pa"] == stress and _in_30(r) and r.get("stress_free") == tag and r["level"] == level
+                   and (r.get("skalak_c_auto", False) if C == "auto" else
+                        r["skalak_c"] == C and not r.get("skalak_c_auto"))
                    and r.get("shear_modulus_uN_m", 2.5) == (gs or 2.5) and r.get("outline", False) == outline
                    for r in rows):
                 continue
@@ -314,6 +316,8 @@ def figure(rows: list[dict]) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
+    from _common import save_figure
+
     d = np.genfromtxt(ROOT / "benchmarks" / "data" / "iuq_ektacytometry_healthy.csv", delimiter=",", names=True)
     fig, ax = plt.subplots(figsize=(5.2, 3.8))
     ax.fill_between(d["shear_stress_Pa"], 0.85 * d["elongation_index"], 1.15 * d["elongation_index"], color="0.88",
@@ -341,10 +345,7 @@ def figure(rows: list[dict]) -> None:
     ax.set_ylim(0, 0.95)
     ax.legend(fontsize=6, loc="upper left")
     ax.set_title("The default red cell in an ektacytometer (G_s 2.5 µN/m, λ = 0.2)", fontsize=9)
-    fig.tight_layout()
-    FIGURE.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(FIGURE, dpi=120)
-    plt.close(fig)
+    save_figure(fig, FIGURE)
 
 
 if __name__ == "__main__":

@@ -50,7 +50,7 @@ for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402 - after the thread counts above
 
-from _common import silhouette  # noqa: E402
+from _common import save_figure, silhouette  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 JSON = ROOT / "benchmarks" / "tran_son_tay.json"
@@ -642,10 +642,7 @@ def figure(rows: dict) -> None:
     ax.set_ylim(0, 64)  # room for the legend above the curves
     ax.legend(fontsize=6.5, loc="upper left")
     ax.set_title("Red cells in 35 cP dextran, λ = 0.29 (level 2)", fontsize=9)
-    fig.tight_layout()
-    FIGURE.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(FIGURE, dpi=120)
-    plt.close(fig)
+    save_figure(fig, FIGURE)
     fischer_figure(rows)
 
 
@@ -680,9 +677,7 @@ def fischer_figure(rows: dict) -> None:
     ax.set_ylim(0.1, 0.5)  # room for the legend above the points
     ax.legend(fontsize=6.2, loc="upper right")
     ax.set_title(f"Red cells in {FISCHER_VISCOSITY_MPAS} mPa s (level 2 unless marked)", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(FISCHER_FIGURE, dpi=120)
-    plt.close(fig)
+    save_figure(fig, FISCHER_FIGURE)
 
 
 if __name__ == "__main__":
