@@ -132,8 +132,10 @@ LAW_PARAMETER_DEFAULTS = {"mooney_rivlin": {"psi": 0.0}, "skalak": {"skalak_c": 
 SKALAK_MAX_C = 1e4
 #: skalak_c auto (issue 55): the area change a Skalak membrane takes in shear is ΔA/A ≈ β G/(1 + 2C)
 #: (the isotropic tension ~ μka over the area modulus); β the largest measured on the red cell in
-#: 30 mPa s at 0.1-50 Pa: 9.4 at level 2 and 9.7 at level 3 (G 18.7, C 4400; 2.1-8.5 at C 10-1000:
-#: benchmarks/rbc_high_stress.md), rounded up. C = (β G/ε - 1)/2 for the tolerance ε, at least SKALAK_AUTO_MIN_C.
+#: 30 mPa s at 0.1-50 Pa: 9.4 at level 2 and 9.79 at level 3 (G 18.7, C 4600; 2.1-8.5 at C 10-1000:
+#: benchmarks/rbc_high_stress.md). Not a bound for every cell: the nearly spherical stress-free state gave
+#: 10.4 and λ 0.06 (100 mPa s) 10.1-14.5, areas up to 1.5 times the tolerance, which the run then reports.
+#: C = (β G/ε - 1)/2 for the tolerance ε, at least SKALAK_AUTO_MIN_C.
 SKALAK_AUTO_BETA = 9.8
 #: the smallest C auto takes: the usual computational choice (area within ~1 % at G <= 0.05, the
 #: default red cell's case, which auto leaves unchanged bit for bit)
