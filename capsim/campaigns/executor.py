@@ -253,6 +253,9 @@ def warm_up(cases: Sequence) -> str | None:
             if any(sig.name in reason for sig in _STOP_SIGNALS):  # a signal, not a limit of the case
                 return reason
             _WARMED.add(kernel_kind(case))
+    from capsim.solve.timestepping import load_step_kernels
+
+    load_step_kernels()  # every scheme's: the tiny run's level may choose another scheme than the case's
     return None
 
 

@@ -144,9 +144,9 @@ def surface_moments(geo: ElementGeometry) -> tuple[float, float, np.ndarray, np.
         volume, area = volume_area(geo)
         center = centroid(geo, volume)
         return volume, area, center, second_moment(geo, center)
-    from capsim.numerics.kernels import surface_moments as kernel
+    from capsim.numerics.kernels import rounded_mean_point, surface_moments as kernel
 
-    out = kernel(geo.points, geo.normals, geo.weights, reference_point(geo))
+    out = kernel(geo.points, geo.normals, geo.weights, rounded_mean_point(geo.points))
     return float(out[0]), float(out[1]), out[2:5].copy(), out[5:].reshape(3, 3).copy()
 
 

@@ -649,36 +649,28 @@ def element_quadrature(x, elements, phi, dxi, deta, w):
 
 
 @njit(**_JIT)
-def vertex_deformation_gradient(x, X, elements, n_vertices, vdxi, vdeta):
-    """Surface deformation gradient A at the vertex nodes (seed 3.4).
+def _vertex_tangents(x, elements, e, k, vdxi, vdeta, out, row):
+    """The tangents ∂x/∂ξ, ∂x/∂η of element e at its vertex k into out[row], out[row + 1]."""
+    for c in range(2):
+        for d in range(3):
+            out[row + c, d] = 0.0
+    for a in range(6):
+        node = elements[e, a]
+        for d in range(3):
+            out[row, d] += vdxi[k, a] * x[node, d]
+            out[row + 1, d] += vdeta[k, a] * x[node, d]
 
-    Per element and vertex, A maps the reference tangents ∂X/∂ξ, ∂X/∂η to the
-    current ones and the reference normal to 0. The element values are averaged
-    at each vertex weighted by the element's angle there (seed §3). Tangents are
-    first projected on the nodal tangent planes (angle-weighted normals), so a
-    rest or rigidly rotated mesh gives A = rotation × projection exactly.
 
-    vdxi, vdeta (3, 6): basis derivatives at the three vertices.
-    Returns A (N_v, 3, 3), current normals n (N_v, 3), reference normals N (N_v, 3).
-    """
+@njit(**_JIT)
+def _angle_weighted_normals(x, elements, n_vertices, vdxi, vdeta, tang, angle):
+    """The vertices' unit normals, each element's normal at the vertex weighted by its angle there
+    (seed §3); fills tang (N_e, 3, 2, 3) with the tangents and angle (N_e, 3) with the angles."""
     ne = elements.shape[0]
-    n_cur = np.zeros((n_vertices, 3))
-    n_ref = np.zeros((n_vertices, 3))
+    normal = np.zeros((n_vertices, 3))
     wsum = np.zeros(n_vertices)
-    tang = np.empty((ne, 3, 4, 3))  # current t1, t2, reference T1, T2
-    angle = np.empty((ne, 3))
     for e in range(ne):
         for k in range(3):
-            for c in range(4):
-                for d in range(3):
-                    tang[e, k, c, d] = 0.0
-            for a in range(6):
-                node = elements[e, a]
-                for d in range(3):
-                    tang[e, k, 0, d] += vdxi[k, a] * x[node, d]
-                    tang[e, k, 1, d] += vdeta[k, a] * x[node, d]
-                    tang[e, k, 2, d] += vdxi[k, a] * X[node, d]
-                    tang[e, k, 3, d] += vdeta[k, a] * X[node, d]
+            _vertex_tangents(x, elements, e, k, vdxi, vdeta, tang[e, k], 0)
             t10, t11, t12 = tang[e, k, 0, 0], tang[e, k, 0, 1], tang[e, k, 0, 2]
             t20, t21, t22 = tang[e, k, 1, 0], tang[e, k, 1, 1], tang[e, k, 1, 2]
             # edge directions leaving vertex k (for the angle weight)
@@ -696,42 +688,39 @@ def vertex_deformation_gradient(x, X, elements, n_vertices, vdxi, vdeta):
             angle[e, k] = ang
             nc0, nc1, nc2 = _cross(t10, t11, t12, t20, t21, t22)
             nn = np.sqrt(nc0 * nc0 + nc1 * nc1 + nc2 * nc2)
-            nr0, nr1, nr2 = _cross(
-                tang[e, k, 2, 0], tang[e, k, 2, 1], tang[e, k, 2, 2],
-                tang[e, k, 3, 0], tang[e, k, 3, 1], tang[e, k, 3, 2],
-            )
-            nN = np.sqrt(nr0 * nr0 + nr1 * nr1 + nr2 * nr2)
             v = elements[e, k]
-            n_cur[v, 0] += ang * nc0 / nn
-            n_cur[v, 1] += ang * nc1 / nn
-            n_cur[v, 2] += ang * nc2 / nn
-            n_ref[v, 0] += ang * nr0 / nN
-            n_ref[v, 1] += ang * nr1 / nN
-            n_ref[v, 2] += ang * nr2 / nN
+            normal[v, 0] += ang * nc0 / nn
+            normal[v, 1] += ang * nc1 / nn
+            normal[v, 2] += ang * nc2 / nn
             wsum[v] += ang
     for v in range(n_vertices):
-        a = np.sqrt(n_cur[v, 0] ** 2 + n_cur[v, 1] ** 2 + n_cur[v, 2] ** 2)
-        b = np.sqrt(n_ref[v, 0] ** 2 + n_ref[v, 1] ** 2 + n_ref[v, 2] ** 2)
+        a = np.sqrt(normal[v, 0] ** 2 + normal[v, 1] ** 2 + normal[v, 2] ** 2)
         for d in range(3):
-            n_cur[v, d] /= a
-            n_ref[v, d] /= b
-    A = np.zeros((n_vertices, 3, 3))
-    C = np.empty((3, 2))
+            normal[v, d] /= a
+    return normal, wsum
+
+
+@njit(**_JIT)
+def vertex_rest_inverse(X, elements, n_vertices, vdxi, vdeta):
+    """The rest shape's part of the vertex deformation gradient (seed 3.4), made once per rest
+    shape: per element and vertex, the first two rows of R⁻¹, R = [T1 T2 N] with the rest tangents
+    T1, T2 projected on the vertex's rest tangent plane (angle-weighted normal N). Returns
+    (N_e, 3, 2, 3) and the rest normals N (N_v, 3)."""
+    ne = elements.shape[0]
+    tang = np.empty((ne, 3, 2, 3))
+    angle = np.empty((ne, 3))
+    n_ref, _ = _angle_weighted_normals(X, elements, n_vertices, vdxi, vdeta, tang, angle)
+    out = np.empty((ne, 3, 2, 3))
     R = np.empty((3, 3))
-    Rinv = np.empty((3, 3))
     for e in range(ne):
         for k in range(3):
             v = elements[e, k]
-            # tangents projected on the nodal tangent planes
             for col in range(2):
-                s = 0.0
                 S = 0.0
                 for d in range(3):
-                    s += tang[e, k, col, d] * n_cur[v, d]
-                    S += tang[e, k, 2 + col, d] * n_ref[v, d]
+                    S += tang[e, k, col, d] * n_ref[v, d]
                 for d in range(3):
-                    C[d, col] = tang[e, k, col, d] - s * n_cur[v, d]
-                    R[d, col] = tang[e, k, 2 + col, d] - S * n_ref[v, d]
+                    R[d, col] = tang[e, k, col, d] - S * n_ref[v, d]
             for d in range(3):
                 R[d, 2] = n_ref[v, d]
             # explicit inverse of R = [T1 T2 N]: rows are (T2×N, N×T1, T1×T2)/det
@@ -739,14 +728,65 @@ def vertex_deformation_gradient(x, X, elements, n_vertices, vdxi, vdeta):
             r1 = _cross(R[0, 2], R[1, 2], R[2, 2], R[0, 0], R[1, 0], R[2, 0])
             det = R[0, 0] * r0[0] + R[1, 0] * r0[1] + R[2, 0] * r0[2]
             for d in range(3):
-                Rinv[0, d] = r0[d] / det
-                Rinv[1, d] = r1[d] / det
-            # A_e = [t1 t2 0] R⁻¹ (third column of C is zero)
+                out[e, k, 0, d] = r0[d] / det
+                out[e, k, 1, d] = r1[d] / det
+    return out, n_ref
+
+
+@njit(**_JIT)
+def vertex_strain(x, elements, n_vertices, vdxi, vdeta, rest_inverse):
+    """Surface deformation gradient A at the vertex nodes (seed 3.4) and its strain.
+
+    Per element and vertex, A maps the reference tangents ∂X/∂ξ, ∂X/∂η to the current ones and
+    the reference normal to 0: A_e = [t1 t2 0] R⁻¹ (``rest_inverse``: R⁻¹'s first two rows, from
+    :func:`vertex_rest_inverse`). The element values are averaged at each vertex weighted by the
+    element's angle there (seed §3). The current tangents are first projected on the nodal tangent
+    planes (angle-weighted normals), so a rest or rigidly rotated mesh gives A = rotation ×
+    projection exactly. With it the left Cauchy–Green tensor B = A Aᵀ and the invariants
+    Λ1 = ½ ln det₂ B, Λ2 = ½ tr B − 1 (membrane.strain_from_gradient's, in the same pass).
+
+    vdxi, vdeta (3, 6): basis derivatives at the three vertices.
+    Returns A (N_v, 3, 3), current normals n (N_v, 3), B (N_v, 3, 3), Λ1 (N_v), Λ2 (N_v).
+    """
+    ne = elements.shape[0]
+    tang = np.empty((ne, 3, 2, 3))
+    angle = np.empty((ne, 3))
+    n_cur, wsum = _angle_weighted_normals(x, elements, n_vertices, vdxi, vdeta, tang, angle)
+    A = np.zeros((n_vertices, 3, 3))
+    C = np.empty((3, 2))
+    for e in range(ne):
+        for k in range(3):
+            v = elements[e, k]
+            # tangents projected on the nodal tangent planes
+            for col in range(2):
+                s = 0.0
+                for d in range(3):
+                    s += tang[e, k, col, d] * n_cur[v, d]
+                for d in range(3):
+                    C[d, col] = tang[e, k, col, d] - s * n_cur[v, d]
             w = angle[e, k] / wsum[v]
             for i in range(3):
                 for j in range(3):
-                    A[v, i, j] += w * (C[i, 0] * Rinv[0, j] + C[i, 1] * Rinv[1, j])
-    return A, n_cur, n_ref
+                    A[v, i, j] += w * (C[i, 0] * rest_inverse[e, k, 0, j] + C[i, 1] * rest_inverse[e, k, 1, j])
+    B = np.empty((n_vertices, 3, 3))
+    inv1 = np.empty(n_vertices)
+    inv2 = np.empty(n_vertices)
+    for v in range(n_vertices):
+        tr = 0.0
+        for i in range(3):
+            for j in range(3):
+                b = 0.0
+                for k in range(3):
+                    b += A[v, i, k] * A[v, j, k]
+                B[v, i, j] = b
+            tr += B[v, i, i]
+        tr2 = 0.0
+        for i in range(3):
+            for j in range(3):
+                tr2 += B[v, i, j] * B[v, j, i]
+        inv1[v] = 0.5 * np.log(0.5 * (tr * tr - tr2))  # det₂ B = λ1²λ2²: B has rank 2 by construction
+        inv2[v] = 0.5 * tr - 1.0
+    return A, n_cur, B, inv1, inv2
 
 
 @njit(parallel=True, **_JIT)
@@ -1766,6 +1806,21 @@ def viscous_membrane_blocks(x, elements, dxi, deta, w, c_shear, c_dil):
 # ---------------------------------------------------------------- per-step observables (issue 57)
 
 @njit(**_JIT)
+def rounded_mean_point(points):
+    """The mean of the points (..., 3) rounded to whole units (geometry.reference_point's, ~2 µs
+    against numpy's ~50 µs at level 3: a row's first call)."""
+    flat = points.reshape(-1, 3)
+    n = flat.shape[0]
+    out = np.zeros(3)
+    for i in range(n):
+        for d in range(3):
+            out[d] += flat[i, d]
+    for d in range(3):
+        out[d] = np.round(out[d] / n)
+    return out
+
+
+@njit(**_JIT)
 def surface_moments(points, normals, weights, p):
     """The enclosed volume's moments from surface integrals at the regular points, in two
     passes (capsim.numerics.geometry's volume_area, centroid and second_moment fused):
@@ -1819,6 +1874,77 @@ def surface_moments(points, normals, weights, p):
     m[1, 0] = m[0, 1]
     m[2, 0] = m[0, 2]
     m[2, 1] = m[1, 2]
+    return out
+
+
+@njit(**_JIT)
+def _as_line(v, out, at):
+    """v into out[at:at + 3] as a line: its first component that is not ~0 made positive
+    (capsim.solve.observables._line)."""
+    sign = 1.0
+    for d in range(3):
+        if abs(v[d]) > 1e-12:
+            sign = 1.0 if v[d] > 0.0 else -1.0
+            break
+    for d in range(3):
+        out[at + d] = v[d] * sign
+
+
+@njit(**_JIT)
+def ellipsoid_of_moment(M, volume, tie_break, degenerate_gap, theta_gap):
+    """The equivalent ellipsoid of the second moment M (about the centroid) and the volume, as
+    capsim.solve.observables.ellipsoid_of_moment (the reference: tests/numerics/test_step_kernels.py)
+    with its principal_frame: eigenvalues within ``degenerate_gap`` (relative) spanned by the
+    eigenvectors of ``tie_break`` restricted to them, most stretched first; θ NaN below ``theta_gap``.
+    Returns [L, l, W, D_xy, θ, a, b, c, long axis (3), short axis (3)] (14 values)."""
+    mu, vec = np.linalg.eigh(M)
+    scale = max(np.abs(mu).max(), 2.2250738585072014e-308)
+    start = 0
+    for k in range(1, 4):
+        if k == 3 or mu[k] - mu[k - 1] > degenerate_gap * scale:
+            size = k - start
+            if size >= 2:
+                V = np.ascontiguousarray(vec[:, start:k])
+                _, R = np.linalg.eigh(V.T @ tie_break @ V)
+                turned = V @ R
+                mean = 0.0
+                for j in range(size):
+                    mean += mu[start + j]
+                mean /= size
+                for j in range(size):
+                    for d in range(3):
+                        vec[d, start + j] = turned[d, size - 1 - j]  # most stretched first
+                    mu[start + j] = mean
+            start = k
+    axes = np.sqrt(np.maximum(5.0 * mu / volume, 0.0))
+    out_of_plane = 0
+    for k in range(1, 3):
+        if abs(vec[2, k]) > abs(vec[2, out_of_plane]):
+            out_of_plane = k
+    first = 1 if out_of_plane == 0 else 0
+    second = 2 if out_of_plane != 2 else 1
+    # the most stretched of a degenerate pair is listed first, and a tie keeps the first
+    i_long, i_short = (second, first) if axes[second] > axes[first] else (first, second)
+    L, l = axes[i_long], axes[i_short]
+    order = np.argsort(-axes, kind="mergesort")
+    out = np.empty(14)
+    out[0] = L
+    out[1] = l
+    out[2] = axes[out_of_plane]
+    out[3] = (L - l) / (L + l)
+    theta = np.arctan2(vec[1, i_long], vec[0, i_long])
+    if theta > np.pi / 2:
+        theta -= np.pi
+    elif theta <= -np.pi / 2:
+        theta += np.pi
+    gap = abs(mu[i_long] - mu[i_short]) / max(abs(mu[i_long]) + abs(mu[i_short]), 2.2250738585072014e-308)
+    if not gap >= theta_gap:
+        theta = np.nan
+    out[4] = theta
+    for j in range(3):
+        out[5 + j] = axes[order[j]]
+    _as_line(np.ascontiguousarray(vec[:, order[0]]), out, 8)
+    _as_line(np.ascontiguousarray(vec[:, order[2]]), out, 11)
     return out
 
 
@@ -1933,3 +2059,76 @@ def min_vertex_triangle_quality(x, elements):
         if qual < worst:
             worst = qual
     return worst
+
+
+# ---------------------------------------------------------------- the time step's vector work (issue 57)
+
+@njit(**_JIT)
+def spread_about_mean(a):
+    """max |a − ā| over an (N, k) array, ā its mean row (the error norm's length,
+    capsim.solve.timestepping.scene_size; the velocity's spread of the solve's tolerance): one pass
+    for numpy's mean, subtraction, abs and max (~20 µs at level 3 in numpy, more between evaluations)."""
+    n, k = a.shape
+    mean = np.zeros(k)
+    for i in range(n):
+        for d in range(k):
+            mean[d] += a[i, d]
+    for d in range(k):
+        mean[d] /= n
+    out = 0.0
+    for i in range(n):
+        for d in range(k):
+            out = max(out, abs(a[i, d] - mean[d]))
+    return out
+
+
+@njit(**_JIT)
+def max_abs(a):
+    """max |a| over a 1-D array (a flat view)."""
+    out = 0.0
+    for i in range(a.shape[0]):
+        out = max(out, abs(a[i]))
+    return out
+
+
+@njit(**_JIT)
+def rkc_stage(y0, y_prev, y_prev2, f, f0, c0, c1, c2, c3, c4):
+    """c0 y0 + c1 y_prev + c2 y_prev2 + c3 f + c4 f0 over 1-D arrays (flat views), the RKC recursion's
+    stage (capsim.solve.timestepping.rkc_step; SSV 1998, eq. 2.4) in one pass."""
+    out = np.empty_like(y0)
+    for i in range(y0.shape[0]):
+        out[i] = c0 * y0[i] + c1 * y_prev[i] + c2 * y_prev2[i] + c3 * f[i] + c4 * f0[i]
+    return out
+
+
+@njit(**_JIT)
+def rkc_error_estimate(y0, y_new, f0, f_new, h):
+    """(12 (y0 − y_new) + 6 h (f0 + f_new)) / 15 over 1-D arrays (flat views), RKC's local error
+    estimate (SSV 1998, eq. 3.1)."""
+    out = np.empty_like(y0)
+    for i in range(y0.shape[0]):
+        out[i] = (12.0 * (y0[i] - y_new[i]) + 6.0 * h * (f0[i] + f_new[i])) / 15.0
+    return out
+
+
+@njit(**_JIT)
+def tank_treading_angles(x, u, nodes, center, raw_before, unwrapped_before):
+    """The tracked nodes' angles about the centre in the xy-plane, unwrapped from the last step's
+    (capsim.solve.observables.TankTreadingTracker.update; no node turns by π in a step), and their
+    mean rate ⟨(r × u)_z / |r|²⟩. ``raw_before`` empty: the first step. Returns (ω, raw, unwrapped)."""
+    n = nodes.shape[0]
+    raw = np.empty(n)
+    unwrapped = np.empty(n)
+    omega = 0.0
+    first = raw_before.shape[0] == 0
+    for i in range(n):
+        r0 = x[nodes[i], 0] - center[0]
+        r1 = x[nodes[i], 1] - center[1]
+        omega += (r0 * u[nodes[i], 1] - r1 * u[nodes[i], 0]) / (r0 * r0 + r1 * r1)
+        raw[i] = np.arctan2(r1, r0)
+        if first:
+            unwrapped[i] = raw[i]
+        else:
+            turn = (raw[i] - raw_before[i] + np.pi) % (2 * np.pi) - np.pi
+            unwrapped[i] = unwrapped_before[i] + turn
+    return omega / n, raw, unwrapped

@@ -447,7 +447,8 @@ class MembraneState:
 
     geometry: Any      # geometry.ElementGeometry of the configuration
     density: Array     # Δf as the single layer takes it: (N_e, 6, 3) nodal (galerkin) or (N_e, 3) (contour)
-    vertex_state: Callable[[], tuple[VertexStrain, Array]] = field(repr=False)
+    #: the vertex strain and a function giving the vertex tension (made when read)
+    vertex_state: Callable[[], tuple[VertexStrain, Callable[[], Array]]] = field(repr=False)
     #: galerkin: the measure the density is per (RestTractionSolve: the rest shape's area
     #: element, solver.RestMeasure); None: per unit current area
     measure: Any = None
@@ -464,10 +465,10 @@ class MembraneState:
     def strain(self) -> VertexStrain:
         return self._vertex[0]
 
-    @property
+    @cached_property
     def tension(self) -> Array:
         """(N_v, 3, 3) Cauchy tension at the vertex nodes (seed 2.7)."""
-        return self._vertex[1]
+        return self._vertex[1]()
 
     @cached_property
     def traction(self) -> Array:
@@ -772,6 +773,7 @@ class MembraneForce:
     def rest_positions(self, value: Array) -> None:
         self._rest_positions = value
         self._rest_metric = None  # the rest shape's metric at the Gauss points, built on first use
+        self._rest_inverse = None  # ... and its frames at the vertices (kernels.vertex_rest_inverse)
         self.traction_solve.reset()
 
     def _symmetric(self, x: Array) -> bool:
@@ -785,17 +787,26 @@ class MembraneForce:
 
         return splu(self.disc.mass_matrix(geo).tocsc()).solve(np.asfortranarray(rhs))
 
-    def _vertex_state(self, x: Array) -> tuple[VertexStrain, Array]:
+    def _vertex_state(self, x: Array) -> tuple[VertexStrain, Callable[[], Array]]:
+        """The vertex strain at x, and the vertex tension as a function (issue 57: a recorded row reads
+        the strain alone, the principal stretches and tensions; the tension tensor, ~35 µs at level 3,
+        only the contour traction and the exports)."""
         disc = self.disc
-        A, n_cur, _ = kernels.vertex_deformation_gradient(
-            x, self.rest_positions, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta,
-        )
-        strain = strain_from_gradient(A, n_cur)
+        if self._rest_inverse is None:
+            self._rest_inverse = kernels.vertex_rest_inverse(
+                np.ascontiguousarray(self.rest_positions, dtype=np.float64), disc.elements, disc.n_vertices,
+                disc.vertex_dxi, disc.vertex_deta)[0]
+        A, n_cur, B, inv1, inv2 = kernels.vertex_strain(
+            x, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta, self._rest_inverse)
+        strain = VertexStrain(A, B, n_cur, inv1, inv2)
+        return strain, lambda: self._vertex_tension(strain)
+
+    def _vertex_tension(self, strain: VertexStrain) -> Array:
         material = self.material
         if material is None:
-            return strain, tension_tensor(strain, self.law, self.law_params)
+            return tension_tensor(strain, self.law, self.law_params)
         tension = tension_tensor(strain, self.law, material["vertex_params"])
-        return strain, material["vertex_scale"][:, None, None] * tension
+        return material["vertex_scale"][:, None, None] * tension
 
     def gauss_point_strain(self, x: Array, elems: Array | None = None) -> tuple[Array, ...]:
         """Λ1, Λ2, the dual tangents and J0 at the Gauss points of ``elems`` (default: every
@@ -842,7 +853,7 @@ class MembraneForce:
         counters): from the geometry and vertex tensions, computed here unless given."""
         disc = self.disc
         geo = disc.geometry(x) if geo is None else geo
-        tension = self._vertex_state(x)[1] if tension is None else tension
+        tension = self._vertex_state(x)[1]() if tension is None else tension
         return kernels.element_tractions(
             x, disc.elements, np.ascontiguousarray(tension), disc.contour_s, disc.contour_w, geo.element_areas,
         )

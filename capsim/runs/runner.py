@@ -30,6 +30,7 @@ from capsim.numerics.mesh import SurfaceMesh, rest_shape_attributes
 from capsim.scene import body_axis, body_specs
 from capsim.solve.observables import StepObserver, centroid_travel, relaxation_summary, run_summary, scene_summary
 from capsim.storage.schedules import CheckpointSchedule, SnapshotSchedule
+from capsim.numerics.kernels import spread_about_mean
 from capsim.numerics.krylov import SolverDivergence
 from capsim.solve.solver import build_model
 from capsim.numerics.threads import set_run_threads
@@ -449,7 +450,7 @@ class _Run:
         ig, model, base = self.integrator, self.model, self.case.solver.tol
         if ig.u is None:
             return False
-        spread = float(np.abs(ig.u - ig.u.mean(axis=0)).max())
+        spread = spread_about_mean(np.ascontiguousarray(ig.u))
         budget = SOLVE_SHARE * ig.error_rtol * ig.size_of(ig.y)
         tol = max(min(base, budget / spread) if spread > 0.0 else base, SOLVE_TOL_FLOOR)
         tightened = tol < model.solver_tol

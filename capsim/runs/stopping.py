@@ -92,14 +92,16 @@ def guard_violation(row: dict, row0: dict, guards: Guards) -> str | None:
          if "wall_gap" in row else ()) + ((("min_capsule_gap", "gap between two capsules", row["min_capsule_gap"],
                                             "<", guards.min_capsule_gap),) if "min_capsule_gap" in row else ())
     for name, label, value, op, limit in checks:
-        value = float(np.min(value)) if op == "<" else float(np.max(value))  # the worst capsule
+        if type(value) is not float:  # several capsules: an array, its worst capsule decides
+            value = float(np.min(value)) if op == "<" else float(np.max(value))
         if (value < limit) if op == "<" else (value > limit):
             # as many digits as show the crossing ('1.00011 > 1.0001', not '1 > 1.0001')
             shown = next((text for text in (f"{value:.{d}g}" for d in (4, 6, 8, 10, 13, 17))
                           if (float(text) < limit if op == "<" else float(text) > limit)), repr(value))
             return f"guard {name}: {label} = {shown} {op} {limit:g}" if float(f"{limit:g}") == limit else \
                 f"guard {name}: {label} = {shown} {op} {limit!r}"
-    far = max((float(np.max(np.abs(row[f"centroid_{c}"]))) for c in "xyz" if f"centroid_{c}" in row), default=0.0)
+    far = max((abs(v) if type(v := row[f"centroid_{c}"]) is float else float(np.max(np.abs(v)))
+               for c in "xyz" if f"centroid_{c}" in row), default=0.0)
     if far > MAX_CENTROID_COORDINATE:
         return (f"guard max_centroid_coordinate: a centroid coordinate = {far:.4g} a > {MAX_CENTROID_COORDINATE:g} "
                 "(carried out by the flow): the positions' round-off, 1e-16 |x|, would pass 1e-7 a; the rows "
@@ -144,7 +146,7 @@ def stop_reason(state: LoopState, time: Time, guards: Guards, row: dict | None, 
         violation = guard_violation(row, row0, guards) or step_collapse(history["dt"], guards.min_dt_fraction)
         if violation is not None:
             return Stop("unstable", f"{violation} {at}")
-        if np.min(row.get("_end_clearance", np.inf)) < 0.0:  # a conduit's meshed stretch (capsim.scene.conduit)
+        if "_end_clearance" in row and np.min(row["_end_clearance"]) < 0.0:  # a conduit's meshed stretch (capsim.scene.conduit)
             if row.get("_end_follows"):
                 return Stop("unstable", f"guard conduit window: a membrane reached the end of the conduit's window "
                             f"{at} (the capsules outgrew it: elongated or drifted apart); give a longer conduit.length")

@@ -151,33 +151,27 @@ def ellipsoid_of_moment(M: np.ndarray, volume: float) -> dict:
     }
 
 
+#: the columns of kernels.ellipsoid_of_moment's values, in its order
+_ELLIPSOID_COLUMNS = ("axis_L", "axis_l", "axis_W", "D_xy", "theta", "ellipsoid_a", "ellipsoid_b", "ellipsoid_c",
+                      "long_axis_x", "long_axis_y", "long_axis_z", "short_axis_x", "short_axis_y", "short_axis_z")
+
+
 def step_observables(x: np.ndarray, elements: np.ndarray, geo: ElementGeometry, max_stretch: float) -> dict:
-    """The per-step time series row (everything but t and dt)."""
-    e = ellipsoid_axes(geo)
-    c = e["centroid"]
-    return {
-        "D_xy": e["D_xy"],
-        "theta": e["theta"],
-        "volume": e["volume"],
-        "area": e["area"],
-        "centroid_x": float(c[0]),
-        "centroid_y": float(c[1]),
-        "centroid_z": float(c[2]),
-        "axis_L": e["L"],
-        "axis_l": e["l"],
-        "axis_W": e["W"],
-        "ellipsoid_a": e["ellipsoid_a"],
-        "ellipsoid_b": e["ellipsoid_b"],
-        "ellipsoid_c": e["ellipsoid_c"],
-        "long_axis_x": float(e["long_axis"][0]),
-        "long_axis_y": float(e["long_axis"][1]),
-        "long_axis_z": float(e["long_axis"][2]),
-        "short_axis_x": float(e["short_axis"][0]),
-        "short_axis_y": float(e["short_axis"][1]),
-        "short_axis_z": float(e["short_axis"][2]),
-        "min_element_quality": min_quality(x, elements),
-        "max_principal_stretch": float(max_stretch),
-    }
+    """The per-step time series row (everything but t and dt): the shape's moments, its equivalent
+    ellipsoid (:func:`ellipsoid_of_moment`, as numba's ``kernels.ellipsoid_of_moment``: between two
+    evaluations each numpy call of the row ran 3-5 times slower than alone, issue 57), the worst
+    element, the largest stretch."""
+    from capsim.numerics.kernels import ellipsoid_of_moment as ellipsoid
+
+    volume, area, c, moment = surface_moments(geo)
+    e = dict(zip(_ELLIPSOID_COLUMNS, ellipsoid(moment, volume, _TIE_BREAK, DEGENERATE_GAP,
+                                                THETA_UNDEFINED_GAP).tolist()))
+    cx, cy, cz = c.tolist()
+    row = {"D_xy": e.pop("D_xy"), "theta": e.pop("theta"), "volume": volume, "area": area,
+           "centroid_x": cx, "centroid_y": cy, "centroid_z": cz}
+    row.update(e)
+    row.update(min_element_quality=min_quality(x, elements), max_principal_stretch=float(max_stretch))
+    return row
 
 
 # ---------------------------------------------------------------- the material director
@@ -353,6 +347,9 @@ def dissipation_ratio(S_star: np.ndarray, E: np.ndarray) -> float:
 RIGID_SPHERE_ROTATION_RATE = 0.5  # |ω| of a rigid sphere in shear: k/2, i.e. f_s = k/(4π)
 
 
+_NO_ANGLES = np.empty(0)
+
+
 class TankTreadingTracker:
     """Material nodes that start in the plane z = 0 (for a rest shape turned off the shear
     plane, which has no mesh line there: those of the band |z| < band·max|z| away from the
@@ -381,17 +378,12 @@ class TankTreadingTracker:
         self._unwrapped: np.ndarray | None = None
 
     def update(self, x: np.ndarray, u: np.ndarray, center: np.ndarray) -> dict:
-        r = x[self.nodes, :2] - center[:2]
-        v = u[self.nodes, :2]
-        r2 = np.einsum("ij,ij->i", r, r)
-        omega = float(np.mean((r[:, 0] * v[:, 1] - r[:, 1] * v[:, 0]) / r2))
-        raw = np.arctan2(r[:, 1], r[:, 0])
-        if self._raw is None:
-            self._unwrapped = raw.copy()
-        else:
-            # steps are short: no node turns by π between two accepted steps
-            self._unwrapped = self._unwrapped + (raw - self._raw + np.pi) % (2 * np.pi) - np.pi
-        self._raw = raw
+        from capsim.numerics.kernels import tank_treading_angles  # one pass (issue 57)
+
+        # steps are short: no node turns by π between two accepted steps
+        before = (self._raw, self._unwrapped) if self._raw is not None else (_NO_ANGLES, _NO_ANGLES)
+        omega, self._raw, self._unwrapped = tank_treading_angles(x, u, self.nodes, np.asarray(center, dtype=float),
+                                                                 *before)
         return {
             "ttf_ratio": abs(omega) / RIGID_SPHERE_ROTATION_RATE,
             "tt_angle": float(np.mean(self._unwrapped)),

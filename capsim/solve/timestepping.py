@@ -109,14 +109,32 @@ def scene_size(bodies: Any) -> Callable[[np.ndarray], float]:
     carried away from it (translating in Poiseuille flow, a pair separating in shear) had its
     tolerance loosened in proportion to its distance: a pair 35 a apart drifted 1 % in volume
     where one capsule at the origin drifts 2e-4. ``bodies``: the scene's capsules (None: one)."""
+    from capsim.numerics.kernels import spread_about_mean  # one pass (issue 57); numba loads with the run
+
+    def spread(part: np.ndarray) -> float:
+        return spread_about_mean(np.ascontiguousarray(part if part.ndim == 2 else part.reshape(-1, 1)))
+
     def size(y: np.ndarray) -> float:
-        parts = [y] if bodies is None or bodies.count == 1 else bodies.split(y)
+        if bodies is None or bodies.count == 1:
+            return max(1.0, spread(y))
         extent = 0.0
-        for part in parts:
-            extent = max(extent, float(np.abs(part - part.mean(axis=0)).max()))
+        for part in bodies.split(y):
+            extent = max(extent, spread(part))
         return max(1.0, extent)
 
     return size
+
+
+def load_step_kernels() -> None:
+    """Load (or compile) the step's vector kernels with the signatures a run calls them with: the
+    warm-up's tiny run may step with another scheme than the run it prepares (its level's choice)."""
+    from capsim.numerics.kernels import max_abs, rkc_error_estimate, rkc_stage, spread_about_mean
+
+    flat, rows = np.zeros(3), np.zeros((1, 3))
+    rkc_stage(flat, flat, flat, flat, flat, 1.0, 0.0, 0.0, 0.0, 0.0)
+    rkc_error_estimate(flat, flat, flat, flat, 1.0)
+    max_abs(flat)
+    spread_about_mean(rows)
 
 
 def scene_error(size_of: Callable[[np.ndarray], float], carried: bool = False
@@ -129,8 +147,10 @@ def scene_error(size_of: Callable[[np.ndarray], float], carried: bool = False
     the rest — shape and turn — relative to its size as before: held to rtol in units of a, an
     extension's outflow (x = 2 e^kt) cost 2194 steps to kt 14 where the capsule at the origin
     took 98, every one of them spent on the 13th digit of x (level 0)."""
+    from capsim.numerics.kernels import max_abs
+
     def plain(est: np.ndarray, y: np.ndarray, rtol: float) -> float:
-        return float(np.abs(est).max()) / (rtol * size_of(y))
+        return max_abs(est.ravel()) / (rtol * size_of(y))
 
     if not carried:
         return plain
@@ -535,11 +555,14 @@ def rkc_step(f: Callable[[np.ndarray], np.ndarray], y0: np.ndarray, f0: np.ndarr
         Y_1 = Y_0 + μ̃_1 h F_0
         Y_j = (1 − μ_j − ν_j) Y_0 + μ_j Y_{j−1} + ν_j Y_{j−2} + μ̃_j h F(Y_{j−1}) + γ̃_j h F_0
     """
+    from capsim.numerics.kernels import rkc_stage  # the stage's five vectors in one pass (issue 57)
+
     y_prev2, y_prev = y0, y0 + (coef.mu_tilde[1] * h) * f0
     for j in range(2, coef.s + 1):
         fj = f(y_prev)
-        y_j = ((1.0 - coef.mu[j] - coef.nu[j]) * y0 + coef.mu[j] * y_prev + coef.nu[j] * y_prev2
-               + (coef.mu_tilde[j] * h) * fj + (coef.gamma_tilde[j] * h) * f0)
+        y_j = rkc_stage(y0.ravel(), y_prev.ravel(), y_prev2.ravel(), fj.ravel(), f0.ravel(),
+                        1.0 - coef.mu[j] - coef.nu[j], coef.mu[j], coef.nu[j], coef.mu_tilde[j] * h,
+                        coef.gamma_tilde[j] * h).reshape(y0.shape)
         y_prev2, y_prev = y_prev, y_j
     return y_prev
 
@@ -674,6 +697,8 @@ class RungeKuttaChebyshev(Integrator):
         if h * self.rho > coef.beta:  # at the bound: the longest step s_max stages keep stable
             h, cut = coef.beta / self.rho, True
             self.stage_bound_hits += 1
+        from capsim.numerics.kernels import rkc_error_estimate
+
         y0, f0 = self.y, self.u
         y_new = rkc_step(self._at(self.t + h * coef.c[1:s]), y0, f0, h, coef)
         if not np.all(np.isfinite(y_new)):
@@ -681,7 +706,7 @@ class RungeKuttaChebyshev(Integrator):
         self.stage_t = self.t + h
         u_new, aux = self.evaluate(y_new)
         # SSV 1998 (3.1): local error estimate of the second-order solution
-        est = (12.0 * (y0 - y_new) + 6.0 * h * (f0 + u_new)) / 15.0
+        est = rkc_error_estimate(y0.ravel(), y_new.ravel(), f0.ravel(), u_new.ravel(), h).reshape(y0.shape)
         err = self.error_of(est, y0, self.error_rtol)
         if self.UNIT_STEP is not None:
             err *= self.UNIT_STEP / h

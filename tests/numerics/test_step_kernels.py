@@ -121,3 +121,118 @@ def test_row_sums_are_the_director_centroid_velocity_and_stresslet(offset, lam):
     spin = np.ascontiguousarray(np.cross([0.0, 0.0, 0.7], x - c))
     S_spin = row_surface_sums(geo, np.zeros_like(density), rest_weights, spin, elements, phi, c, director)
     assert np.abs(S_spin.stresslet(V, 0.1, lam)).max() < 1e-3
+
+
+def _vertex_gradient_reference(x, X, elements, n_vertices, vdxi, vdeta):
+    """The vertex deformation gradient of seed 3.4 in plain numpy, element by element: per element
+    and vertex A_e = [t1 t2 0] [T1 T2 N]⁻¹, the tangents projected on the vertex's angle-weighted
+    tangent planes, averaged over the vertex's elements weighted by their angles there."""
+    def tangents(y, e, k):
+        nodes = y[elements[e]]
+        return vdxi[k] @ nodes, vdeta[k] @ nodes
+
+    def normals(y):
+        n, w = np.zeros((n_vertices, 3)), np.zeros(n_vertices)
+        angles = np.zeros((len(elements), 3))
+        for e in range(len(elements)):
+            for k in range(3):
+                t1, t2 = tangents(y, e, k)
+                a, b = [(t1, t2), (-t1, t2 - t1), (-t2, t1 - t2)][k]
+                angles[e, k] = np.arctan2(np.linalg.norm(np.cross(a, b)), a @ b)
+                m = np.cross(t1, t2)
+                n[elements[e, k]] += angles[e, k] * m / np.linalg.norm(m)
+                w[elements[e, k]] += angles[e, k]
+        return n / np.linalg.norm(n, axis=1)[:, None], w, angles
+
+    n, w, angles = normals(x)
+    N, _, _ = normals(X)
+    A = np.zeros((n_vertices, 3, 3))
+    for e in range(len(elements)):
+        for k in range(3):
+            v = elements[e, k]
+            t = [t - (t @ n[v]) * n[v] for t in tangents(x, e, k)]
+            T = [t - (t @ N[v]) * N[v] for t in tangents(X, e, k)]
+            A[v] += angles[e, k] / w[v] * np.column_stack([t[0], t[1], np.zeros(3)]) @ np.linalg.inv(
+                np.column_stack([T[0], T[1], N[v]]))
+    return A, n
+
+
+def test_vertex_strain_kernel_is_the_seed_gradient_and_its_strain():
+    """kernels.vertex_strain (with its rest frames made once, issue 57) against the element-by-element
+    gradient of seed 3.4 and membrane.strain_from_gradient's B, Λ1, Λ2, on a deformed, turned surface
+    whose rest shape is a sphere; and a rigid turn of the rest shape carries no strain."""
+    from capsim.numerics.kernels import vertex_rest_inverse, vertex_strain
+    from capsim.numerics.membrane import strain_from_gradient
+    from capsim.solve.solver import Discretization
+
+    mesh = unit_sphere_mesh(level=1)
+    X = np.ascontiguousarray(mesh.positions)
+    disc = Discretization(mesh.elements, mesh.n_vertices)
+    x = np.ascontiguousarray(X * np.array([1.3, 0.9, 0.8]) + 0.05 * X[:, [1, 2, 0]] ** 2)
+    rest = vertex_rest_inverse(X, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta)[0]
+    A, n, B, inv1, inv2 = vertex_strain(x, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta, rest)
+    A0, n0 = _vertex_gradient_reference(x, X, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta)
+    assert np.allclose(A, A0, rtol=0, atol=1e-13) and np.allclose(n, n0, rtol=0, atol=1e-14)
+    reference = strain_from_gradient(A, n)
+    assert np.allclose(B, reference.B, rtol=0, atol=1e-13)
+    assert np.allclose(inv1, reference.inv1, rtol=0, atol=1e-13) and np.allclose(inv2, reference.inv2, rtol=0, atol=1e-13)
+    assert np.abs(inv2).max() > 0.05  # the surface is strained
+    c, s = np.cos(0.7), np.sin(0.7)
+    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    _, _, _, inv1, inv2 = vertex_strain(np.ascontiguousarray(X @ turn.T + 5.0), disc.elements, disc.n_vertices,
+                                        disc.vertex_dxi, disc.vertex_deta, rest)
+    assert np.abs(inv1).max() < 1e-13 and np.abs(inv2).max() < 1e-13
+
+
+@pytest.mark.parametrize("offset", [(0.0, 0.0, 0.0), (3.4, -2.6, 1.0), (1e6 + 0.3, 0.0, -7.0)])
+def test_rounded_mean_point_is_the_reference_point(offset):
+    """The kernel's reference point is geometry.reference_point's: whole units, the origin at the origin."""
+    from capsim.numerics.geometry import reference_point
+    from capsim.numerics.kernels import rounded_mean_point
+
+    x, elements = _surface(np.array(offset))
+    geo = element_geometry(x, elements)
+    p = rounded_mean_point(geo.points)
+    assert np.array_equal(p, reference_point(geo)) and np.array_equal(p, np.round(offset))
+
+
+def _moments_for_the_ellipsoid():
+    """Second moments: general, a shape of revolution (about z, about x, about a tilted axis: a
+    degenerate pair), a sphere (all three equal), and out of the shear plane's order."""
+    rng = np.random.default_rng(7)
+    out = []
+    for axes in ([1.3, 0.9, 0.6], [1.0, 1.0, 0.4], [0.4, 1.0, 1.0], [1.0, 1.0, 1.0], [0.5, 0.8, 1.6]):
+        for _ in range(3):
+            q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+            out.append(q @ np.diag(np.square(axes)) @ q.T)
+        out.append(np.diag(np.square(axes)))
+    return out
+
+
+@pytest.mark.parametrize("k", range(20))
+def test_ellipsoid_kernel_is_the_observers_ellipsoid(k):
+    """kernels.ellipsoid_of_moment (the row's, issue 57) gives observables.ellipsoid_of_moment's axes,
+    D_xy, θ and axis lines to round-off, degenerate pairs and the undefined θ of a sphere included."""
+    from capsim.numerics.kernels import ellipsoid_of_moment as kernel
+    from capsim.solve.observables import (
+        _ELLIPSOID_COLUMNS, _TIE_BREAK, DEGENERATE_GAP, THETA_UNDEFINED_GAP, ellipsoid_of_moment,
+    )
+
+    M = np.ascontiguousarray(_moments_for_the_ellipsoid()[k])
+    volume = 4.0 * np.pi / 3.0
+    reference = ellipsoid_of_moment(M, volume)
+    values = dict(zip(_ELLIPSOID_COLUMNS, kernel(M, volume, _TIE_BREAK, DEGENERATE_GAP, THETA_UNDEFINED_GAP)))
+    for key, name in (("L", "axis_L"), ("l", "axis_l"), ("W", "axis_W"), ("D_xy", "D_xy"),
+                      ("ellipsoid_a", "ellipsoid_a"), ("ellipsoid_b", "ellipsoid_b"), ("ellipsoid_c", "ellipsoid_c")):
+        assert values[name] == pytest.approx(reference[key], rel=1e-12, abs=1e-14), name
+    if np.isnan(reference["theta"]):
+        assert np.isnan(values["theta"])
+    else:
+        assert values["theta"] == pytest.approx(reference["theta"], abs=1e-9)
+    long_axis = [values[f"long_axis_{c}"] for c in "xyz"]
+    short_axis = [values[f"short_axis_{c}"] for c in "xyz"]
+    a, b, c = reference["ellipsoid_a"], reference["ellipsoid_b"], reference["ellipsoid_c"]
+    if a - b > 1e-6 * a:  # a line is defined where its axis is not degenerate
+        assert np.allclose(long_axis, reference["long_axis"], atol=1e-9)
+    if b - c > 1e-6 * a:
+        assert np.allclose(short_axis, reference["short_axis"], atol=1e-9)
