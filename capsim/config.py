@@ -45,6 +45,14 @@ from capsim.numerics.viscosity import is_active as is_viscous
 #: the YAML writer of a resolved case: libyaml's where PyYAML has it (the same text, ~5x faster: a run
 #: stores its case), else PyYAML's own
 YAML_DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+#: ... and its reader (a campaign's worker reads every run's case text, a resume the stored one: PyYAML's
+#: own parser took 17 ms a case, issue 57)
+YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+def yaml_text(text: str) -> Any:
+    """A YAML text that capsim wrote (a resolved case, a stored campaign) as Python data."""
+    return yaml.load(text, Loader=YAML_LOADER)
 
 __all__ = [
     "load_case_with", "parse_sets",    "case_digest", "step_defining",

@@ -66,7 +66,7 @@ from typing import Annotated, Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from capsim.config import NAME_MAX, YAML_DUMPER, Case, ConfigError, StrictModel, case_from_dict, model_from_mapping, read_yaml, section_model
+from capsim.config import NAME_MAX, YAML_DUMPER, yaml_text, Case, ConfigError, StrictModel, case_from_dict, model_from_mapping, read_yaml, section_model
 from capsim.errors import bounded_repr, first_line
 from capsim.campaigns.executor import WORKER_DIED, SigtermAsInterrupt, one_line, run_batch
 from capsim.storage.files import write_durably
@@ -158,7 +158,7 @@ class RunSpec(BaseModel):
     case_yaml: str
 
     def case(self) -> Case:
-        return case_from_dict(yaml.safe_load(self.case_yaml), source=self.run_id)
+        return case_from_dict(yaml_text(self.case_yaml), source=self.run_id)
 
     def digest(self) -> str:
         """:func:`capsim.config.case_digest` of this run's case (what its run file must hold)."""
@@ -476,7 +476,7 @@ def _held_t_end(spec: RunSpec) -> tuple[float, bool] | None:
     try:
         attrs = (read_run_record(spec.path) or {}).get("attrs", {})
         text = attrs.get(REQUESTED_CASE) or attrs.get("config_yaml")
-        stored = case_from_dict(yaml.safe_load(text), source=spec.path).model_dump(mode="json")
+        stored = case_from_dict(yaml_text(text), source=spec.path).model_dump(mode="json")
         ours = spec.case().model_dump(mode="json")
         if without_t_end(step_defining(stored)) != without_t_end(step_defining(ours)):
             return None

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from capsim.config import Case, step_defining
+from capsim.config import Case, step_defining, yaml_text
 from capsim.errors import bounded_repr, first_line
 from capsim.storage.files import CHECKPOINT_SUFFIX, tmp_name, write_durably
 from capsim.storage.schedules import end_tolerance
@@ -162,7 +162,7 @@ def stored_case(text: Any) -> dict | None:
     if not isinstance(text, str) or len(text) > 1_000_000:
         return None
     try:
-        data = yaml.safe_load(text)
+        data = yaml_text(text)
     except yaml.YAMLError:
         return None
     return data if isinstance(data, dict) else None

@@ -40,9 +40,8 @@ from typing import Any, Callable
 
 import h5py
 import numpy as np
-import yaml
 
-from capsim.config import Case, case_from_dict
+from capsim.config import Case, case_from_dict, yaml_text
 from capsim.errors import first_line
 from capsim.storage.files import (
     FileIdentity, FileLock, LockedError, StorageError, copy_and_replace, free_bytes, lock_path, require_room,
@@ -1016,7 +1015,7 @@ def read_run_identity(path: str | os.PathLike) -> tuple[str | None, str | None]:
     except (OSError, ValueError):
         return None, None
     try:
-        stored = yaml.safe_load(text) if isinstance(text, str) and text else None
+        stored = yaml_text(text) if isinstance(text, str) and text else None
         digest = case_digest(case_from_dict(stored).model_dump(mode="json")) if isinstance(stored, dict) else None
     except Exception:  # noqa: BLE001 - a damaged or foreign case: no digest
         digest = None
@@ -1121,7 +1120,7 @@ def open_run(path: str | os.PathLike):
 
 def case_from_trajectory(data: dict[str, Any]) -> Case:
     """The Case a trajectory was run with, from :func:`read_trajectory`'s ``attrs``."""
-    return case_from_dict(yaml.safe_load(data["attrs"]["config_yaml"]), source="config_yaml")
+    return case_from_dict(yaml_text(data["attrs"]["config_yaml"]), source="config_yaml")
 
 
 def read_case(path: str | os.PathLike) -> Case:
