@@ -662,13 +662,13 @@ def _vertex_tangents(x, elements, e, k, vdxi, vdeta, out, row):
 
 
 @njit(**_JIT)
-def _angle_weighted_normals(x, elements, n_vertices, vdxi, vdeta, tang, angle):
+def _angle_weighted_normals(x, elements, n_vertices, vdxi, vdeta, elems, tang, angle):
     """The vertices' unit normals, each element's normal at the vertex weighted by its angle there
-    (seed §3); fills tang (N_e, 3, 2, 3) with the tangents and angle (N_e, 3) with the angles."""
-    ne = elements.shape[0]
+    (seed §3), from the elements ``elems`` (complete at a vertex all of whose elements are among them);
+    fills tang (N_e, 3, 2, 3) with their tangents and angle (N_e, 3) with their angles."""
     normal = np.zeros((n_vertices, 3))
     wsum = np.zeros(n_vertices)
-    for e in range(ne):
+    for e in elems:
         for k in range(3):
             _vertex_tangents(x, elements, e, k, vdxi, vdeta, tang[e, k], 0)
             t10, t11, t12 = tang[e, k, 0, 0], tang[e, k, 0, 1], tang[e, k, 0, 2]
@@ -695,8 +695,9 @@ def _angle_weighted_normals(x, elements, n_vertices, vdxi, vdeta, tang, angle):
             wsum[v] += ang
     for v in range(n_vertices):
         a = np.sqrt(normal[v, 0] ** 2 + normal[v, 1] ** 2 + normal[v, 2] ** 2)
-        for d in range(3):
-            normal[v, d] /= a
+        if a > 0.0:  # a vertex none of whose elements is in elems keeps a zero normal (never read)
+            for d in range(3):
+                normal[v, d] /= a
     return normal, wsum
 
 
@@ -709,7 +710,7 @@ def vertex_rest_inverse(X, elements, n_vertices, vdxi, vdeta):
     ne = elements.shape[0]
     tang = np.empty((ne, 3, 2, 3))
     angle = np.empty((ne, 3))
-    n_ref, _ = _angle_weighted_normals(X, elements, n_vertices, vdxi, vdeta, tang, angle)
+    n_ref, _ = _angle_weighted_normals(X, elements, n_vertices, vdxi, vdeta, np.arange(ne), tang, angle)
     out = np.empty((ne, 3, 2, 3))
     R = np.empty((3, 3))
     for e in range(ne):
@@ -734,8 +735,8 @@ def vertex_rest_inverse(X, elements, n_vertices, vdxi, vdeta):
 
 
 @njit(**_JIT)
-def vertex_strain(x, elements, n_vertices, vdxi, vdeta, rest_inverse):
-    """Surface deformation gradient A at the vertex nodes (seed 3.4) and its strain.
+def vertex_strain(x, elements, n_vertices, vdxi, vdeta, rest_inverse, elems, vertices):
+    """Surface deformation gradient A at the vertex nodes ``vertices`` (seed 3.4) and its strain.
 
     Per element and vertex, A maps the reference tangents ∂X/∂ξ, ∂X/∂η to the current ones and
     the reference normal to 0: A_e = [t1 t2 0] R⁻¹ (``rest_inverse``: R⁻¹'s first two rows, from
@@ -745,18 +746,27 @@ def vertex_strain(x, elements, n_vertices, vdxi, vdeta, rest_inverse):
     projection exactly. With it the left Cauchy–Green tensor B = A Aᵀ and the invariants
     Λ1 = ½ ln det₂ B, Λ2 = ½ tr B − 1 (membrane.strain_from_gradient's, in the same pass).
 
+    ``elems`` must hold every element of each of ``vertices`` (all elements and all vertices: the
+    whole membrane; a symmetric configuration's orbit representatives: a quarter of the work).
     vdxi, vdeta (3, 6): basis derivatives at the three vertices.
-    Returns A (N_v, 3, 3), current normals n (N_v, 3), B (N_v, 3, 3), Λ1 (N_v), Λ2 (N_v).
+    Returns, at ``vertices``: A (n, 3, 3), current normals (n, 3), B (n, 3, 3), Λ1 (n), Λ2 (n).
     """
     ne = elements.shape[0]
     tang = np.empty((ne, 3, 2, 3))
     angle = np.empty((ne, 3))
-    n_cur, wsum = _angle_weighted_normals(x, elements, n_vertices, vdxi, vdeta, tang, angle)
-    A = np.zeros((n_vertices, 3, 3))
+    n_cur, wsum = _angle_weighted_normals(x, elements, n_vertices, vdxi, vdeta, elems, tang, angle)
+    slot = np.full(n_vertices, -1, dtype=np.int64)  # each vertex's row in the outputs
+    for i in range(vertices.shape[0]):
+        slot[vertices[i]] = i
+    m = vertices.shape[0]
+    A = np.zeros((m, 3, 3))
     C = np.empty((3, 2))
-    for e in range(ne):
+    for e in elems:
         for k in range(3):
             v = elements[e, k]
+            row = slot[v]
+            if row < 0:
+                continue
             # tangents projected on the nodal tangent planes
             for col in range(2):
                 s = 0.0
@@ -767,26 +777,29 @@ def vertex_strain(x, elements, n_vertices, vdxi, vdeta, rest_inverse):
             w = angle[e, k] / wsum[v]
             for i in range(3):
                 for j in range(3):
-                    A[v, i, j] += w * (C[i, 0] * rest_inverse[e, k, 0, j] + C[i, 1] * rest_inverse[e, k, 1, j])
-    B = np.empty((n_vertices, 3, 3))
-    inv1 = np.empty(n_vertices)
-    inv2 = np.empty(n_vertices)
-    for v in range(n_vertices):
+                    A[row, i, j] += w * (C[i, 0] * rest_inverse[e, k, 0, j] + C[i, 1] * rest_inverse[e, k, 1, j])
+    normals = np.empty((m, 3))
+    B = np.empty((m, 3, 3))
+    inv1 = np.empty(m)
+    inv2 = np.empty(m)
+    for r in range(m):
+        for d in range(3):
+            normals[r, d] = n_cur[vertices[r], d]
         tr = 0.0
         for i in range(3):
             for j in range(3):
                 b = 0.0
                 for k in range(3):
-                    b += A[v, i, k] * A[v, j, k]
-                B[v, i, j] = b
-            tr += B[v, i, i]
+                    b += A[r, i, k] * A[r, j, k]
+                B[r, i, j] = b
+            tr += B[r, i, i]
         tr2 = 0.0
         for i in range(3):
             for j in range(3):
-                tr2 += B[v, i, j] * B[v, j, i]
-        inv1[v] = 0.5 * np.log(0.5 * (tr * tr - tr2))  # det₂ B = λ1²λ2²: B has rank 2 by construction
-        inv2[v] = 0.5 * tr - 1.0
-    return A, n_cur, B, inv1, inv2
+                tr2 += B[r, i, j] * B[r, j, i]
+        inv1[r] = 0.5 * np.log(0.5 * (tr * tr - tr2))  # det₂ B = λ1²λ2²: B has rank 2 by construction
+        inv2[r] = 0.5 * tr - 1.0
+    return A, normals, B, inv1, inv2
 
 
 @njit(parallel=True, **_JIT)

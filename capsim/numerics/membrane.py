@@ -456,6 +456,17 @@ class MembraneState:
     solved: Array | None = None
     current_traction: Callable[[], Array] | None = field(default=None, repr=False)
     mass_iterations: int = 0
+    #: a symmetric configuration's vertex strain at one vertex of each orbit and the orbits' numbers
+    #: of vertices (MembraneForce.orbit_strain); None: the whole membrane's
+    orbit_state: Callable[[], tuple[VertexStrain, Array]] | None = field(default=None, repr=False)
+
+    @property
+    def row_strain(self) -> tuple[VertexStrain, Array | None]:
+        """The vertex strain a recorded row reads and how many vertices each of its stands for (None: one):
+        at one vertex of each orbit of a symmetric configuration unless the whole membrane's is made."""
+        if self.orbit_state is None or "_vertex" in self.__dict__:
+            return self.strain, None
+        return self.orbit_state()
 
     @cached_property
     def _vertex(self) -> tuple[VertexStrain, Array]:
@@ -792,14 +803,29 @@ class MembraneForce:
         the strain alone, the principal stretches and tensions; the tension tensor, ~35 µs at level 3,
         only the contour traction and the exports)."""
         disc = self.disc
+        strain = self._vertex_strain(x, disc.all_elements, disc.all_vertices)
+        return strain, lambda: self._vertex_tension(strain)
+
+    def _vertex_strain(self, x: Array, elems: Array, vertices: Array) -> VertexStrain:
+        """The strain at ``vertices`` from ``elems`` (every element of each of them): kernels.vertex_strain."""
+        disc = self.disc
         if self._rest_inverse is None:
             self._rest_inverse = kernels.vertex_rest_inverse(
                 np.ascontiguousarray(self.rest_positions, dtype=np.float64), disc.elements, disc.n_vertices,
                 disc.vertex_dxi, disc.vertex_deta)[0]
-        A, n_cur, B, inv1, inv2 = kernels.vertex_strain(
-            x, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta, self._rest_inverse)
-        strain = VertexStrain(A, B, n_cur, inv1, inv2)
-        return strain, lambda: self._vertex_tension(strain)
+        A, normals, B, inv1, inv2 = kernels.vertex_strain(
+            x, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta, self._rest_inverse, elems, vertices)
+        return VertexStrain(A, B, normals, inv1, inv2)
+
+    def orbit_strain(self, x: Array) -> tuple[VertexStrain, Array]:
+        """The vertex strain of a symmetric configuration at one vertex of each orbit, and the orbits'
+        numbers of vertices: what a recorded row reads of it (the largest stretch,
+        the smallest tension, the compressed share) at a quarter of the work under quarter symmetry
+        (issue 57). The mesh's symmetry group maps vertices to vertices, and a symmetric x has the
+        same strain at every vertex of an orbit (to round-off)."""
+        disc = self.disc
+        vertices, elems, counts = disc.vertex_orbits()
+        return self._vertex_strain(x, elems, vertices), counts
 
     def _vertex_tension(self, strain: VertexStrain) -> Array:
         material = self.material
@@ -892,4 +918,5 @@ class MembraneForce:
         if measure is not None:  # Δf per unit current area when read (the other rows of rhs expanded then)
             def current() -> Array:
                 return self.current_traction(geo, disc.expand(rhs[disc.targets]) if symmetric else rhs)
-        return MembraneState(geo, density, vertex_state, measure, solved, current, iterations)
+        orbit_state = (lambda: self.orbit_strain(x)) if symmetric and disc.symmetry != "none" else None  # noqa: E731
+        return MembraneState(geo, density, vertex_state, measure, solved, current, iterations, orbit_state)

@@ -1291,8 +1291,9 @@ class StepObserver:
             return self._observe_scene(t, y, u, state, dt, error, work)
         model = self.model
         row = {"t": t, "dt": dt, "error_estimate": error}
-        row.update(capsule_row(model, y, u, state.geometry, state.density, state.weights, state.strain,
-                               model.disc.elements, self.director))
+        strain, counts = state.row_strain
+        row.update(capsule_row(model, y, u, state.geometry, state.density, state.weights, strain,
+                               model.disc.elements, self.director, vertex_counts=counts))
         self._continue_lines(row)
         if model.viscous is not None:
             center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
@@ -1457,12 +1458,14 @@ def boundary_quantities(model, nodes: np.ndarray, geometry, density: np.ndarray,
 
 
 def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarray, weights: np.ndarray,
-                strain, elements: np.ndarray, director: MaterialDirector, material: dict | None = None) -> dict:
+                strain, elements: np.ndarray, director: MaterialDirector, material: dict | None = None,
+                vertex_counts: np.ndarray | None = None) -> dict:
     """One capsule's columns at an accepted state (its nodes y, u, its elements' geometry,
     density and weights, its vertex strain, its own connectivity): shape, orientation, membrane
     state, centroid motion, stresslet (and, as "_S_star", the stresslet tensor itself).
     ``material``: the capsule's own law parameters, modulus ratio and λ (several capsules of
-    their own membranes; None: the model's)."""
+    their own membranes; None: the model's). ``vertex_counts``: how many of the membrane's vertices
+    each strained vertex stands for (one vertex of each orbit of a symmetric state; None: itself)."""
     law_params = model.law_params if material is None else material["law_params"]
     modulus = 1.0 if material is None else material["modulus_ratio"]
     lam = model.viscosity_ratio if material is None else material["viscosity_ratio"]
@@ -1478,7 +1481,9 @@ def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarr
     if material is not None:
         tau2 = modulus * tau2
     row["min_tension"] = float(tau2.min()) / model.shear_rate_G
-    row["compressed_fraction"] = float(np.mean(tau2 < -COMPRESSION_TOL))
+    compressed = tau2 < -COMPRESSION_TOL
+    row["compressed_fraction"] = float(np.mean(compressed)) if vertex_counts is None else \
+        float(vertex_counts @ compressed / vertex_counts.sum())
     row.update({f"centroid_velocity_{c}": float(v) for c, v in zip("xyz", sums.centroid_velocity(row["volume"]))})
     u_far = model.undisturbed(center[None])[0]  # the undisturbed flow at the centre, now
     for i, c in enumerate("xyz"):

@@ -205,6 +205,8 @@ class Discretization:
         self.target_elements = self.all_elements  # the elements holding a target node
         self._ones = np.ones(self.elements.shape[0])
         self.orbit_elements, self.orbit_sizes = self.all_elements, self._ones
+        self.all_vertices = np.arange(self.n_vertices, dtype=np.int64)
+        self._vertex_orbits: tuple | None = None  # vertex_orbits, made on first use
         self.symmetry = "none"  # or a key of SYMMETRY_GROUPS (enable_symmetry)
         fxi, feta, fw = subdivided_rule(self.regular_order, self.near_field_levels)
         fphi, fdxi, fdeta = shape_functions(fxi, feta)
@@ -257,7 +259,22 @@ class Discretization:
         for p in self.targets:
             holds_target[self.inc_elem[self.inc_offsets[p]:self.inc_offsets[p + 1]]] = True
         self.target_elements = np.flatnonzero(holds_target).astype(np.int64)
+        self._vertex_orbits = None
         return self.expand(positions[self.targets])
+
+    def vertex_orbits(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The symmetry's vertex orbits: one vertex of each (a target node: the group maps vertices
+        to vertices), the elements holding one of them, and each orbit's number of vertices."""
+        if self._vertex_orbits is None:
+            nv = self.n_vertices
+            at = np.flatnonzero(self.targets < nv)  # the orbits' targets that are vertices (source: index in targets)
+            vertices = self.targets[at].astype(np.int64)
+            sizes = np.bincount(self._sym_source[:nv], minlength=self.targets.size)[at].astype(np.float64)
+            holds = np.zeros(self.elements.shape[0], dtype=bool)
+            for v in vertices:
+                holds[self.inc_elem[self.inc_offsets[v]:self.inc_offsets[v + 1]]] = True
+            self._vertex_orbits = (vertices, np.flatnonzero(holds).astype(np.int64), sizes)
+        return self._vertex_orbits
 
     def enable_mirror_symmetry(self, positions: np.ndarray) -> np.ndarray | None:
         """The mirror z → −z only (see ``enable_symmetry``)."""

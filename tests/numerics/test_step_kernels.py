@@ -170,7 +170,8 @@ def test_vertex_strain_kernel_is_the_seed_gradient_and_its_strain():
     disc = Discretization(mesh.elements, mesh.n_vertices)
     x = np.ascontiguousarray(X * np.array([1.3, 0.9, 0.8]) + 0.05 * X[:, [1, 2, 0]] ** 2)
     rest = vertex_rest_inverse(X, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta)[0]
-    A, n, B, inv1, inv2 = vertex_strain(x, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta, rest)
+    A, n, B, inv1, inv2 = vertex_strain(x, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta, rest,
+                                        disc.all_elements, disc.all_vertices)
     A0, n0 = _vertex_gradient_reference(x, X, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta)
     assert np.allclose(A, A0, rtol=0, atol=1e-13) and np.allclose(n, n0, rtol=0, atol=1e-14)
     reference = strain_from_gradient(A, n)
@@ -180,7 +181,7 @@ def test_vertex_strain_kernel_is_the_seed_gradient_and_its_strain():
     c, s = np.cos(0.7), np.sin(0.7)
     turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     _, _, _, inv1, inv2 = vertex_strain(np.ascontiguousarray(X @ turn.T + 5.0), disc.elements, disc.n_vertices,
-                                        disc.vertex_dxi, disc.vertex_deta, rest)
+                                        disc.vertex_dxi, disc.vertex_deta, rest, disc.all_elements, disc.all_vertices)
     assert np.abs(inv1).max() < 1e-13 and np.abs(inv2).max() < 1e-13
 
 
@@ -236,3 +237,36 @@ def test_ellipsoid_kernel_is_the_observers_ellipsoid(k):
         assert np.allclose(long_axis, reference["long_axis"], atol=1e-9)
     if b - c > 1e-6 * a:
         assert np.allclose(short_axis, reference["short_axis"], atol=1e-9)
+
+
+@pytest.mark.parametrize("config", ["configs/sphere.yaml", "configs/rbc.yaml"])
+def test_a_rows_strain_at_one_vertex_of_each_orbit_is_the_whole_membranes(config):
+    """Under the mesh's symmetry a row reads the strain at one vertex of each orbit (issue 57): the
+    largest stretch, the smallest tension and the compressed share are the whole membrane's, on a
+    sheared state of the demo's sphere (quarter symmetry) and of the red cell."""
+    from pathlib import Path
+
+    from capsim.api import load_case
+    from capsim.solve.observables import MaterialDirector, capsule_row
+    from capsim.solve.solver import build_model
+
+    root = Path(__file__).resolve().parents[2]
+    case = load_case(root / config, sets=["mesh.level=2"])
+    model, X = build_model(case)
+    assert model.disc.symmetry != "none"
+    u0 = model.undisturbed(X)
+    x = np.ascontiguousarray(model.disc.expand((X + 0.3 * u0 + 0.05 * X ** 2)[model.disc.targets]))
+    state = model.membrane(x)
+    strain, counts = state.row_strain
+    assert counts is not None and counts.sum() == model.disc.n_vertices and len(counts) < model.disc.n_vertices / 2
+    full = state.strain
+    u = model.velocity(x, state)
+    director = MaterialDirector(model.disc.geometry(X), (0.0, 0.0, 1.0))
+    args = (model, x, u, state.geometry, state.density, state.weights)
+    orbit_row = capsule_row(*args, strain, model.disc.elements, director, vertex_counts=counts)
+    full_row = capsule_row(*args, full, model.disc.elements, director)
+    assert full_row["max_principal_stretch"] > 1.05 and full_row["compressed_fraction"] > 0.0
+    for key in ("max_principal_stretch", "min_tension"):
+        assert orbit_row[key] == pytest.approx(full_row[key], rel=1e-12), key
+    assert orbit_row["compressed_fraction"] == full_row["compressed_fraction"]
+    assert state.row_strain[0] is full  # once the whole membrane's strain is made, the row reads it
