@@ -10,6 +10,8 @@ D_xy = (L − l)/(L + l); θ ∈ (−π/2, π/2] is the angle of the long axis t
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from capsim.numerics.geometry import (
@@ -209,12 +211,13 @@ def director_observables(d: np.ndarray) -> dict:
     """The director, its polar angle from the vorticity axis z, arccos d_z ∈ [0, π], and
     its azimuth in the shear plane from the gradient axis y towards the flow axis x,
     atan2(d_x, d_y) ∈ (−π, π] (Jeffery's angles, docs/known_answers.md)."""
+    dx, dy, dz = (float(v) for v in d)  # Python floats: the row's other numbers are (issue 57)
     return {
-        "director_x": float(d[0]),
-        "director_y": float(d[1]),
-        "director_z": float(d[2]),
-        "director_polar_angle": float(np.arccos(np.clip(d[2], -1.0, 1.0))),
-        "director_azimuth": float(np.arctan2(d[0], d[1])),
+        "director_x": dx,
+        "director_y": dy,
+        "director_z": dz,
+        "director_polar_angle": math.acos(min(max(dz, -1.0), 1.0)),
+        "director_azimuth": math.atan2(dx, dy),
     }
 
 
@@ -247,7 +250,7 @@ class RowSums:
     @property
     def director(self) -> np.ndarray:
         d = self.values[24:27]
-        return d / np.linalg.norm(d)
+        return d / math.sqrt(float(d @ d))
 
     def centroid_velocity(self, volume: float) -> np.ndarray:
         return self.values[0:3] + self.values[3:6] / volume
@@ -338,8 +341,8 @@ def dissipation_ratio(S_star: np.ndarray, E: np.ndarray) -> float:
     the same flow, 5μV E:E; with S* = S/((5/2)μkV) that is S*:E / (2 E:E). 1 for a rigid sphere in
     any linear flow; in simple shear it equals S*_xy. NaN where E vanishes (the axis of Poiseuille
     flow, a stopped flow)."""
-    EE = float(np.sum(E * E))
-    return float(np.sum(S_star * E) / (2.0 * EE)) if EE > 1e-20 else float("nan")
+    EE = float(np.vdot(E, E))
+    return float(np.vdot(S_star, E)) / (2.0 * EE) if EE > 1e-20 else float("nan")
 
 
 # ---------------------------------------------------------------- tank-treading
