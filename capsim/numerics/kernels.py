@@ -1870,23 +1870,23 @@ def surface_moments(points, normals, weights, p):
     out[2] = c0
     out[3] = c1
     out[4] = c2
-    m = out[5:].reshape(3, 3)  # M row-major in out[5:], the upper triangle summed, the lower its mirror
+    # M row-major in out[5:], the upper triangle summed (in scalars: registers), the lower its mirror
+    m00 = m01 = m02 = m11 = m12 = m22 = 0.0
     for e in range(ne):
         for q in range(nq):
             y0 = points[e, q, 0] - c0
             y1 = points[e, q, 1] - c1
             y2 = points[e, q, 2] - c2
             ynw = (y0 * normals[e, q, 0] + y1 * normals[e, q, 1] + y2 * normals[e, q, 2]) * weights[e, q]
-            m[0, 0] += y0 * y0 * ynw
-            m[0, 1] += y0 * y1 * ynw
-            m[0, 2] += y0 * y2 * ynw
-            m[1, 1] += y1 * y1 * ynw
-            m[1, 2] += y1 * y2 * ynw
-            m[2, 2] += y2 * y2 * ynw
-    out[5:] /= 5.0
-    m[1, 0] = m[0, 1]
-    m[2, 0] = m[0, 2]
-    m[2, 1] = m[1, 2]
+            m00 += y0 * y0 * ynw
+            m01 += y0 * y1 * ynw
+            m02 += y0 * y2 * ynw
+            m11 += y1 * y1 * ynw
+            m12 += y1 * y2 * ynw
+            m22 += y2 * y2 * ynw
+    out[5], out[6], out[7] = m00 / 5.0, m01 / 5.0, m02 / 5.0
+    out[8], out[9], out[10] = m01 / 5.0, m11 / 5.0, m12 / 5.0
+    out[11], out[12], out[13] = m02 / 5.0, m12 / 5.0, m22 / 5.0
     return out
 
 
@@ -1988,6 +1988,11 @@ def row_surface_sums(points, normals, weights, density_weights, density, u, elem
     c0, c1, c2 = center[0], center[1], center[2]
     ne, nq = weights.shape
     nk = phi.shape[1]
+    # scalar accumulators (LLVM keeps them in registers; sums into out[...] went through memory)
+    r0 = r1 = r2 = 0.0
+    e00 = e01 = e02 = e10 = e11 = e12 = e20 = e21 = e22 = 0.0
+    s00 = s01 = s02 = s10 = s11 = s12 = s20 = s21 = s22 = 0.0
+    d0 = d1 = d2 = 0.0
     sum_director = 0.0
     m0 = 0.0
     m1 = 0.0
@@ -2015,41 +2020,48 @@ def row_surface_sums(points, normals, weights, density_weights, density, u, elem
             y1 = points[e, q, 1] - c1
             y2 = points[e, q, 2] - c2
             flux = (a0 * n0 + a1 * n1 + a2 * n2) * w
-            out[3] += flux * y0
-            out[4] += flux * y1
-            out[5] += flux * y2
+            r0 += flux * y0
+            r1 += flux * y1
+            r2 += flux * y2
             wd = density_weights[e, q]
-            out[6] += f0 * y0 * wd
-            out[7] += f0 * y1 * wd
-            out[8] += f0 * y2 * wd
-            out[9] += f1 * y0 * wd
-            out[10] += f1 * y1 * wd
-            out[11] += f1 * y2 * wd
-            out[12] += f2 * y0 * wd
-            out[13] += f2 * y1 * wd
-            out[14] += f2 * y2 * wd
-            out[15] += a0 * n0 * w
-            out[16] += a0 * n1 * w
-            out[17] += a0 * n2 * w
-            out[18] += a1 * n0 * w
-            out[19] += a1 * n1 * w
-            out[20] += a1 * n2 * w
-            out[21] += a2 * n0 * w
-            out[22] += a2 * n1 * w
-            out[23] += a2 * n2 * w
+            g0, g1, g2 = f0 * wd, f1 * wd, f2 * wd
+            e00 += g0 * y0
+            e01 += g0 * y1
+            e02 += g0 * y2
+            e10 += g1 * y0
+            e11 += g1 * y1
+            e12 += g1 * y2
+            e20 += g2 * y0
+            e21 += g2 * y1
+            e22 += g2 * y2
+            b0, b1, b2 = a0 * w, a1 * w, a2 * w
+            s00 += b0 * n0
+            s01 += b0 * n1
+            s02 += b0 * n2
+            s10 += b1 * n0
+            s11 += b1 * n1
+            s12 += b1 * n2
+            s20 += b2 * n0
+            s21 += b2 * n1
+            s22 += b2 * n2
             p = e * nq + q
             W = director_weights[p]
             sum_director += W
-            out[24] += W * y0
-            out[25] += W * y1
-            out[26] += W * y2
+            d0 += W * y0
+            d1 += W * y1
+            d2 += W * y2
             wm = mean_weights[p]
             m0 += wm * y0
             m1 += wm * y1
             m2 += wm * y2
-    out[24] -= sum_director * m0
-    out[25] -= sum_director * m1
-    out[26] -= sum_director * m2
+    out[3], out[4], out[5] = r0, r1, r2
+    out[6], out[7], out[8], out[9], out[10], out[11], out[12], out[13], out[14] = \
+        e00, e01, e02, e10, e11, e12, e20, e21, e22
+    out[15], out[16], out[17], out[18], out[19], out[20], out[21], out[22], out[23] = \
+        s00, s01, s02, s10, s11, s12, s20, s21, s22
+    out[24] = d0 - sum_director * m0
+    out[25] = d1 - sum_director * m1
+    out[26] = d2 - sum_director * m2
     return out
 
 

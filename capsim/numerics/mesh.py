@@ -17,6 +17,7 @@ has radius 1 (the length scale a of G = μka/E_s).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Callable
 
@@ -96,9 +97,16 @@ def _midpoint_index(cache: dict, points: list, i: int, j: int) -> int:
 
 
 def unit_sphere_mesh(base: str = "octahedron", level: int = 3) -> SurfaceMesh:
-    """Subdivided octahedron or icosahedron projected on the unit sphere."""
+    """Subdivided octahedron or icosahedron projected on the unit sphere (made once per process for
+    each base and level: a campaign's runs share it, issue 57; each caller gets its own arrays)."""
     if base not in BASE_POLYHEDRA:
         raise ValueError(f"unknown base polyhedron {base!r} (allowed: {sorted(BASE_POLYHEDRA)})")
+    mesh = _unit_sphere_mesh(base, int(level))
+    return SurfaceMesh(mesh.positions.copy(), mesh.elements.copy(), mesh.n_vertices)
+
+
+@functools.lru_cache(maxsize=8)
+def _unit_sphere_mesh(base: str, level: int) -> SurfaceMesh:
     vertices, faces = BASE_POLYHEDRA[base]()
     faces = _orient_outward(vertices, faces)
     points = [p for p in vertices]
