@@ -749,7 +749,8 @@ def vertex_strain(x, elements, n_vertices, vdxi, vdeta, rest_inverse, elems, ver
     ``elems`` must hold every element of each of ``vertices`` (all elements and all vertices: the
     whole membrane; a symmetric configuration's orbit representatives: a quarter of the work).
     vdxi, vdeta (3, 6): basis derivatives at the three vertices.
-    Returns, at ``vertices``: A (n, 3, 3), current normals (n, 3), B (n, 3, 3), Λ1 (n), Λ2 (n).
+    Returns, at ``vertices``: A (n, 3, 3), current normals (n, 3), B (n, 3, 3), Λ1 (n), Λ2 (n), the
+    principal stretches λ1 ≥ λ2 (n each).
     """
     ne = elements.shape[0]
     tang = np.empty((ne, 3, 2, 3))
@@ -782,6 +783,8 @@ def vertex_strain(x, elements, n_vertices, vdxi, vdeta, rest_inverse, elems, ver
     B = np.empty((m, 3, 3))
     inv1 = np.empty(m)
     inv2 = np.empty(m)
+    stretch1 = np.empty(m)
+    stretch2 = np.empty(m)
     for r in range(m):
         for d in range(3):
             normals[r, d] = n_cur[vertices[r], d]
@@ -797,9 +800,23 @@ def vertex_strain(x, elements, n_vertices, vdxi, vdeta, rest_inverse, elems, ver
         for i in range(3):
             for j in range(3):
                 tr2 += B[r, i, j] * B[r, j, i]
-        inv1[r] = 0.5 * np.log(0.5 * (tr * tr - tr2))  # det₂ B = λ1²λ2²: B has rank 2 by construction
+        det = 0.5 * (tr * tr - tr2)  # det₂ B = λ1²λ2²: B has rank 2 by construction
+        inv1[r] = 0.5 * np.log(det)
         inv2[r] = 0.5 * tr - 1.0
-    return A, normals, B, inv1, inv2
+        # the principal stretches (VertexStrain.principal_stretches' formulas): λ1² − λ2² from B's
+        # deviator in the tangent plane, √(2 |B − (tr B / 2)(I − n n)|²), accurate where the two are near
+        # equal (tr² − 4 det loses half the digits there: 1e-8 of noise at rest)
+        half = 0.5 * tr
+        dev = 0.0
+        for i in range(3):
+            for j in range(3):
+                p = (1.0 if i == j else 0.0) - normals[r, i] * normals[r, j]
+                dij = B[r, i, j] - half * p
+                dev += dij * dij
+        disc = np.sqrt(2.0 * dev)
+        stretch1[r] = np.sqrt(0.5 * (tr + disc))
+        stretch2[r] = np.sqrt(max(0.5 * (tr - disc), 0.0))
+    return A, normals, B, inv1, inv2, stretch1, stretch2
 
 
 @njit(parallel=True, **_JIT)

@@ -183,9 +183,15 @@ class VertexStrain:
 
     @cached_property  # read by the stretch guard and the principal tensions of each recorded step
     def principal_stretches(self) -> tuple[Array, Array]:
+        """λ1 ≥ λ2 from B's trace and its deviator in the tangent plane: λ1² − λ2² =
+        √(2 |B − (tr B / 2)(I − n n)|²). From tr² − 4 det B (as until 2026-12-06) the difference lost half
+        the digits where the stretches are near equal: at rest it read 1e-8, the tensions ±1e-8 E_s
+        and a quarter of a sphere's vertices "compressed" (COMPRESSION_TOL 1e-10)."""
         tr = 2.0 * (self.inv2 + 1.0)
-        det = np.exp(2.0 * self.inv1)
-        disc = np.sqrt(np.maximum(tr * tr - 4.0 * det, 0.0))
+        n = self.normals
+        projector = np.eye(3)[None] - n[:, :, None] * n[:, None, :]
+        deviator = self.B - 0.5 * tr[:, None, None] * projector
+        disc = np.sqrt(2.0 * np.einsum("vij,vij->v", deviator, deviator))
         return np.sqrt(0.5 * (tr + disc)), np.sqrt(np.maximum(0.5 * (tr - disc), 0.0))
 
 
@@ -813,9 +819,12 @@ class MembraneForce:
             self._rest_inverse = kernels.vertex_rest_inverse(
                 np.ascontiguousarray(self.rest_positions, dtype=np.float64), disc.elements, disc.n_vertices,
                 disc.vertex_dxi, disc.vertex_deta)[0]
-        A, normals, B, inv1, inv2 = kernels.vertex_strain(
+        A, normals, B, inv1, inv2, l1, l2 = kernels.vertex_strain(
             x, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta, self._rest_inverse, elems, vertices)
-        return VertexStrain(A, B, normals, inv1, inv2)
+        strain = VertexStrain(A, B, normals, inv1, inv2)
+        # the kernel's principal stretches as the cached property's value (a row reads them: issue 57)
+        strain.__dict__["principal_stretches"] = (l1, l2)
+        return strain
 
     def orbit_strain(self, x: Array) -> tuple[VertexStrain, Array]:
         """The vertex strain of a symmetric configuration at one vertex of each orbit, and the orbits'

@@ -170,19 +170,24 @@ def test_vertex_strain_kernel_is_the_seed_gradient_and_its_strain():
     disc = Discretization(mesh.elements, mesh.n_vertices)
     x = np.ascontiguousarray(X * np.array([1.3, 0.9, 0.8]) + 0.05 * X[:, [1, 2, 0]] ** 2)
     rest = vertex_rest_inverse(X, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta)[0]
-    A, n, B, inv1, inv2 = vertex_strain(x, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta, rest,
-                                        disc.all_elements, disc.all_vertices)
+    A, n, B, inv1, inv2, l1, l2 = vertex_strain(x, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta,
+                                                rest, disc.all_elements, disc.all_vertices)
     A0, n0 = _vertex_gradient_reference(x, X, disc.elements, disc.n_vertices, disc.vertex_dxi, disc.vertex_deta)
     assert np.allclose(A, A0, rtol=0, atol=1e-13) and np.allclose(n, n0, rtol=0, atol=1e-14)
     reference = strain_from_gradient(A, n)
     assert np.allclose(B, reference.B, rtol=0, atol=1e-13)
     assert np.allclose(inv1, reference.inv1, rtol=0, atol=1e-13) and np.allclose(inv2, reference.inv2, rtol=0, atol=1e-13)
+    assert np.allclose(l1, reference.principal_stretches[0], rtol=1e-13) and \
+        np.allclose(l2, reference.principal_stretches[1], rtol=1e-13)
     assert np.abs(inv2).max() > 0.05  # the surface is strained
     c, s = np.cos(0.7), np.sin(0.7)
     turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    _, _, _, inv1, inv2 = vertex_strain(np.ascontiguousarray(X @ turn.T + 5.0), disc.elements, disc.n_vertices,
-                                        disc.vertex_dxi, disc.vertex_deta, rest, disc.all_elements, disc.all_vertices)
+    _, _, _, inv1, inv2, l1, l2 = vertex_strain(np.ascontiguousarray(X @ turn.T + 5.0), disc.elements, disc.n_vertices,
+                                                disc.vertex_dxi, disc.vertex_deta, rest, disc.all_elements,
+                                                disc.all_vertices)
     assert np.abs(inv1).max() < 1e-13 and np.abs(inv2).max() < 1e-13
+    # the stretches to round-off (λ1² − λ2² from B's deviator: from tr² − 4 det it was √(round-off), 1e-8)
+    assert np.abs(l1 - 1.0).max() < 1e-13 and np.abs(l2 - 1.0).max() < 1e-13
 
 
 @pytest.mark.parametrize("offset", [(0.0, 0.0, 0.0), (3.4, -2.6, 1.0), (1e6 + 0.3, 0.0, -7.0)])
@@ -270,3 +275,22 @@ def test_a_rows_strain_at_one_vertex_of_each_orbit_is_the_whole_membranes(config
         assert orbit_row[key] == pytest.approx(full_row[key], rel=1e-12), key
     assert orbit_row["compressed_fraction"] == full_row["compressed_fraction"]
     assert state.row_strain[0] is full  # once the whole membrane's strain is made, the row reads it
+
+
+def test_a_membrane_at_rest_has_no_tension_and_no_compressed_vertex():
+    """The first row of a run (the rest shape) carries no tension: the principal tensions are round-off
+    and no vertex is compressed (until 2026-12-06 the stretches' difference came from tr² − 4 det B,
+    √(round-off) = 1e-8 at rest: min_tension −7e-8 G and 24 % of a sphere's vertices 'compressed')."""
+    from capsim.numerics.membrane import principal_tensions
+    from capsim.api import load_case
+    from capsim.solve.solver import build_model
+    from pathlib import Path
+
+    case = load_case(Path(__file__).resolve().parents[2] / "configs/sphere.yaml", sets=["mesh.level=2"])
+    model, X = build_model(case)
+    state = model.membrane(np.ascontiguousarray(model.disc.expand(X[model.disc.targets])))
+    for strain in (state.row_strain[0], state.strain):
+        l1, l2 = strain.principal_stretches
+        assert np.abs(l1 - 1.0).max() < 1e-13 and np.abs(l2 - 1.0).max() < 1e-13
+        t1, t2 = principal_tensions(strain, model.law, model.law_params)
+        assert np.abs(t1).max() < 1e-12 and np.abs(t2).max() < 1e-12
