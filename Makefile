@@ -82,6 +82,12 @@ bench-split: venv
 bench-command: venv
 	$(BIN)/python benchmarks/command_time.py
 
+# the peer's three cases (issue 57, item 3): the whole command and its split at level 3, this checkout
+# (about 3 min): writes benchmarks/peer_command_time.md and benchmarks/peer_command_time.json
+.PHONY: bench-peer-command
+bench-peer-command: venv
+	$(BIN)/python benchmarks/peer_command_time.py
+
 # a campaign of 16 short level-2 runs on one worker (issue 57): its time outside the evaluations, this
 # checkout against the baseline in alternating rounds (about 1 min): writes benchmarks/campaign_overhead.{md,json}
 .PHONY: bench-campaign

@@ -2125,6 +2125,28 @@ def spread_about_mean(a):
 
 
 @njit(**_JIT)
+def mean_row_max_abs(a):
+    """max |ā| of an (N, k) array's mean row ā (how far a capsule's centre is from the origin)."""
+    n, k = a.shape
+    out = 0.0
+    for d in range(k):
+        m = 0.0
+        for i in range(n):
+            m += a[i, d]
+        out = max(out, abs(m / n))
+    return out
+
+
+@njit(**_JIT)
+def all_finite(a):
+    """Whether every entry of a 1-D array (a flat view) is finite."""
+    for i in range(a.shape[0]):
+        if not np.isfinite(a[i]):
+            return False
+    return True
+
+
+@njit(**_JIT)
 def max_abs(a):
     """max |a| over a 1-D array (a flat view)."""
     out = 0.0

@@ -57,6 +57,12 @@ from capsim.numerics.krylov import LinearSolveFailed, SolverDivergence
 RightHandSide = Callable[[np.ndarray], tuple[np.ndarray, Any]]
 
 
+@functools.cache
+def _memory_fields(cls: type) -> tuple[str, ...]:
+    """A controller class's private fields (read at every accepted step: dataclasses.fields is slow)."""
+    return tuple(f.name for f in fields(cls) if f.name.startswith("_"))
+
+
 @dataclass
 class StepController:
     """Proportional-integral step-size control (Gustafsson 1991).
@@ -93,7 +99,7 @@ class StepController:
 
     def state(self) -> dict[str, float]:
         """The controller's memory (its private fields)."""
-        return {f.name: getattr(self, f.name) for f in fields(self) if f.name.startswith("_")}
+        return {name: getattr(self, name) for name in _memory_fields(type(self))}
 
     def restore(self, state: dict[str, float]) -> None:
         for name, value in state.items():
@@ -128,13 +134,17 @@ def scene_size(bodies: Any) -> Callable[[np.ndarray], float]:
 def load_step_kernels() -> None:
     """Load (or compile) the step's vector kernels with the signatures a run calls them with: the
     warm-up's tiny run may step with another scheme than the run it prepares (its level's choice)."""
-    from capsim.numerics.kernels import max_abs, rkc_error_estimate, rkc_stage, spread_about_mean
+    from capsim.numerics.kernels import (
+        all_finite, max_abs, mean_row_max_abs, rkc_error_estimate, rkc_stage, spread_about_mean,
+    )
 
     flat, rows = np.zeros(3), np.zeros((1, 3))
     rkc_stage(flat, flat, flat, flat, flat, 1.0, 0.0, 0.0, 0.0, 0.0)
     rkc_error_estimate(flat, flat, flat, flat, 1.0)
     max_abs(flat)
+    all_finite(flat)
     spread_about_mean(rows)
+    mean_row_max_abs(rows)
 
 
 def scene_error(size_of: Callable[[np.ndarray], float], carried: bool = False
@@ -147,7 +157,7 @@ def scene_error(size_of: Callable[[np.ndarray], float], carried: bool = False
     the rest — shape and turn — relative to its size as before: held to rtol in units of a, an
     extension's outflow (x = 2 e^kt) cost 2194 steps to kt 14 where the capsule at the origin
     took 98, every one of them spent on the 13th digit of x (level 0)."""
-    from capsim.numerics.kernels import max_abs
+    from capsim.numerics.kernels import max_abs, mean_row_max_abs
 
     def plain(est: np.ndarray, y: np.ndarray, rtol: float) -> float:
         return max_abs(est.ravel()) / (rtol * size_of(y))
@@ -157,9 +167,9 @@ def scene_error(size_of: Callable[[np.ndarray], float], carried: bool = False
 
     def error(est: np.ndarray, y: np.ndarray, rtol: float) -> float:
         size = size_of(y)
-        far = float(np.abs(y.mean(axis=0)).max())
-        if not far > size:  # near the origin: as every other scene, to the bit
-            return plain(est, y, rtol)
+        far = mean_row_max_abs(np.ascontiguousarray(y))
+        if not far > size:  # near the origin: as every other scene
+            return max_abs(est.ravel()) / (rtol * size)
         move = est.mean(axis=0)
         return max(float(np.abs(est - move).max()) / (rtol * size), float(np.abs(move).max()) / (rtol * far))
 
@@ -697,7 +707,7 @@ class RungeKuttaChebyshev(Integrator):
         if h * self.rho > coef.beta:  # at the bound: the longest step s_max stages keep stable
             h, cut = coef.beta / self.rho, True
             self.stage_bound_hits += 1
-        from capsim.numerics.kernels import rkc_error_estimate
+        from capsim.numerics.kernels import all_finite, rkc_error_estimate
 
         y0, f0 = self.y, self.u
         y_new = rkc_step(self._at(self.t + h * coef.c[1:s]), y0, f0, h, coef)
@@ -710,7 +720,7 @@ class RungeKuttaChebyshev(Integrator):
         err = self.error_of(est, y0, self.error_rtol)
         if self.UNIT_STEP is not None:
             err *= self.UNIT_STEP / h
-        finite = bool(np.isfinite(err) and np.all(np.isfinite(u_new)))
+        finite = math.isfinite(err) and all_finite(u_new.ravel())
         accepted = finite and err <= 1.0
         if accepted:
             self.u = u_new
