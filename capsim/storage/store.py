@@ -435,11 +435,13 @@ class TrajectoryWriter:
     def append_step(self, values: dict[str, float]) -> None:
         """Append one row; the keys of the first row fix the columns. A key that starts with "_" is
         the observer's own (what a stopping rule reads: a conduit's end clearance), never a column."""
-        values = {key: value for key, value in values.items() if not key.startswith("_")}
         if self._keys is None:
+            values = {key: value for key, value in values.items() if not key.startswith("_")}
             self._create_timeseries(tuple(values), {key: int(np.size(v)) for key, v in values.items()
                                                     if isinstance(v, np.ndarray)})
-        elif set(values) != set(self._keys):
+        elif len(values) - sum(key[:1] == "_" for key in values) != len(self._keys) or \
+                not all(key in values for key in self._keys):  # (cheaper than two sets a row)
+            values = {key: value for key, value in values.items() if not key.startswith("_")}
             new = sorted(set(values) - set(self._keys))
             gone = sorted(set(self._keys) - set(values))
             raise ValueError(

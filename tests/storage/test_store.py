@@ -68,6 +68,9 @@ def test_step_keys_must_stay_consistent(tmp_path):
             w.append_step({"t": 0.1, "D_xy": 0.0, "theta": 0.7})
         with pytest.raises(ValueError, match="missing"):
             w.append_step({"t": 0.1})
+        with pytest.raises(ValueError, match=r"new \['theta'\], missing \['D_xy'\]"):  # as many, not the same
+            w.append_step({"t": 0.1, "theta": 0.7})
+        w.append_step({"t": 0.1, "D_xy": 0.2, "_end_clearance": 3.0})  # the observer's own keys are no columns
         with pytest.raises(ValueError, match="shape"):
             w.append_snapshot(0.0, np.zeros((5, 3)))
 
