@@ -180,3 +180,37 @@ def test_quarter_symmetry_changes_nothing_but_the_cost(tmp_path, kind, params, t
     assert len(full["t"]) == len(quarter["t"])
     for key in ("t", "D_xy", "theta"):
         np.testing.assert_allclose(quarter[key], full[key], rtol=0, atol=1e-10, err_msg=key)
+
+
+def _element_orbits_by_tuples(elements, perms):
+    """The element orbits as the dict of sorted node tuples found them (before issue 57's numpy keys)."""
+    index = {tuple(sorted(e)): i for i, e in enumerate(elements.tolist())}
+    images = np.array([[index[tuple(sorted(p[e]))] for e in elements.tolist()] for p in perms])
+    reps = np.flatnonzero(images.min(axis=0) == np.arange(elements.shape[0]))
+    return reps, np.array([np.unique(images[:, r]).size for r in reps], dtype=np.float64)
+
+
+@pytest.mark.parametrize("base", ["octahedron", "icosahedron"])
+@pytest.mark.parametrize("kind,params,tilt", SHAPES)
+@pytest.mark.parametrize("mode", ["auto", "mirror_z", "half"])
+def test_the_element_orbits_are_those_of_the_sorted_node_tuples(base, kind, params, tilt, mode):
+    """solver._element_orbits (integer keys of each element's sorted vertices) finds the orbits and their
+    sizes that the node tuples of its first version found, for every group a rest shape has."""
+    from capsim.solve import solver
+
+    mesh = rest_shape_mesh(kind, base, 2, tilt, **params)
+    seen = {}
+    original = solver._element_orbits
+    solver._element_orbits = lambda elements, perms: seen.setdefault("args", (elements, perms)) and original(
+        elements, perms)
+    try:
+        disc = Discretization(mesh.elements, mesh.n_vertices)
+        if disc.enable_symmetry(mesh.positions, mode=mode) is None:
+            pytest.skip(f"{kind} has no {mode} group")
+    finally:
+        solver._element_orbits = original
+    elements, perms = seen["args"]
+    reps, sizes = original(elements, perms)
+    reference_reps, reference_sizes = _element_orbits_by_tuples(elements, perms)
+    assert np.array_equal(reps, reference_reps) and np.array_equal(sizes, reference_sizes)
+    assert sizes.sum() == elements.shape[0] and len(perms) >= 1
