@@ -2179,11 +2179,13 @@ def rkc_error_estimate(y0, y_new, f0, f_new, h):
 def tank_treading_angles(x, u, nodes, center, raw_before, unwrapped_before):
     """The tracked nodes' angles about the centre in the xy-plane, unwrapped from the last step's
     (capsim.solve.observables.TankTreadingTracker.update; no node turns by π in a step), and their
-    mean rate ⟨(r × u)_z / |r|²⟩. ``raw_before`` empty: the first step. Returns (ω, raw, unwrapped)."""
+    mean rate ⟨(r × u)_z / |r|²⟩. ``raw_before`` empty: the first step. Returns (ω, the mean unwrapped
+    angle, raw, unwrapped)."""
     n = nodes.shape[0]
     raw = np.empty(n)
     unwrapped = np.empty(n)
     omega = 0.0
+    angle = 0.0
     first = raw_before.shape[0] == 0
     for i in range(n):
         r0 = x[nodes[i], 0] - center[0]
@@ -2195,4 +2197,5 @@ def tank_treading_angles(x, u, nodes, center, raw_before, unwrapped_before):
         else:
             turn = (raw[i] - raw_before[i] + np.pi) % (2 * np.pi) - np.pi
             unwrapped[i] = unwrapped_before[i] + turn
-    return omega / n, raw, unwrapped
+        angle += unwrapped[i]
+    return omega / n, angle / n, raw, unwrapped

@@ -350,6 +350,7 @@ def dissipation_ratio(S_star: np.ndarray, E: np.ndarray) -> float:
 RIGID_SPHERE_ROTATION_RATE = 0.5  # |ω| of a rigid sphere in shear: k/2, i.e. f_s = k/(4π)
 
 
+#: the tracker's angles before its first update (kernels.tank_treading_angles: "none yet")
 _NO_ANGLES = np.empty(0)
 
 
@@ -385,12 +386,9 @@ class TankTreadingTracker:
 
         # steps are short: no node turns by π between two accepted steps
         before = (self._raw, self._unwrapped) if self._raw is not None else (_NO_ANGLES, _NO_ANGLES)
-        omega, self._raw, self._unwrapped = tank_treading_angles(x, u, self.nodes, np.asarray(center, dtype=float),
-                                                                 *before)
-        return {
-            "ttf_ratio": abs(omega) / RIGID_SPHERE_ROTATION_RATE,
-            "tt_angle": float(np.mean(self._unwrapped)),
-        }
+        omega, angle, self._raw, self._unwrapped = tank_treading_angles(
+            x, u, self.nodes, np.asarray(center, dtype=float), *before)
+        return {"ttf_ratio": abs(omega) / RIGID_SPHERE_ROTATION_RATE, "tt_angle": angle}
 
     def state(self) -> dict[str, np.ndarray]:
         """The angles of the last update (the unwrapping carries them on)."""
