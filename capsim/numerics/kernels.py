@@ -662,14 +662,17 @@ def _vertex_tangents(x, elements, e, k, vdxi, vdeta, out, row):
 
 
 @njit(**_JIT)
-def _angle_weighted_normals(x, elements, n_vertices, vdxi, vdeta, elems, tang, angle):
+def _angle_weighted_normals(x, elements, n_vertices, vdxi, vdeta, elems, wanted, tang, angle):
     """The vertices' unit normals, each element's normal at the vertex weighted by its angle there
-    (seed §3), from the elements ``elems`` (complete at a vertex all of whose elements are among them);
-    fills tang (N_e, 3, 2, 3) with their tangents and angle (N_e, 3) with their angles."""
+    (seed §3), at the ``wanted`` vertices (a mask) from the elements ``elems`` (all of each wanted
+    vertex's); fills tang (N_e, 3, 2, 3) with their tangents and angle (N_e, 3) with their angles at
+    the wanted vertices (an element's other corners are neither needed nor computed)."""
     normal = np.zeros((n_vertices, 3))
     wsum = np.zeros(n_vertices)
     for e in elems:
         for k in range(3):
+            if not wanted[elements[e, k]]:
+                continue
             _vertex_tangents(x, elements, e, k, vdxi, vdeta, tang[e, k], 0)
             t10, t11, t12 = tang[e, k, 0, 0], tang[e, k, 0, 1], tang[e, k, 0, 2]
             t20, t21, t22 = tang[e, k, 1, 0], tang[e, k, 1, 1], tang[e, k, 1, 2]
@@ -710,7 +713,8 @@ def vertex_rest_inverse(X, elements, n_vertices, vdxi, vdeta):
     ne = elements.shape[0]
     tang = np.empty((ne, 3, 2, 3))
     angle = np.empty((ne, 3))
-    n_ref, _ = _angle_weighted_normals(X, elements, n_vertices, vdxi, vdeta, np.arange(ne), tang, angle)
+    n_ref, _ = _angle_weighted_normals(X, elements, n_vertices, vdxi, vdeta, np.arange(ne),
+                                       np.ones(n_vertices, dtype=np.bool_), tang, angle)
     out = np.empty((ne, 3, 2, 3))
     R = np.empty((3, 3))
     for e in range(ne):
@@ -755,10 +759,10 @@ def vertex_strain(x, elements, n_vertices, vdxi, vdeta, rest_inverse, elems, ver
     ne = elements.shape[0]
     tang = np.empty((ne, 3, 2, 3))
     angle = np.empty((ne, 3))
-    n_cur, wsum = _angle_weighted_normals(x, elements, n_vertices, vdxi, vdeta, elems, tang, angle)
     slot = np.full(n_vertices, -1, dtype=np.int64)  # each vertex's row in the outputs
     for i in range(vertices.shape[0]):
         slot[vertices[i]] = i
+    n_cur, wsum = _angle_weighted_normals(x, elements, n_vertices, vdxi, vdeta, elems, slot >= 0, tang, angle)
     m = vertices.shape[0]
     A = np.zeros((m, 3, 3))
     C = np.empty((3, 2))
