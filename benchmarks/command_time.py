@@ -97,8 +97,13 @@ def measure(tree: Path, work: Path) -> dict:
            "validate": _wall(_cli(tree, "validate", case), tree, work),
            "interpreter": _wall([sys.executable, "-c", "pass"], tree, work),
            "numba": _wall([sys.executable, "-c", "import numba"], tree, work)}
-    res = subprocess.run([sys.executable, "-c", WORKER, case], env=fresh_env(tree), cwd=work, check=True,
-                         capture_output=True, text=True)
+    return with_worker(out, [sys.executable, "-c", WORKER, case], tree, work)
+
+
+def with_worker(out: dict, args: list[str], tree: Path, work: Path) -> dict:
+    """``out`` (the whole command's wall time) with the worker's split of the same run and what follows
+    from the two: the time outside the evaluations, fresh and warm, and around the run."""
+    res = subprocess.run(args, env=fresh_env(tree), cwd=work, check=True, capture_output=True, text=True)
     out.update(json.loads(res.stdout.strip().splitlines()[-1]))
     out["outside"] = out["run"] - out["evaluations"]
     out["warm_outside"] = out["warm_run"] - out["warm_evaluations"]

@@ -25,7 +25,6 @@ import argparse
 import json
 import os
 import platform
-import subprocess
 import sys
 import tempfile
 from datetime import datetime, timezone
@@ -33,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import ROOT, fresh_env
-from command_time import WORKER, _cli, _wall
+from _common import ROOT
+from command_time import WORKER, _cli, _wall, with_worker
 
 CASE = "configs/sphere.yaml"
 #: the peer's three cases (the tranche's side-by-side comparison): label, --set overrides
@@ -54,13 +53,7 @@ def measure(sets: tuple[str, ...], work: Path) -> dict:
     options = [arg for s in sets for arg in ("--set", s)]
     out = {"command": _wall(_cli(ROOT, "run", case, *options, "-o", str(work / "cmd.h5"), "--overwrite", "--quiet"),
                             ROOT, work)}
-    res = subprocess.run([sys.executable, "-c", PEER_WORKER, case, json.dumps(list(sets))], env=fresh_env(ROOT),
-                         cwd=work, check=True, capture_output=True, text=True)
-    out.update(json.loads(res.stdout.strip().splitlines()[-1]))
-    out["outside"] = out["run"] - out["evaluations"]
-    out["warm_outside"] = out["warm_run"] - out["warm_evaluations"]
-    out["around_the_run"] = out["command"] - out["run"]
-    return out
+    return with_worker(out, [sys.executable, "-c", PEER_WORKER, case, json.dumps(list(sets))], ROOT, work)
 
 
 def main() -> None:

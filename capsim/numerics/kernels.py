@@ -704,6 +704,18 @@ def _angle_weighted_normals(x, elements, n_vertices, vdxi, vdeta, elems, wanted,
     return normal, wsum
 
 
+@njit(inline="always")
+def _project_tangents(tangents, normal, out):
+    """The two tangents (rows of ``tangents``) less their components along the unit ``normal``, as the
+    first two columns of ``out`` (a vertex's tangent plane: seed 3.4)."""
+    for col in range(2):
+        s = 0.0
+        for d in range(3):
+            s += tangents[col, d] * normal[d]
+        for d in range(3):
+            out[d, col] = tangents[col, d] - s * normal[d]
+
+
 @njit(**_JIT)
 def vertex_rest_inverse(X, elements, n_vertices, vdxi, vdeta):
     """The rest shape's part of the vertex deformation gradient (seed 3.4), made once per rest
@@ -720,12 +732,7 @@ def vertex_rest_inverse(X, elements, n_vertices, vdxi, vdeta):
     for e in range(ne):
         for k in range(3):
             v = elements[e, k]
-            for col in range(2):
-                S = 0.0
-                for d in range(3):
-                    S += tang[e, k, col, d] * n_ref[v, d]
-                for d in range(3):
-                    R[d, col] = tang[e, k, col, d] - S * n_ref[v, d]
+            _project_tangents(tang[e, k], n_ref[v], R)
             for d in range(3):
                 R[d, 2] = n_ref[v, d]
             # explicit inverse of R = [T1 T2 N]: rows are (T2×N, N×T1, T1×T2)/det
@@ -772,13 +779,7 @@ def vertex_strain(x, elements, n_vertices, vdxi, vdeta, rest_inverse, elems, ver
             row = slot[v]
             if row < 0:
                 continue
-            # tangents projected on the nodal tangent planes
-            for col in range(2):
-                s = 0.0
-                for d in range(3):
-                    s += tang[e, k, col, d] * n_cur[v, d]
-                for d in range(3):
-                    C[d, col] = tang[e, k, col, d] - s * n_cur[v, d]
+            _project_tangents(tang[e, k], n_cur[v], C)  # on the nodal tangent plane
             w = angle[e, k] / wsum[v]
             for i in range(3):
                 for j in range(3):
