@@ -24,6 +24,7 @@ from capsim.numerics.geometry import (
     volume_area,
 )
 from capsim.scene import smallest_gap
+from capsim.numerics import kernels  # numba: already loaded with capsim.numerics.membrane
 from capsim.numerics.membrane import principal_tensions
 from capsim.quantities import MOTIONS as _MOTIONS
 from capsim.quantities import TURNING_MOTIONS
@@ -163,11 +164,9 @@ def step_observables(x: np.ndarray, elements: np.ndarray, geo: ElementGeometry, 
     ellipsoid (:func:`ellipsoid_of_moment`, as numba's ``kernels.ellipsoid_of_moment``: between two
     evaluations each numpy call of the row ran 3-5 times slower than alone, issue 57), the worst
     element, the largest stretch."""
-    from capsim.numerics.kernels import ellipsoid_of_moment as ellipsoid
-
     volume, area, c, moment = surface_moments(geo)
-    e = dict(zip(_ELLIPSOID_COLUMNS, ellipsoid(moment, volume, _TIE_BREAK, DEGENERATE_GAP,
-                                                THETA_UNDEFINED_GAP).tolist()))
+    e = dict(zip(_ELLIPSOID_COLUMNS, kernels.ellipsoid_of_moment(moment, volume, _TIE_BREAK, DEGENERATE_GAP,
+                                                                 THETA_UNDEFINED_GAP).tolist()))
     cx, cy, cz = c.tolist()
     row = {"D_xy": e.pop("D_xy"), "theta": e.pop("theta"), "volume": volume, "area": area,
            "centroid_x": cx, "centroid_y": cy, "centroid_z": cz}
@@ -270,13 +269,11 @@ def row_surface_sums(geo: ElementGeometry, density: np.ndarray, weights: np.ndar
                      director: MaterialDirector) -> RowSums:
     """:class:`RowSums` of a configuration: Δf element-nodal (N_e, 6, 3), or element-constant (N_e, 3: the
     contour method's, repeated at the six nodes: the shape functions sum to one), per the measure ``weights``."""
-    from capsim.numerics.kernels import row_surface_sums as kernel
-
     if density.ndim == 2:
         density = np.repeat(density[:, None, :], elements.shape[1], axis=1)
-    return RowSums(kernel(geo.points, geo.normals, geo.weights, np.ascontiguousarray(weights), density,
-                          np.ascontiguousarray(u), elements, phi, np.asarray(center, dtype=np.float64),
-                          director.weights, director.w))
+    return RowSums(kernels.row_surface_sums(geo.points, geo.normals, geo.weights, np.ascontiguousarray(weights),
+                                            density, np.ascontiguousarray(u), elements, phi,
+                                            np.asarray(center, dtype=np.float64), director.weights, director.w))
 
 
 def particle_stresslet(
@@ -382,11 +379,9 @@ class TankTreadingTracker:
         self._unwrapped: np.ndarray | None = None
 
     def update(self, x: np.ndarray, u: np.ndarray, center: np.ndarray) -> dict:
-        from capsim.numerics.kernels import tank_treading_angles  # one pass (issue 57)
-
         # steps are short: no node turns by π between two accepted steps
         before = (self._raw, self._unwrapped) if self._raw is not None else (_NO_ANGLES, _NO_ANGLES)
-        omega, angle, self._raw, self._unwrapped = tank_treading_angles(
+        omega, angle, self._raw, self._unwrapped = kernels.tank_treading_angles(
             x, u, self.nodes, np.asarray(center, dtype=float), *before)
         return {"ttf_ratio": abs(omega) / RIGID_SPHERE_ROTATION_RATE, "tt_angle": angle}
 

@@ -131,6 +131,15 @@ def scene_size(bodies: Any) -> Callable[[np.ndarray], float]:
     return size
 
 
+@functools.cache
+def _kernels():
+    """capsim.numerics.kernels, imported on first use (reading a case loads no numba) and then held: the
+    step's kernels are looked up every step, an import statement there cost ~3 µs a step."""
+    from capsim.numerics import kernels
+
+    return kernels
+
+
 def load_step_kernels() -> None:
     """Load (or compile) the step's vector kernels with the signatures a run calls them with: the
     warm-up's tiny run may step with another scheme than the run it prepares (its level's choice)."""
@@ -565,8 +574,7 @@ def rkc_step(f: Callable[[np.ndarray], np.ndarray], y0: np.ndarray, f0: np.ndarr
         Y_1 = Y_0 + μ̃_1 h F_0
         Y_j = (1 − μ_j − ν_j) Y_0 + μ_j Y_{j−1} + ν_j Y_{j−2} + μ̃_j h F(Y_{j−1}) + γ̃_j h F_0
     """
-    from capsim.numerics.kernels import rkc_stage  # the stage's five vectors in one pass (issue 57)
-
+    rkc_stage = _kernels().rkc_stage  # the stage's five vectors in one pass (issue 57)
     y_prev2, y_prev = y0, y0 + (coef.mu_tilde[1] * h) * f0
     for j in range(2, coef.s + 1):
         fj = f(y_prev)
@@ -707,8 +715,7 @@ class RungeKuttaChebyshev(Integrator):
         if h * self.rho > coef.beta:  # at the bound: the longest step s_max stages keep stable
             h, cut = coef.beta / self.rho, True
             self.stage_bound_hits += 1
-        from capsim.numerics.kernels import all_finite, rkc_error_estimate
-
+        kernels = _kernels()
         y0, f0 = self.y, self.u
         y_new = rkc_step(self._at(self.t + h * coef.c[1:s]), y0, f0, h, coef)
         if not np.all(np.isfinite(y_new)):
@@ -716,11 +723,12 @@ class RungeKuttaChebyshev(Integrator):
         self.stage_t = self.t + h
         u_new, aux = self.evaluate(y_new)
         # SSV 1998 (3.1): local error estimate of the second-order solution
-        est = rkc_error_estimate(y0.ravel(), y_new.ravel(), f0.ravel(), u_new.ravel(), h).reshape(y0.shape)
+        est = kernels.rkc_error_estimate(y0.ravel(), y_new.ravel(), f0.ravel(), u_new.ravel(), h)
+        est = est.reshape(y0.shape)
         err = self.error_of(est, y0, self.error_rtol)
         if self.UNIT_STEP is not None:
             err *= self.UNIT_STEP / h
-        finite = math.isfinite(err) and all_finite(u_new.ravel())
+        finite = math.isfinite(err) and kernels.all_finite(u_new.ravel())
         accepted = finite and err <= 1.0
         if accepted:
             self.u = u_new
