@@ -76,7 +76,7 @@ bench-split: venv
 	$(BIN)/python benchmarks/evaluation_split.py
 
 # the demo's command around its evaluations (issue 57): the whole command, validate, imports, the run's
-# evaluations, rows and writes, this checkout against the baseline in alternating rounds (about 1 min):
+# evaluations, rows and writes, this checkout against the baseline in alternating rounds (about 3 min):
 # writes benchmarks/command_time.md and benchmarks/command_time.json
 .PHONY: bench-command
 bench-command: venv
@@ -89,7 +89,7 @@ bench-peer-command: venv
 	$(BIN)/python benchmarks/peer_command_time.py
 
 # a campaign of 16 short level-2 runs on one worker (issue 57): its time outside the evaluations, this
-# checkout against the baseline in alternating rounds (about 1 min): writes benchmarks/campaign_overhead.{md,json}
+# checkout against the baseline in alternating rounds (about 2 min): writes benchmarks/campaign_overhead.{md,json}
 .PHONY: bench-campaign
 bench-campaign: venv
 	$(BIN)/python benchmarks/campaign_overhead.py

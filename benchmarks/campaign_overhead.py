@@ -17,7 +17,7 @@ wrapping the run's parts:
 Counts are given beside the times (steps, evaluations): they do not drift with the machine's load.
 Usage::
 
-    python benchmarks/campaign_overhead.py              # 3 rounds, medians (about 1 min)
+    python benchmarks/campaign_overhead.py              # 3 rounds, medians (about 2 min)
     python benchmarks/campaign_overhead.py --rounds 1 --out /tmp/co
 
 Writes ``<out>.md`` and ``<out>.json`` (default ``benchmarks/campaign_overhead.{md,json}``).
