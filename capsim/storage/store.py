@@ -31,6 +31,7 @@ Every dataset takes units, long_name and definition from the one table
 from __future__ import annotations
 
 import contextlib
+import itertools
 import os
 import shutil
 import time
@@ -187,6 +188,30 @@ def _attach(ds: h5py.Dataset, *scales: h5py.Dataset) -> None:
         ds.dims[axis].attach_scale(scale)
 
 
+def _mesh_group(mesh: h5py.Group, n_nodes: int, n_elements: int) -> None:
+    """The run file's ``mesh`` group for `n_nodes` nodes and `n_elements` elements, its elements and
+    rest positions zero and its dimension scales made but not attached (a template: see :func:`_template`)."""
+    _describe(mesh, "mesh")
+    # netCDF-4 dimensions with index coordinates, so that xarray opens the group as it is (issue 16)
+    _index(mesh, "node", n_nodes), _index(mesh, "xyz", 3)
+    _index(mesh, "element", n_elements), _index(mesh, "element_node", 6)
+    _label(mesh.create_dataset("elements", shape=(n_elements, 6), dtype=np.int64), "elements")
+    _label(mesh.create_dataset("rest_positions", shape=(n_nodes, 3), dtype=np.float64), "rest_positions")
+    positions = mesh.create_dataset(
+        "positions",
+        shape=(0, n_nodes, 3),
+        maxshape=(None, n_nodes, 3),
+        chunks=(1, n_nodes, 3),
+        dtype=np.float64,
+    )
+    snapshot_t = mesh.create_dataset(
+        "snapshot_t", shape=(0,), maxshape=(None,), chunks=(256,), dtype=np.float64
+    )
+    _label(positions, "positions")
+    _label(snapshot_t, "snapshot_t")
+    snapshot_t.make_scale("snapshot_t")
+
+
 class TrajectoryWriter:
     """Append-only writer of one run's trajectory.
 
@@ -287,29 +312,25 @@ class TrajectoryWriter:
         for key, value in (attrs or {}).items():
             f.attrs[key] = value
 
-        mesh = f.create_group("mesh")
-        _describe(mesh, "mesh")
-        # netCDF-4 dimensions with index coordinates, so that xarray opens the group as it is (issue 16)
-        node, xyz = _index(mesh, "node", n_nodes), _index(mesh, "xyz", 3)
-        element, element_node = _index(mesh, "element", elements.shape[0]), _index(mesh, "element_node", 6)
-        _label(ds := mesh.create_dataset("elements", data=elements.astype(np.int64)), "elements")
-        _attach(ds, element, element_node)
-        _label(ds := mesh.create_dataset("rest_positions", data=rest_positions), "rest_positions")
-        _attach(ds, node, xyz)
-        positions = mesh.create_dataset(
-            "positions",
-            shape=(0, n_nodes, 3),
-            maxshape=(None, n_nodes, 3),
-            chunks=(1, n_nodes, 3),
-            dtype=np.float64,
-        )
-        snapshot_t = mesh.create_dataset(
-            "snapshot_t", shape=(0,), maxshape=(None,), chunks=(256,), dtype=np.float64
-        )
-        _label(positions, "positions")
-        _label(snapshot_t, "snapshot_t")
-        snapshot_t.make_scale("snapshot_t")
-        _attach(positions, snapshot_t, node, xyz)
+        # the mesh group from this process's template of a mesh of this size (its labelled objects made
+        # once), this mesh's elements and rest positions written into it, the dimension scales attached here
+        def build(mesh: h5py.Group) -> None:
+            _mesh_group(mesh, n_nodes, elements.shape[0])
+
+        if TEMPLATES:
+            source, datasets = _template(("mesh", n_nodes, elements.shape[0]), build)
+        else:
+            build(mesh := f.create_group("mesh"))
+            datasets = {name: mesh[name].id for name in ("elements", "rest_positions")}
+        datasets["elements"].write(h5py.h5s.ALL, h5py.h5s.ALL, np.ascontiguousarray(elements, dtype=np.int64))
+        datasets["rest_positions"].write(h5py.h5s.ALL, h5py.h5s.ALL, np.ascontiguousarray(rest_positions))
+        if TEMPLATES:
+            mesh = _copy_template(source, f, "mesh")
+        node, xyz, element, element_node, snapshot_t = (mesh[name] for name in (
+            "node", "xyz", "element", "element_node", "snapshot_t"))
+        _attach(mesh["elements"], element, element_node)
+        _attach(mesh["rest_positions"], node, xyz)
+        _attach(mesh["positions"], snapshot_t, node, xyz)
         _describe(f.create_group("timeseries"), "timeseries")
         f.flush()
         image = f.id.get_file_image()
@@ -485,22 +506,38 @@ class TrajectoryWriter:
         if not keys:
             raise ValueError("append_step needs at least one value")
         widths = widths or {}
-        columns = []
-        for key in keys:
-            w = widths.get(key)
-            if w is None:  # one column: h5py's create_dataset through the low-level calls (~70 columns a run)
-                ds = h5py.Dataset(h5py.h5d.create(self._timeseries.id, key.encode("utf-8"), h5py.h5t.IEEE_F64LE,
-                                                  h5py.h5s.create_simple((0,), (h5py.h5s.UNLIMITED,)),
-                                                  dcpl=_COLUMN_DCPL))
-            else:
-                ds = self._timeseries.create_dataset(key, shape=(0, w), maxshape=(None, w),
-                                                     chunks=(max(1, 4096 // w), w), dtype=np.float64)
-            _label(ds, key)
-            columns.append(ds)
+
+        def make(group: h5py.Group) -> list[h5py.Dataset]:
+            columns = []
+            for key in keys:
+                w = widths.get(key)
+                if w is None:  # one column: h5py's create_dataset through the low-level calls (~70 columns a run)
+                    ds = h5py.Dataset(h5py.h5d.create(group.id, key.encode("utf-8"), h5py.h5t.IEEE_F64LE,
+                                                      h5py.h5s.create_simple((0,), (h5py.h5s.UNLIMITED,)),
+                                                      dcpl=_COLUMN_DCPL))
+                else:
+                    ds = group.create_dataset(key, shape=(0, w), maxshape=(None, w),
+                                              chunks=(max(1, 4096 // w), w), dtype=np.float64)
+                _label(ds, key)
+                columns.append(ds)
+            if "t" in keys:
+                columns[keys.index("t")].make_scale("t")
+            return columns
+
+        if widths or not TEMPLATES:  # several capsules (rare; an evaluation of several costs far more): made here
+            columns = make(self._timeseries)
+        else:  # the header's empty group replaced by this process's template of these columns
+            def build(group: h5py.Group) -> None:
+                _describe(group, "timeseries")
+                make(group)
+
+            del self._file["timeseries"]
+            source, _ = _template(("timeseries", keys), build)
+            self._timeseries = _copy_template(source, self._file, "timeseries")
+            columns = [h5py.Dataset(h5py.h5d.open(self._timeseries.id, key.encode("utf-8"))) for key in keys]
         capsule = _index(self._timeseries, CAPSULE_DIM, next(iter(widths.values()))) if widths else None
         if "t" in keys:
             t = columns[keys.index("t")]
-            t.make_scale("t")
             for key, ds in zip(keys, columns):
                 if key != "t":
                     h5py.h5ds.attach_scale(ds.id, t.id, 0)
@@ -602,9 +639,7 @@ class TrajectoryWriter:
         self._check_room()
         if name in self._file:
             del self._file[name]
-        group = self._file.create_group(name)
-        _describe(group, name)
-        _write_dict(group, data, name)
+        _new_group(self._file, name, data, name, describe=True)
         self.flush()
 
     def flush(self) -> None:
@@ -650,6 +685,95 @@ def _append(dataset: h5py.Dataset, block: np.ndarray, length: int) -> None:
     dataset.id.write(h5py.h5s.create_simple(block.shape), space, block)
 
 
+# -- templates: the labelled objects every run file repeats, made once a process ----------------------------
+#
+# HDF5 spends ~30 µs on each attribute it creates and ~40 µs on each dataset (inside the library: a
+# run file's ~135 labelled datasets and ~580 attributes took ~35 ms of a level-2 campaign run's ~95 ms
+# outside its evaluations), but copies a whole group of them (H5Ocopy) in a tenth of that. So a group
+# of labelled scalars, and the time series' empty labelled columns, are made once per process in an
+# in-memory file and copied into each run file; then only the values are written. The copy is the same
+# objects with the same attributes: the file is unchanged. Dimension scales are attached after the copy
+# (H5Ocopy does not carry an attached scale's references into another file).
+
+#: False: every object made in the run file itself (the test that the templates change nothing)
+TEMPLATES = True
+#: templates kept per process before the in-memory file is started afresh (a campaign's runs share a few)
+_TEMPLATE_LIMIT = 64
+_template_file: h5py.File | None = None
+_template_files = itertools.count()
+#: signature -> (the template's name in the in-memory file, its datasets by name)
+_templates: dict[tuple, tuple[bytes, dict[str, h5py.h5d.DatasetID]]] = {}
+
+
+def _template(signature: tuple, build: Callable[[h5py.Group], None]) -> tuple[bytes, dict[str, h5py.h5d.DatasetID]]:
+    """This process's template of `signature`, made by ``build`` on its first use (`signature` must fix
+    everything ``build`` writes but the datasets' values): its name and its datasets (the group's own)."""
+    global _template_file
+    found = _templates.get(signature)
+    if found is not None:
+        return found
+    if _template_file is None or len(_templates) >= _TEMPLATE_LIMIT:
+        if _template_file is not None:
+            _template_file.close()
+        _templates.clear()
+        # a name of its own (HDF5 refuses to create a file by the name of one still open)
+        _template_file = h5py.File(f"capsim-templates-{os.getpid()}-{next(_template_files)}", "w", driver="core",
+                                   backing_store=False)
+    name = f"t{len(_templates)}"
+    group = _template_file.create_group(name)
+    build(group)
+    datasets = {key: h5py.h5d.open(group.id, key.encode("utf-8")) for key, item in group.items()
+                if isinstance(item, h5py.Dataset)}
+    _templates[signature] = found = (name.encode("ascii"), datasets)
+    return found
+
+
+def _copy_template(source: bytes, parent: h5py.Group, name: str) -> h5py.Group:
+    """The template `source` copied to ``parent/name`` (H5Ocopy: its objects, attributes and data)."""
+    h5py.h5o.copy(_template_file.id, source, parent.id, name.encode("utf-8"))
+    return parent[name]
+
+
+#: a group with at least this many scalars is copied from a template (fewer: made directly)
+_TEMPLATE_MIN_SCALARS = 4
+
+
+def _scalar_kind(value: Any) -> str | None:
+    """How a template holds `value`: the dtype of a number, "str", "bool"; None for what it does not
+    (arrays, lists, dicts: written directly)."""
+    kind = _NUMBER_TYPES.get(type(value))
+    if kind is None and type(value) in (str, bool, np.bool_):
+        kind = "bool" if type(value) is not str else "str"
+    return kind
+
+
+def _new_group(parent: h5py.Group, name: str, data: dict[str, Any], where: str | None, describe: bool) -> None:
+    """Group ``parent/name`` holding `data` as :func:`_write_dict` writes it (its ``definition`` where
+    `describe`): the labelled scalars from a template, written there with this group's values and copied
+    (writing into the in-memory template and copying takes half the time of writing after the copy)."""
+    kinds = {key: kind for key, value in data.items() if (kind := _scalar_kind(value)) is not None}
+    if len(kinds) < _TEMPLATE_MIN_SCALARS or not TEMPLATES:
+        group = parent.create_group(name)
+        if describe:
+            _describe(group, name)
+        _write_dict(group, data, where)
+        return
+
+    def build(group: h5py.Group) -> None:
+        if describe:
+            _describe(group, name)
+        _write_dict(group, {key: data[key] for key in kinds}, where)
+
+    source, scalars = _template((name if describe else None, where, tuple(kinds.items())), build)
+    for key, kind in kinds.items():
+        if kind in ("str", "bool"):
+            h5py.Dataset(scalars[key])[()] = data[key]
+        else:
+            scalars[key].write(h5py.h5s.ALL, h5py.h5s.ALL, np.array(data[key], dtype=kind))
+    group = _copy_template(source, parent, name)
+    _write_dict(group, {key: value for key, value in data.items() if key not in kinds}, where)
+
+
 def _write_dict(group: h5py.Group, data: dict[str, Any], where: str | None = None) -> None:
     """Datasets for `data` (nested dicts as subgroups), labelled as names in group `where`."""
     for key, value in data.items():
@@ -665,7 +789,7 @@ def _write_dict(group: h5py.Group, data: dict[str, Any], where: str | None = Non
                 _label(ds := sub.create_dataset(name, data=values), name, where)
                 _attach(ds, capsule)
         elif isinstance(value, dict):
-            _write_dict(group.create_group(key), value, where)
+            _new_group(group, key, value, where, describe=False)
         elif value is None:
             raise TypeError(f"cannot store None for '{group.name}/{key}'")
         elif type(value) in _NUMBER_TYPES:  # most of a summary: a scalar dataset by the low-level calls
