@@ -967,11 +967,15 @@ class Output(_Model):
         description="time between full snapshots, 1/k; at least time.dt_min (the steps are clipped to "
         "the snapshot times) and at least time.t_end / 10000 (each snapshot holds every node)",
     )
-    checkpoint_every_steps: int = Field(
-        50, ge=1, strict=True, description="write the restart checkpoint <path>.ckpt.npz every N accepted steps"
+    checkpoint_every_steps: int | None = Field(
+        None, ge=1, strict=True,
+        description="also write the restart checkpoint <path>.ckpt.npz every N accepted steps (default: none; "
+        "the checkpoint follows the wall time, checkpoint_every_s)",
     )
     checkpoint_every_s: float = Field(
-        60.0, gt=0, description="... and at least every M seconds of wall time"
+        10.0, gt=0,
+        description="write the restart checkpoint <path>.ckpt.npz every M seconds of wall time (and at the first "
+        "row, and when the run is stopped): a killed run redoes at most that much",
     )
 
 

@@ -217,8 +217,8 @@ def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool 
     With ``resume`` the run continues from the checkpoint ``<output>.ckpt.npz``
     of an earlier, interrupted run of the same case (raising :class:`ResumeError`
     before touching any file when it cannot), on the same step sequence as an
-    uninterrupted run. The checkpoint is written every
-    ``output.checkpoint_every_steps`` steps or ``checkpoint_every_s`` seconds,
+    uninterrupted run. The checkpoint is written at the first row, every
+    ``output.checkpoint_every_s`` seconds (and ``checkpoint_every_steps`` steps where set) and when stopped,
     kept when the run is interrupted or fails, removed when it ends otherwise.
 
     The run file's lock (:class:`capsim.storage.store.FileLock`) is taken before any file
