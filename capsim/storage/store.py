@@ -133,17 +133,22 @@ _COLUMN_DCPL = _column_dcpl()
 
 
 def set_text_attrs(obj: h5py.HLObject, attrs: dict[str, Any]) -> None:
-    """``obj.attrs[key] = value`` for each item, the text ones through h5py's low-level calls: the
-    same variable-length UTF-8 attribute, a third of the time (a run file's ~130 labelled datasets
+    """``obj.attrs[key] = value`` for each item, the text and number ones through h5py's low-level calls:
+    the same variable-length UTF-8 (or <f8, <i8) attribute, a third of the time (a run file's ~130 labelled datasets
     took ~45 ms at ~0.1 ms an attribute, a level-2 run's tenth)."""
     for key, value in attrs.items():
-        if not isinstance(value, str):
+        number = _NUMBER_TYPES.get(type(value))  # a float or an int as h5py stores it (<f8, <i8)
+        if not isinstance(value, str) and number is None:
             obj.attrs[key] = value
             continue
         name = key.encode("utf-8")
         if h5py.h5a.exists(obj.id, name):
             h5py.h5a.delete(obj.id, name)
-        h5py.h5a.create(obj.id, name, _TEXT_TYPE, _SCALAR_SPACE).write(np.array(value, dtype=_TEXT_DTYPE))
+        if number is None:
+            h5py.h5a.create(obj.id, name, _TEXT_TYPE, _SCALAR_SPACE).write(np.array(value, dtype=_TEXT_DTYPE))
+        else:
+            data = np.array(value, dtype=number)
+            h5py.h5a.create(obj.id, name, h5py.h5t.py_create(data.dtype), _SCALAR_SPACE).write(data)
 
 
 def _describe(group: h5py.Group, name: str) -> None:
@@ -190,7 +195,7 @@ def _attach(ds: h5py.Dataset, *scales: h5py.Dataset) -> None:
 
 def _mesh_group(mesh: h5py.Group, n_nodes: int, n_elements: int) -> None:
     """The run file's ``mesh`` group for `n_nodes` nodes and `n_elements` elements, its elements and
-    rest positions zero and its dimension scales made but not attached (a template: see :func:`_template`)."""
+    rest positions zero and its dimension scales made but not attached (:func:`_header_image` attaches them)."""
     _describe(mesh, "mesh")
     # netCDF-4 dimensions with index coordinates, so that xarray opens the group as it is (issue 16)
     _index(mesh, "node", n_nodes), _index(mesh, "xyz", 3)
@@ -210,6 +215,29 @@ def _mesh_group(mesh: h5py.Group, n_nodes: int, n_elements: int) -> None:
     _label(positions, "positions")
     _label(snapshot_t, "snapshot_t")
     snapshot_t.make_scale("snapshot_t")
+
+
+#: (nodes, elements) -> the image of a run file's skeleton for a mesh of that size (:func:`_header_image`)
+_header_images: dict[tuple[int, int], bytes] = {}
+
+
+def _header_image(n_nodes: int, n_elements: int) -> bytes:
+    """The in-memory image of a run file's skeleton: CF's global attributes, the ``mesh`` group
+    (elements and rest positions zero, its dimension scales attached) and the empty ``timeseries``."""
+    # Default libver on purpose: libver="latest" writes a superblock whose
+    # "open for write" flag survives a SIGKILL and then refuses every reader.
+    f = h5py.File(f"capsim-header-{os.getpid()}-{next(_template_files)}", "w", driver="core", backing_store=False)
+    f.attrs.update(global_attrs("capsim run"))  # CF: Conventions, the scale definitions (issue 16)
+    mesh = f.create_group("mesh")
+    _mesh_group(mesh, n_nodes, n_elements)
+    _attach(mesh["elements"], mesh["element"], mesh["element_node"])
+    _attach(mesh["rest_positions"], mesh["node"], mesh["xyz"])
+    _attach(mesh["positions"], mesh["snapshot_t"], mesh["node"], mesh["xyz"])
+    _describe(f.create_group("timeseries"), "timeseries")
+    f.flush()
+    image = f.id.get_file_image()
+    f.close()
+    return image
 
 
 class TrajectoryWriter:
@@ -296,42 +324,30 @@ class TrajectoryWriter:
             raise ValueError(f"elements must have shape (Ne, 6), got {elements.shape}")
         if rest_positions.ndim != 2 or rest_positions.shape[1] != 3:
             raise ValueError(f"rest_positions must have shape (Np, 3), got {rest_positions.shape}")
-        n_nodes = rest_positions.shape[0]
-        # Default libver on purpose: libver="latest" writes a superblock whose
-        # "open for write" flag survives a SIGKILL and then refuses every reader.
-        f = h5py.File(f"capsim-header-{os.getpid()}-{id(rest_positions)}", "w", driver="core", backing_store=False)
-        f.attrs.update(global_attrs("capsim run"))  # CF: Conventions, the scale definitions (issue 16)
-        f.attrs["config_yaml"] = config_yaml
-        f.attrs["capsim_version"] = version
-        f.attrs["status"] = "running"
-        f.attrs["status_reason"] = ""
-        f.attrs["created"] = _now()
+        n_nodes, n_elements = rest_positions.shape[0], elements.shape[0]
+        # the file's skeleton (the mesh's labelled objects and dimension scales, the groups, CF's global
+        # attributes) is this process's image for a mesh of this size, made once (``_header_image``); this
+        # run's values and attributes are written into a copy of it in memory
+        image = _header_images.get((n_nodes, n_elements)) if TEMPLATES else None
+        if image is None:
+            image = _header_image(n_nodes, n_elements)
+            if TEMPLATES:
+                if len(_header_images) >= _TEMPLATE_LIMIT:
+                    _header_images.clear()
+                _header_images[(n_nodes, n_elements)] = image
+        fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+        fapl.set_fapl_core(backing_store=False)
+        fapl.set_file_image(image)
+        f = h5py.File(h5py.h5f.open(f"capsim-header-{os.getpid()}-{next(_template_files)}".encode("ascii"),
+                                    h5py.h5f.ACC_RDWR, fapl=fapl))
+        h5py.h5d.open(f.id, b"mesh/elements").write(h5py.h5s.ALL, h5py.h5s.ALL,
+                                                    np.ascontiguousarray(elements, dtype=np.int64))
+        h5py.h5d.open(f.id, b"mesh/rest_positions").write(h5py.h5s.ALL, h5py.h5s.ALL,
+                                                          np.ascontiguousarray(rest_positions))
         from capsim.numerics.threads import policy_attrs  # numba-free: the threads this run computes with
 
-        f.attrs.update(policy_attrs())
-        for key, value in (attrs or {}).items():
-            f.attrs[key] = value
-
-        # the mesh group from this process's template of a mesh of this size (its labelled objects made
-        # once), this mesh's elements and rest positions written into it, the dimension scales attached here
-        def build(mesh: h5py.Group) -> None:
-            _mesh_group(mesh, n_nodes, elements.shape[0])
-
-        if TEMPLATES:
-            source, datasets = _template(("mesh", n_nodes, elements.shape[0]), build)
-        else:
-            build(mesh := f.create_group("mesh"))
-            datasets = {name: mesh[name].id for name in ("elements", "rest_positions")}
-        datasets["elements"].write(h5py.h5s.ALL, h5py.h5s.ALL, np.ascontiguousarray(elements, dtype=np.int64))
-        datasets["rest_positions"].write(h5py.h5s.ALL, h5py.h5s.ALL, np.ascontiguousarray(rest_positions))
-        if TEMPLATES:
-            mesh = _copy_template(source, f, "mesh")
-        node, xyz, element, element_node, snapshot_t = (mesh[name] for name in (
-            "node", "xyz", "element", "element_node", "snapshot_t"))
-        _attach(mesh["elements"], element, element_node)
-        _attach(mesh["rest_positions"], node, xyz)
-        _attach(mesh["positions"], snapshot_t, node, xyz)
-        _describe(f.create_group("timeseries"), "timeseries")
+        set_text_attrs(f, {"config_yaml": config_yaml, "capsim_version": version, "status": "running",
+                           "status_reason": "", "created": _now(), **policy_attrs(), **(attrs or {})})
         f.flush()
         image = f.id.get_file_image()
         f.close()
@@ -666,9 +682,7 @@ class TrajectoryWriter:
         if self.closed:
             return
         self._write_pending()
-        self._file.attrs["status"] = status
-        self._file.attrs["status_reason"] = reason
-        self._file.attrs["finished"] = _now()
+        set_text_attrs(self._file, {"status": status, "status_reason": reason, "finished": _now()})
         self._file.flush()
         self._file.close()
 

@@ -89,6 +89,7 @@ def fresh_templates(monkeypatch):
     """No templates made yet in this process; the templates on."""
     monkeypatch.setattr(store, "_templates", {})
     monkeypatch.setattr(store, "_template_file", None)
+    monkeypatch.setattr(store, "_header_images", {})
     monkeypatch.setattr(store, "TEMPLATES", True)
 
 
@@ -96,7 +97,8 @@ def test_templates_change_nothing_in_the_file(tmp_path, fresh_templates, monkeyp
     _write(tmp_path / "first.h5", 1)  # the templates made
     made = len(store._templates)
     _write(tmp_path / "second.h5", 2)  # reused, their values overwritten
-    assert len(store._templates) == made >= 6  # mesh, time series, law and its parameters, rest shape, run, summary
+    assert len(store._templates) == made >= 5  # time series, law and its parameters, rest shape, run, summary
+    assert len(store._header_images) == 1  # the mesh
     monkeypatch.setattr(store, "TEMPLATES", False)
     _write(tmp_path / "first_plain.h5", 1)
     _write(tmp_path / "second_plain.h5", 2)
