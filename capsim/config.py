@@ -974,8 +974,8 @@ class Output(_Model):
     )
     checkpoint_every_s: float = Field(
         10.0, gt=0,
-        description="write the restart checkpoint <path>.ckpt.npz every M seconds of wall time (and at the first "
-        "row, and when the run is stopped): a killed run redoes at most that much",
+        description="write the restart checkpoint <path>.ckpt.npz every M seconds of wall time (and when the run "
+        "is stopped): a killed run redoes at most that much (killed before its first, --resume starts it again)",
     )
 
 

@@ -217,8 +217,9 @@ def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool 
     With ``resume`` the run continues from the checkpoint ``<output>.ckpt.npz``
     of an earlier, interrupted run of the same case (raising :class:`ResumeError`
     before touching any file when it cannot), on the same step sequence as an
-    uninterrupted run. The checkpoint is written at the first row, every
-    ``output.checkpoint_every_s`` seconds (and ``checkpoint_every_steps`` steps where set) and when stopped,
+    uninterrupted run. The checkpoint is written every ``output.checkpoint_every_s`` seconds (and
+    ``checkpoint_every_steps`` steps where set) and when the run is stopped; a run killed before its first
+    (its file of this case left 'running', no checkpoint) is started again. The checkpoint is
     kept when the run is interrupted or fails, removed when it ends otherwise.
 
     The run file's lock (:class:`capsim.storage.store.FileLock`) is taken before any file
@@ -241,6 +242,9 @@ def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool 
         return run_ladder(case, run_case, progress, overwrite=overwrite)
     with _StopSignals() as stop, FileLock(case.output.path):
         remove_stale_ladder_files(case.output.path)  # a killed ladder's hidden files (capsim.runs.ladder holds this lock)
+        if resume and _killed_before_its_first_checkpoint(case):
+            # nothing to continue from but the case: the run starts again, on the steps it had taken
+            resume, overwrite = False, True
         if not overwrite and not resume and Path(case.output.path).exists():
             # checked again under the lock: another run may have written this path since the
             # caller's check (the first run after an install compiles its kernels in between)
@@ -260,6 +264,22 @@ def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool 
             return RunResult("unstable", f"guard solver: during set-up (the automatic scheme's probe of the first "
                              f"state) {exc}; nothing was written", str(case.output.path))
         return run.execute()
+
+
+def _killed_before_its_first_checkpoint(case: Case) -> bool:
+    """True for a run file of this very case left 'running' (its process killed: SIGKILL, the
+    out-of-memory killer) with neither a checkpoint nor an end state: killed before its first
+    checkpoint (output.checkpoint_every_s into the run). The caller holds the file's lock, so no
+    live run is writing it."""
+    from capsim.config import case_digest
+    from capsim.storage.store import read_run_identity
+
+    path = Path(case.output.path)
+    if checkpoint_path(path).exists() or not path.exists():
+        return False
+    status, digest = read_run_identity(path)
+    return (status == "running" and digest == case_digest(case.model_dump(mode="json"))
+            and read_end_state(path) is None)
 
 
 # ---------------------------------------------------------------- one run
@@ -511,7 +531,9 @@ class _Run:
             self.writer.append_snapshot(0.0, ig.y)
             self.snapshots.taken(0.0)
             self.committed = self._parts()
-            self._save_checkpoint(self.committed)
+            # no checkpoint of the first state: it is the case's own (a run killed before its first
+            # checkpoint is started again by --resume, on the same steps); the first is due
+            # output.checkpoint_every_s into the run
         else:
             self._solve_tolerance()  # resumed: as the uninterrupted run set it at this state
         state = LoopState(ig.t, ig.dt, ig.steps, signal=stop.name)

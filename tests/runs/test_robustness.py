@@ -12,6 +12,7 @@ import sys
 import time
 from pathlib import Path
 
+import h5py
 import numpy as np
 import pytest
 import yaml
@@ -441,7 +442,8 @@ def test_sweep_stops_on_sigterm_to_its_process_group_with_idle_workers(tmp_path)
     campaign = tmp_path / "c.yaml"
     campaign.write_text(yaml.safe_dump({
         "name": "sigterm",
-        "base": {"shape": {"kind": "sphere"}, "time": {"t_end": 60.0}},
+        # a checkpoint every 5 steps: the sign that the long run has taken steps (by default the first is 10 s in)
+        "base": {"shape": {"kind": "sphere"}, "time": {"t_end": 60.0}, "output": {"checkpoint_every_steps": 5}},
         "sweep": {},
         "zip": {"flow.shear_rate_G": [0.1, 0.2, 0.3], "mesh.level": [2, 0, 0], "time.t_end": [60.0, 0.3, 0.3]},
         "output": {"dir": str(tmp_path / "out")},
@@ -470,3 +472,34 @@ def test_sweep_stops_on_sigterm_to_its_process_group_with_idle_workers(tmp_path)
     statuses = sorted(read_run_status(p) for p in out.glob("*.h5"))
     assert statuses == ["completed", "completed", "interrupted"]
 
+
+
+def _as_killed_early(path: Path) -> None:
+    """Make a completed run's file look like one whose process was killed before its first checkpoint:
+    status 'running', no end state (and no checkpoint beside it)."""
+    with h5py.File(path, "a") as f:
+        f.attrs["status"] = "running"
+        for name in ("end_state", "end_state_byte"):
+            del f[name]
+    assert not checkpoint_path(path).exists()
+
+
+def test_resume_starts_again_a_run_killed_before_its_first_checkpoint(tmp_path):
+    # checkpoints by wall time (10 s by default): a run killed in its first seconds has none; --resume then
+    # runs the case again, which is what continuing from its first state would do
+    case = case_from_dict({"name": "early", "flow": {"shear_rate_G": 0.2}, "mesh": {"level": 0},
+                           "time": {"t_end": 0.5}, "output": {"path": str(tmp_path / "early.h5")}})
+    assert run_case(case)["status"] == "completed"
+    reference = read_trajectory(case.output.path)["timeseries"]
+    _as_killed_early(Path(case.output.path))
+    result = run_case(case, resume=True)
+    assert result["status"] == "completed"
+    again = read_trajectory(case.output.path)["timeseries"]
+    for key in ("t", "D_xy", "theta"):
+        np.testing.assert_array_equal(again[key], reference[key])
+    # a file of another case left 'running' is not this run's to start again: refused, untouched
+    _as_killed_early(Path(case.output.path))
+    before = Path(case.output.path).read_bytes()
+    with pytest.raises(ResumeError, match="left no checkpoint"):
+        run_case(apply_overrides(case, **{"flow.shear_rate_G": 0.3}), resume=True)
+    assert Path(case.output.path).read_bytes() == before

@@ -529,6 +529,7 @@ def test_ctrl_c_in_a_sweep_is_recorded_as_sigint(tmp_path):
     d = _campaign(out)
     d["base"]["time"]["t_end"] = 50.0
     d["base"]["time"]["rtol"] = 1e-5  # long enough to be stopped
+    d["base"]["output"]["checkpoint_every_steps"] = 5  # the sign that both runs have taken steps
     (tmp_path / "c.yaml").write_text(yaml.safe_dump(d))
     proc = subprocess.Popen([sys.executable, "-m", "capsim.face.cli", "sweep", str(tmp_path / "c.yaml"), "--workers", "2",
                              "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
