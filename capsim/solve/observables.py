@@ -25,7 +25,6 @@ from capsim.numerics.geometry import (
 )
 from capsim.scene import smallest_gap
 from capsim.numerics import kernels  # numba: already loaded with capsim.numerics.membrane
-from capsim.numerics.membrane import principal_tensions
 from capsim.quantities import MOTIONS as _MOTIONS
 from capsim.quantities import TURNING_MOTIONS
 
@@ -253,6 +252,21 @@ class RowSums:
 
     def centroid_velocity(self, volume: float) -> np.ndarray:
         return self.values[0:3] + self.values[3:6] / volume
+
+    @staticmethod
+    def stresslet_of(values: list[float], volume: float, shear_rate_G: float, viscosity_ratio: float) -> np.ndarray:
+        """:meth:`stresslet` from the sums as Python floats (``values.tolist()``), by the same arithmetic
+        element by element (a row's nine numpy calls on 3×3 arrays cost more than the pass that made them)."""
+        rows = []
+        for i in range(3):
+            row = []
+            for j in range(3):
+                s = 0.5 * (values[6 + 3 * i + j] + values[6 + 3 * j + i]) / shear_rate_G
+                if viscosity_ratio != 1.0:
+                    s = s - (1.0 - viscosity_ratio) * (values[15 + 3 * i + j] + values[15 + 3 * j + i])
+                row.append(s / (2.5 * volume))
+            rows.append(row)
+        return np.array(rows)
 
     def stresslet(self, volume: float, shear_rate_G: float, viscosity_ratio: float) -> np.ndarray:
         """S* as :func:`particle_stresslet` gives it."""
@@ -1195,6 +1209,13 @@ def scene_summary(observer) -> dict:
 # ---------------------------------------------------------------- the per-step row
 
 COMPRESSION_TOL = 1e-10  # in E_s: below round-off of the tension at the rest shape
+#: membrane_row_summary's counts when every strained vertex stands for itself
+_NO_COUNTS = np.zeros(0)
+
+
+def _per_vertex(w, like: np.ndarray) -> np.ndarray:
+    """A law's derivative as one value per vertex (a law may give a constant)."""
+    return w if type(w) is np.ndarray and w.shape == like.shape else np.broadcast_to(np.asarray(w, float), like.shape)
 
 #: a capsule in a conduit (capsim.scene.conduit, issue 53): its speed along the conduit (units of the
 #: mean velocity U), the pressure drop it adds, its migration and its lengths along and across
@@ -1465,7 +1486,13 @@ def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarr
     law_params = model.law_params if material is None else material["law_params"]
     modulus = 1.0 if material is None else material["modulus_ratio"]
     lam = model.viscosity_ratio if material is None else material["viscosity_ratio"]
-    smax = float(np.max(strain.principal_stretches[0]))
+    # the largest stretch, and the compressive tensions (where a membrane without bending stiffness
+    # would wrinkle): principal_tensions' τ2 in one pass (kernels.membrane_row_summary)
+    l1, l2 = strain.principal_stretches
+    w1, w2 = model.law.derivatives(strain.inv1, strain.inv2, **law_params)
+    smax, lowest, compressed = kernels.membrane_row_summary(
+        _per_vertex(w1, l1), _per_vertex(w2, l1), strain.inv1, l1, l2, float(modulus), -COMPRESSION_TOL,
+        _NO_COUNTS if vertex_counts is None else vertex_counts)
     row = step_observables(y, elements, geometry, smax)
     center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
     # the director's, the centroid velocity's and the stresslet's surface integrals in one pass (issue 57:
@@ -1475,14 +1502,8 @@ def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarr
     d = values[24:27]
     norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
     row.update(director_observables([v / norm for v in d]))
-    # compressive tensions: where a membrane without bending stiffness would wrinkle
-    _, tau2 = principal_tensions(strain, model.law, law_params)
-    if material is not None:
-        tau2 = modulus * tau2
-    row["min_tension"] = float(tau2.min()) / model.shear_rate_G
-    compressed = tau2 < -COMPRESSION_TOL
-    row["compressed_fraction"] = float(np.mean(compressed)) if vertex_counts is None else \
-        float(vertex_counts @ compressed / vertex_counts.sum())
+    row["min_tension"] = lowest / model.shear_rate_G
+    row["compressed_fraction"] = compressed
     volume = row["volume"]
     row.update({f"centroid_velocity_{c}": values[i] + values[3 + i] / volume for i, c in enumerate("xyz")})
     u_far = model.undisturbed(center[None])[0]  # the undisturbed flow at the centre, now
@@ -1492,7 +1513,7 @@ def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarr
     if gap is not None:
         row["wall_gap"] = gap
     row.update(boundary_quantities(model, y, geometry, density, weights, u, elements, center, lam))
-    S_star = sums.stresslet(row["volume"], model.shear_rate_G, lam)
+    S_star = sums.stresslet_of(values, row["volume"], model.shear_rate_G, lam)
     row["_S_star"] = S_star
     row.update(stresslet_observables(S_star))
     row["dissipation_ratio"] = dissipation_ratio(S_star, model.rate_of_strain(center))

@@ -118,6 +118,8 @@ def test_row_sums_are_the_director_centroid_velocity_and_stresslet(offset, lam):
     S1 = particle_stresslet(geo, constant, u, elements, phi, c, V, 0.1, lam, rest_weights)
     S1_sums = row_surface_sums(geo, constant, rest_weights, u, elements, phi, c, director).stresslet(V, 0.1, lam)
     assert np.allclose(S1_sums, S1, rtol=0, atol=1e-12 * np.abs(S1).max())
+    values = sums.values.tolist()  # the row's own path: the stresslet from Python floats, the same arithmetic
+    assert np.array_equal(sums.stresslet_of(values, V, 0.1, lam), sums.stresslet(V, 0.1, lam))
     spin = np.ascontiguousarray(np.cross([0.0, 0.0, 0.7], x - c))
     S_spin = row_surface_sums(geo, np.zeros_like(density), rest_weights, spin, elements, phi, c, director)
     assert np.abs(S_spin.stresslet(V, 0.1, lam)).max() < 1e-3
@@ -294,3 +296,41 @@ def test_a_membrane_at_rest_has_no_tension_and_no_compressed_vertex():
         assert np.abs(l1 - 1.0).max() < 1e-13 and np.abs(l2 - 1.0).max() < 1e-13
         t1, t2 = principal_tensions(strain, model.law, model.law_params)
         assert np.abs(t1).max() < 1e-12 and np.abs(t2).max() < 1e-12
+
+
+@pytest.mark.parametrize("law, params", [("thin_shell", {}), ("skalak", {"skalak_c": 10.0}),
+                                         ("neo_hookean", {}), ("mooney_rivlin", {"psi": 0.3})])
+def test_membrane_row_summary_is_the_principal_tensions(law, params):
+    """The row's membrane columns in one pass (kernels.membrane_row_summary) against
+    membrane.principal_tensions and numpy: the largest stretch, the smallest τ2 (times a modulus ratio)
+    and the compressed share, each vertex counted once or weighted by the vertices it stands for."""
+    from capsim.numerics import kernels
+    from capsim.numerics.membrane import LAWS, VertexStrain, principal_tensions
+
+    if law not in LAWS:
+        pytest.skip(f"no law {law}")
+    rng = np.random.default_rng(11)
+    n = 40
+    F = np.eye(3) + 0.4 * rng.normal(size=(n, 3, 3))
+    F[:, :, 2] = 0.0  # the tangent plane's gradient: B = F Fᵀ of rank 2 with normal z
+    B = F @ np.transpose(F, (0, 2, 1))
+    B[:, 2, :] = B[:, :, 2] = 0.0
+    normals = np.tile([0.0, 0.0, 1.0], (n, 1))
+    trace = np.einsum("vii->v", B)
+    det = B[:, 0, 0] * B[:, 1, 1] - B[:, 0, 1] * B[:, 1, 0]
+    inv1, inv2 = 0.5 * np.log(det), 0.5 * trace - 1.0
+    strain = VertexStrain(np.zeros((n, 3, 3)), B, normals, inv1, inv2)
+    l1, l2 = strain.principal_stretches
+    tau1, tau2 = principal_tensions(strain, LAWS[law], params)
+    w1, w2 = LAWS[law].derivatives(inv1, inv2, **params)
+    w1, w2 = np.broadcast_to(w1, inv1.shape).copy(), np.broadcast_to(w2, inv1.shape).copy()
+    threshold = float(np.median(tau2))  # about half the vertices "compressed"
+    for modulus in (1.0, 2.5):
+        for counts in (np.zeros(0), rng.integers(1, 5, size=n).astype(float)):
+            largest, lowest, share = kernels.membrane_row_summary(w1, w2, inv1, l1, l2, modulus, threshold, counts)
+            assert largest == np.max(l1)
+            assert lowest == pytest.approx(modulus * tau2.min(), rel=1e-14, abs=1e-15)
+            below = modulus * tau2 < threshold
+            expected = below.mean() if counts.size == 0 else counts @ below / counts.sum()
+            assert share == pytest.approx(expected, rel=1e-14)
+            assert 0.0 < share < 1.0
