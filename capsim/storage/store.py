@@ -34,6 +34,7 @@ import contextlib
 import itertools
 import os
 import shutil
+import threading
 import time
 from datetime import datetime, timezone
 from pathlib import Path
@@ -548,8 +549,9 @@ class TrajectoryWriter:
                 make(group)
 
             del self._file["timeseries"]
-            source, _ = _template(("timeseries", keys), build)
-            self._timeseries = _copy_template(source, self._file, "timeseries")
+            with _template_lock:
+                source, _ = _template(("timeseries", keys), build)
+                self._timeseries = _copy_template(source, self._file, "timeseries")
             columns = [h5py.Dataset(h5py.h5d.open(self._timeseries.id, key.encode("utf-8"))) for key in keys]
         capsule = _index(self._timeseries, CAPSULE_DIM, next(iter(widths.values()))) if widths else None
         if "t" in keys:
@@ -715,6 +717,9 @@ TEMPLATES = True
 _TEMPLATE_LIMIT = 64
 _template_file: h5py.File | None = None
 _template_files = itertools.count()
+#: held from a template's values written to its copy made: a Dask worker runs several runs in threads
+#: of one process, and another run's values must not be written into the template in between
+_template_lock = threading.RLock()
 #: signature -> (the template's name in the in-memory file, its datasets by name)
 _templates: dict[tuple, tuple[bytes, dict[str, h5py.h5d.DatasetID]]] = {}
 
@@ -778,13 +783,14 @@ def _new_group(parent: h5py.Group, name: str, data: dict[str, Any], where: str |
             _describe(group, name)
         _write_dict(group, {key: data[key] for key in kinds}, where)
 
-    source, scalars = _template((name if describe else None, where, tuple(kinds.items())), build)
-    for key, kind in kinds.items():
-        if kind in ("str", "bool"):
-            h5py.Dataset(scalars[key])[()] = data[key]
-        else:
-            scalars[key].write(h5py.h5s.ALL, h5py.h5s.ALL, np.array(data[key], dtype=kind))
-    group = _copy_template(source, parent, name)
+    with _template_lock:
+        source, scalars = _template((name if describe else None, where, tuple(kinds.items())), build)
+        for key, kind in kinds.items():
+            if kind in ("str", "bool"):
+                h5py.Dataset(scalars[key])[()] = data[key]
+            else:
+                scalars[key].write(h5py.h5s.ALL, h5py.h5s.ALL, np.array(data[key], dtype=kind))
+        group = _copy_template(source, parent, name)
     _write_dict(group, {key: value for key, value in data.items() if key not in kinds}, where)
 
 

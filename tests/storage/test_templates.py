@@ -124,3 +124,34 @@ def test_dimension_scales_attached_in_the_copied_groups(tmp_path, fresh_template
             ["/mesh/snapshot_t"], ["/mesh/node"], ["/mesh/xyz"]]
         np.testing.assert_array_equal(f["mesh/elements"][()], ELEMENTS)  # seed 2: its own, not seed 1's
         assert f["summary/motion"][()].decode() == "tank-treading" and not f["summary/settled"][()]
+
+
+def test_runs_writing_in_threads_keep_their_own_values(tmp_path, fresh_templates):
+    """A Dask worker runs several runs in threads of one process: each file's groups hold its own
+    values, never another run's written into the shared template in between (the template lock)."""
+    import threading
+
+    errors = []
+
+    def writer(k: int) -> None:
+        try:
+            for i in range(12):
+                seed = 100 * k + i
+                _write(tmp_path / f"w{seed}.h5", seed)
+        except Exception as exc:  # noqa: BLE001 - reported below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=writer, args=(k,)) for k in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors
+    for k in range(4):
+        for i in range(12):
+            seed = 100 * k + i
+            with h5py.File(tmp_path / f"w{seed}.h5", "r") as f:
+                assert int(f["run/velocity_evaluations"][()]) == 100 + seed
+                assert int(f["run/rejected_steps"][()]) == seed
+                assert f["membrane_law/K_s"][()] == 3.0 + seed
+                assert f.attrs["config_yaml"] == f"name: x{seed}\n"
