@@ -185,3 +185,17 @@ def test_no_benchmark_row_is_copied():
             if line.strip() in rows:
                 copied.append(f"{md.relative_to(ROOT)}:{lineno}: a row of benchmarks/{rows[line.strip()]}")
     assert not copied, "benchmark rows copied (include the file in docs/benchmarks.md):\n" + "\n".join(copied)
+
+
+def test_no_page_repeats_a_section_or_a_paragraph():
+    """A page holds each heading once and no long paragraph twice: an edit that pasted a section again
+    (docs/performance.md held its "Around the evaluations" twice for one commit) reads as two answers."""
+    repeated = []
+    for md in [ROOT / "README.md", ROOT / "REPRODUCTION.md"] + sorted((ROOT / "docs").rglob("*.md")):
+        text = re.sub(r"^```.*?^```", "", _read(md), flags=re.S | re.M)  # not the comments of code blocks
+        headings = [line for line in text.splitlines() if re.match(r"#{1,6} ", line)]
+        repeated += [f"{md.relative_to(ROOT)}: heading {h!r}" for h in sorted(set(headings)) if headings.count(h) > 1]
+        paragraphs = [p.strip() for p in re.split(r"\n\s*\n", text) if len(p.strip()) > 300]
+        repeated += [f"{md.relative_to(ROOT)}: paragraph {p[:60]!r}…" for p in sorted(set(paragraphs))
+                     if paragraphs.count(p) > 1]
+    assert not repeated, "repeated in a page:\n" + "\n".join(repeated)
