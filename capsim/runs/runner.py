@@ -218,8 +218,8 @@ def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool 
     of an earlier, interrupted run of the same case (raising :class:`ResumeError`
     before touching any file when it cannot), on the same step sequence as an
     uninterrupted run. The checkpoint is written every ``output.checkpoint_every_s`` seconds (and
-    ``checkpoint_every_steps`` steps where set) and when the run is stopped; a run killed before its first
-    (its file of this case left 'running', no checkpoint) is started again. The checkpoint is
+    ``checkpoint_every_steps`` steps where set) and when the run is stopped; a run killed or failed before its
+    first (its file of this case left 'running' or 'failed', no checkpoint) is started again. The checkpoint is
     kept when the run is interrupted or fails, removed when it ends otherwise.
 
     The run file's lock (:class:`capsim.storage.store.FileLock`) is taken before any file
@@ -268,9 +268,10 @@ def run_case(case: Case, progress: ProgressCallback | None = None, resume: bool 
 
 def _killed_before_its_first_checkpoint(case: Case) -> bool:
     """True for a run file of this very case left 'running' (its process killed: SIGKILL, the
-    out-of-memory killer) with neither a checkpoint nor an end state: killed before its first
-    checkpoint (output.checkpoint_every_s into the run). The caller holds the file's lock, so no
-    live run is writing it."""
+    out-of-memory killer) or 'failed' (a full disk refused even the failure's checkpoint) with neither
+    a checkpoint nor an end state: stopped before its first checkpoint (output.checkpoint_every_s into
+    the run), with nothing to continue from but the case. The caller holds the file's lock, so no live
+    run is writing it."""
     from capsim.config import case_digest
     from capsim.storage.store import read_run_identity
 
@@ -278,7 +279,7 @@ def _killed_before_its_first_checkpoint(case: Case) -> bool:
     if checkpoint_path(path).exists() or not path.exists():
         return False
     status, digest = read_run_identity(path)
-    return (status == "running" and digest == case_digest(case.model_dump(mode="json"))
+    return (status in ("running", "failed") and digest == case_digest(case.model_dump(mode="json"))
             and read_end_state(path) is None)
 
 

@@ -497,6 +497,12 @@ def test_resume_starts_again_a_run_killed_before_its_first_checkpoint(tmp_path):
     again = read_trajectory(case.output.path)["timeseries"]
     for key in ("t", "D_xy", "theta"):
         np.testing.assert_array_equal(again[key], reference[key])
+    # failed before its first checkpoint (a full disk refused even the failure's): started again too
+    _as_killed_early(Path(case.output.path))
+    with h5py.File(case.output.path, "a") as f:
+        f.attrs["status"] = "failed"
+    assert run_case(case, resume=True)["status"] == "completed"
+    np.testing.assert_array_equal(read_trajectory(case.output.path)["timeseries"]["D_xy"], reference["D_xy"])
     # a file of another case left 'running' is not this run's to start again: refused, untouched
     _as_killed_early(Path(case.output.path))
     before = Path(case.output.path).read_bytes()
