@@ -2151,13 +2151,31 @@ def all_finite(a):
     return True
 
 
+@njit(inline="always")
+def _principal_tension_pair(w1, w2, inv1, l1, l2):
+    """τ1 ≥ τ2 at one vertex, τi = e^{−Λ1}(W_1 + W_2 λi²) (seed 2.7 in principal axes)."""
+    scale = np.exp(-inv1)
+    t1 = scale * (w1 + w2 * l1 * l1)
+    t2 = scale * (w1 + w2 * l2 * l2)
+    return max(t1, t2), min(t1, t2)
+
+
+@njit(**_JIT)
+def principal_tensions(w1, w2, inv1, l1, l2):
+    """The principal tensions τ1 ≥ τ2 at every vertex (capsim.numerics.membrane.principal_tensions)."""
+    n = w1.shape[0]
+    tau1, tau2 = np.empty(n), np.empty(n)
+    for i in range(n):
+        tau1[i], tau2[i] = _principal_tension_pair(w1[i], w2[i], inv1[i], l1[i], l2[i])
+    return tau1, tau2
+
+
 @njit(**_JIT)
 def membrane_row_summary(w1, w2, inv1, l1, l2, modulus, threshold, counts):
     """A row's membrane columns from the vertices' strain in one pass (issue 57: ~10 numpy calls
     a row): the largest principal stretch (max λ1), the smallest of the smaller principal tensions
-    τ2 = modulus · e^{−Λ1} min(W_1 + W_2 λ1², W_1 + W_2 λ2²) (capsim.numerics.membrane.principal_tensions,
-    the same arithmetic) and the share of the vertices with τ2 < threshold, each weighted by
-    ``counts`` (how many vertices it stands for; an empty array: one each)."""
+    τ2 (times ``modulus``; as :func:`principal_tensions`) and the share of the vertices with
+    τ2 < threshold, each weighted by ``counts`` (how many vertices it stands for; an empty array: one each)."""
     largest = 0.0
     lowest = np.inf
     below = 0.0
@@ -2165,10 +2183,7 @@ def membrane_row_summary(w1, w2, inv1, l1, l2, modulus, threshold, counts):
     weighted = counts.shape[0] > 0
     for i in range(w1.shape[0]):
         largest = max(largest, l1[i])
-        scale = np.exp(-inv1[i])
-        t1 = scale * (w1[i] + w2[i] * l1[i] * l1[i])
-        t2 = scale * (w1[i] + w2[i] * l2[i] * l2[i])
-        t = modulus * min(t1, t2)
+        t = modulus * _principal_tension_pair(w1[i], w2[i], inv1[i], l1[i], l2[i])[1]
         lowest = min(lowest, t)
         c = counts[i] if weighted else 1.0
         total += c

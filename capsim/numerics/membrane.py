@@ -214,14 +214,32 @@ def tension_tensor(strain: VertexStrain, law: MembraneLaw, params: dict) -> Arra
     return scale[:, None, None] * (w1[:, None, None] * proj + w2[:, None, None] * strain.B)
 
 
+def _law_derivatives(strain: VertexStrain, law: MembraneLaw, params: dict) -> tuple[Array, Array]:
+    """W_1, W_2 at the vertices, one value each (a law may give a constant)."""
+    shape = strain.inv1.shape
+    return tuple(w if type(w) is np.ndarray and w.shape == shape else np.broadcast_to(np.asarray(w, float), shape)
+                 for w in law.derivatives(strain.inv1, strain.inv2, **params))
+
+
 def principal_tensions(strain: VertexStrain, law: MembraneLaw, params: dict) -> tuple[Array, Array]:
     """Principal tensions τ1 ≥ τ2 at the vertices, τi = e^{−Λ1}(W_1 + W_2 λi²) (the
     eigenvalues of T in the tangent plane; seed 2.7 in principal axes)."""
-    w1, w2 = law.derivatives(strain.inv1, strain.inv2, **params)
     l1, l2 = strain.principal_stretches
-    scale = np.exp(-strain.inv1)
-    t1, t2 = scale * (w1 + w2 * l1 * l1), scale * (w1 + w2 * l2 * l2)
-    return np.maximum(t1, t2), np.minimum(t1, t2)
+    return kernels.principal_tensions(*_law_derivatives(strain, law, params), strain.inv1, l1, l2)
+
+
+#: row_tension_summary's counts when every vertex stands for itself
+_ONE_EACH = np.zeros(0)
+
+
+def row_tension_summary(strain: VertexStrain, law: MembraneLaw, params: dict, modulus: float, threshold: float,
+                        counts: Array | None = None) -> tuple[float, float, float]:
+    """What a recorded row reads of the membrane's state, in one pass: the largest principal stretch,
+    the smallest τ2 of :func:`principal_tensions` times ``modulus`` and the share of the vertices with
+    τ2 below ``threshold`` (each standing for ``counts`` vertices: one vertex of each symmetry orbit)."""
+    l1, l2 = strain.principal_stretches
+    return kernels.membrane_row_summary(*_law_derivatives(strain, law, params), strain.inv1, l1, l2, float(modulus),
+                                        threshold, _ONE_EACH if counts is None else counts)
 
 
 # ---------------------------------------------------------------- bending

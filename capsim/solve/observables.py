@@ -25,6 +25,7 @@ from capsim.numerics.geometry import (
 )
 from capsim.scene import smallest_gap
 from capsim.numerics import kernels  # numba: already loaded with capsim.numerics.membrane
+from capsim.numerics.membrane import row_tension_summary
 from capsim.quantities import MOTIONS as _MOTIONS
 from capsim.quantities import TURNING_MOTIONS
 
@@ -1209,13 +1210,6 @@ def scene_summary(observer) -> dict:
 # ---------------------------------------------------------------- the per-step row
 
 COMPRESSION_TOL = 1e-10  # in E_s: below round-off of the tension at the rest shape
-#: membrane_row_summary's counts when every strained vertex stands for itself
-_NO_COUNTS = np.zeros(0)
-
-
-def _per_vertex(w, like: np.ndarray) -> np.ndarray:
-    """A law's derivative as one value per vertex (a law may give a constant)."""
-    return w if type(w) is np.ndarray and w.shape == like.shape else np.broadcast_to(np.asarray(w, float), like.shape)
 
 #: a capsule in a conduit (capsim.scene.conduit, issue 53): its speed along the conduit (units of the
 #: mean velocity U), the pressure drop it adds, its migration and its lengths along and across
@@ -1487,12 +1481,9 @@ def capsule_row(model, y: np.ndarray, u: np.ndarray, geometry, density: np.ndarr
     modulus = 1.0 if material is None else material["modulus_ratio"]
     lam = model.viscosity_ratio if material is None else material["viscosity_ratio"]
     # the largest stretch, and the compressive tensions (where a membrane without bending stiffness
-    # would wrinkle): principal_tensions' τ2 in one pass (kernels.membrane_row_summary)
-    l1, l2 = strain.principal_stretches
-    w1, w2 = model.law.derivatives(strain.inv1, strain.inv2, **law_params)
-    smax, lowest, compressed = kernels.membrane_row_summary(
-        _per_vertex(w1, l1), _per_vertex(w2, l1), strain.inv1, l1, l2, float(modulus), -COMPRESSION_TOL,
-        _NO_COUNTS if vertex_counts is None else vertex_counts)
+    # would wrinkle), in one pass
+    smax, lowest, compressed = row_tension_summary(strain, model.law, law_params, modulus, -COMPRESSION_TOL,
+                                                   vertex_counts)
     row = step_observables(y, elements, geometry, smax)
     center = np.array([row["centroid_x"], row["centroid_y"], row["centroid_z"]])
     # the director's, the centroid velocity's and the stresslet's surface integrals in one pass (issue 57:
