@@ -256,8 +256,9 @@ class RowSums:
 
     @staticmethod
     def stresslet_of(values: list[float], volume: float, shear_rate_G: float, viscosity_ratio: float) -> np.ndarray:
-        """:meth:`stresslet` from the sums as Python floats (``values.tolist()``), by the same arithmetic
-        element by element (a row's nine numpy calls on 3×3 arrays cost more than the pass that made them)."""
+        """:meth:`stresslet` from the sums as Python floats (``values.tolist()``, which a row holds already),
+        element by element: S = sym(elastic)/G − (1 − λ) sym(∫ u n dS), S* = S/(2.5 V) (a row's nine numpy
+        calls on 3×3 arrays cost more than the pass that made the sums)."""
         rows = []
         for i in range(3):
             row = []
@@ -271,12 +272,7 @@ class RowSums:
 
     def stresslet(self, volume: float, shear_rate_G: float, viscosity_ratio: float) -> np.ndarray:
         """S* as :func:`particle_stresslet` gives it."""
-        elastic = self.values[6:15].reshape(3, 3)
-        S = 0.5 * (elastic + elastic.T) / shear_rate_G
-        if viscosity_ratio != 1.0:
-            un = self.values[15:24].reshape(3, 3)
-            S = S - (1.0 - viscosity_ratio) * (un + un.T)
-        return S / (2.5 * volume)
+        return self.stresslet_of(self.values.tolist(), volume, shear_rate_G, viscosity_ratio)
 
 
 def row_surface_sums(geo: ElementGeometry, density: np.ndarray, weights: np.ndarray, u: np.ndarray,
