@@ -166,7 +166,7 @@ def scene_error(size_of: Callable[[np.ndarray], float], carried: bool = False
     the rest — shape and turn — relative to its size as before: held to rtol in units of a, an
     extension's outflow (x = 2 e^kt) cost 2194 steps to kt 14 where the capsule at the origin
     took 98, every one of them spent on the 13th digit of x (level 0)."""
-    from capsim.numerics.kernels import max_abs, mean_row_max_abs
+    max_abs, mean_row_max_abs = _kernels().max_abs, _kernels().mean_row_max_abs
 
     def plain(est: np.ndarray, y: np.ndarray, rtol: float) -> float:
         return max_abs(est.ravel()) / (rtol * size_of(y))
@@ -718,7 +718,7 @@ class RungeKuttaChebyshev(Integrator):
         kernels = _kernels()
         y0, f0 = self.y, self.u
         y_new = rkc_step(self._at(self.t + h * coef.c[1:s]), y0, f0, h, coef)
-        if not np.all(np.isfinite(y_new)):
+        if not kernels.all_finite(y_new.ravel()):
             return Trial(False, False, h, math.inf, s - 1), y_new, cut
         self.stage_t = self.t + h
         u_new, aux = self.evaluate(y_new)

@@ -760,10 +760,11 @@ _TEMPLATE_MIN_SCALARS = 4
 def _scalar_kind(value: Any) -> str | None:
     """How a template holds `value`: the dtype of a number, "str", "bool"; None for what it does not
     (arrays, lists, dicts: written directly)."""
-    kind = _NUMBER_TYPES.get(type(value))
-    if kind is None and type(value) in (str, bool, np.bool_):
-        kind = "bool" if type(value) is not str else "str"
-    return kind
+    if type(value) is str:
+        return "str"
+    if type(value) in (bool, np.bool_):
+        return "bool"
+    return _NUMBER_TYPES.get(type(value))
 
 
 def _new_group(parent: h5py.Group, name: str, data: dict[str, Any], where: str | None, describe: bool) -> None:
