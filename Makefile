@@ -76,14 +76,14 @@ bench-split: venv
 	$(BIN)/python benchmarks/evaluation_split.py
 
 # the demo's command around its evaluations (issue 57): the whole command, validate, imports, the run's
-# evaluations, rows and writes, this checkout against the baseline in alternating rounds (about 3 min):
+# evaluations, rows and writes, this checkout against the baseline in alternating rounds (about 2 min):
 # writes benchmarks/command_time.md and benchmarks/command_time.json
 .PHONY: bench-command
 bench-command: venv
 	$(BIN)/python benchmarks/command_time.py
 
 # the peer's three cases (issue 57, item 3): the whole command and its split at level 3, this checkout
-# (about 3 min): writes benchmarks/peer_command_time.md and benchmarks/peer_command_time.json
+# (about 2 min): writes benchmarks/peer_command_time.md and benchmarks/peer_command_time.json
 .PHONY: bench-peer-command
 bench-peer-command: venv
 	$(BIN)/python benchmarks/peer_command_time.py

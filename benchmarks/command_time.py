@@ -20,7 +20,7 @@ again, ~0.1 s), one thread, after a warm-up round (numba's cache and the .pyc wr
 The table gives medians over the rounds; ``around the run`` is the command's wall time less the
 worker's run wall time (the same case). Usage::
 
-    python benchmarks/command_time.py                # 5 rounds (about 3 min)
+    python benchmarks/command_time.py                # 5 rounds (about 2 min)
     python benchmarks/command_time.py --rounds 2 --out /tmp/ct
 
 Writes ``<out>.md`` and ``<out>.json``, default ``benchmarks/command_time.{md,json}``.

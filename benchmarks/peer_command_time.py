@@ -13,7 +13,7 @@ Per case and round, in fresh interpreters (as ``command_time.py``, whose worker 
 ``around the run`` is the command less the fresh in-process run; ``outside`` the run less its
 evaluations. Counts (evaluations) beside the times. Usage::
 
-    python benchmarks/peer_command_time.py            # 3 rounds (about 3 min)
+    python benchmarks/peer_command_time.py            # 3 rounds (about 2 min)
     python benchmarks/peer_command_time.py --rounds 1 --out /tmp/pct
 
 Writes ``<out>.md`` and ``<out>.json``, default ``benchmarks/peer_command_time.{md,json}``.
