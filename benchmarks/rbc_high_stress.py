@@ -18,7 +18,15 @@ GROUP: c10, c100, c1000 (level 2), level3 (C = 1000 at level 3, at 1 and 10 Pa),
 the EI of the cell's outline seen along the gradient, as the ektacytometer's laser sees it), auto and auto3
 (the configuration as it ships, skalak_c auto: the C that keeps the area within membrane.area_tolerance at each
 stress, at levels 2 and 3, with the outline's EI), auto_oblate (auto with the nearly spherical stress-free shape),
-media (auto in 10 and 100 mPa s at 0.1 and 50 Pa, and what the stop at 100 mPa s, 50 Pa takes).
+viscous and viscous_high (auto with the membrane viscosity Tran-Son-Tay et al. measured, the project's other
+red-cell comparisons' μ_s, to kt 100; up to 10 Pa and from 30 Pa), viscous_fischer (the μ_s fitted to Fischer &
+Korzeniewski's frequencies, at 3 Pa), auto_long (auto to kt 100: settled, the viscous runs' elastic reference),
+oblate_long and gs4_long (the stress-free oblate 0.9 at 1, 3 and 10 Pa and G_s 4 uN/m at 1 Pa, to kt 100), auto3_long
+(auto to kt 100 at level 3, 1 Pa: the settled EI's mesh error), long_tolerance (auto to kt 100 at 50 Pa with
+membrane.area_tolerance 0.01: what the elastic membrane's stop there takes), viscous3 (viscous at level 3, kt 100,
+10 and 1 Pa: its mesh error), viscous_oblate (viscous with the nearly spherical stress-free shape, to kt 100 at
+1-50 Pa), media (auto in 10 and 100 mPa s at 0.1 and 50 Pa, and what the stop at 100 mPa s, 50 Pa
+takes), fk2011 (one stress in three media, elastic and viscous: Fischer & Korzeniewski 2011's viscosity effect).
 """
 
 from __future__ import annotations
@@ -41,13 +49,36 @@ STRESSES_PA = (0.1, 1.0, 10.0, 50.0)
 #: group -> (Skalak C, mesh level, G_s in uN/m: None for the configuration's 2.5)
 GROUPS = {"c10": (10.0, 2, None), "c100": (100.0, 2, None), "c1000": (1000.0, 2, None),
           "level3": (1000.0, 3, None), "gs4": (1000.0, 2, 4.0), "outline": (1000.0, 2, None),
-          "auto": ("auto", 2, None), "auto3": ("auto", 3, None), "auto_oblate": ("auto", 2, None)}
+          "auto": ("auto", 2, None), "auto3": ("auto", 3, None), "auto_oblate": ("auto", 2, None),
+          "viscous": ("auto", 2, None), "viscous_high": ("auto", 2, None), "viscous_fischer": ("auto", 2, None),
+          "auto_long": ("auto", 2, None), "oblate_long": ("auto", 2, None), "gs4_long": ("auto", 2, 4.0),
+          "auto3_long": ("auto", 3, None), "long_tolerance": ("auto", 2, None), "viscous3": ("auto", 3, None),
+          "viscous_oblate": ("auto", 2, None)}
+#: the groups whose area is held closer than membrane.area_tolerance's default 2 %
+AREA_TOLERANCE = {"long_tolerance": 0.01}
 #: the groups whose cell has another stress-free shape (membrane.reference_shape): the nearly spherical one that
 #: sets the tumbling threshold within a factor 2 (benchmarks/tumbling_transition.md)
-STRESS_FREE = {"auto_oblate": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9})}
+STRESS_FREE = {"auto_oblate": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9}),
+               "oblate_long": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9}),
+               "viscous_oblate": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9})}
+#: the groups whose membrane is viscous (Kelvin-Voigt, physical.membrane_viscosity in N s/m): the mean of
+#: Tran-Son-Tay, Sutera & Rao (1984)'s Table III, the μ_s of the project's other red-cell comparisons
+#: (benchmarks/tran_son_tay.py, benchmarks/tumbling_transition.py); and the μ_s fitted to Fischer &
+#: Korzeniewski (2015)'s frequencies with this G_s (benchmarks/tran_son_tay.py's FISCHER_FIT_MU_S)
+MEMBRANE_VISCOSITY = {"viscous": 0.662e-7, "viscous_high": 0.662e-7, "viscous_fischer": 3.27e-7, "viscous3": 0.662e-7,
+                      "viscous_oblate": 0.662e-7}
+#: a viscous membrane's runs (and the elastic ones they are compared with) last kt 100: its cell settles slowly
+#: (at 1 Pa it swings between EI 0.06 and 0.25 with a period of ~10 kt, its mean still rising at kt 30), and its
+#: Kelvin-Voigt time k μ_s/G_s is up to 44 (50 Pa, Tran-Son-Tay's μ_s; 13 at 3 Pa with Fischer's); whether it
+#: settled, the outline's drift over the window says
+LONG_KT = 100.0
+#: the groups run to LONG_KT (the others to T_END)
+LONG_GROUPS = ("viscous", "viscous_high", "viscous_fischer", "auto_long", "fk2011", "oblate_long", "gs4_long",
+               "auto3_long", "long_tolerance", "viscous3", "viscous_oblate")
 #: the groups whose runs also give the EI of the cell's outline seen along the gradient, as the
 #: ektacytometer's laser sees it (its light crosses the gap along the velocity gradient)
-OUTLINE_GROUPS = ("outline", "auto", "auto3", "auto_oblate")
+OUTLINE_GROUPS = ("outline", "auto", "auto3", "auto_oblate", "viscous", "viscous_high", "viscous_fischer", "auto_long",
+                  "oblate_long", "gs4_long", "auto3_long", "long_tolerance", "viscous3", "viscous_oblate")
 #: the groups run at level 3 at every stress (the others at LEVEL3_STRESSES_PA)
 EVERY_STRESS_AT_LEVEL3 = ("auto3",)
 #: the configuration as it ships, at level 2, also between the four stresses (campaigns/rbc-ektacytometry.yaml's)
@@ -59,7 +90,7 @@ LEVEL3_STRESSES_PA = (1.0, 10.0)
 
 def case_for(stress: float, C: float | str, level: int, shear_modulus: float | None = None,
              reference_shape: dict | None = None, viscosity: float = VISCOSITY_MPAS,
-             area_tolerance: float | None = None) -> dict:
+             area_tolerance: float | None = None, membrane_viscosity: float = 0.0, t_end: float = T_END) -> dict:
     import yaml
 
     case = yaml.safe_load((ROOT / "configs" / "rbc.yaml").read_text())
@@ -73,24 +104,29 @@ def case_for(stress: float, C: float | str, level: int, shear_modulus: float | N
         case["physical"]["shear_modulus"] = f"{shear_modulus:g} uN/m"
     if reference_shape is not None:
         case["membrane"]["reference_shape"] = reference_shape
+    if membrane_viscosity:
+        case["physical"]["membrane_viscosity"] = f"{membrane_viscosity:g} N*s/m"
     case["mesh"]["level"] = level
-    case["time"] = {"t_end": T_END, "rtol": 1.0e-4}
+    case["time"] = {"t_end": t_end, "rtol": 1.0e-4}
     return case
 
 
 def run_one(stress: float, C: float | str, level: int, shear_modulus: float | None = None,
             outline: bool = False, stress_free: tuple[str, dict] | None = None, viscosity: float = VISCOSITY_MPAS,
-            area_tolerance: float | None = None) -> dict:
+            area_tolerance: float | None = None, membrane_viscosity: float = 0.0, t_end: float = T_END) -> dict:
     import numpy as np
 
     from capsim.config import case_from_dict
     from _common import run_or_stop  # an interrupted run ends the benchmark, never a row
     from capsim.storage.store import read_trajectory
 
-    d = case_for(stress, C, level, shear_modulus, stress_free[1] if stress_free else None, viscosity, area_tolerance)
+    d = case_for(stress, C, level, shear_modulus, stress_free[1] if stress_free else None, viscosity, area_tolerance,
+                 membrane_viscosity, t_end)
     with tempfile.TemporaryDirectory() as tmp:
         d["name"] = "rbc-stress"
-        d["output"] = {"path": f"{tmp}/run.h5", "snapshot_every": 0.5 if outline else T_END}
+        # the outline's mean over the averaging window: a snapshot every 0.5 kt, every 1 kt in a longer run
+        every = (0.5 if t_end <= T_END else 1.0) if outline else t_end
+        d["output"] = {"path": f"{tmp}/run.h5", "snapshot_every": every}
         case = case_from_dict(d)
         result = run_or_stop(case)
         data = read_trajectory(case.output.path)
@@ -105,9 +141,11 @@ def run_one(stress: float, C: float | str, level: int, shear_modulus: float | No
     return {"stress_Pa": stress, "skalak_c": case.membrane.skalak_c, "skalak_c_auto": C == "auto",
             "area_tolerance": case.membrane.area_tolerance, "level": level, "viscosity_mPa_s": viscosity,
             **({"stress_free": stress_free[0]} if stress_free else {}),
+            **({"membrane_viscosity_N_s_m": membrane_viscosity, "Bq": case.membrane.viscosity.shear}
+               if membrane_viscosity else {}),
             "shear_modulus_uN_m": shear_modulus or 2.5, "G": case.flow.shear_rate_G,
             "viscosity_ratio": case.flow.viscosity_ratio, "status": result.status, "reason": result.status_reason,
-            "t": result.t, "motion": s.get("motion"), "EI": (L - W) / (L + W), "L": L, "W": W,
+            "t": result.t, "t_end": t_end, "motion": s.get("motion"), "EI": (L - W) / (L + W), "L": L, "W": W,
             "D_xy": s.get("D_xy"), "area_change_max": float(np.max(np.abs(area / area[0] - 1.0))),
             "compressed_fraction": float(np.asarray(ts["compressed_fraction"], float)[-1]),
             "min_element_quality": float(np.min(np.asarray(ts["min_element_quality"], float))),
@@ -130,12 +168,22 @@ def _outline_ei(data: dict, lo, hi) -> dict:
                         for i in pick])
     X, Z = extents[:, 0], extents[:, 1]
     ei = (X - Z) / (X + Z)
+    half = ei.size // 2
     return {"outline": True, "EI_outline": float(ei.mean()), "EI_outline_sd": float(ei.std()),
-            "outline_snapshots": int(pick.size)}
+            "outline_snapshots": int(pick.size),
+            # the window's second half less its first: what is left of a drift (not of a swing: not whole cycles)
+            "EI_outline_drift": float(ei[ei.size - half:].mean() - ei[:half].mean()) if half else 0.0}
 
 
 def load() -> list[dict]:
     return json.loads(JSON.read_text()) if JSON.exists() else []
+
+
+def save(row: dict) -> list[dict]:
+    """Add `row` to the rows on disk (as they are now: another process may have added some) and return them."""
+    rows = load() + [row]
+    JSON.write_text(json.dumps(rows, indent=1) + "\n")
+    return rows
 
 
 def run(groups: list[str]) -> None:
@@ -145,24 +193,43 @@ def run(groups: list[str]) -> None:
     rows = load()
     if "media" in groups:
         rows = run_media(rows)
-    for group in (g for g in groups if g != "media"):
+    if "fk2011" in groups:
+        rows = run_fk2011(rows)
+    for group in (g for g in groups if g not in ("media", "fk2011")):
         C, level, gs = GROUPS[group]
         stress_free = STRESS_FREE.get(group)
+        mu_s = MEMBRANE_VISCOSITY.get(group, 0.0)
+        t_end = LONG_KT if group in LONG_GROUPS else T_END
+        tolerance = AREA_TOLERANCE.get(group)
         for stress in _stresses(group, level):
             outline = group in OUTLINE_GROUPS
             tag = stress_free[0] if stress_free else None
             if any(r["stress_Pa"] == stress and _in_30(r) and r.get("stress_free") == tag and r["level"] == level
+                   and r.get("membrane_viscosity_N_s_m", 0.0) == mu_s and r.get("t_end", T_END) == t_end
+                   and r.get("area_tolerance", 0.02) == (tolerance or 0.02)
                    and (r.get("skalak_c_auto", False) if C == "auto" else
                         r["skalak_c"] == C and not r.get("skalak_c_auto"))
                    and r.get("shear_modulus_uN_m", 2.5) == (gs or 2.5) and r.get("outline", False) == outline
                    for r in rows):
                 continue
-            rows.append(run_one(stress, C, level, gs, outline, stress_free))
-            JSON.write_text(json.dumps(rows, indent=1) + "\n")
+            rows = save(run_one(stress, C, level, gs, outline, stress_free, area_tolerance=tolerance,
+                                membrane_viscosity=mu_s, t_end=t_end))
             r = rows[-1]
             print(f"{stress:g} Pa C {r['skalak_c']:g} L{level}: {r['status']} at kt {r['t']:.3g}, EI {r['EI']:.3f}, "
                   f"area {100 * r['area_change_max']:.1f} %, {r['wall_time_s']:.0f} s", flush=True)
     report()
+
+
+def shipped(row: dict, t_end: float = T_END) -> bool:
+    """Whether a row is the configuration as it ships (skalak_c auto, the disk stress-free, elastic, 30 mPa s) run
+    to `t_end`."""
+    return bool(row.get("skalak_c_auto") and not row.get("stress_free") and _in_30(row) and _elastic(row)
+                and row.get("t_end", T_END) == t_end and row.get("area_tolerance", 0.02) == 0.02)
+
+
+def _elastic(row: dict) -> bool:
+    """Whether a row's membrane is purely elastic (no membrane viscosity)."""
+    return not row.get("membrane_viscosity_N_s_m")
 
 
 def _in_30(row: dict) -> bool:
@@ -182,16 +249,61 @@ def run_media(rows: list[dict]) -> list[dict]:
         if any(r.get("viscosity_mPa_s") == eta and r["stress_Pa"] == stress and r["level"] == level
                and r.get("skalak_c_auto") and r["area_tolerance"] == (tolerance or 0.02) for r in rows):
             continue
-        rows.append(run_one(stress, "auto", level, viscosity=eta, area_tolerance=tolerance))
-        JSON.write_text(json.dumps(rows, indent=1) + "\n")
+        rows = save(run_one(stress, "auto", level, viscosity=eta, area_tolerance=tolerance))
         r = rows[-1]
         print(f"{eta:g} mPa s, {stress:g} Pa, L{level}, tolerance {r['area_tolerance']:g}: {r['status']} at kt "
               f"{r['t']:.3g}, area {100 * r['area_change_max']:.2f} %, {r['wall_time_s']:.0f} s", flush=True)
     return rows
 
 
+#: Fischer & Korzeniewski (2011): at 20-70 mPa s a red cell's elongation is not a function of the shear stress
+#: alone, it grows with the medium's viscosity at a given stress (it scales with η0^s k, s from 2 at 20 mPa s to 1
+#: at 70). The cell at one stress in three media, with and without the membrane's viscosity: (stress, media)
+FK2011_STRESS_PA, FK2011_MEDIA_MPAS = 3.0, (10.0, 30.0, 100.0)
+
+
+def run_fk2011(rows: list[dict]) -> list[dict]:
+    """Group `fk2011`: the cell at FK2011_STRESS_PA in FK2011_MEDIA_MPAS, elastic and with the membrane viscosity
+    of group `viscous` (its rows in 30 mPa s are those of groups `auto` and `viscous`); resumable as the others."""
+    for eta in FK2011_MEDIA_MPAS:
+        for mu_s in (0.0, MEMBRANE_VISCOSITY["viscous"]):
+            if any(r.get("viscosity_mPa_s", VISCOSITY_MPAS) == eta and r["stress_Pa"] == FK2011_STRESS_PA
+                   and r["level"] == 2 and r.get("skalak_c_auto") and r.get("outline") and not r.get("stress_free")
+                   and r.get("membrane_viscosity_N_s_m", 0.0) == mu_s and r["area_tolerance"] == 0.02
+                   and r.get("t_end", T_END) == LONG_KT for r in rows):
+                continue
+            rows = save({**run_one(FK2011_STRESS_PA, "auto", 2, outline=True, viscosity=eta,
+                                   membrane_viscosity=mu_s, t_end=LONG_KT), "group": "fk2011"})
+            r = rows[-1]
+            print(f"{eta:g} mPa s, {FK2011_STRESS_PA:g} Pa, mu_s {mu_s:g}: {r['status']} at kt {r['t']:.3g}, "
+                  f"EI outline {r['EI_outline']:.3f}, {r['wall_time_s']:.0f} s", flush=True)
+    return rows
+
+
+def _fk2011_lines(rows: list[dict]) -> list[str]:
+    pick = {(r.get("viscosity_mPa_s", VISCOSITY_MPAS), r.get("membrane_viscosity_N_s_m", 0.0)): r for r in rows
+            if r["stress_Pa"] == FK2011_STRESS_PA and r["level"] == 2 and r.get("skalak_c_auto") and r.get("outline")
+            and not r.get("stress_free") and r["area_tolerance"] == 0.02 and r.get("t_end", T_END) == LONG_KT}
+    if not any(r.get("group") == "fk2011" for r in pick.values()):
+        return []
+    lines = ["", f"One stress ({FK2011_STRESS_PA:g} Pa) in three media (group `fk2011`; the cytoplasm's 6 mPa s, level 2): "
+             "the outline's EI with the elastic membrane and with the viscous one (μ_s "
+             f"{MEMBRANE_VISCOSITY['viscous']:.3g} N s/m). Fischer & Korzeniewski (2011) measured the elongation growing with "
+             "the medium's viscosity at a given stress below ~70 mPa s:", "",
+             "| medium (mPa s) | λ | elastic: EI of the outline | viscous: Bq | viscous: EI of the outline | viscous: kt |",
+             "|---|---|---|---|---|---|"]
+    mu = MEMBRANE_VISCOSITY["viscous"]
+    for eta in FK2011_MEDIA_MPAS:
+        e, v = pick.get((eta, 0.0)), pick.get((eta, mu))
+        if e is None or v is None:
+            continue
+        lines.append(f"| {eta:g} | {e['viscosity_ratio']:.2g} | {e['EI_outline']:.3f} ± {e['EI_outline_sd']:.3f} | "
+                     f"{v['Bq']:.3g} | {v['EI_outline']:.3f} ± {v['EI_outline_sd']:.3f} | {v['t']:g} |")
+    return lines
+
+
 def _media_lines(rows: list[dict]) -> list[str]:
-    media = [r for r in rows if not _in_30(r)]
+    media = [r for r in rows if not _in_30(r) and r.get("group") != "fk2011"]
     if not media:
         return []
     lines = ["", "The configuration as it ships in the other media (group `media`: 10 and 100 mPa s, the cytoplasm's "
@@ -209,8 +321,22 @@ def _media_lines(rows: list[dict]) -> list[str]:
 
 
 def _stresses(group: str, level: int) -> tuple[float, ...]:
-    if group == "auto":
+    if group in ("auto", "auto_long"):
         return AUTO_STRESSES_PA
+    if group in ("viscous", "viscous_high"):  # split in two: two processes can run them side by side
+        return tuple(s for s in AUTO_STRESSES_PA if (s >= 30.0) == (group == "viscous_high"))
+    if group == "viscous_fischer":
+        return (3.0,)
+    if group == "oblate_long":
+        return SENSITIVITY_STRESSES_PA
+    if group == "gs4_long":  # where the modulus moved the unsettled EI most (kt 10: −31 % at 1 Pa, −3 % at 10)
+        return (1.0,)
+    if group == "viscous_oblate":
+        return tuple(s for s in AUTO_STRESSES_PA if s >= 1.0)
+    if group in ("auto3_long", "viscous3"):  # the settled EI's mesh error: where the cell swings most, and 10 Pa
+        return (1.0,) if group == "auto3_long" else (10.0, 1.0)
+    if group == "long_tolerance":  # what the elastic membrane's stop at 50 Pa, kt 29, takes
+        return (50.0,)
     if group in STRESS_FREE:
         return (0.3, 1.0, 3.0, 10.0, 50.0)
     return LEVEL3_STRESSES_PA if level == 3 and group not in EVERY_STRESS_AT_LEVEL3 else STRESSES_PA
@@ -258,7 +384,8 @@ def report() -> None:
             off = "—" if ei is None else f"{100 * (r['EI_outline'] / ei - 1):+.0f} %"
             lines.append(f"| {r['stress_Pa']:g} | {r['EI_outline']:.3f} ± {r['EI_outline_sd']:.3f} | {r['EI']:.3f} | "
                          f"{'—' if ei is None else f'{ei:.3f}'} | {off} |")
-    lines += _auto_lines(rows) + _media_lines(rows)
+    lines += (_auto_lines(rows) + _long_lines(rows) + _viscous_lines(rows) + _sensitivity_lines(rows) + _fk2011_lines(rows)
+              + _media_lines(rows))
     TABLE.write_text("\n".join(lines) + "\n")
     figure(rows)
     print("\n".join(lines))
@@ -267,7 +394,7 @@ def report() -> None:
 def _auto_lines(rows: list[dict]) -> list[str]:
     """The configuration as it ships (skalak_c auto) at every stress, levels 2 and 3: the C chosen, the area
     change against the tolerance, both EIs against the curve, the mesh error (level 2 against 3) and the cost."""
-    auto = [r for r in rows if r.get("skalak_c_auto") and not r.get("stress_free") and _in_30(r)]
+    auto = [r for r in rows if shipped(r)]
     if not auto:
         return []
     by = {(r["stress_Pa"], r["level"]): r for r in auto}
@@ -289,7 +416,8 @@ def _auto_lines(rows: list[dict]) -> list[str]:
                      f"{100 * r['area_change_max']:.2f} % | {r['EI_outline']:.3f} | {r['EI']:.3f} | "
                      f"{'—' if ei is None else f'{ei:.3f}'} | {off} | {mesh} | {r['evaluations']} | "
                      f"{r['wall_time_s']:.0f} |")
-    other = sorted((r for r in rows if r.get("skalak_c_auto") and r.get("stress_free") and _in_30(r)),
+    other = sorted((r for r in rows if r.get("skalak_c_auto") and r.get("stress_free") and _in_30(r)
+                    and r.get("t_end", T_END) == T_END),
                    key=lambda r: r["stress_Pa"])
     if other:
         lines += ["", "The same with the nearly spherical stress-free shape (group `auto_oblate`: membrane.reference_shape "
@@ -306,10 +434,123 @@ def _auto_lines(rows: list[dict]) -> list[str]:
     return lines
 
 
+def _long_lines(rows: list[dict]) -> list[str]:
+    """The configuration as it ships run to LONG_KT (group `auto_long`): settled, against its kt-T_END rows."""
+    long = sorted((r for r in rows if shipped(r, LONG_KT) and r["level"] == 2), key=lambda r: r["stress_Pa"])
+    if not long:
+        return []
+    short = {r["stress_Pa"]: r for r in rows if shipped(r) and r["level"] == 2}
+    level3 = {r["stress_Pa"]: r for r in rows if shipped(r, LONG_KT) and r["level"] == 3}
+    lines = ["", f"The configuration as it ships, settled (group `auto_long`: kt {LONG_KT:g}, level 2; the outline's EI, "
+             "mean ± SD over the averaging window's snapshots, and its drift, the window's second half less its first; "
+             f"beside the same run's EI at kt {T_END:g}, the rows above):", "",
+             "| τ (Pa) | C chosen | status | motion | EI of the outline | drift | EI measured | outline against measured | "
+             f"at kt {T_END:g} | at level 3 | evaluations | wall time (s) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in long:
+        ei = measured_ei(r["stress_Pa"])
+        off = "—" if ei is None or r["status"] != "completed" else f"{100 * (r['EI_outline'] / ei - 1):+.0f} %"
+        before = short.get(r["stress_Pa"])
+        before_ei = "—" if before is None else f"{before['EI_outline']:.3f}"
+        status = r["status"] if r["status"] == "completed" else f"{r['status']} at kt {r['t']:.3g}"
+        lines.append(f"| {r['stress_Pa']:g} | {r['skalak_c']:g} | {status} | {r['motion']} | {r['EI_outline']:.3f} ± "
+                     f"{r['EI_outline_sd']:.3f} | {r['EI_outline_drift']:+.3f} | {'—' if ei is None else f'{ei:.3f}'} | "
+                     f"{off} | {before_ei} | {_level3(level3.get(r['stress_Pa']))} | "
+                     f"{r['evaluations']} | {r['wall_time_s']:.0f} |")
+    return lines
+
+
+def _level3(row: dict | None) -> str:
+    """A level-3 row's outline EI (± SD) and its wall time, or a dash."""
+    if row is None:
+        return "—"
+    status = "" if row["status"] == "completed" else f", {row['status']} at kt {row['t']:.3g}"
+    return f"{row['EI_outline']:.3f} ± {row['EI_outline_sd']:.3f} ({row['wall_time_s']:.0f} s{status})"
+
+
+#: the stresses of the table "What moves the elongation index"
+SENSITIVITY_STRESSES_PA = (1.0, 3.0, 10.0)
+
+
+def _sensitivity_lines(rows: list[dict]) -> list[str]:
+    """What moves the EI at SENSITIVITY_STRESSES_PA: each change's EI against its reference's, both of the outline
+    (G_s: of the equivalent ellipsoid, both with C = 1000, the only rows with G_s 4), level 2, 30 mPa s."""
+    level2 = [r for r in rows if r["level"] == 2 and _in_30(r)]
+    as_shipped = {r["stress_Pa"]: r for r in level2 if shipped(r)}
+    long = {r["stress_Pa"]: r for r in level2 if shipped(r, LONG_KT)}
+    c1000 = {r["stress_Pa"]: r for r in level2 if not r.get("skalak_c_auto") and r["skalak_c"] == 1000.0
+             and r.get("shear_modulus_uN_m", 2.5) == 2.5 and not r.get("outline")}
+    changes = [
+        (f"run to kt {LONG_KT:g} instead of {T_END:g}", as_shipped, lambda r: shipped(r, LONG_KT), "EI_outline"),
+        (f"membrane viscosity μ_s {MEMBRANE_VISCOSITY['viscous']:.3g} N s/m (Tran-Son-Tay's mean), both to kt {LONG_KT:g}", long,
+         lambda r: r.get("membrane_viscosity_N_s_m") == MEMBRANE_VISCOSITY["viscous"], "EI_outline"),
+        (f"membrane viscosity μ_s {MEMBRANE_VISCOSITY['viscous_fischer']:.3g} N s/m (fitted to Fischer's), both to kt {LONG_KT:g}",
+         long, lambda r: r.get("membrane_viscosity_N_s_m") == MEMBRANE_VISCOSITY["viscous_fischer"], "EI_outline"),
+        (f"stress-free shape: oblate 0.9 instead of the disk, both to kt {LONG_KT:g}", long,
+         lambda r: r.get("stress_free") == "oblate 0.9" and r.get("t_end") == LONG_KT, "EI_outline"),
+        (f"shear modulus: G_s 4 instead of 2.5 µN/m, both to kt {LONG_KT:g}", long,
+         lambda r: r.get("skalak_c_auto") and r.get("shear_modulus_uN_m") == 4.0, "EI_outline"),
+        (f"area modulus: C 1000 instead of auto's (the area within 2 %), both to kt {T_END:g}", as_shipped,
+         lambda r: r.get("outline") and not r.get("skalak_c_auto") and r["skalak_c"] == 1000.0, "EI_outline"),
+        (f"shear modulus: G_s 4 instead of 2.5 µN/m (both C 1000, kt {T_END:g}; the equivalent ellipsoid's EI)", c1000,
+         lambda r: r.get("shear_modulus_uN_m") == 4.0, "EI"),
+    ]
+    lines = ["", "What moves the elongation index (level 2, 30 mPa s; each change's EI against the configuration's as "
+             "it ships, both of the outline, unless said):", "",
+             "| change | " + " | ".join(f"{s:g} Pa" for s in SENSITIVITY_STRESSES_PA) + " |",
+             "|---|" + "---|" * len(SENSITIVITY_STRESSES_PA)]
+    for name, reference, pick, key in changes:
+        cells = []
+        for stress in SENSITIVITY_STRESSES_PA:
+            changed = next((r for r in level2 if r["stress_Pa"] == stress and pick(r) and key in r), None)
+            ref = reference.get(stress)
+            cells.append("—" if changed is None or ref is None else
+                         f"{changed[key]:.3f} against {ref[key]:.3f} ({round(100 * (changed[key] / ref[key] - 1)):+d} %)")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _viscous_lines(rows: list[dict]) -> list[str]:
+    """The configuration as it ships with a viscous membrane (groups `viscous`, `viscous_fischer`): the outline's EI
+    against the curve and against the elastic membrane's at the same stress."""
+    viscous = sorted((r for r in rows if not _elastic(r) and _in_30(r) and r["level"] == 2),
+                     key=lambda r: (r["membrane_viscosity_N_s_m"], r.get("stress_free") or "", r["stress_Pa"]))
+    if not viscous:
+        return []
+    elastic = {(None, r["stress_Pa"]): r for r in rows if shipped(r, LONG_KT) and r["level"] == 2}
+    elastic.update({(r["stress_free"], r["stress_Pa"]): r for r in rows if r.get("stress_free") and _elastic(r)
+                    and _in_30(r) and r.get("t_end") == LONG_KT and r["level"] == 2 and r.get("skalak_c_auto")})
+    lines = ["", "The same with a viscous membrane (groups `viscous` and `viscous_fischer`: physical.membrane_viscosity "
+             "μ_s, Kelvin–Voigt; Bq = μ_s/(μa); the run lasts "
+             f"kt {LONG_KT:g}; level 2): the outline's EI, mean ± SD over the "
+             f"averaging window's snapshots, against the curve and the elastic membrane's (group `auto_long`, kt {LONG_KT:g}):", "",
+             "| μ_s (N s/m) | Bq | stress-free shape | τ (Pa) | C chosen | kt | status | motion | largest area change | "
+             "EI of the outline | the elastic membrane's | EI measured | outline against measured | at level 3 | "
+             "evaluations | wall time (s) |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    level3 = {(r["membrane_viscosity_N_s_m"], r.get("stress_free"), r["stress_Pa"]): r for r in rows
+              if not _elastic(r) and _in_30(r) and r["level"] == 3}
+    for r in viscous:
+        disk = elastic.get((r.get("stress_free"), r["stress_Pa"]))
+        disk_ei = "—" if disk is None else f"{disk['EI_outline']:.3f}"
+        ei = measured_ei(r["stress_Pa"])
+        off = "—" if ei is None else f"{100 * (r['EI_outline'] / ei - 1):+.0f} %"
+        status = r["status"] if r["status"] == "completed" else f"{r['status']} at kt {r['t']:.3g}"
+        lines.append(f"| {r['membrane_viscosity_N_s_m']:.3g} | {r['Bq']:.3g} | {r.get('stress_free') or 'the disk'} | "
+                     f"{r['stress_Pa']:g} | {r['skalak_c']:g} | "
+                     f"{r['t']:g} | {status} | {r['motion']} | {100 * r['area_change_max']:.2f} % | "
+                     f"{r['EI_outline']:.3f} ± {r['EI_outline_sd']:.3f} | "
+                     f"{disk_ei} | "
+                     f"{'—' if ei is None else f'{ei:.3f}'} | {off} | "
+                     f"{_level3(level3.get((r['membrane_viscosity_N_s_m'], r.get('stress_free'), r['stress_Pa'])))} | "
+                     f"{r['evaluations']} | "
+                     f"{r['wall_time_s']:.0f} |")
+    return lines
+
+
 def figure(rows: list[dict]) -> None:
     """The elongation index against the shear stress: the measured curve (mean ± its printed error) and the
-    default red cell (skalak_c auto) as the ektacytometer sees it (the outline) at levels 2 and 3, with its
-    equivalent ellipsoid's and the G_s 4 µN/m sensitivity (C 1000)."""
+    default red cell (skalak_c auto) as the ektacytometer sees it (the outline, level 2), settled (kt 100, mean ±
+    SD over the window: it swings), with the membrane viscosity of group `viscous`, and at kt 10 as reported before
+    (not settled)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -324,32 +565,27 @@ def figure(rows: list[dict]) -> None:
                     lw=0, label="measured ± 15 % (the issue's criterion)")
     ax.errorbar(d["shear_stress_Pa"], d["elongation_index"], yerr=d["elongation_index_err_pm"], fmt="ko", ms=3,
                 capsize=2, label="healthy cells, ektacytometry (benchmarks/data)")
-
-    def series(pick, key):
-        pts = sorted((r["stress_Pa"], r[key]) for r in rows if pick(r) and key in r)
-        return list(zip(*pts)) if pts else None
-
-    auto = lambda level: (lambda r: r.get("skalak_c_auto") and not r.get("stress_free") and _in_30(r)  # noqa: E731
-                          and r["level"] == level)
-    for pick, key, style, name in (
-            (auto(2), "EI_outline", "s-", "capsim, outline seen along y (level 2, skalak_c auto)"),
-            (auto(3), "EI_outline", "D", "capsim, outline (level 3)"),
-            (auto(2), "EI", "^--", "capsim, equivalent ellipsoid (level 2)"),
-            (lambda r: r.get("shear_modulus_uN_m") == 4.0, "EI", "v:", "capsim, ellipsoid, G_s 4 µN/m (C 1000)")):
-        xy = series(pick, key)
-        if xy:
-            ax.plot(*xy, style, mfc="none", label=name)
+    level2 = [r for r in rows if r["level"] == 2 and "EI_outline" in r]
+    for pick, style, name in (
+            (lambda r: shipped(r, LONG_KT), "s-", f"capsim, elastic membrane, kt {LONG_KT:g} (± SD: it swings)"),
+            (lambda r: _in_30(r) and r.get("membrane_viscosity_N_s_m") == MEMBRANE_VISCOSITY["viscous"], "o-",
+             f"capsim, membrane viscosity {MEMBRANE_VISCOSITY['viscous']:.3g} N s/m, kt {LONG_KT:g}"),
+            (lambda r: shipped(r), "x:", f"capsim, elastic, kt {T_END:g} (not settled: as reported before)")):
+        pts = sorted((r["stress_Pa"], r["EI_outline"], r["EI_outline_sd"]) for r in level2 if pick(r))
+        if pts:
+            x, y, sd = map(np.array, zip(*pts))
+            ax.errorbar(x, y, yerr=None if style == "x:" else sd, fmt=style, mfc="none", capsize=2, label=name)
     ax.set_xscale("log")
     ax.set_xlabel("shear stress τ = μk (Pa), 30 mPa s")
-    ax.set_ylabel("elongation index (L − W)/(L + W)")
-    ax.set_ylim(0, 0.95)
+    ax.set_ylabel("elongation index (L − W)/(L + W) of the outline")
+    ax.set_ylim(-0.2, 0.9)
     ax.legend(fontsize=6, loc="upper left")
-    ax.set_title("The default red cell in an ektacytometer (G_s 2.5 µN/m, λ = 0.2)", fontsize=9)
+    ax.set_title("The red cell in an ektacytometer (G_s 2.5 µN/m, λ = 0.2, level 2)", fontsize=9)
     save_figure(fig, FIGURE)
 
 
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "run":
-        run(sys.argv[2:] or [*GROUPS, "media"])
+        run(sys.argv[2:] or [*GROUPS, "media", "fk2011"])
     else:
         report()
