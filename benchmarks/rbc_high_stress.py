@@ -23,9 +23,8 @@ red-cell comparisons' μ_s, to kt 100; up to 10 Pa and from 30 Pa), viscous_fisc
 Korzeniewski's frequencies, at 3 Pa), auto_long (auto to kt 100: settled, the viscous runs' elastic reference),
 oblate_long and gs4_long (the stress-free oblate 0.9 at 1, 3 and 10 Pa and G_s 4 uN/m at 1 Pa, to kt 100), auto3_long
 (auto to kt 100 at level 3, 1 Pa: the settled EI's mesh error), long_tolerance (auto to kt 100 at 50 Pa with
-membrane.area_tolerance 0.01: what the elastic membrane's stop there takes), viscous3 (viscous at level 3, kt 100,
-10 and 1 Pa: its mesh error), viscous_oblate (viscous with the nearly spherical stress-free shape, to kt 100 at
-1-50 Pa), media (auto in 10 and 100 mPa s at 0.1 and 50 Pa, and what the stop at 100 mPa s, 50 Pa
+membrane.area_tolerance 0.01: what the elastic membrane's stop there takes), viscous_oblate and viscous_oblate_low (viscous with the nearly spherical stress-free
+shape, to kt 100 at 1-50 Pa and at 0.3 Pa), media (auto in 10 and 100 mPa s at 0.1 and 50 Pa, and what the stop at 100 mPa s, 50 Pa
 takes), fk2011 (one stress in three media, elastic and viscous: Fischer & Korzeniewski 2011's viscosity effect).
 """
 
@@ -52,21 +51,22 @@ GROUPS = {"c10": (10.0, 2, None), "c100": (100.0, 2, None), "c1000": (1000.0, 2,
           "auto": ("auto", 2, None), "auto3": ("auto", 3, None), "auto_oblate": ("auto", 2, None),
           "viscous": ("auto", 2, None), "viscous_high": ("auto", 2, None), "viscous_fischer": ("auto", 2, None),
           "auto_long": ("auto", 2, None), "oblate_long": ("auto", 2, None), "gs4_long": ("auto", 2, 4.0),
-          "auto3_long": ("auto", 3, None), "long_tolerance": ("auto", 2, None), "viscous3": ("auto", 3, None),
-          "viscous_oblate": ("auto", 2, None)}
+          "auto3_long": ("auto", 3, None), "long_tolerance": ("auto", 2, None),
+          "viscous_oblate": ("auto", 2, None), "viscous_oblate_low": ("auto", 2, None)}
 #: the groups whose area is held closer than membrane.area_tolerance's default 2 %
 AREA_TOLERANCE = {"long_tolerance": 0.01}
 #: the groups whose cell has another stress-free shape (membrane.reference_shape): the nearly spherical one that
 #: sets the tumbling threshold within a factor 2 (benchmarks/tumbling_transition.md)
 STRESS_FREE = {"auto_oblate": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9}),
                "oblate_long": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9}),
-               "viscous_oblate": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9})}
+               "viscous_oblate": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9}),
+               "viscous_oblate_low": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9})}
 #: the groups whose membrane is viscous (Kelvin-Voigt, physical.membrane_viscosity in N s/m): the mean of
 #: Tran-Son-Tay, Sutera & Rao (1984)'s Table III, the μ_s of the project's other red-cell comparisons
 #: (benchmarks/tran_son_tay.py, benchmarks/tumbling_transition.py); and the μ_s fitted to Fischer &
 #: Korzeniewski (2015)'s frequencies with this G_s (benchmarks/tran_son_tay.py's FISCHER_FIT_MU_S)
-MEMBRANE_VISCOSITY = {"viscous": 0.662e-7, "viscous_high": 0.662e-7, "viscous_fischer": 3.27e-7, "viscous3": 0.662e-7,
-                      "viscous_oblate": 0.662e-7}
+MEMBRANE_VISCOSITY = {"viscous": 0.662e-7, "viscous_high": 0.662e-7, "viscous_fischer": 3.27e-7,
+                      "viscous_oblate": 0.662e-7, "viscous_oblate_low": 0.662e-7}
 #: a viscous membrane's runs (and the elastic ones they are compared with) last kt 100: its cell settles slowly
 #: (at 1 Pa it swings between EI 0.06 and 0.25 with a period of ~10 kt, its mean still rising at kt 30), and its
 #: Kelvin-Voigt time k μ_s/G_s is up to 44 (50 Pa, Tran-Son-Tay's μ_s; 13 at 3 Pa with Fischer's); whether it
@@ -74,11 +74,11 @@ MEMBRANE_VISCOSITY = {"viscous": 0.662e-7, "viscous_high": 0.662e-7, "viscous_fi
 LONG_KT = 100.0
 #: the groups run to LONG_KT (the others to T_END)
 LONG_GROUPS = ("viscous", "viscous_high", "viscous_fischer", "auto_long", "fk2011", "oblate_long", "gs4_long",
-               "auto3_long", "long_tolerance", "viscous3", "viscous_oblate")
+               "auto3_long", "long_tolerance", "viscous_oblate", "viscous_oblate_low")
 #: the groups whose runs also give the EI of the cell's outline seen along the gradient, as the
 #: ektacytometer's laser sees it (its light crosses the gap along the velocity gradient)
 OUTLINE_GROUPS = ("outline", "auto", "auto3", "auto_oblate", "viscous", "viscous_high", "viscous_fischer", "auto_long",
-                  "oblate_long", "gs4_long", "auto3_long", "long_tolerance", "viscous3", "viscous_oblate")
+                  "oblate_long", "gs4_long", "auto3_long", "long_tolerance", "viscous_oblate", "viscous_oblate_low")
 #: the groups run at level 3 at every stress (the others at LEVEL3_STRESSES_PA)
 EVERY_STRESS_AT_LEVEL3 = ("auto3",)
 #: the configuration as it ships, at level 2, also between the four stresses (campaigns/rbc-ektacytometry.yaml's)
@@ -224,7 +224,8 @@ def shipped(row: dict, t_end: float = T_END) -> bool:
     """Whether a row is the configuration as it ships (skalak_c auto, the disk stress-free, elastic, 30 mPa s) run
     to `t_end`."""
     return bool(row.get("skalak_c_auto") and not row.get("stress_free") and _in_30(row) and _elastic(row)
-                and row.get("t_end", T_END) == t_end and row.get("area_tolerance", 0.02) == 0.02)
+                and row.get("t_end", T_END) == t_end and row.get("area_tolerance", 0.02) == 0.02
+                and row.get("shear_modulus_uN_m", 2.5) == 2.5)
 
 
 def _elastic(row: dict) -> bool:
@@ -331,10 +332,10 @@ def _stresses(group: str, level: int) -> tuple[float, ...]:
         return SENSITIVITY_STRESSES_PA
     if group == "gs4_long":  # where the modulus moved the unsettled EI most (kt 10: −31 % at 1 Pa, −3 % at 10)
         return (1.0,)
-    if group == "viscous_oblate":
-        return tuple(s for s in AUTO_STRESSES_PA if s >= 1.0)
-    if group in ("auto3_long", "viscous3"):  # the settled EI's mesh error: where the cell swings most, and 10 Pa
-        return (1.0,) if group == "auto3_long" else (10.0, 1.0)
+    if group in ("viscous_oblate", "viscous_oblate_low"):  # split in two: two processes can run them side by side
+        return tuple(s for s in AUTO_STRESSES_PA if 0.3 <= s and (s >= 1.0) == (group == "viscous_oblate"))
+    if group == "auto3_long":  # the settled EI's mesh error where the cell swings most
+        return (1.0,)
     if group == "long_tolerance":  # what the elastic membrane's stop at 50 Pa, kt 29, takes
         return (50.0,)
     if group in STRESS_FREE:
@@ -486,7 +487,10 @@ def _sensitivity_lines(rows: list[dict]) -> list[str]:
         (f"membrane viscosity μ_s {MEMBRANE_VISCOSITY['viscous_fischer']:.3g} N s/m (fitted to Fischer's), both to kt {LONG_KT:g}",
          long, lambda r: r.get("membrane_viscosity_N_s_m") == MEMBRANE_VISCOSITY["viscous_fischer"], "EI_outline"),
         (f"stress-free shape: oblate 0.9 instead of the disk, both to kt {LONG_KT:g}", long,
-         lambda r: r.get("stress_free") == "oblate 0.9" and r.get("t_end") == LONG_KT, "EI_outline"),
+         lambda r: r.get("stress_free") == "oblate 0.9" and r.get("t_end") == LONG_KT and _elastic(r), "EI_outline"),
+        (f"membrane viscosity and the stress-free shape oblate 0.9 together, both to kt {LONG_KT:g}", long,
+         lambda r: r.get("stress_free") == "oblate 0.9" and r.get("membrane_viscosity_N_s_m") == MEMBRANE_VISCOSITY[
+             "viscous"], "EI_outline"),
         (f"shear modulus: G_s 4 instead of 2.5 µN/m, both to kt {LONG_KT:g}", long,
          lambda r: r.get("skalak_c_auto") and r.get("shear_modulus_uN_m") == 4.0, "EI_outline"),
         (f"area modulus: C 1000 instead of auto's (the area within 2 %), both to kt {T_END:g}", as_shipped,
@@ -568,8 +572,12 @@ def figure(rows: list[dict]) -> None:
     level2 = [r for r in rows if r["level"] == 2 and "EI_outline" in r]
     for pick, style, name in (
             (lambda r: shipped(r, LONG_KT), "s-", f"capsim, elastic membrane, kt {LONG_KT:g} (± SD: it swings)"),
-            (lambda r: _in_30(r) and r.get("membrane_viscosity_N_s_m") == MEMBRANE_VISCOSITY["viscous"], "o-",
+            (lambda r: _in_30(r) and r.get("membrane_viscosity_N_s_m") == MEMBRANE_VISCOSITY["viscous"]
+             and not r.get("stress_free"), "o-",
              f"capsim, membrane viscosity {MEMBRANE_VISCOSITY['viscous']:.3g} N s/m, kt {LONG_KT:g}"),
+            (lambda r: _in_30(r) and r.get("membrane_viscosity_N_s_m") == MEMBRANE_VISCOSITY["viscous"]
+             and r.get("stress_free") == "oblate 0.9", "D-",
+             f"capsim, the same, stress-free oblate 0.9 (configs/rbc-ektacytometry.yaml), kt {LONG_KT:g}"),
             (lambda r: shipped(r), "x:", f"capsim, elastic, kt {T_END:g} (not settled: as reported before)")):
         pts = sorted((r["stress_Pa"], r["EI_outline"], r["EI_outline_sd"]) for r in level2 if pick(r))
         if pts:
@@ -578,7 +586,7 @@ def figure(rows: list[dict]) -> None:
     ax.set_xscale("log")
     ax.set_xlabel("shear stress τ = μk (Pa), 30 mPa s")
     ax.set_ylabel("elongation index (L − W)/(L + W) of the outline")
-    ax.set_ylim(-0.2, 0.9)
+    ax.set_ylim(-0.2, 1.15)
     ax.legend(fontsize=6, loc="upper left")
     ax.set_title("The red cell in an ektacytometer (G_s 2.5 µN/m, λ = 0.2, level 2)", fontsize=9)
     save_figure(fig, FIGURE)
