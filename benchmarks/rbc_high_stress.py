@@ -24,7 +24,8 @@ Korzeniewski's frequencies, at 3 Pa), auto_long (auto to kt 100: settled, the vi
 oblate_long and gs4_long (the stress-free oblate 0.9 at 1, 3 and 10 Pa and G_s 4 uN/m at 1 Pa, to kt 100), auto3_long
 (auto to kt 100 at level 3, 1 Pa: the settled EI's mesh error), long_tolerance (auto to kt 100 at 50 Pa with
 membrane.area_tolerance 0.01: what the elastic membrane's stop there takes), viscous_oblate and viscous_oblate_low (viscous with the nearly spherical stress-free
-shape, to kt 100 at 1-50 Pa and at 0.3 Pa), media (auto in 10 and 100 mPa s at 0.1 and 50 Pa, and what the stop at 100 mPa s, 50 Pa
+shape, to kt 100 at 1-50 Pa and at 0.3 Pa), viscous_oblate_mesh2 and viscous_oblate_mesh3 (the same at 10 Pa to
+kt 10 at levels 2 and 3: its mesh error), media (auto in 10 and 100 mPa s at 0.1 and 50 Pa, and what the stop at 100 mPa s, 50 Pa
 takes), fk2011 (one stress in three media, elastic and viscous: Fischer & Korzeniewski 2011's viscosity effect).
 """
 
@@ -52,7 +53,8 @@ GROUPS = {"c10": (10.0, 2, None), "c100": (100.0, 2, None), "c1000": (1000.0, 2,
           "viscous": ("auto", 2, None), "viscous_high": ("auto", 2, None), "viscous_fischer": ("auto", 2, None),
           "auto_long": ("auto", 2, None), "oblate_long": ("auto", 2, None), "gs4_long": ("auto", 2, 4.0),
           "auto3_long": ("auto", 3, None), "long_tolerance": ("auto", 2, None),
-          "viscous_oblate": ("auto", 2, None), "viscous_oblate_low": ("auto", 2, None)}
+          "viscous_oblate": ("auto", 2, None), "viscous_oblate_low": ("auto", 2, None),
+          "viscous_oblate_mesh2": ("auto", 2, None), "viscous_oblate_mesh3": ("auto", 3, None)}
 #: the groups whose area is held closer than membrane.area_tolerance's default 2 %
 AREA_TOLERANCE = {"long_tolerance": 0.01}
 #: the groups whose cell has another stress-free shape (membrane.reference_shape): the nearly spherical one that
@@ -60,13 +62,16 @@ AREA_TOLERANCE = {"long_tolerance": 0.01}
 STRESS_FREE = {"auto_oblate": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9}),
                "oblate_long": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9}),
                "viscous_oblate": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9}),
-               "viscous_oblate_low": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9})}
+               "viscous_oblate_low": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9}),
+               "viscous_oblate_mesh2": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9}),
+               "viscous_oblate_mesh3": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9})}
 #: the groups whose membrane is viscous (Kelvin-Voigt, physical.membrane_viscosity in N s/m): the mean of
 #: Tran-Son-Tay, Sutera & Rao (1984)'s Table III, the μ_s of the project's other red-cell comparisons
 #: (benchmarks/tran_son_tay.py, benchmarks/tumbling_transition.py); and the μ_s fitted to Fischer &
 #: Korzeniewski (2015)'s frequencies with this G_s (benchmarks/tran_son_tay.py's FISCHER_FIT_MU_S)
 MEMBRANE_VISCOSITY = {"viscous": 0.662e-7, "viscous_high": 0.662e-7, "viscous_fischer": 3.27e-7,
-                      "viscous_oblate": 0.662e-7, "viscous_oblate_low": 0.662e-7}
+                      "viscous_oblate": 0.662e-7, "viscous_oblate_low": 0.662e-7, "viscous_oblate_mesh2": 0.662e-7,
+                      "viscous_oblate_mesh3": 0.662e-7}
 #: a viscous membrane's runs (and the elastic ones they are compared with) last kt 100: its cell settles slowly
 #: (at 1 Pa it swings between EI 0.06 and 0.25 with a period of ~10 kt, its mean still rising at kt 30), and its
 #: Kelvin-Voigt time k μ_s/G_s is up to 44 (50 Pa, Tran-Son-Tay's μ_s; 13 at 3 Pa with Fischer's); whether it
@@ -78,7 +83,8 @@ LONG_GROUPS = ("viscous", "viscous_high", "viscous_fischer", "auto_long", "fk201
 #: the groups whose runs also give the EI of the cell's outline seen along the gradient, as the
 #: ektacytometer's laser sees it (its light crosses the gap along the velocity gradient)
 OUTLINE_GROUPS = ("outline", "auto", "auto3", "auto_oblate", "viscous", "viscous_high", "viscous_fischer", "auto_long",
-                  "oblate_long", "gs4_long", "auto3_long", "long_tolerance", "viscous_oblate", "viscous_oblate_low")
+                  "oblate_long", "gs4_long", "auto3_long", "long_tolerance", "viscous_oblate", "viscous_oblate_low",
+                  "viscous_oblate_mesh2", "viscous_oblate_mesh3")
 #: the groups run at level 3 at every stress (the others at LEVEL3_STRESSES_PA)
 EVERY_STRESS_AT_LEVEL3 = ("auto3",)
 #: the configuration as it ships, at level 2, also between the four stresses (campaigns/rbc-ektacytometry.yaml's)
@@ -336,6 +342,8 @@ def _stresses(group: str, level: int) -> tuple[float, ...]:
         return tuple(s for s in AUTO_STRESSES_PA if 0.3 <= s and (s >= 1.0) == (group == "viscous_oblate"))
     if group == "auto3_long":  # the settled EI's mesh error where the cell swings most
         return (1.0,)
+    if group in ("viscous_oblate_mesh2", "viscous_oblate_mesh3"):  # its mesh error at kt 10 (level 3 to kt 100: hours)
+        return (10.0,)
     if group == "long_tolerance":  # what the elastic membrane's stop at 50 Pa, kt 29, takes
         return (50.0,)
     if group in STRESS_FREE:
@@ -489,8 +497,8 @@ def _sensitivity_lines(rows: list[dict]) -> list[str]:
         (f"stress-free shape: oblate 0.9 instead of the disk, both to kt {LONG_KT:g}", long,
          lambda r: r.get("stress_free") == "oblate 0.9" and r.get("t_end") == LONG_KT and _elastic(r), "EI_outline"),
         (f"membrane viscosity and the stress-free shape oblate 0.9 together, both to kt {LONG_KT:g}", long,
-         lambda r: r.get("stress_free") == "oblate 0.9" and r.get("membrane_viscosity_N_s_m") == MEMBRANE_VISCOSITY[
-             "viscous"], "EI_outline"),
+         lambda r: r.get("stress_free") == "oblate 0.9" and r.get("t_end") == LONG_KT
+         and r.get("membrane_viscosity_N_s_m") == MEMBRANE_VISCOSITY["viscous"], "EI_outline"),
         (f"shear modulus: G_s 4 instead of 2.5 µN/m, both to kt {LONG_KT:g}", long,
          lambda r: r.get("skalak_c_auto") and r.get("shear_modulus_uN_m") == 4.0, "EI_outline"),
         (f"area modulus: C 1000 instead of auto's (the area within 2 %), both to kt {T_END:g}", as_shipped,
@@ -516,7 +524,7 @@ def _sensitivity_lines(rows: list[dict]) -> list[str]:
 def _viscous_lines(rows: list[dict]) -> list[str]:
     """The configuration as it ships with a viscous membrane (groups `viscous`, `viscous_fischer`): the outline's EI
     against the curve and against the elastic membrane's at the same stress."""
-    viscous = sorted((r for r in rows if not _elastic(r) and _in_30(r) and r["level"] == 2),
+    viscous = sorted((r for r in rows if not _elastic(r) and _in_30(r) and r["level"] == 2 and r.get("t_end") == LONG_KT),
                      key=lambda r: (r["membrane_viscosity_N_s_m"], r.get("stress_free") or "", r["stress_Pa"]))
     if not viscous:
         return []
@@ -531,7 +539,8 @@ def _viscous_lines(rows: list[dict]) -> list[str]:
              "EI of the outline | the elastic membrane's | EI measured | outline against measured | at level 3 | "
              "evaluations | wall time (s) |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     level3 = {(r["membrane_viscosity_N_s_m"], r.get("stress_free"), r["stress_Pa"]): r for r in rows
-              if not _elastic(r) and _in_30(r) and r["level"] == 3}
+              if not _elastic(r) and _in_30(r) and r["level"] == 3 and r.get("t_end") == LONG_KT}
+    mesh = {r["level"]: r for r in rows if not _elastic(r) and _in_30(r) and r.get("t_end", T_END) == T_END}
     for r in viscous:
         disk = elastic.get((r.get("stress_free"), r["stress_Pa"]))
         disk_ei = "—" if disk is None else f"{disk['EI_outline']:.3f}"
@@ -547,6 +556,13 @@ def _viscous_lines(rows: list[dict]) -> list[str]:
                      f"{_level3(level3.get((r['membrane_viscosity_N_s_m'], r.get('stress_free'), r['stress_Pa'])))} | "
                      f"{r['evaluations']} | "
                      f"{r['wall_time_s']:.0f} |")
+    if 2 in mesh and 3 in mesh:
+        two, three = mesh[2], mesh[3]
+        lines += ["", f"Its mesh error (groups `viscous_oblate_mesh2` and `viscous_oblate_mesh3`: the viscous cell with the "
+                  f"stress-free oblate 0.9 at {two['stress_Pa']:g} Pa to kt {T_END:g}; a level-3 run to kt {LONG_KT:g} "
+                  f"would take about {LONG_KT / T_END * three['wall_time_s'] / 60:.0f} min here): the outline's EI {two['EI_outline']:.3f} at level 2 ({two['wall_time_s']:.0f} s), "
+                  f"{three['EI_outline']:.3f} at level 3 ({three['wall_time_s']:.0f} s, {three['status']}), level 2 − "
+                  f"level 3 = {two['EI_outline'] - three['EI_outline']:+.3f}."]
     return lines
 
 
@@ -576,7 +592,7 @@ def figure(rows: list[dict]) -> None:
              and not r.get("stress_free"), "o-",
              f"capsim, membrane viscosity {MEMBRANE_VISCOSITY['viscous']:.3g} N s/m, kt {LONG_KT:g}"),
             (lambda r: _in_30(r) and r.get("membrane_viscosity_N_s_m") == MEMBRANE_VISCOSITY["viscous"]
-             and r.get("stress_free") == "oblate 0.9", "D-",
+             and r.get("stress_free") == "oblate 0.9" and r.get("t_end") == LONG_KT, "D-",
              f"capsim, the same, stress-free oblate 0.9 (configs/rbc-ektacytometry.yaml), kt {LONG_KT:g}"),
             (lambda r: shipped(r), "x:", f"capsim, elastic, kt {T_END:g} (not settled: as reported before)")):
         pts = sorted((r["stress_Pa"], r["EI_outline"], r["EI_outline_sd"]) for r in level2 if pick(r))

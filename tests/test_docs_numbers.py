@@ -263,7 +263,8 @@ def test_the_ektacytometry_red_cell_is_within_fifteen_percent_as_validation_says
     module, _ = _rbc_stress()
     rows, text = module.load(), _validation_prose()
     cell = {r["stress_Pa"]: r for r in rows if r.get("stress_free") == "oblate 0.9" and r["level"] == 2
-            and r.get("membrane_viscosity_N_s_m") == module.MEMBRANE_VISCOSITY["viscous"] and module._in_30(r)}
+            and r.get("membrane_viscosity_N_s_m") == module.MEMBRANE_VISCOSITY["viscous"] and module._in_30(r)
+            and r.get("t_end") == module.LONG_KT}
     five = (1.0, 3.0, 10.0, 30.0, 50.0)
     assert all(cell[s]["status"] == "completed" and cell[s]["t"] == module.LONG_KT for s in (0.3, *five))
     assert all(abs(cell[s]["EI_outline"] / module.measured_ei(s) - 1) <= 0.15 for s in five)
@@ -272,6 +273,11 @@ def test_the_ektacytometry_red_cell_is_within_fifteen_percent_as_validation_says
     low = _off(module, cell, (0.3,))[0]
     assert f"({low} % at 0.3 Pa, {cell[0.3]['EI_outline']:.3f} against {module.measured_ei(0.3):.3f}" in text
     assert f"the area within {100 * max(r['area_change_max'] for r in cell.values()):.2f} %" in text
+    mesh = {r["level"]: r for r in rows if r.get("stress_free") == "oblate 0.9" and r["stress_Pa"] == 10.0
+            and r.get("membrane_viscosity_N_s_m") and r.get("t_end") == module.T_END}
+    assert abs(mesh[2]["EI_outline"] - mesh[3]["EI_outline"]) <= 0.01  # its mesh error at 10 Pa, kt 10
+    assert (f"the outline's EI {mesh[2]['EI_outline']:.3f} at level 2 and {mesh[3]['EI_outline']:.3f} at level 3 "
+            f"({mesh[3]['wall_time_s']:.0f} s)") in text
     # the shipped configuration and campaign are this cell
     import yaml
     config = yaml.safe_load((ROOT / "configs" / "rbc-ektacytometry.yaml").read_text())
