@@ -25,7 +25,8 @@ oblate_long and gs4_long (the stress-free oblate 0.9 at 1, 3 and 10 Pa and G_s 4
 (auto to kt 100 at level 3, 1 Pa: the settled EI's mesh error), long_tolerance (auto to kt 100 at 50 Pa with
 membrane.area_tolerance 0.01: what the elastic membrane's stop there takes), viscous_oblate and viscous_oblate_low (viscous with the nearly spherical stress-free
 shape, to kt 100 at 1-50 Pa and at 0.3 Pa), viscous_oblate_mesh2 and viscous_oblate_mesh3 (the same at 10 Pa to
-kt 10 at levels 2 and 3: its mesh error), media (auto in 10 and 100 mPa s at 0.1 and 50 Pa, and what the stop at 100 mPa s, 50 Pa
+kt 10 at levels 2 and 3: its mesh error), viscous_oblate3 (the same at level 3 to kt 100: its settled mesh
+error, ~45 min), media (auto in 10 and 100 mPa s at 0.1 and 50 Pa, and what the stop at 100 mPa s, 50 Pa
 takes), fk2011 (one stress in three media, elastic and viscous: Fischer & Korzeniewski 2011's viscosity effect).
 """
 
@@ -36,6 +37,7 @@ import os
 import sys
 import tempfile
 from pathlib import Path
+from typing import NamedTuple
 
 for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
@@ -46,52 +48,77 @@ TABLE = ROOT / "benchmarks" / "rbc_high_stress.md"
 FIGURE = ROOT / "docs" / "figures" / "rbc_ektacytometry.png"
 VISCOSITY_MPAS, INNER_MPAS = 30.0, 6.0
 STRESSES_PA = (0.1, 1.0, 10.0, 50.0)
-#: group -> (Skalak C, mesh level, G_s in uN/m: None for the configuration's 2.5)
-GROUPS = {"c10": (10.0, 2, None), "c100": (100.0, 2, None), "c1000": (1000.0, 2, None),
-          "level3": (1000.0, 3, None), "gs4": (1000.0, 2, 4.0), "outline": (1000.0, 2, None),
-          "auto": ("auto", 2, None), "auto3": ("auto", 3, None), "auto_oblate": ("auto", 2, None),
-          "viscous": ("auto", 2, None), "viscous_high": ("auto", 2, None), "viscous_fischer": ("auto", 2, None),
-          "auto_long": ("auto", 2, None), "oblate_long": ("auto", 2, None), "gs4_long": ("auto", 2, 4.0),
-          "auto3_long": ("auto", 3, None), "long_tolerance": ("auto", 2, None),
-          "viscous_oblate": ("auto", 2, None), "viscous_oblate_low": ("auto", 2, None),
-          "viscous_oblate_mesh2": ("auto", 2, None), "viscous_oblate_mesh3": ("auto", 3, None)}
-#: the groups whose area is held closer than membrane.area_tolerance's default 2 %
-AREA_TOLERANCE = {"long_tolerance": 0.01}
-#: the groups whose cell has another stress-free shape (membrane.reference_shape): the nearly spherical one that
-#: sets the tumbling threshold within a factor 2 (benchmarks/tumbling_transition.md)
-STRESS_FREE = {"auto_oblate": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9}),
-               "oblate_long": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9}),
-               "viscous_oblate": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9}),
-               "viscous_oblate_low": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9}),
-               "viscous_oblate_mesh2": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9}),
-               "viscous_oblate_mesh3": ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9})}
-#: the groups whose membrane is viscous (Kelvin-Voigt, physical.membrane_viscosity in N s/m): the mean of
-#: Tran-Son-Tay, Sutera & Rao (1984)'s Table III, the μ_s of the project's other red-cell comparisons
-#: (benchmarks/tran_son_tay.py, benchmarks/tumbling_transition.py); and the μ_s fitted to Fischer &
-#: Korzeniewski (2015)'s frequencies with this G_s (benchmarks/tran_son_tay.py's FISCHER_FIT_MU_S)
-MEMBRANE_VISCOSITY = {"viscous": 0.662e-7, "viscous_high": 0.662e-7, "viscous_fischer": 3.27e-7,
-                      "viscous_oblate": 0.662e-7, "viscous_oblate_low": 0.662e-7, "viscous_oblate_mesh2": 0.662e-7,
-                      "viscous_oblate_mesh3": 0.662e-7}
+#: the configuration as it ships, at level 2, also between the four stresses (campaigns/rbc-ektacytometry.yaml's)
+AUTO_STRESSES_PA = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 50.0)
+#: the mesh error at level 3 is measured at two of the stresses (a level-3 run costs minutes here)
+LEVEL3_STRESSES_PA = (1.0, 10.0)
+#: the stresses of the table "What moves the elongation index"
+SENSITIVITY_STRESSES_PA = (1.0, 3.0, 10.0)
+T_END = 10.0
 #: a viscous membrane's runs (and the elastic ones they are compared with) last kt 100: its cell settles slowly
 #: (at 1 Pa it swings between EI 0.06 and 0.25 with a period of ~10 kt, its mean still rising at kt 30), and its
 #: Kelvin-Voigt time k μ_s/G_s is up to 44 (50 Pa, Tran-Son-Tay's μ_s; 13 at 3 Pa with Fischer's); whether it
 #: settled, the outline's drift over the window says
 LONG_KT = 100.0
-#: the groups run to LONG_KT (the others to T_END)
-LONG_GROUPS = ("viscous", "viscous_high", "viscous_fischer", "auto_long", "fk2011", "oblate_long", "gs4_long",
-               "auto3_long", "long_tolerance", "viscous_oblate", "viscous_oblate_low")
-#: the groups whose runs also give the EI of the cell's outline seen along the gradient, as the
-#: ektacytometer's laser sees it (its light crosses the gap along the velocity gradient)
-OUTLINE_GROUPS = ("outline", "auto", "auto3", "auto_oblate", "viscous", "viscous_high", "viscous_fischer", "auto_long",
-                  "oblate_long", "gs4_long", "auto3_long", "long_tolerance", "viscous_oblate", "viscous_oblate_low",
-                  "viscous_oblate_mesh2", "viscous_oblate_mesh3")
-#: the groups run at level 3 at every stress (the others at LEVEL3_STRESSES_PA)
-EVERY_STRESS_AT_LEVEL3 = ("auto3",)
-#: the configuration as it ships, at level 2, also between the four stresses (campaigns/rbc-ektacytometry.yaml's)
-AUTO_STRESSES_PA = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 50.0)
-T_END = 10.0
-#: the mesh error at level 3 is measured at two of the stresses (a level-3 run costs minutes here)
-LEVEL3_STRESSES_PA = (1.0, 10.0)
+#: the membrane viscosities (Kelvin-Voigt, physical.membrane_viscosity in N s/m): the mean of Tran-Son-Tay, Sutera &
+#: Rao (1984)'s Table III, the μ_s of the project's other red-cell comparisons (benchmarks/tran_son_tay.py,
+#: benchmarks/tumbling_transition.py); and the μ_s fitted to Fischer & Korzeniewski (2015)'s frequencies with this
+#: G_s (benchmarks/tran_son_tay.py's FISCHER_FIT_MU_S)
+TTS_MU_S, FISCHER_MU_S = 0.662e-7, 3.27e-7
+#: the nearly spherical stress-free shape (membrane.reference_shape) that sets the tumbling threshold within a
+#: factor 2 (benchmarks/tumbling_transition.md): (its tag in the rows, the field)
+OBLATE = ("oblate 0.9", {"kind": "oblate", "aspect_ratio": 0.9})
+
+
+class Group(NamedTuple):
+    """One group of runs: the cell of configs/rbc.yaml in 30 mPa s with these changes, at these stresses."""
+
+    skalak_c: float | str  # a number, or "auto" (the configuration's)
+    level: int
+    stresses: tuple[float, ...]
+    shear_modulus: float | None = None  # uN/m; None: the configuration's 2.5
+    stress_free: tuple[str, dict] | None = None  # (tag, membrane.reference_shape); None: the disk
+    membrane_viscosity: float = 0.0  # N s/m
+    t_end: float = T_END
+    outline: bool = False  # the outline seen along the gradient, as the ektacytometer's laser sees it
+    area_tolerance: float | None = None  # None: membrane.area_tolerance's default (2 %)
+
+
+def _long(**fields) -> Group:
+    """A group run to LONG_KT with the outline, skalak_c auto unless given, level 2 unless given."""
+    return Group(**{"skalak_c": "auto", "level": 2, "t_end": LONG_KT, "outline": True, **fields})
+
+
+#: every group but `media` and `fk2011` (their own functions below)
+GROUPS = {
+    "c10": Group(10.0, 2, STRESSES_PA), "c100": Group(100.0, 2, STRESSES_PA), "c1000": Group(1000.0, 2, STRESSES_PA),
+    "level3": Group(1000.0, 3, LEVEL3_STRESSES_PA),
+    "gs4": Group(1000.0, 2, STRESSES_PA, shear_modulus=4.0),  # the EI's sensitivity to the modulus
+    "outline": Group(1000.0, 2, STRESSES_PA, outline=True),
+    "auto": Group("auto", 2, AUTO_STRESSES_PA, outline=True),  # the configuration as it ships
+    "auto3": Group("auto", 3, STRESSES_PA, outline=True),
+    "auto_oblate": Group("auto", 2, (0.3, 1.0, 3.0, 10.0, 50.0), stress_free=OBLATE, outline=True),
+    # settled (kt 100): the configuration as it ships, and its mesh error where it swings most
+    "auto_long": _long(stresses=AUTO_STRESSES_PA),
+    "auto3_long": _long(stresses=(1.0,), level=3),
+    # what the elastic membrane's stop at 50 Pa, kt 29, takes
+    "long_tolerance": _long(stresses=(50.0,), area_tolerance=0.01),
+    # the membrane's viscosity; viscous and viscous_high split in two: two processes can run them side by side
+    "viscous": _long(stresses=(0.1, 0.3, 1.0, 3.0, 10.0), membrane_viscosity=TTS_MU_S),
+    "viscous_high": _long(stresses=(30.0, 50.0), membrane_viscosity=TTS_MU_S),
+    "viscous_fischer": _long(stresses=(3.0,), membrane_viscosity=FISCHER_MU_S),
+    # what the stress-free shape and the modulus move, settled
+    "oblate_long": _long(stresses=SENSITIVITY_STRESSES_PA, stress_free=OBLATE),
+    "gs4_long": _long(stresses=(1.0,), shear_modulus=4.0),  # where the modulus moved the unsettled EI most
+    # both: the cell of configs/rbc-ektacytometry.yaml (split in two as viscous), its mesh error at 10 Pa over kt 10
+    # at levels 2 and 3, and settled at level 3
+    "viscous_oblate": _long(stresses=(1.0, 3.0, 10.0, 30.0, 50.0), membrane_viscosity=TTS_MU_S, stress_free=OBLATE),
+    "viscous_oblate_low": _long(stresses=(0.3,), membrane_viscosity=TTS_MU_S, stress_free=OBLATE),
+    "viscous_oblate_mesh2": _long(stresses=(10.0,), membrane_viscosity=TTS_MU_S, stress_free=OBLATE, t_end=T_END),
+    "viscous_oblate_mesh3": _long(stresses=(10.0,), membrane_viscosity=TTS_MU_S, stress_free=OBLATE, t_end=T_END,
+                                  level=3),
+    "viscous_oblate3": _long(stresses=(10.0,), membrane_viscosity=TTS_MU_S, stress_free=OBLATE, level=3),
+}
 
 
 def case_for(stress: float, C: float | str, level: int, shear_modulus: float | None = None,
@@ -201,28 +228,26 @@ def run(groups: list[str]) -> None:
         rows = run_media(rows)
     if "fk2011" in groups:
         rows = run_fk2011(rows)
-    for group in (g for g in groups if g not in ("media", "fk2011")):
-        C, level, gs = GROUPS[group]
-        stress_free = STRESS_FREE.get(group)
-        mu_s = MEMBRANE_VISCOSITY.get(group, 0.0)
-        t_end = LONG_KT if group in LONG_GROUPS else T_END
-        tolerance = AREA_TOLERANCE.get(group)
-        for stress in _stresses(group, level):
-            outline = group in OUTLINE_GROUPS
-            tag = stress_free[0] if stress_free else None
-            if any(r["stress_Pa"] == stress and _in_30(r) and r.get("stress_free") == tag and r["level"] == level
-                   and r.get("membrane_viscosity_N_s_m", 0.0) == mu_s and r.get("t_end", T_END) == t_end
-                   and r.get("area_tolerance", 0.02) == (tolerance or 0.02)
-                   and (r.get("skalak_c_auto", False) if C == "auto" else
-                        r["skalak_c"] == C and not r.get("skalak_c_auto"))
-                   and r.get("shear_modulus_uN_m", 2.5) == (gs or 2.5) and r.get("outline", False) == outline
+    for name in (g for g in groups if g not in ("media", "fk2011")):
+        group = GROUPS[name]
+        tag = group.stress_free[0] if group.stress_free else None
+        for stress in group.stresses:
+            if any(r["stress_Pa"] == stress and _in_30(r) and r.get("stress_free") == tag and r["level"] == group.level
+                   and r.get("membrane_viscosity_N_s_m", 0.0) == group.membrane_viscosity
+                   and r.get("t_end", T_END) == group.t_end
+                   and r.get("area_tolerance", 0.02) == (group.area_tolerance or 0.02)
+                   and (r.get("skalak_c_auto", False) if group.skalak_c == "auto" else
+                        r["skalak_c"] == group.skalak_c and not r.get("skalak_c_auto"))
+                   and r.get("shear_modulus_uN_m", 2.5) == (group.shear_modulus or 2.5)
+                   and r.get("outline", False) == group.outline
                    for r in rows):
                 continue
-            rows = save(run_one(stress, C, level, gs, outline, stress_free, area_tolerance=tolerance,
-                                membrane_viscosity=mu_s, t_end=t_end))
+            rows = save(run_one(stress, group.skalak_c, group.level, group.shear_modulus, group.outline,
+                                group.stress_free, area_tolerance=group.area_tolerance,
+                                membrane_viscosity=group.membrane_viscosity, t_end=group.t_end))
             r = rows[-1]
-            print(f"{stress:g} Pa C {r['skalak_c']:g} L{level}: {r['status']} at kt {r['t']:.3g}, EI {r['EI']:.3f}, "
-                  f"area {100 * r['area_change_max']:.1f} %, {r['wall_time_s']:.0f} s", flush=True)
+            print(f"{stress:g} Pa C {r['skalak_c']:g} L{group.level}: {r['status']} at kt {r['t']:.3g}, "
+                  f"EI {r['EI']:.3f}, area {100 * r['area_change_max']:.1f} %, {r['wall_time_s']:.0f} s", flush=True)
     report()
 
 
@@ -273,7 +298,7 @@ def run_fk2011(rows: list[dict]) -> list[dict]:
     """Group `fk2011`: the cell at FK2011_STRESS_PA in FK2011_MEDIA_MPAS, elastic and with the membrane viscosity
     of group `viscous` (its rows in 30 mPa s are those of groups `auto` and `viscous`); resumable as the others."""
     for eta in FK2011_MEDIA_MPAS:
-        for mu_s in (0.0, MEMBRANE_VISCOSITY["viscous"]):
+        for mu_s in (0.0, TTS_MU_S):
             if any(r.get("viscosity_mPa_s", VISCOSITY_MPAS) == eta and r["stress_Pa"] == FK2011_STRESS_PA
                    and r["level"] == 2 and r.get("skalak_c_auto") and r.get("outline") and not r.get("stress_free")
                    and r.get("membrane_viscosity_N_s_m", 0.0) == mu_s and r["area_tolerance"] == 0.02
@@ -295,11 +320,11 @@ def _fk2011_lines(rows: list[dict]) -> list[str]:
         return []
     lines = ["", f"One stress ({FK2011_STRESS_PA:g} Pa) in three media (group `fk2011`; the cytoplasm's 6 mPa s, level 2): "
              "the outline's EI with the elastic membrane and with the viscous one (μ_s "
-             f"{MEMBRANE_VISCOSITY['viscous']:.3g} N s/m). Fischer & Korzeniewski (2011) measured the elongation growing with "
+             f"{TTS_MU_S:.3g} N s/m). Fischer & Korzeniewski (2011) measured the elongation growing with "
              "the medium's viscosity at a given stress below ~70 mPa s:", "",
              "| medium (mPa s) | λ | elastic: EI of the outline | viscous: Bq | viscous: EI of the outline | viscous: kt |",
              "|---|---|---|---|---|---|"]
-    mu = MEMBRANE_VISCOSITY["viscous"]
+    mu = TTS_MU_S
     for eta in FK2011_MEDIA_MPAS:
         e, v = pick.get((eta, 0.0)), pick.get((eta, mu))
         if e is None or v is None:
@@ -325,30 +350,6 @@ def _media_lines(rows: list[dict]) -> list[str]:
                      f"{r['area_tolerance']:g} | {r['skalak_c']:g} | {status} | {100 * r['area_change_max']:.2f} % | "
                      f"{r['min_element_quality']:.2f} | {r['EI']:.3f} | {r['wall_time_s']:.0f} |")
     return lines
-
-
-def _stresses(group: str, level: int) -> tuple[float, ...]:
-    if group in ("auto", "auto_long"):
-        return AUTO_STRESSES_PA
-    if group in ("viscous", "viscous_high"):  # split in two: two processes can run them side by side
-        return tuple(s for s in AUTO_STRESSES_PA if (s >= 30.0) == (group == "viscous_high"))
-    if group == "viscous_fischer":
-        return (3.0,)
-    if group == "oblate_long":
-        return SENSITIVITY_STRESSES_PA
-    if group == "gs4_long":  # where the modulus moved the unsettled EI most (kt 10: −31 % at 1 Pa, −3 % at 10)
-        return (1.0,)
-    if group in ("viscous_oblate", "viscous_oblate_low"):  # split in two: two processes can run them side by side
-        return tuple(s for s in AUTO_STRESSES_PA if 0.3 <= s and (s >= 1.0) == (group == "viscous_oblate"))
-    if group == "auto3_long":  # the settled EI's mesh error where the cell swings most
-        return (1.0,)
-    if group in ("viscous_oblate_mesh2", "viscous_oblate_mesh3"):  # its mesh error at kt 10 (level 3 to kt 100: hours)
-        return (10.0,)
-    if group == "long_tolerance":  # what the elastic membrane's stop at 50 Pa, kt 29, takes
-        return (50.0,)
-    if group in STRESS_FREE:
-        return (0.3, 1.0, 3.0, 10.0, 50.0)
-    return LEVEL3_STRESSES_PA if level == 3 and group not in EVERY_STRESS_AT_LEVEL3 else STRESSES_PA
 
 
 def measured_ei(stress: float) -> float | None:
@@ -476,10 +477,6 @@ def _level3(row: dict | None) -> str:
     return f"{row['EI_outline']:.3f} ± {row['EI_outline_sd']:.3f} ({row['wall_time_s']:.0f} s{status})"
 
 
-#: the stresses of the table "What moves the elongation index"
-SENSITIVITY_STRESSES_PA = (1.0, 3.0, 10.0)
-
-
 def _sensitivity_lines(rows: list[dict]) -> list[str]:
     """What moves the EI at SENSITIVITY_STRESSES_PA: each change's EI against its reference's, both of the outline
     (G_s: of the equivalent ellipsoid, both with C = 1000, the only rows with G_s 4), level 2, 30 mPa s."""
@@ -490,15 +487,15 @@ def _sensitivity_lines(rows: list[dict]) -> list[str]:
              and r.get("shear_modulus_uN_m", 2.5) == 2.5 and not r.get("outline")}
     changes = [
         (f"run to kt {LONG_KT:g} instead of {T_END:g}", as_shipped, lambda r: shipped(r, LONG_KT), "EI_outline"),
-        (f"membrane viscosity μ_s {MEMBRANE_VISCOSITY['viscous']:.3g} N s/m (Tran-Son-Tay's mean), both to kt {LONG_KT:g}", long,
-         lambda r: r.get("membrane_viscosity_N_s_m") == MEMBRANE_VISCOSITY["viscous"], "EI_outline"),
-        (f"membrane viscosity μ_s {MEMBRANE_VISCOSITY['viscous_fischer']:.3g} N s/m (fitted to Fischer's), both to kt {LONG_KT:g}",
-         long, lambda r: r.get("membrane_viscosity_N_s_m") == MEMBRANE_VISCOSITY["viscous_fischer"], "EI_outline"),
+        (f"membrane viscosity μ_s {TTS_MU_S:.3g} N s/m (Tran-Son-Tay's mean), both to kt {LONG_KT:g}", long,
+         lambda r: r.get("membrane_viscosity_N_s_m") == TTS_MU_S, "EI_outline"),
+        (f"membrane viscosity μ_s {FISCHER_MU_S:.3g} N s/m (fitted to Fischer's), both to kt {LONG_KT:g}",
+         long, lambda r: r.get("membrane_viscosity_N_s_m") == FISCHER_MU_S, "EI_outline"),
         (f"stress-free shape: oblate 0.9 instead of the disk, both to kt {LONG_KT:g}", long,
          lambda r: r.get("stress_free") == "oblate 0.9" and r.get("t_end") == LONG_KT and _elastic(r), "EI_outline"),
         (f"membrane viscosity and the stress-free shape oblate 0.9 together, both to kt {LONG_KT:g}", long,
          lambda r: r.get("stress_free") == "oblate 0.9" and r.get("t_end") == LONG_KT
-         and r.get("membrane_viscosity_N_s_m") == MEMBRANE_VISCOSITY["viscous"], "EI_outline"),
+         and r.get("membrane_viscosity_N_s_m") == TTS_MU_S, "EI_outline"),
         (f"shear modulus: G_s 4 instead of 2.5 µN/m, both to kt {LONG_KT:g}", long,
          lambda r: r.get("skalak_c_auto") and r.get("shear_modulus_uN_m") == 4.0, "EI_outline"),
         (f"area modulus: C 1000 instead of auto's (the area within 2 %), both to kt {T_END:g}", as_shipped,
@@ -588,10 +585,10 @@ def figure(rows: list[dict]) -> None:
     level2 = [r for r in rows if r["level"] == 2 and "EI_outline" in r]
     for pick, style, name in (
             (lambda r: shipped(r, LONG_KT), "s-", f"capsim, elastic membrane, kt {LONG_KT:g} (± SD: it swings)"),
-            (lambda r: _in_30(r) and r.get("membrane_viscosity_N_s_m") == MEMBRANE_VISCOSITY["viscous"]
+            (lambda r: _in_30(r) and r.get("membrane_viscosity_N_s_m") == TTS_MU_S
              and not r.get("stress_free"), "o-",
-             f"capsim, membrane viscosity {MEMBRANE_VISCOSITY['viscous']:.3g} N s/m, kt {LONG_KT:g}"),
-            (lambda r: _in_30(r) and r.get("membrane_viscosity_N_s_m") == MEMBRANE_VISCOSITY["viscous"]
+             f"capsim, membrane viscosity {TTS_MU_S:.3g} N s/m, kt {LONG_KT:g}"),
+            (lambda r: _in_30(r) and r.get("membrane_viscosity_N_s_m") == TTS_MU_S
              and r.get("stress_free") == "oblate 0.9" and r.get("t_end") == LONG_KT, "D-",
              f"capsim, the same, stress-free oblate 0.9 (configs/rbc-ektacytometry.yaml), kt {LONG_KT:g}"),
             (lambda r: shipped(r), "x:", f"capsim, elastic, kt {T_END:g} (not settled: as reported before)")):

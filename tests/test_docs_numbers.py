@@ -218,7 +218,7 @@ def test_the_viscous_red_cell_is_as_validation_says():
     outline's EI against the curve, completing at every stress, the medium's effect, Fischer's μ_s."""
     module, _ = _rbc_stress()
     rows, text = module.load(), _validation_prose()
-    mu = module.MEMBRANE_VISCOSITY["viscous"]
+    mu = module.TTS_MU_S
     viscous = {r["stress_Pa"]: r for r in rows if r.get("membrane_viscosity_N_s_m") == mu and module._in_30(r)
                and r["level"] == 2 and not r.get("stress_free")}
     assert all(viscous[s]["status"] == "completed" and viscous[s]["t"] == module.LONG_KT
@@ -235,7 +235,7 @@ def test_the_viscous_red_cell_is_as_validation_says():
         eis = [fk[(eta, m)]["EI_outline"] for eta in media]
         assert eis == sorted(eis)  # the elongation grows with the medium's viscosity at a given stress
         assert f"{eis[0]:.3f}, {eis[1]:.3f} and {eis[2]:.3f} with the {name}" in text
-    fischer = next(r for r in rows if r.get("membrane_viscosity_N_s_m") == module.MEMBRANE_VISCOSITY["viscous_fischer"])
+    fischer = next(r for r in rows if r.get("membrane_viscosity_N_s_m") == module.FISCHER_MU_S)
     off = _percents([100 * (fischer["EI_outline"] / module.measured_ei(3.0) - 1)])[0]
     assert f"takes the EI at 3 Pa to {fischer['EI_outline']:.3f}, **{off} %**" in text
 
@@ -263,7 +263,7 @@ def test_the_ektacytometry_red_cell_is_within_fifteen_percent_as_validation_says
     module, _ = _rbc_stress()
     rows, text = module.load(), _validation_prose()
     cell = {r["stress_Pa"]: r for r in rows if r.get("stress_free") == "oblate 0.9" and r["level"] == 2
-            and r.get("membrane_viscosity_N_s_m") == module.MEMBRANE_VISCOSITY["viscous"] and module._in_30(r)
+            and r.get("membrane_viscosity_N_s_m") == module.TTS_MU_S and module._in_30(r)
             and r.get("t_end") == module.LONG_KT}
     five = (1.0, 3.0, 10.0, 30.0, 50.0)
     assert all(cell[s]["status"] == "completed" and cell[s]["t"] == module.LONG_KT for s in (0.3, *five))
