@@ -253,7 +253,7 @@ def test_the_settled_stress_free_shape_is_as_validation_says():
             f"the oblate one's by ±{oblate[1.0]['EI_outline_sd']:.3f} about {oblate[1.0]['EI_outline']:.3f}, "
             f"**{_off(module, oblate, (1.0,))[0]} %** off the curve") in text
     off = _off(module, oblate, (3.0, 10.0))
-    assert f"longer than the disk's ({off[0]} and {off[1]} %)" in text
+    assert f"longer than the disk's, {off[0]} and {off[1]} % off the curve" in text
 
 
 def test_the_ektacytometry_red_cell_is_within_fifteen_percent_as_validation_says():
