@@ -24,7 +24,7 @@ Korzeniewski's frequencies, at 3 Pa), auto_long (auto to kt 100: settled, the vi
 oblate_long and gs4_long (the stress-free oblate 0.9 at 1, 3 and 10 Pa and G_s 4 uN/m at 1 Pa, to kt 100), auto3_long
 (auto to kt 100 at level 3, 1 Pa: the settled EI's mesh error), long_tolerance (auto to kt 100 at 50 Pa with
 membrane.area_tolerance 0.01: what the elastic membrane's stop there takes), viscous_oblate and viscous_oblate_low (viscous with the nearly spherical stress-free
-shape, to kt 100 at 1-50 Pa and at 0.3 Pa), viscous_oblate_mesh2 and viscous_oblate_mesh3 (the same at 10 Pa to
+shape, to kt 100 at 1-50 Pa and at 0.1-0.3 Pa), viscous_oblate_mesh2 and viscous_oblate_mesh3 (the same at 10 Pa to
 kt 10 at levels 2 and 3: its mesh error), viscous_oblate3 (the same at level 3 to kt 100: its settled mesh
 error, ~45 min), media (auto in 10 and 100 mPa s at 0.1 and 50 Pa, and what the stop at 100 mPa s, 50 Pa
 takes), fk2011 (one stress in three media, elastic and viscous: Fischer & Korzeniewski 2011's viscosity effect).
@@ -113,7 +113,7 @@ GROUPS = {
     # both: the cell of configs/rbc-ektacytometry.yaml (split in two as viscous), its mesh error at 10 Pa over kt 10
     # at levels 2 and 3, and settled at level 3
     "viscous_oblate": _long(stresses=(1.0, 3.0, 10.0, 30.0, 50.0), membrane_viscosity=TTS_MU_S, stress_free=OBLATE),
-    "viscous_oblate_low": _long(stresses=(0.3,), membrane_viscosity=TTS_MU_S, stress_free=OBLATE),
+    "viscous_oblate_low": _long(stresses=(0.1, 0.3), membrane_viscosity=TTS_MU_S, stress_free=OBLATE),
     "viscous_oblate_mesh2": _long(stresses=(10.0,), membrane_viscosity=TTS_MU_S, stress_free=OBLATE, t_end=T_END),
     "viscous_oblate_mesh3": _long(stresses=(10.0,), membrane_viscosity=TTS_MU_S, stress_free=OBLATE, t_end=T_END,
                                   level=3),
