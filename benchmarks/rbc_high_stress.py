@@ -82,6 +82,7 @@ class Group(NamedTuple):
     t_end: float = T_END
     outline: bool = False  # the outline seen along the gradient, as the ektacytometer's laser sees it
     area_tolerance: float | None = None  # None: membrane.area_tolerance's default (2 %)
+    viscosity: float = VISCOSITY_MPAS  # the medium's, mPa s
 
 
 def _long(**fields) -> Group:
@@ -89,7 +90,7 @@ def _long(**fields) -> Group:
     return Group(**{"skalak_c": "auto", "level": 2, "t_end": LONG_KT, "outline": True, **fields})
 
 
-#: every group but `media` and `fk2011` (their own functions below)
+#: one group each
 GROUPS = {
     "c10": Group(10.0, 2, STRESSES_PA), "c100": Group(100.0, 2, STRESSES_PA), "c1000": Group(1000.0, 2, STRESSES_PA),
     "level3": Group(1000.0, 3, LEVEL3_STRESSES_PA),
@@ -118,6 +119,24 @@ GROUPS = {
     "viscous_oblate_mesh3": _long(stresses=(10.0,), membrane_viscosity=TTS_MU_S, stress_free=OBLATE, t_end=T_END,
                                   level=3),
     "viscous_oblate3": _long(stresses=(10.0,), membrane_viscosity=TTS_MU_S, stress_free=OBLATE, level=3),
+}
+
+
+#: the configuration as it ships in the other media of item 4 (10 and 100 mPa s: λ 0.6 and 0.06) at the ends of
+#: the stress range, level 2; and what the stop at 100 mPa s, 50 Pa takes: (viscosity, stress, level, area_tolerance)
+MEDIA_CASES = ((10.0, 0.1, 2, None), (10.0, 50.0, 2, None), (100.0, 0.1, 2, None), (100.0, 10.0, 2, None),
+               (100.0, 50.0, 2, None), (100.0, 50.0, 2, 0.01), (100.0, 50.0, 3, None))
+#: Fischer & Korzeniewski (2011): at 20-70 mPa s a red cell's elongation is not a function of the shear stress
+#: alone, it grows with the medium's viscosity at a given stress (it scales with η0^s k, s from 2 at 20 mPa s to 1
+#: at 70). The cell at one stress in three media, with and without the membrane's viscosity: (stress, media)
+FK2011_STRESS_PA, FK2011_MEDIA_MPAS = 3.0, (10.0, 30.0, 100.0)
+#: the names that stand for several groups
+GROUP_SETS = {
+    "media": tuple(Group("auto", level, (stress,), area_tolerance=tolerance, viscosity=eta)
+                   for eta, stress, level, tolerance in MEDIA_CASES),
+    # its rows in 30 mPa s are those of groups auto_long and viscous
+    "fk2011": tuple(_long(stresses=(FK2011_STRESS_PA,), viscosity=eta, membrane_viscosity=mu_s)
+                    for eta in FK2011_MEDIA_MPAS for mu_s in (0.0, TTS_MU_S)),
 }
 
 
@@ -224,31 +243,32 @@ def run(groups: list[str]) -> None:
 
     apply_policy(1)
     rows = load()
-    if "media" in groups:
-        rows = run_media(rows)
-    if "fk2011" in groups:
-        rows = run_fk2011(rows)
-    for name in (g for g in groups if g not in ("media", "fk2011")):
-        group = GROUPS[name]
-        tag = group.stress_free[0] if group.stress_free else None
+    for group in (g for name in groups for g in (GROUP_SETS[name] if name in GROUP_SETS else (GROUPS[name],))):
         for stress in group.stresses:
-            if any(r["stress_Pa"] == stress and _in_30(r) and r.get("stress_free") == tag and r["level"] == group.level
-                   and r.get("membrane_viscosity_N_s_m", 0.0) == group.membrane_viscosity
-                   and r.get("t_end", T_END) == group.t_end
-                   and r.get("area_tolerance", 0.02) == (group.area_tolerance or 0.02)
-                   and (r.get("skalak_c_auto", False) if group.skalak_c == "auto" else
-                        r["skalak_c"] == group.skalak_c and not r.get("skalak_c_auto"))
-                   and r.get("shear_modulus_uN_m", 2.5) == (group.shear_modulus or 2.5)
-                   and r.get("outline", False) == group.outline
-                   for r in rows):
+            if any(_matches(r, group, stress) for r in rows):
                 continue
             rows = save(run_one(stress, group.skalak_c, group.level, group.shear_modulus, group.outline,
-                                group.stress_free, area_tolerance=group.area_tolerance,
-                                membrane_viscosity=group.membrane_viscosity, t_end=group.t_end))
+                                group.stress_free, group.viscosity, group.area_tolerance, group.membrane_viscosity,
+                                group.t_end))
             r = rows[-1]
-            print(f"{stress:g} Pa C {r['skalak_c']:g} L{group.level}: {r['status']} at kt {r['t']:.3g}, "
+            print(f"{stress:g} Pa in {group.viscosity:g} mPa s C {r['skalak_c']:g} L{group.level}: {r['status']} at kt "
+                  f"{r['t']:.3g}, "
                   f"EI {r['EI']:.3f}, area {100 * r['area_change_max']:.1f} %, {r['wall_time_s']:.0f} s", flush=True)
     report()
+
+
+def _matches(row: dict, group: Group, stress: float) -> bool:
+    """Whether `row` is `group`'s run at `stress` (a run already made is not made again)."""
+    return (row["stress_Pa"] == stress and row.get("viscosity_mPa_s", VISCOSITY_MPAS) == group.viscosity
+            and row["level"] == group.level
+            and row.get("stress_free") == (group.stress_free[0] if group.stress_free else None)
+            and row.get("membrane_viscosity_N_s_m", 0.0) == group.membrane_viscosity
+            and row.get("t_end", T_END) == group.t_end
+            and row.get("area_tolerance", 0.02) == (group.area_tolerance or 0.02)
+            and (row.get("skalak_c_auto", False) if group.skalak_c == "auto" else
+                 row["skalak_c"] == group.skalak_c and not row.get("skalak_c_auto"))
+            and row.get("shear_modulus_uN_m", 2.5) == (group.shear_modulus or 2.5)
+            and row.get("outline", False) == group.outline)
 
 
 def shipped(row: dict, t_end: float = T_END) -> bool:
@@ -269,54 +289,11 @@ def _in_30(row: dict) -> bool:
     return row.get("viscosity_mPa_s", VISCOSITY_MPAS) == VISCOSITY_MPAS
 
 
-#: the configuration as it ships in the other media of item 4 (10 and 100 mPa s: λ 0.6 and 0.06) at the ends of
-#: the stress range, level 2; and what the stop at 100 mPa s, 50 Pa takes: (viscosity, stress, level, area_tolerance)
-MEDIA_CASES = ((10.0, 0.1, 2, None), (10.0, 50.0, 2, None), (100.0, 0.1, 2, None), (100.0, 10.0, 2, None),
-               (100.0, 50.0, 2, None), (100.0, 50.0, 2, 0.01), (100.0, 50.0, 3, None))
-
-
-def run_media(rows: list[dict]) -> list[dict]:
-    """Group `media`: MEDIA_CASES, resumable as the others."""
-    for eta, stress, level, tolerance in MEDIA_CASES:
-        if any(r.get("viscosity_mPa_s") == eta and r["stress_Pa"] == stress and r["level"] == level
-               and r.get("skalak_c_auto") and r["area_tolerance"] == (tolerance or 0.02) for r in rows):
-            continue
-        rows = save(run_one(stress, "auto", level, viscosity=eta, area_tolerance=tolerance))
-        r = rows[-1]
-        print(f"{eta:g} mPa s, {stress:g} Pa, L{level}, tolerance {r['area_tolerance']:g}: {r['status']} at kt "
-              f"{r['t']:.3g}, area {100 * r['area_change_max']:.2f} %, {r['wall_time_s']:.0f} s", flush=True)
-    return rows
-
-
-#: Fischer & Korzeniewski (2011): at 20-70 mPa s a red cell's elongation is not a function of the shear stress
-#: alone, it grows with the medium's viscosity at a given stress (it scales with η0^s k, s from 2 at 20 mPa s to 1
-#: at 70). The cell at one stress in three media, with and without the membrane's viscosity: (stress, media)
-FK2011_STRESS_PA, FK2011_MEDIA_MPAS = 3.0, (10.0, 30.0, 100.0)
-
-
-def run_fk2011(rows: list[dict]) -> list[dict]:
-    """Group `fk2011`: the cell at FK2011_STRESS_PA in FK2011_MEDIA_MPAS, elastic and with the membrane viscosity
-    of group `viscous` (its rows in 30 mPa s are those of groups `auto` and `viscous`); resumable as the others."""
-    for eta in FK2011_MEDIA_MPAS:
-        for mu_s in (0.0, TTS_MU_S):
-            if any(r.get("viscosity_mPa_s", VISCOSITY_MPAS) == eta and r["stress_Pa"] == FK2011_STRESS_PA
-                   and r["level"] == 2 and r.get("skalak_c_auto") and r.get("outline") and not r.get("stress_free")
-                   and r.get("membrane_viscosity_N_s_m", 0.0) == mu_s and r["area_tolerance"] == 0.02
-                   and r.get("t_end", T_END) == LONG_KT for r in rows):
-                continue
-            rows = save({**run_one(FK2011_STRESS_PA, "auto", 2, outline=True, viscosity=eta,
-                                   membrane_viscosity=mu_s, t_end=LONG_KT), "group": "fk2011"})
-            r = rows[-1]
-            print(f"{eta:g} mPa s, {FK2011_STRESS_PA:g} Pa, mu_s {mu_s:g}: {r['status']} at kt {r['t']:.3g}, "
-                  f"EI outline {r['EI_outline']:.3f}, {r['wall_time_s']:.0f} s", flush=True)
-    return rows
-
-
 def _fk2011_lines(rows: list[dict]) -> list[str]:
     pick = {(r.get("viscosity_mPa_s", VISCOSITY_MPAS), r.get("membrane_viscosity_N_s_m", 0.0)): r for r in rows
             if r["stress_Pa"] == FK2011_STRESS_PA and r["level"] == 2 and r.get("skalak_c_auto") and r.get("outline")
             and not r.get("stress_free") and r["area_tolerance"] == 0.02 and r.get("t_end", T_END) == LONG_KT}
-    if not any(r.get("group") == "fk2011" for r in pick.values()):
+    if not any(eta != VISCOSITY_MPAS for eta, _ in pick):
         return []
     lines = ["", f"One stress ({FK2011_STRESS_PA:g} Pa) in three media (group `fk2011`; the cytoplasm's 6 mPa s, level 2): "
              "the outline's EI with the elastic membrane and with the viscous one (μ_s "
@@ -335,7 +312,7 @@ def _fk2011_lines(rows: list[dict]) -> list[str]:
 
 
 def _media_lines(rows: list[dict]) -> list[str]:
-    media = [r for r in rows if not _in_30(r) and r.get("group") != "fk2011"]
+    media = [r for r in rows if not _in_30(r) and r.get("t_end", T_END) == T_END]
     if not media:
         return []
     lines = ["", "The configuration as it ships in the other media (group `media`: 10 and 100 mPa s, the cytoplasm's "
@@ -583,19 +560,19 @@ def figure(rows: list[dict]) -> None:
     ax.errorbar(d["shear_stress_Pa"], d["elongation_index"], yerr=d["elongation_index_err_pm"], fmt="ko", ms=3,
                 capsize=2, label="healthy cells, ektacytometry (benchmarks/data)")
     level2 = [r for r in rows if r["level"] == 2 and "EI_outline" in r]
-    for pick, style, name in (
-            (lambda r: shipped(r, LONG_KT), "s-", f"capsim, elastic membrane, kt {LONG_KT:g} (± SD: it swings)"),
+    for pick, style, name, with_sd in (
+            (lambda r: shipped(r, LONG_KT), "s-", f"capsim, elastic membrane, kt {LONG_KT:g} (± SD: it swings)", True),
             (lambda r: _in_30(r) and r.get("membrane_viscosity_N_s_m") == TTS_MU_S
              and not r.get("stress_free"), "o-",
-             f"capsim, membrane viscosity {TTS_MU_S:.3g} N s/m, kt {LONG_KT:g}"),
+             f"capsim, membrane viscosity {TTS_MU_S:.3g} N s/m, kt {LONG_KT:g}", True),
             (lambda r: _in_30(r) and r.get("membrane_viscosity_N_s_m") == TTS_MU_S
              and r.get("stress_free") == "oblate 0.9" and r.get("t_end") == LONG_KT, "D-",
-             f"capsim, the same, stress-free oblate 0.9 (configs/rbc-ektacytometry.yaml), kt {LONG_KT:g}"),
-            (lambda r: shipped(r), "x:", f"capsim, elastic, kt {T_END:g} (not settled: as reported before)")):
+             f"capsim, the same, stress-free oblate 0.9 (configs/rbc-ektacytometry.yaml), kt {LONG_KT:g}", True),
+            (lambda r: shipped(r), "x:", f"capsim, elastic, kt {T_END:g} (not settled: as reported before)", False)):
         pts = sorted((r["stress_Pa"], r["EI_outline"], r["EI_outline_sd"]) for r in level2 if pick(r))
         if pts:
             x, y, sd = map(np.array, zip(*pts))
-            ax.errorbar(x, y, yerr=None if style == "x:" else sd, fmt=style, mfc="none", capsize=2, label=name)
+            ax.errorbar(x, y, yerr=sd if with_sd else None, fmt=style, mfc="none", capsize=2, label=name)
     ax.set_xscale("log")
     ax.set_xlabel("shear stress τ = μk (Pa), 30 mPa s")
     ax.set_ylabel("elongation index (L − W)/(L + W) of the outline")
@@ -607,6 +584,6 @@ def figure(rows: list[dict]) -> None:
 
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "run":
-        run(sys.argv[2:] or [*GROUPS, "media", "fk2011"])
+        run(sys.argv[2:] or [*GROUPS, *GROUP_SETS])
     else:
         report()
