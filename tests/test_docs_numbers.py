@@ -106,8 +106,13 @@ def _tts():
     return tran_son_tay
 
 
+def _percent(value) -> str:
+    """A percentage as the docs write it: a sign, the minus sign U+2212."""
+    return f"{value:+.0f}".replace("-", "−")
+
+
 def _signed(values) -> str:
-    return ", ".join(f"{v:+.0f}".replace("-", "−") for v in values[:-1]) + f" and {values[-1]:+.0f}".replace("-", "−")
+    return ", ".join(_percent(v) for v in values[:-1]) + f" and {_percent(values[-1])}"
 
 
 def test_fischers_own_set_is_within_fifteen_percent_as_validation_says():
@@ -176,13 +181,9 @@ def test_the_shipped_red_cells_elongation_index_is_as_validation_says():
     assert f"(level 2; {level3:+d} % at 1 Pa at level 3)" in text
 
 
-def _percents(values) -> list[str]:
-    """Percentages as the docs write them: a sign, the minus sign U+2212."""
-    return [f"{round(v):+d}".replace("-", "\u2212") for v in values]
-
-
-def _off(module, rows: dict, stresses) -> list[str]:
-    return _percents(100 * (rows[s]["EI_outline"] / module.measured_ei(s) - 1) for s in stresses)
+def _off(module, rows: dict, stresses) -> list[float]:
+    """The outline's EI against the curve at each stress, in per cent."""
+    return [100 * (rows[s]["EI_outline"] / module.measured_ei(s) - 1) for s in stresses]
 
 
 def test_the_settled_red_cell_is_as_validation_says():
@@ -194,7 +195,7 @@ def test_the_settled_red_cell_is_as_validation_says():
     four = (1.0, 3.0, 10.0, 30.0)
     assert all(long[s]["status"] == "completed" and abs(long[s]["EI_outline_drift"]) <= 0.005 for s in four)
     off = _off(module, long, four)
-    assert f"**{', '.join(off[:-1])} and {off[-1]} %** off the curve at 1, 3, 10 and 30 Pa" in text
+    assert f"**{_signed(off)} %** off the curve at 1, 3, 10 and 30 Pa" in text
     eis = ", ".join(f"{long[s]['EI_outline']:.3f}" for s in four[:-1])
     assert f"(EI {eis} and {long[30.0]['EI_outline']:.3f})" in text
     assert f"at 0.3 Pa its mean EI is {long[0.3]['EI_outline']:.3f}".replace("-", "\u2212") in text
@@ -225,7 +226,7 @@ def test_the_viscous_red_cell_is_as_validation_says():
                for s in module.AUTO_STRESSES_PA)
     five = (1.0, 3.0, 10.0, 30.0, 50.0)
     off = _off(module, viscous, five)
-    assert f"**{', '.join(off[:-1])} and {off[-1]} %** off the curve at 1, 3, 10, 30 and 50 Pa" in text
+    assert f"**{_signed(off)} %** off the curve at 1, 3, 10, 30 and 50 Pa" in text
     assert all(abs(viscous[s]["EI_outline"] / module.measured_ei(s) - 1) <= 0.15 for s in five[1:])
     fk = {(r.get("viscosity_mPa_s", 30.0), r.get("membrane_viscosity_N_s_m", 0.0)): r for r in rows
           if r["stress_Pa"] == 3.0 and r["level"] == 2 and r.get("t_end") == module.LONG_KT
@@ -236,7 +237,7 @@ def test_the_viscous_red_cell_is_as_validation_says():
         assert eis == sorted(eis)  # the elongation grows with the medium's viscosity at a given stress
         assert f"{eis[0]:.3f}, {eis[1]:.3f} and {eis[2]:.3f} with the {name}" in text
     fischer = next(r for r in rows if r.get("membrane_viscosity_N_s_m") == module.FISCHER_MU_S)
-    off = _percents([100 * (fischer["EI_outline"] / module.measured_ei(3.0) - 1)])[0]
+    off = _percent(100 * (fischer["EI_outline"] / module.measured_ei(3.0) - 1))
     assert f"takes the EI at 3 Pa to {fischer['EI_outline']:.3f}, **{off} %**" in text
 
 
@@ -251,9 +252,9 @@ def test_the_settled_stress_free_shape_is_as_validation_says():
     assert oblate[1.0]["EI_outline_sd"] < disk[1.0]["EI_outline_sd"] / 2
     assert (f"the disk's outline swings by ±{disk[1.0]['EI_outline_sd']:.3f} about {disk[1.0]['EI_outline']:.3f}, "
             f"the oblate one's by ±{oblate[1.0]['EI_outline_sd']:.3f} about {oblate[1.0]['EI_outline']:.3f}, "
-            f"**{_off(module, oblate, (1.0,))[0]} %** off the curve") in text
+            f"**{_percent(_off(module, oblate, (1.0,))[0])} %** off the curve") in text
     off = _off(module, oblate, (3.0, 10.0))
-    assert f"longer than the disk's, {off[0]} and {off[1]} % off the curve" in text
+    assert f"longer than the disk's, {_signed(off)} % off the curve" in text
 
 
 def test_the_ektacytometry_red_cell_is_within_fifteen_percent_as_validation_says():
@@ -269,8 +270,8 @@ def test_the_ektacytometry_red_cell_is_within_fifteen_percent_as_validation_says
     assert all(cell[s]["status"] == "completed" and cell[s]["t"] == module.LONG_KT for s in (0.1, 0.3, *five))
     assert all(abs(cell[s]["EI_outline"] / module.measured_ei(s) - 1) <= 0.15 for s in five)
     off = _off(module, cell, five)
-    assert f"**{', '.join(off[:-1])} and {off[-1]} %** off the curve at 1, 3, 10, 30 and 50 Pa" in text
-    low = _off(module, cell, (0.3,))[0]
+    assert f"**{_signed(off)} %** off the curve at 1, 3, 10, 30 and 50 Pa" in text
+    low = _percent(_off(module, cell, (0.3,))[0])
     assert f"({low} % at 0.3 Pa, {cell[0.3]['EI_outline']:.3f} against {module.measured_ei(0.3):.3f}" in text
     assert f"the area within {100 * max(r['area_change_max'] for r in cell.values()):.2f} %" in text
     mesh = {r["level"]: r for r in rows if r.get("stress_free") == "oblate 0.9" and r["stress_Pa"] == 10.0
