@@ -137,7 +137,8 @@ bench-fit: venv
 
 # the red cell at 0.1-50 Pa in 30 mPa s (issue 55): the area modulus C = 10, 100, 1000 at level 2, C = 1000 at
 # level 3, the configuration as it ships (skalak_c auto) at levels 2 and 3 and in 10 and 100 mPa s, settled (kt 100),
-# with a viscous membrane, and what moves its elongation index (about 2.5 h on one core; rows in
+# with a viscous membrane, and what moves its elongation index (the stored rows took 3.1 h, partly two or three
+# runs on two cores; about 4 h on one core with viscous_oblate3, not stored; rows in
 # benchmarks/rbc_high_stress.json are kept, GROUPS=... runs those only): writes benchmarks/rbc_high_stress.md and
 # docs/figures/rbc_ektacytometry.png
 .PHONY: bench-rbc-stress
